@@ -1,0 +1,214 @@
+/* drench core: calling convention, status and errors, small math by value, logging and progress,
+ * arena, content hashing, timers, parallel-for and a reproducible rng.
+ *
+ * Calling convention (every module follows it):
+ *   - inputs first, then in/out, then outputs, then `DrError *err` last; `const` on input pointers;
+ *   - functions that can fail on data return DrStatus (DR_OK = 0, positive = warning such as
+ *     "not converged", negative = fatal) and fill `err` with what happened and what would fix it;
+ *   - misuse by our own code is an assert (kept in release builds);
+ *   - `dr_x_create(desc, &x, err)` / `dr_x_destroy(&x)`: destroy frees and NULLs, NULL is a no-op.
+ * Thread safety: everything here is safe to call from several threads except the logger's
+ * configuration (dr_log_set_level) and DrArena/DrRng objects, which belong to one thread. */
+#ifndef DR_CORE_H
+#define DR_CORE_H
+
+#include <assert.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+
+#define DR_VERSION "0.1.0"
+
+#if defined(__GNUC__)
+#define DR_NODISCARD __attribute__((warn_unused_result))
+#define DR_PRINTF(a, b) __attribute__((format(printf, a, b)))
+#else
+#define DR_NODISCARD
+#define DR_PRINTF(a, b)
+#endif
+
+/* ---- status and errors ------------------------------------------------------------------ */
+
+typedef enum DrStatus {
+    DR_OK = 0,
+    DR_WARN_NOT_CONVERGED = 1, /* an iterative solve stopped at its limit; result usable */
+    DR_ERR_RUNTIME = -1,       /* solver diverged beyond recovery, unexpected library failure */
+    DR_ERR_INPUT = -2,         /* bad scene, asset or argument: the user can fix it */
+    DR_ERR_IO = -3,            /* file could not be read or written (disk full, permissions) */
+    DR_ERR_NOMEM = -4,         /* allocation failed or a size overflowed */
+} DrStatus;
+
+typedef struct DrError {
+    DrStatus status;
+    char message[2048]; /* complete sentence(s): what happened and what would fix it */
+    char file[1024];    /* file the problem is in, "" if none */
+    int line, col;      /* 1-based position in `file`, 0 if unknown */
+} DrError;
+
+/* Fills err (if non-NULL) and returns `status`. `file` may be NULL. */
+DrStatus dr_error_set(DrError *err, DrStatus status, const char *file, int line, int col,
+                      const char *fmt, ...) DR_PRINTF(6, 7);
+void dr_error_clear(DrError *err);
+/* "file:line:col: error: message" (or "error: message"), one line, no trailing newline. */
+void dr_error_format(const DrError *err, char *buf, size_t size);
+/* Prints the formatted error on stderr prefixed by the program name. */
+void dr_error_print(const char *prog, const DrError *err);
+/* Exit code of DESIGN §1 for a status: 0 ok or warning, 2 bad input, 1 everything else. */
+int dr_exit_code(DrStatus status);
+const char *dr_status_name(DrStatus status);
+
+#define DR_FAILED(s) ((s) < 0)
+/* Evaluates expr; returns its status from the enclosing function if fatal. */
+#define DR_TRY(expr)                                                                         \
+    do {                                                                                     \
+        DrStatus dr_try_status_ = (expr);                                                    \
+        if (dr_try_status_ < 0) return dr_try_status_;                                       \
+    } while (0)
+
+/* ---- allocation with overflow checks -------------------------------------------------- */
+
+/* calloc(count, size) that fails with DR_ERR_NOMEM on overflow or exhaustion. */
+DR_NODISCARD DrStatus dr_calloc(size_t count, size_t size, void *out_ptr, DrError *err);
+/* realloc to count*size bytes; on failure *ptr is kept and DR_ERR_NOMEM returned. */
+DR_NODISCARD DrStatus dr_realloc(size_t count, size_t size, void *inout_ptr, DrError *err);
+bool dr_mul_overflows(size_t a, size_t b, size_t *out);
+char *dr_strdup(const char *s); /* NULL on NULL or exhaustion */
+
+/* ---- small math by value --------------------------------------------------------------- */
+
+typedef struct DrVec3 { double x, y, z; } DrVec3;
+typedef struct DrMat3 { double m[3][3]; } DrMat3; /* row-major: m[row][col] */
+
+static inline DrVec3 dr_v3(double x, double y, double z) { DrVec3 r = {x, y, z}; return r; }
+static inline DrVec3 dr_v3_add(DrVec3 a, DrVec3 b) { return dr_v3(a.x + b.x, a.y + b.y, a.z + b.z); }
+static inline DrVec3 dr_v3_sub(DrVec3 a, DrVec3 b) { return dr_v3(a.x - b.x, a.y - b.y, a.z - b.z); }
+static inline DrVec3 dr_v3_scale(DrVec3 a, double s) { return dr_v3(a.x * s, a.y * s, a.z * s); }
+static inline DrVec3 dr_v3_mul(DrVec3 a, DrVec3 b) { return dr_v3(a.x * b.x, a.y * b.y, a.z * b.z); }
+static inline double dr_v3_dot(DrVec3 a, DrVec3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+static inline DrVec3 dr_v3_cross(DrVec3 a, DrVec3 b)
+{
+    return dr_v3(a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x);
+}
+static inline double dr_v3_norm(DrVec3 a) { return sqrt(dr_v3_dot(a, a)); }
+static inline DrVec3 dr_v3_min(DrVec3 a, DrVec3 b) { return dr_v3(fmin(a.x, b.x), fmin(a.y, b.y), fmin(a.z, b.z)); }
+static inline DrVec3 dr_v3_max(DrVec3 a, DrVec3 b) { return dr_v3(fmax(a.x, b.x), fmax(a.y, b.y), fmax(a.z, b.z)); }
+static inline double dr_v3_get(DrVec3 a, int i) { return i == 0 ? a.x : (i == 1 ? a.y : a.z); }
+static inline bool dr_v3_isfinite(DrVec3 a) { return isfinite(a.x) && isfinite(a.y) && isfinite(a.z); }
+static inline DrVec3 dr_v3_normalize(DrVec3 a)
+{
+    double n = dr_v3_norm(a);
+    return n > 0.0 ? dr_v3_scale(a, 1.0 / n) : dr_v3(0, 0, 0);
+}
+
+DrMat3 dr_m3_identity(void);
+DrMat3 dr_m3_mul(DrMat3 a, DrMat3 b);
+DrMat3 dr_m3_transpose(DrMat3 a);
+DrVec3 dr_m3_apply(DrMat3 a, DrVec3 v);
+/* Rotation from XYZ Euler angles in radians: R = Rz * Ry * Rx (x applied first). */
+DrMat3 dr_m3_from_euler_xyz(DrVec3 radians);
+
+/* A rigid transform x ↦ R x + t. */
+typedef struct DrXform { DrMat3 R; DrVec3 t; } DrXform;
+DrXform dr_xform_identity(void);
+DrVec3 dr_xform_apply(DrXform x, DrVec3 p);
+DrVec3 dr_xform_apply_inverse(DrXform x, DrVec3 p); /* Rᵀ (p − t) */
+
+#define DR_PI 3.14159265358979323846
+
+/* ---- triangle meshes (shared by io, vdb, grid) ------------------------------------------ */
+
+typedef struct DrTriMesh {
+    int nv, nt;
+    double *v; /* 3*nv vertex coordinates, metres */
+    int *tri;  /* 3*nt vertex indices, counter-clockwise seen from outside */
+    double *n; /* 3*nv per-vertex normals or NULL */
+} DrTriMesh;
+void dr_trimesh_free(DrTriMesh *m); /* frees the arrays and zeroes the struct */
+/* Signed volume by the divergence theorem (positive for outward CCW winding). */
+double dr_trimesh_volume(const DrTriMesh *m);
+/* Axis-aligned bounds; returns false for an empty mesh. */
+bool dr_trimesh_bounds(const DrTriMesh *m, DrVec3 *lo, DrVec3 *hi);
+/* True when every edge is shared by exactly two triangles with opposite orientation. */
+bool dr_trimesh_is_closed(const DrTriMesh *m);
+
+/* ---- logging and progress ---------------------------------------------------------------- */
+
+typedef enum DrLogLevel { DR_LOG_ERROR = 0, DR_LOG_WARN, DR_LOG_INFO, DR_LOG_DEBUG } DrLogLevel;
+void dr_log_set_level(DrLogLevel level); /* default INFO; DRENCH_LOG=debug|info|warn|error */
+DrLogLevel dr_log_level(void);
+void dr_log(DrLogLevel level, const char *fmt, ...) DR_PRINTF(2, 3);
+#define dr_log_error(...) dr_log(DR_LOG_ERROR, __VA_ARGS__)
+#define dr_log_warn(...) dr_log(DR_LOG_WARN, __VA_ARGS__)
+#define dr_log_info(...) dr_log(DR_LOG_INFO, __VA_ARGS__)
+#define dr_log_debug(...) dr_log(DR_LOG_DEBUG, __VA_ARGS__)
+
+/* Progress of `total` units of work. On a terminal (stderr is a tty) a bar with rate and ETA
+ * redrawn in place; otherwise one line per completed unit with `detail`. Either way an
+ * `ALF_PROGRESS NN%` line on stdout when the percentage changes (farm managers read it). */
+typedef struct DrProgress {
+    const char *label;
+    long total, done;
+    double t_start;
+    int last_percent;
+    bool tty;
+} DrProgress;
+void dr_progress_begin(DrProgress *p, const char *label, long total);
+/* Marks one more unit done; `detail` (may be NULL) is printed on the per-unit line. */
+void dr_progress_step(DrProgress *p, const char *detail);
+void dr_progress_end(DrProgress *p);
+/* Seconds left at the current rate (0 when nothing is done yet). */
+double dr_progress_eta(const DrProgress *p);
+
+/* ---- arena --------------------------------------------------------------------------------- */
+
+/* A bump allocator for per-step scratch: allocations are 64-byte aligned, freed all at once by
+ * dr_arena_reset. Grows by chaining blocks; never moves what it handed out. */
+typedef struct DrArena DrArena;
+DR_NODISCARD DrStatus dr_arena_create(size_t block_bytes, DrArena **out, DrError *err);
+void dr_arena_destroy(DrArena **arena);
+/* Zeroed memory or NULL on exhaustion/overflow. */
+void *dr_arena_alloc(DrArena *arena, size_t count, size_t size);
+void dr_arena_reset(DrArena *arena);
+size_t dr_arena_used(const DrArena *arena);
+
+/* ---- content hashing (XXH3-128 from libxxhash) ---------------------------------------------- */
+
+typedef struct DrHash { uint64_t hi, lo; } DrHash;
+typedef struct DrHasher { void *state; } DrHasher;
+DrHash dr_hash_bytes(const void *data, size_t size);
+void dr_hasher_init(DrHasher *h);
+void dr_hasher_update(DrHasher *h, const void *data, size_t size);
+void dr_hasher_update_str(DrHasher *h, const char *s); /* includes the terminating NUL */
+DrHash dr_hasher_final(DrHasher *h);                      /* also frees the state */
+/* Hashes a file's bytes; DR_ERR_INPUT naming the file if it cannot be read. */
+DR_NODISCARD DrStatus dr_hash_file(const char *path, DrHash *out, DrError *err);
+/* 32 lowercase hex digits + NUL. */
+void dr_hash_hex(DrHash h, char out[33]);
+
+/* ---- timers ------------------------------------------------------------------------------ */
+
+double dr_time_now(void); /* monotonic seconds */
+
+/* ---- parallel for ------------------------------------------------------------------------ */
+
+/* Calls fn(begin, end, ctx) on disjoint ranges covering [0, count), in parallel over OpenMP
+ * threads with a static schedule (so the split is a function of count, grain and the thread
+ * count only). `grain` is the smallest range worth a thread. Reductions belong to the caller:
+ * write per-range partials and sum them in range order for bit-identical results. */
+typedef void (*DrRangeFn)(long begin, long end, void *ctx);
+void dr_parallel_for(long count, long grain, DrRangeFn fn, void *ctx);
+void dr_set_threads(int n); /* n <= 0: OpenMP's default */
+int dr_threads(void);
+
+/* ---- rng ------------------------------------------------------------------------------------ */
+
+/* xoshiro256** seeded by splitmix64; the whole state is 4 words so checkpoints can store it. */
+typedef struct DrRng { uint64_t s[4]; } DrRng;
+void dr_rng_seed(DrRng *rng, uint64_t seed);
+uint64_t dr_rng_next(DrRng *rng);
+double dr_rng_uniform(DrRng *rng); /* [0, 1) with 53 random bits */
+
+#endif

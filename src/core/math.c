@@ -1,0 +1,118 @@
+/* Small 3×3 math, rigid transforms and triangle-mesh measures. */
+#include "core.h"
+
+#include <stdlib.h>
+#include <string.h>
+
+DrMat3 dr_m3_identity(void)
+{
+    DrMat3 r = {{{1, 0, 0}, {0, 1, 0}, {0, 0, 1}}};
+    return r;
+}
+
+DrMat3 dr_m3_mul(DrMat3 a, DrMat3 b)
+{
+    DrMat3 r;
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++) r.m[i][j] = a.m[i][0] * b.m[0][j] + a.m[i][1] * b.m[1][j] + a.m[i][2] * b.m[2][j];
+    return r;
+}
+
+DrMat3 dr_m3_transpose(DrMat3 a)
+{
+    DrMat3 r;
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++) r.m[i][j] = a.m[j][i];
+    return r;
+}
+
+DrVec3 dr_m3_apply(DrMat3 a, DrVec3 v)
+{
+    return dr_v3(a.m[0][0] * v.x + a.m[0][1] * v.y + a.m[0][2] * v.z,
+                 a.m[1][0] * v.x + a.m[1][1] * v.y + a.m[1][2] * v.z,
+                 a.m[2][0] * v.x + a.m[2][1] * v.y + a.m[2][2] * v.z);
+}
+
+DrMat3 dr_m3_from_euler_xyz(DrVec3 r)
+{
+    double cx = cos(r.x), sx = sin(r.x), cy = cos(r.y), sy = sin(r.y), cz = cos(r.z), sz = sin(r.z);
+    DrMat3 rx = {{{1, 0, 0}, {0, cx, -sx}, {0, sx, cx}}};
+    DrMat3 ry = {{{cy, 0, sy}, {0, 1, 0}, {-sy, 0, cy}}};
+    DrMat3 rz = {{{cz, -sz, 0}, {sz, cz, 0}, {0, 0, 1}}};
+    return dr_m3_mul(rz, dr_m3_mul(ry, rx));
+}
+
+DrXform dr_xform_identity(void)
+{
+    DrXform x = {dr_m3_identity(), {0, 0, 0}};
+    return x;
+}
+
+DrVec3 dr_xform_apply(DrXform x, DrVec3 p) { return dr_v3_add(dr_m3_apply(x.R, p), x.t); }
+
+DrVec3 dr_xform_apply_inverse(DrXform x, DrVec3 p)
+{
+    return dr_m3_apply(dr_m3_transpose(x.R), dr_v3_sub(p, x.t));
+}
+
+void dr_trimesh_free(DrTriMesh *m)
+{
+    if (!m) return;
+    free(m->v);
+    free(m->tri);
+    free(m->n);
+    memset(m, 0, sizeof *m);
+}
+
+double dr_trimesh_volume(const DrTriMesh *m)
+{
+    double vol = 0.0;
+    for (int t = 0; t < m->nt; t++) {
+        const double *a = m->v + 3 * m->tri[3 * t], *b = m->v + 3 * m->tri[3 * t + 1], *c = m->v + 3 * m->tri[3 * t + 2];
+        DrVec3 A = dr_v3(a[0], a[1], a[2]), B = dr_v3(b[0], b[1], b[2]), C = dr_v3(c[0], c[1], c[2]);
+        vol += dr_v3_dot(A, dr_v3_cross(B, C)) / 6.0;
+    }
+    return vol;
+}
+
+bool dr_trimesh_bounds(const DrTriMesh *m, DrVec3 *lo, DrVec3 *hi)
+{
+    if (m->nv <= 0) return false;
+    *lo = *hi = dr_v3(m->v[0], m->v[1], m->v[2]);
+    for (int i = 1; i < m->nv; i++) {
+        DrVec3 p = dr_v3(m->v[3 * i], m->v[3 * i + 1], m->v[3 * i + 2]);
+        *lo = dr_v3_min(*lo, p);
+        *hi = dr_v3_max(*hi, p);
+    }
+    return true;
+}
+
+static int edge_cmp(const void *a, const void *b)
+{
+    const int64_t x = *(const int64_t *)a, y = *(const int64_t *)b;
+    return (x > y) - (x < y);
+}
+
+bool dr_trimesh_is_closed(const DrTriMesh *m)
+{
+    if (m->nt <= 0) return false;
+    /* Each directed edge (a,b) must appear once and its reverse (b,a) once. */
+    size_t ne = 3 * (size_t)m->nt;
+    int64_t *e = malloc(ne * sizeof *e);
+    if (!e) return false;
+    for (int t = 0; t < m->nt; t++)
+        for (int k = 0; k < 3; k++) {
+            int64_t a = m->tri[3 * t + k], b = m->tri[3 * t + (k + 1) % 3];
+            e[3 * t + k] = a * (int64_t)m->nv + b;
+        }
+    qsort(e, ne, sizeof *e, edge_cmp);
+    bool ok = true;
+    for (size_t i = 0; i < ne && ok; i++) {
+        if (i + 1 < ne && e[i] == e[i + 1]) ok = false; /* duplicated directed edge */
+        int64_t a = e[i] / m->nv, b = e[i] % m->nv;
+        int64_t rev = b * (int64_t)m->nv + a;
+        if (!bsearch(&rev, e, ne, sizeof *e, edge_cmp)) ok = false;
+    }
+    free(e);
+    return ok;
+}

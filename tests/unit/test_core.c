@@ -1,0 +1,210 @@
+/* Unit tests of src/core: errors, checked allocation, math, meshes, arena, hashing, parallel-for, rng. */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "core/core.h"
+
+static void test_error_format_and_exit_codes(void **state)
+{
+    (void)state;
+    DrError err;
+    dr_error_clear(&err);
+    DrStatus s = dr_error_set(&err, DR_ERR_INPUT, "scene.json", 3, 7, "bad %s", "thing");
+    assert_int_equal(s, DR_ERR_INPUT);
+    char buf[256];
+    dr_error_format(&err, buf, sizeof buf);
+    assert_string_equal(buf, "scene.json:3:7: error: bad thing");
+    dr_error_set(&err, DR_ERR_IO, "a.h5", 0, 0, "disk full");
+    dr_error_format(&err, buf, sizeof buf);
+    assert_string_equal(buf, "a.h5: error: disk full");
+    assert_int_equal(dr_exit_code(DR_OK), 0);
+    assert_int_equal(dr_exit_code(DR_WARN_NOT_CONVERGED), 0);
+    assert_int_equal(dr_exit_code(DR_ERR_INPUT), 2);
+    assert_int_equal(dr_exit_code(DR_ERR_RUNTIME), 1);
+    assert_int_equal(dr_exit_code(DR_ERR_IO), 1);
+}
+
+static void test_checked_alloc(void **state)
+{
+    (void)state;
+    DrError err;
+    double *p = NULL;
+    assert_int_equal(dr_calloc(SIZE_MAX / 2, 16, &p, &err), DR_ERR_NOMEM);
+    assert_null(p);
+    assert_non_null(strstr(err.message, "overflows"));
+    assert_int_equal(dr_calloc(10, sizeof(double), &p, &err), DR_OK);
+    for (int i = 0; i < 10; i++) assert_true(p[i] == 0.0);
+    assert_int_equal(dr_realloc(20, sizeof(double), &p, &err), DR_OK);
+    double *keep = p;
+    assert_int_equal(dr_realloc(SIZE_MAX / 4, 8, &p, &err), DR_ERR_NOMEM);
+    assert_ptr_equal(p, keep); /* failed realloc keeps the old block */
+    free(p);
+}
+
+static void test_math_and_xform(void **state)
+{
+    (void)state;
+    DrVec3 a = dr_v3(1, 2, 3), b = dr_v3(-2, 0.5, 4);
+    DrVec3 c = dr_v3_cross(a, b);
+    assert_true(fabs(dr_v3_dot(c, a)) < 1e-14 && fabs(dr_v3_dot(c, b)) < 1e-14);
+    DrMat3 R = dr_m3_from_euler_xyz(dr_v3(0.3, -1.1, 2.0));
+    DrMat3 I = dr_m3_mul(R, dr_m3_transpose(R));
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++) assert_true(fabs(I.m[i][j] - (i == j)) < 1e-14);
+    /* rotation by 90 degrees about z maps x to y */
+    DrVec3 y = dr_m3_apply(dr_m3_from_euler_xyz(dr_v3(0, 0, DR_PI / 2)), dr_v3(1, 0, 0));
+    assert_true(fabs(y.x) < 1e-15 && fabs(y.y - 1) < 1e-15);
+    DrXform X = {R, dr_v3(0.5, -2, 3)};
+    DrVec3 p = dr_xform_apply_inverse(X, dr_xform_apply(X, a));
+    assert_true(dr_v3_norm(dr_v3_sub(p, a)) < 1e-14);
+}
+
+static DrTriMesh unit_cube(void)
+{
+    static const double v[] = {0, 0, 0, 1, 0, 0, 1, 1, 0, 0, 1, 0, 0, 0, 1, 1, 0, 1, 1, 1, 1, 0, 1, 1};
+    static const int t[] = {0, 2, 1, 0, 3, 2, 4, 5, 6, 4, 6, 7, 0, 1, 5, 0, 5, 4,
+                            1, 2, 6, 1, 6, 5, 2, 3, 7, 2, 7, 6, 3, 0, 4, 3, 4, 7};
+    DrTriMesh m = {8, 12, NULL, NULL, NULL};
+    m.v = malloc(sizeof v);
+    m.tri = malloc(sizeof t);
+    memcpy(m.v, v, sizeof v);
+    memcpy(m.tri, t, sizeof t);
+    return m;
+}
+
+static void test_trimesh_measures(void **state)
+{
+    (void)state;
+    DrTriMesh m = unit_cube();
+    assert_true(fabs(dr_trimesh_volume(&m) - 1.0) < 1e-14);
+    assert_true(dr_trimesh_is_closed(&m));
+    DrVec3 lo, hi;
+    assert_true(dr_trimesh_bounds(&m, &lo, &hi));
+    assert_true(lo.x == 0 && hi.z == 1);
+    m.nt = 11; /* a missing face opens the mesh */
+    assert_false(dr_trimesh_is_closed(&m));
+    m.nt = 12;
+    int tmp = m.tri[1]; /* flipping one triangle breaks consistent orientation */
+    m.tri[1] = m.tri[2];
+    m.tri[2] = tmp;
+    assert_false(dr_trimesh_is_closed(&m));
+    dr_trimesh_free(&m);
+    assert_null(m.v);
+    DrTriMesh empty = {0};
+    assert_false(dr_trimesh_is_closed(&empty));
+    assert_false(dr_trimesh_bounds(&empty, &lo, &hi));
+}
+
+static void test_arena(void **state)
+{
+    (void)state;
+    DrError err;
+    DrArena *a = NULL;
+    assert_int_equal(dr_arena_create(4096, &a, &err), DR_OK);
+    char *p = dr_arena_alloc(a, 100, 1);
+    double *q = dr_arena_alloc(a, 1000, sizeof(double)); /* larger than a block: own block */
+    assert_non_null(p);
+    assert_non_null(q);
+    assert_int_equal((uintptr_t)p % 64, 0);
+    assert_int_equal((uintptr_t)q % 64, 0);
+    for (int i = 0; i < 1000; i++) assert_true(q[i] == 0.0);
+    q[999] = 1;
+    assert_null(dr_arena_alloc(a, SIZE_MAX / 2, 4)); /* overflow refused */
+    size_t used = dr_arena_used(a);
+    assert_true(used >= 8000 + 100);
+    dr_arena_reset(a);
+    assert_int_equal(dr_arena_used(a), 0);
+    double *r = dr_arena_alloc(a, 1000, sizeof(double)); /* reuses a block, zeroed */
+    assert_true(r[999] == 0.0);
+    dr_arena_destroy(&a);
+    assert_null(a);
+    dr_arena_destroy(&a); /* NULL is a no-op */
+}
+
+static void test_hashing(void **state)
+{
+    (void)state;
+    DrHash h1 = dr_hash_bytes("drench", 6), h2 = dr_hash_bytes("drench", 6), h3 = dr_hash_bytes("drencH", 6);
+    assert_true(h1.hi == h2.hi && h1.lo == h2.lo);
+    assert_false(h1.hi == h3.hi && h1.lo == h3.lo);
+    DrHasher s;
+    dr_hasher_init(&s);
+    dr_hasher_update(&s, "dre", 3);
+    dr_hasher_update(&s, "nch", 3);
+    DrHash h4 = dr_hasher_final(&s); /* streaming equals one-shot */
+    assert_true(h4.hi == h1.hi && h4.lo == h1.lo);
+    char hex[33];
+    dr_hash_hex(h1, hex);
+    assert_int_equal(strlen(hex), 32);
+    char path[] = "/tmp/drench_hash_XXXXXX";
+    int fd = mkstemp(path);
+    assert_true(fd >= 0);
+    assert_int_equal(write(fd, "drench", 6), 6);
+    close(fd);
+    DrHash hf;
+    DrError err;
+    assert_int_equal(dr_hash_file(path, &hf, &err), DR_OK);
+    assert_true(hf.hi == h1.hi && hf.lo == h1.lo);
+    unlink(path);
+    assert_int_equal(dr_hash_file(path, &hf, &err), DR_ERR_INPUT);
+    assert_string_equal(err.file, path);
+}
+
+typedef struct { long *hits; } CoverCtx;
+static void cover(long b, long e, void *ctx)
+{
+    CoverCtx *c = ctx;
+    for (long i = b; i < e; i++) c->hits[i]++;
+}
+
+static void test_parallel_for_covers_once(void **state)
+{
+    (void)state;
+    for (int threads = 1; threads <= 2; threads++) {
+        dr_set_threads(threads);
+        for (long n = 0; n < 200; n += 37) {
+            long hits[200] = {0};
+            CoverCtx c = {hits};
+            dr_parallel_for(n, 1, cover, &c);
+            for (long i = 0; i < n; i++) assert_int_equal(hits[i], 1);
+        }
+    }
+    dr_set_threads(0);
+}
+
+static void test_rng(void **state)
+{
+    (void)state;
+    DrRng a, b;
+    dr_rng_seed(&a, 42);
+    dr_rng_seed(&b, 42);
+    double mean = 0;
+    for (int i = 0; i < 100000; i++) {
+        double x = dr_rng_uniform(&a);
+        assert_true(x >= 0 && x < 1);
+        assert_true(x == dr_rng_uniform(&b));
+        mean += x;
+    }
+    mean /= 100000;
+    /* standard error of the mean of U(0,1) over 1e5 samples is 9e-4: 5 sigma */
+    assert_true(fabs(mean - 0.5) < 5e-3);
+    DrRng c = a; /* the state is plain data: copying it continues the same sequence */
+    assert_true(dr_rng_next(&c) == dr_rng_next(&a));
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_error_format_and_exit_codes), cmocka_unit_test(test_checked_alloc),
+        cmocka_unit_test(test_math_and_xform),  cmocka_unit_test(test_trimesh_measures),
+        cmocka_unit_test(test_arena),           cmocka_unit_test(test_hashing),
+        cmocka_unit_test(test_parallel_for_covers_once), cmocka_unit_test(test_rng),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
