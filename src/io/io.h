@@ -1,0 +1,183 @@
+/* drench io: asset meshes through assimp, OBJ writing, atomic file writes, stage manifests,
+ * HDF5 caches (frames, checkpoints, precompute) and the content-addressed precompute cache.
+ *
+ * Atomic writes (DESIGN §4): every file is written to "NAME.tmp.<pid>", flushed to disk and renamed
+ * into place, so a crash or a kill never leaves a truncated file under NAME. A killed stage may leave
+ * "*.tmp.<pid>" files behind; dr_io_remove_stale_tmp clears those whose process is gone.
+ *
+ * Errors: a file the user can fix (missing asset, corrupt mesh, missing dataset) is DR_ERR_INPUT;
+ * a file that cannot be written or read back (disk full, permissions) is DR_ERR_IO. Either way
+ * err->file names the file and err->message what happened and what would fix it.
+ *
+ * Thread safety: the file functions are safe to call from several threads on different paths.
+ * Everything DrH5 (HDF5 1.10 serial) must be called from one thread only. */
+#ifndef DR_IO_H
+#define DR_IO_H
+
+#include "core/core.h"
+
+/* Buffer size that holds any path this module builds from a path of up to 4096 bytes. */
+#define DR_IO_PATH_MAX 4224
+
+/* ---- assets --------------------------------------------------------------------------------- */
+
+/* Loads OBJ, PLY, STL (anything assimp reads) into one triangle mesh `out` (caller frees with
+ * dr_trimesh_free). All meshes of the file are merged with the world transforms of the node
+ * hierarchy applied, polygons are triangulated, and vertices at bit-identical positions are joined
+ * into one (across meshes and across per-face normals or texture coordinates as well), so a closed
+ * surface comes out closed by index. Triangles that become degenerate by the joining (two equal
+ * corners) and primitives that are not triangles (points, lines) are dropped; unreferenced vertices
+ * are removed. Vertex order is the order of first use by the triangles. out->n holds per-vertex unit
+ * normals when the file has normals (the normalised sum of the file normals joined into the vertex;
+ * where those cancel or are zero, the normalised area-weighted sum of the adjacent face normals, and
+ * (0,0,0) only where even those cancel, as on a double-sided sheet), NULL otherwise.
+ * Units: the file's coordinates are taken as metres. Assimp (as packaged) keeps coordinates in single
+ * precision, so they come back rounded to float (relative 6e-8).
+ * Errors (DR_ERR_INPUT, err->file = path, *out left zeroed): file missing or unreadable; assimp failed
+ * (its message is included); a text OBJ holding binary bytes; no triangles; a non-finite vertex.
+ * Assimp's own logging is never enabled, so nothing is printed on stdout or stderr. */
+DR_NODISCARD DrStatus dr_io_load_mesh(const char *path, DrTriMesh *out, DrError *err);
+
+/* Writes `mesh` as an OBJ file atomically: optional header comment lines (each line of `comment`,
+ * split at '\n', prefixed by "# "; NULL for none), then "v x y z" lines, "vn x y z" lines when
+ * mesh->n is non-NULL, and "f a b c" (or "f a//a b//b c//c" with normals) lines with 1-based indices,
+ * counter-clockwise as stored. Numbers are printed with %.9g (about 1e-9 relative). An empty mesh
+ * gives a file with only the comment. A non-finite vertex or normal is DR_ERR_RUNTIME and nothing is
+ * written; a write failure is DR_ERR_IO naming the file, and neither path is left behind. */
+DR_NODISCARD DrStatus dr_io_write_obj(const char *path, const DrTriMesh *mesh, const char *comment,
+                                      DrError *err);
+
+/* ---- files ------------------------------------------------------------------------------------ */
+
+/* Writes "<final_path>.tmp.<pid>" into buf; asserts that it fits (size >= strlen(final_path) + 32
+ * always does). */
+void dr_io_tmp_path(const char *final_path, char *buf, size_t size);
+/* Makes a finished temporary file durable and visible: fsync(tmp), rename(tmp, final), fsync of the
+ * directory holding final. On failure returns DR_ERR_IO naming the file and removes tmp. */
+DR_NODISCARD DrStatus dr_io_commit(const char *tmp_path, const char *final_path, DrError *err);
+/* Writes `text` (without its NUL) to path through a temporary file and dr_io_commit. The directory
+ * must exist. DR_ERR_IO naming the file on failure; nothing is left behind. */
+DR_NODISCARD DrStatus dr_io_write_text_atomic(const char *path, const char *text, DrError *err);
+/* mkdir -p: creates dir and its missing parents (mode 0777 & ~umask). An existing directory is fine;
+ * an existing non-directory on the way or a failed mkdir is DR_ERR_IO naming it. */
+DR_NODISCARD DrStatus dr_io_mkdirs(const char *dir, DrError *err);
+/* Reads a whole file into *out (malloc'd, NUL-terminated; caller frees). A missing or unreadable
+ * file is DR_ERR_INPUT, a read error DR_ERR_IO, both naming the file; *out is NULL on failure. */
+DR_NODISCARD DrStatus dr_io_read_text(const char *path, char **out, DrError *err);
+/* Removes the regular files in dir named "*.tmp.<pid>" whose pid is not a running process (left by
+ * a killed stage). Files of running processes (including this one) are kept. Best effort: a missing
+ * dir or a file that cannot be removed is skipped silently (logged at debug level). */
+void dr_io_remove_stale_tmp(const char *dir);
+/* True when path exists (any file type). */
+bool dr_io_exists(const char *path);
+
+/* ---- manifests ----------------------------------------------------------------------------------
+ * <dir>/MANIFEST is text, one field a line: "key <hex>", "stage <name>", "time <ISO 8601 UTC>",
+ * "drench_version <v>", "scene <path>", then one "input <...>" line per caller-given input. */
+
+/* Creates dir if needed and writes <dir>/MANIFEST atomically. key_hex is 1..32 hex digits; an input
+ * or name holding a newline is DR_ERR_INPUT; write failures DR_ERR_IO. */
+DR_NODISCARD DrStatus dr_io_manifest_write(const char *dir, const char *stage, const char *key_hex,
+                                           const char *scene_path, const char *const *inputs, int ninputs,
+                                           DrError *err);
+/* Reads the key of <dir>/MANIFEST into key_out (NUL-terminated, at most 32 hex digits) and sets
+ * *found = true. A missing, unreadable or malformed manifest is not an error: *found = false,
+ * key_out = "" and DR_OK (the stage is then simply stale). */
+DR_NODISCARD DrStatus dr_io_manifest_read_key(const char *dir, char key_out[33], bool *found, DrError *err);
+/* Removes <dir>/MANIFEST (before a stage starts rewriting its outputs); no error when absent,
+ * DR_ERR_IO naming it when it exists and cannot be removed. */
+DR_NODISCARD DrStatus dr_io_manifest_remove(const char *dir, DrError *err);
+
+/* ---- HDF5 ---------------------------------------------------------------------------------------
+ * A DrH5 is one open HDF5 file, either being written (dr_h5_create) or read (dr_h5_open). Paths are
+ * absolute HDF5 paths like "/water/position"; "/" is the root group. HDF5's own error printing is
+ * turned off; its failures become DrError messages naming the file and the object. Strings are stored
+ * as fixed-length, NUL-terminated UTF-8 string attributes (h5dump shows them as text); the readers
+ * also accept variable-length strings written by other tools. */
+typedef struct DrH5 DrH5;
+
+/* Creates "<final_path>.tmp.<pid>" for writing; nothing appears at final_path until dr_h5_commit.
+ * DR_ERR_IO naming the file on failure. */
+DR_NODISCARD DrStatus dr_h5_create(const char *final_path, DrH5 **out, DrError *err);
+/* Opens an existing file read-only. DR_ERR_INPUT naming it when missing or not HDF5. */
+DR_NODISCARD DrStatus dr_h5_open(const char *path, DrH5 **out, DrError *err);
+
+/* Dataset writers (write handles only). Intermediate groups are created; an existing object at
+ * `path` is DR_ERR_INPUT. rank 1..4, dims[rank], row-major data of prod(dims) elements (data may be
+ * NULL when that product is 0: zero-sized dimensions are fine, e.g. an element with 0 particles).
+ * compress = true: chunked (chunks of about 256 KiB along the first dimension), shuffle + deflate
+ * level 1 (a dataset without elements is stored contiguous: nothing to compress); false: contiguous
+ * (checkpoints, where speed matters more than size). No object timestamps are stored, so equal data
+ * gives equal datasets. `units` (NULL = none)
+ * is stored as string attribute "units" on the dataset. DR_ERR_IO naming file and dataset on failure. */
+DR_NODISCARD DrStatus dr_h5_write_f64(DrH5 *h, const char *path, int rank, const uint64_t *dims,
+                                      const double *data, const char *units, bool compress, DrError *err);
+DR_NODISCARD DrStatus dr_h5_write_i64(DrH5 *h, const char *path, int rank, const uint64_t *dims,
+                                      const int64_t *data, const char *units, bool compress, DrError *err);
+DR_NODISCARD DrStatus dr_h5_write_u64(DrH5 *h, const char *path, int rank, const uint64_t *dims,
+                                      const uint64_t *data, bool compress, DrError *err);
+
+/* Attributes on "/", a group (created with its parents if missing) or an existing dataset. An
+ * existing attribute of that name is replaced. Write handles only. */
+DR_NODISCARD DrStatus dr_h5_attr_str(DrH5 *h, const char *obj, const char *name, const char *value,
+                                     DrError *err);
+DR_NODISCARD DrStatus dr_h5_attr_f64(DrH5 *h, const char *obj, const char *name, double value, DrError *err);
+DR_NODISCARD DrStatus dr_h5_attr_i64(DrH5 *h, const char *obj, const char *name, int64_t value, DrError *err);
+
+/* Dataset readers: *rank and dims[0..rank) are filled and *data is a malloc'd array of prod(dims)
+ * elements (non-NULL even for 0 elements; caller frees). A missing dataset, one of another element
+ * type (f64 = 8-byte float, i64 = signed 8-byte integer, u64 = unsigned 8-byte integer) or of rank
+ * above 4 is DR_ERR_INPUT naming file and dataset; *data is NULL on failure. */
+DR_NODISCARD DrStatus dr_h5_read_f64(DrH5 *h, const char *path, int *rank, uint64_t dims[4], double **data,
+                                     DrError *err);
+DR_NODISCARD DrStatus dr_h5_read_i64(DrH5 *h, const char *path, int *rank, uint64_t dims[4], int64_t **data,
+                                     DrError *err);
+DR_NODISCARD DrStatus dr_h5_read_u64(DrH5 *h, const char *path, int *rank, uint64_t dims[4], uint64_t **data,
+                                     DrError *err);
+/* Attribute readers; a missing attribute or one of another type is DR_ERR_INPUT naming file, object
+ * and attribute. The string is malloc'd (caller frees). Integer attributes of any integer type that
+ * fits int64 are accepted, float attributes of any float size. */
+DR_NODISCARD DrStatus dr_h5_read_attr_str(DrH5 *h, const char *obj, const char *name, char **value,
+                                          DrError *err);
+DR_NODISCARD DrStatus dr_h5_read_attr_f64(DrH5 *h, const char *obj, const char *name, double *value,
+                                          DrError *err);
+DR_NODISCARD DrStatus dr_h5_read_attr_i64(DrH5 *h, const char *obj, const char *name, int64_t *value,
+                                          DrError *err);
+/* True when an object (group or dataset) exists at path. */
+bool dr_h5_has(DrH5 *h, const char *path);
+/* Names of the direct children of a group in ascending name order: *names is a malloc'd array of
+ * *count malloc'd strings (free each, then the array; NULL when *count is 0). A missing group is
+ * DR_ERR_INPUT naming it. */
+DR_NODISCARD DrStatus dr_h5_list(DrH5 *h, const char *group, char ***names, int *count, DrError *err);
+/* Write handle: closes the file, fsyncs it and renames it into place, then frees *h and sets it NULL
+ * (also on failure, in which case the temporary file is removed and DR_ERR_IO names the file). */
+DR_NODISCARD DrStatus dr_h5_commit(DrH5 **h, DrError *err);
+/* Read handle: closes. Write handle not committed: closes and deletes the temporary file, so neither
+ * it nor the final file exists afterwards. Frees *h and sets it NULL; NULL is a no-op. */
+void dr_h5_close(DrH5 **h);
+/* The path the handle will have once committed (write) or was opened from (read). */
+const char *dr_h5_path(const DrH5 *h);
+
+/* ---- precompute cache: <root>/<kind>/<key>.h5, self-describing (DESIGN §4) ------------------- */
+
+/* Writes "<root>/<kind>/<key_hex>.h5" into buf; asserts it fits. Does not validate kind or key. */
+void dr_io_precache_path(const char *root, const char *kind, const char *key_hex, char *buf, size_t size);
+/* kind is "cohesion" or "bem", key_hex 1..64 hex digits (anything else is DR_ERR_INPUT). Creates
+ * <root>/<kind>/ if needed and the file through dr_h5_create, with root string attributes "kind",
+ * "key", "inputs" (inputs_json: the canonical JSON of the parameters that made it), "asset_hash"
+ * (asset_hash_hex, "" when NULL: the data depends on no asset file), "drench_version" and "created"
+ * (ISO 8601 UTC). The caller adds datasets, then dr_h5_commit (or dr_h5_close to abandon). */
+DR_NODISCARD DrStatus dr_io_precache_create(const char *root, const char *kind, const char *key_hex,
+                                            const char *inputs_json, const char *asset_hash_hex, DrH5 **out,
+                                            DrError *err);
+/* Opens <root>/<kind>/<key_hex>.h5 read-only when it exists, opens as HDF5 and its "kind" and "key"
+ * attributes match: *found = true, *out set. Otherwise (missing, unreadable, corrupt, other key)
+ * *found = false, *out = NULL and DR_OK: such a file is never trusted, it is recomputed (a corrupt or
+ * mismatched file is logged as a warning). A bad kind or key_hex is DR_ERR_INPUT. */
+DR_NODISCARD DrStatus dr_io_precache_open(const char *root, const char *kind, const char *key_hex, DrH5 **out,
+                                          bool *found, DrError *err);
+
+/* ISO 8601 UTC time of now, "YYYY-MM-DDTHH:MM:SSZ" (21 bytes with NUL). */
+void dr_io_time_iso8601(char buf[32]);
+
+#endif

@@ -1,0 +1,765 @@
+/* Unit tests of src/io: asset loading, OBJ writing, atomic files, manifests, HDF5 caches and the
+ * precompute cache. Run from the repository root (assets/meshes/ is read relative to it). */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include <cmocka.h>
+
+#include "core/core.h"
+#include "io/io.h"
+
+#include <dirent.h>
+#include <fcntl.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#define MESHES "assets/meshes/"
+
+static char g_dir[256]; /* scratch directory of this run */
+
+static void scratch_path(const char *name, char *buf, size_t size)
+{
+    snprintf(buf, size, "%s/%s", g_dir, name);
+}
+
+static int group_setup(void **state)
+{
+    (void)state;
+    if (!dr_io_exists(MESHES "cube.obj")) {
+        fprintf(stderr, "test_io: %scube.obj not found; run from the repository root\n", MESHES);
+        return -1;
+    }
+    snprintf(g_dir, sizeof g_dir, "/tmp/drench_test_io.XXXXXX");
+    return mkdtemp(g_dir) ? 0 : -1;
+}
+
+static int group_teardown(void **state)
+{
+    (void)state;
+    char cmd[512];
+    snprintf(cmd, sizeof cmd, "rm -rf '%s'", g_dir);
+    return system(cmd) == 0 ? 0 : -1;
+}
+
+/* Number of directory entries whose name contains ".tmp.". */
+static int count_tmp_files(const char *dir)
+{
+    DIR *d = opendir(dir);
+    assert_non_null(d);
+    int n = 0;
+    struct dirent *e;
+    while ((e = readdir(d)) != NULL) n += strstr(e->d_name, ".tmp.") != NULL;
+    closedir(d);
+    return n;
+}
+
+static char *slurp(const char *path)
+{
+    char *text = NULL;
+    DrError err;
+    assert_int_equal(dr_io_read_text(path, &text, &err), DR_OK);
+    return text;
+}
+
+/* ---- assets ---- */
+
+static void check_unit_cube(const char *path, bool expect_normals)
+{
+    DrTriMesh m;
+    DrError err;
+    assert_int_equal(dr_io_load_mesh(path, &m, &err), DR_OK);
+    assert_int_equal(m.nv, 8);
+    assert_int_equal(m.nt, 12);
+    /* Corners ±0.5 are exact in float and double, so the divergence-theorem volume is exact up to
+     * the rounding of twelve triple products of magnitude 1/8: 1e-12 leaves a wide margin. */
+    assert_true(fabs(dr_trimesh_volume(&m) - 1.0) < 1e-12);
+    assert_true(dr_trimesh_is_closed(&m));
+    DrVec3 lo, hi;
+    assert_true(dr_trimesh_bounds(&m, &lo, &hi));
+    assert_true(lo.x == -0.5 && lo.y == -0.5 && lo.z == -0.5 && hi.x == 0.5 && hi.y == 0.5 && hi.z == 0.5);
+    if (expect_normals) {
+        assert_non_null(m.n);
+        /* STL face normals joined at a corner average to the outward diagonal (±1, ±1, ±1)/√3. */
+        for (int i = 0; i < m.nv; i++) {
+            DrVec3 n = dr_v3(m.n[3 * i], m.n[3 * i + 1], m.n[3 * i + 2]);
+            DrVec3 p = dr_v3(m.v[3 * i], m.v[3 * i + 1], m.v[3 * i + 2]);
+            assert_true(fabs(dr_v3_norm(n) - 1.0) < 1e-12);
+            assert_true(fabs(dr_v3_dot(n, dr_v3_normalize(p)) - 1.0) < 1e-12);
+        }
+    } else {
+        assert_null(m.n);
+    }
+    dr_trimesh_free(&m);
+    assert_null(m.v);
+}
+
+static void test_load_cube_formats(void **state)
+{
+    (void)state;
+    check_unit_cube(MESHES "cube.obj", false);
+    check_unit_cube(MESHES "cube.ply", false);
+    check_unit_cube(MESHES "cube.stl", true);
+}
+
+static void test_load_sphere_and_ground(void **state)
+{
+    (void)state;
+    DrTriMesh m;
+    DrError err;
+    assert_int_equal(dr_io_load_mesh(MESHES "sphere.obj", &m, &err), DR_OK);
+    assert_int_equal(m.nv, 642);
+    assert_int_equal(m.nt, 1280);
+    assert_true(dr_trimesh_is_closed(&m));
+    double vol = dr_trimesh_volume(&m);
+    double sphere = 4.0 / 3.0 * DR_PI * 0.125;
+    /* An icosphere of 3 subdivisions is inscribed in the sphere: its volume is below 4/3 π r³ by
+     * 0.861% (computed exactly from the generated vertices, 0.519092602137 m³). Bounds: the deficit
+     * is positive and under 1%; and against the exact polyhedron, assimp keeps positions in single
+     * precision (relative rounding 6e-8 per coordinate, about 3 times that on a volume): 1e-6. */
+    assert_true(vol < sphere && (sphere - vol) / sphere < 0.01);
+    assert_true(fabs(vol - 0.519092602137) / 0.519092602137 < 1e-6);
+    for (int i = 0; i < m.nv; i++) {
+        double r = sqrt(m.v[3 * i] * m.v[3 * i] + m.v[3 * i + 1] * m.v[3 * i + 1] + m.v[3 * i + 2] * m.v[3 * i + 2]);
+        assert_true(fabs(r - 0.5) < 1e-6); /* float rounding of the coordinates, as above */
+    }
+    dr_trimesh_free(&m);
+
+    assert_int_equal(dr_io_load_mesh(MESHES "ground.obj", &m, &err), DR_OK);
+    assert_int_equal(m.nv, 8);
+    assert_int_equal(m.nt, 12);
+    assert_true(dr_trimesh_is_closed(&m));
+    DrVec3 lo, hi;
+    assert_true(dr_trimesh_bounds(&m, &lo, &hi));
+    assert_true(hi.y == 0.0 && lo.x == -2.0 && hi.x == 2.0 && lo.z == -2.0 && hi.z == 2.0);
+    assert_true(fabs(lo.y + 0.1) < 1e-8); /* -0.1 rounded to float: error 1.5e-9 */
+    assert_true(fabs(dr_trimesh_volume(&m) - 1.6) < 1e-6);
+    dr_trimesh_free(&m);
+}
+
+/* Loads path with stdout and stderr redirected to a file; returns the status and the number of
+ * bytes the loader printed. */
+static DrStatus load_quietly(const char *path, DrTriMesh *m, DrError *err, long *printed)
+{
+    char capture[512];
+    scratch_path("captured_output", capture, sizeof capture);
+    fflush(stdout);
+    fflush(stderr);
+    int fd = open(capture, O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    assert_true(fd >= 0);
+    int saved_out = dup(1), saved_err = dup(2);
+    dup2(fd, 1);
+    dup2(fd, 2);
+    DrStatus s = dr_io_load_mesh(path, m, err);
+    fflush(stdout);
+    fflush(stderr);
+    dup2(saved_out, 1);
+    dup2(saved_err, 2);
+    close(saved_out);
+    close(saved_err);
+    close(fd);
+    struct stat st;
+    assert_int_equal(stat(capture, &st), 0);
+    *printed = (long)st.st_size;
+    return s;
+}
+
+static void expect_bad_mesh(const char *path, const char *needle)
+{
+    DrTriMesh m;
+    DrError err;
+    dr_error_clear(&err);
+    long printed = -1;
+    DrStatus s = load_quietly(path, &m, &err, &printed);
+    assert_int_equal(s, DR_ERR_INPUT);
+    assert_int_equal(err.status, DR_ERR_INPUT);
+    assert_string_equal(err.file, path);
+    if (!strstr(err.message, needle)) fail_msg("message for %s: \"%s\" lacks \"%s\"", path, err.message, needle);
+    assert_int_equal(printed, 0);
+    assert_null(m.v);
+    assert_null(m.tri);
+    assert_int_equal(m.nt, 0);
+}
+
+static void test_load_bad_meshes(void **state)
+{
+    (void)state;
+    expect_bad_mesh(MESHES "empty.obj", "mesh is empty: no triangles; export faces");
+    expect_bad_mesh(MESHES "nan.obj", "non-finite coordinate");
+    expect_bad_mesh(MESHES "broken.obj", "not a text OBJ file");
+    expect_bad_mesh(MESHES "does_not_exist.obj", "No such file");
+    expect_bad_mesh("assets/meshes", "is a directory");
+    char path[512];
+    scratch_path("not_a_mesh.xyz", path, sizeof path);
+    assert_int_equal(dr_io_write_text_atomic(path, "hello\n", NULL), DR_OK);
+    expect_bad_mesh(path, "assimp");
+    /* A good load prints nothing either. */
+    DrTriMesh m;
+    DrError err;
+    long printed = -1;
+    assert_int_equal(load_quietly(MESHES "cube.ply", &m, &err, &printed), DR_OK);
+    assert_int_equal(printed, 0);
+    dr_trimesh_free(&m);
+}
+
+static void test_write_obj_round_trip(void **state)
+{
+    (void)state;
+    DrTriMesh a, b;
+    DrError err;
+    char path[512];
+    scratch_path("sphere_out.obj", path, sizeof path);
+    assert_int_equal(dr_io_load_mesh(MESHES "sphere.obj", &a, &err), DR_OK);
+    assert_int_equal(dr_io_write_obj(path, &a, "written by test_io\nsecond line", &err), DR_OK);
+    assert_int_equal(count_tmp_files(g_dir), 0);
+    char *text = slurp(path);
+    const char *head = "# written by test_io\n# second line\nv ";
+    assert_true(strncmp(text, head, strlen(head)) == 0);
+    assert_null(strstr(text, "vn "));
+    free(text);
+    assert_int_equal(dr_io_load_mesh(path, &b, &err), DR_OK);
+    assert_int_equal(a.nv, b.nv);
+    assert_int_equal(a.nt, b.nt);
+    /* Loaded coordinates are floats and %.9g prints every float exactly, and the loader orders
+     * vertices by first use, which the writer preserves: the reload is bit-identical. */
+    assert_memory_equal(a.tri, b.tri, 3 * sizeof(int) * (size_t)a.nt);
+    assert_memory_equal(a.v, b.v, 3 * sizeof(double) * (size_t)a.nv);
+    assert_true(dr_trimesh_volume(&a) == dr_trimesh_volume(&b));
+    dr_trimesh_free(&a);
+    dr_trimesh_free(&b);
+
+    /* With normals: "vn" lines and "f a//a ..." faces, read back as normals. */
+    scratch_path("cube_out.obj", path, sizeof path);
+    assert_int_equal(dr_io_load_mesh(MESHES "cube.stl", &a, &err), DR_OK);
+    assert_int_equal(dr_io_write_obj(path, &a, NULL, &err), DR_OK);
+    text = slurp(path);
+    assert_true(strncmp(text, "v ", 2) == 0);
+    assert_non_null(strstr(text, "\nvn "));
+    assert_non_null(strstr(text, "\nf 1//1 2//2 3//3\n"));
+    free(text);
+    assert_int_equal(dr_io_load_mesh(path, &b, &err), DR_OK);
+    assert_int_equal(b.nv, 8);
+    assert_int_equal(b.nt, 12);
+    assert_non_null(b.n);
+    assert_true(fabs(dr_trimesh_volume(&b) - 1.0) < 1e-12);
+    /* Normals printed with 9 digits: 1e-8 covers the rounding of a unit vector. */
+    for (int i = 0; i < 3 * a.nv; i++) assert_true(fabs(a.n[i] - b.n[i]) < 1e-8);
+    dr_trimesh_free(&b);
+
+    /* Zero normals in the file fall back to the adjacent faces' normals: unit length, outward. */
+    scratch_path("zero_normals.obj", path, sizeof path);
+    {
+        char body[2048];
+        size_t len = (size_t)snprintf(body, sizeof body, "vn 0 0 0\n");
+        for (int i = 0; i < a.nv; i++)
+            len += (size_t)snprintf(body + len, sizeof body - len, "v %g %g %g\n", a.v[3 * i], a.v[3 * i + 1],
+                                    a.v[3 * i + 2]);
+        for (int t = 0; t < a.nt; t++)
+            len += (size_t)snprintf(body + len, sizeof body - len, "f %d//1 %d//1 %d//1\n", a.tri[3 * t] + 1,
+                                    a.tri[3 * t + 1] + 1, a.tri[3 * t + 2] + 1);
+        assert_true(len < sizeof body);
+        assert_int_equal(dr_io_write_text_atomic(path, body, &err), DR_OK);
+    }
+    assert_int_equal(dr_io_load_mesh(path, &b, &err), DR_OK);
+    assert_int_equal(b.nv, 8);
+    assert_non_null(b.n);
+    for (int i = 0; i < b.nv; i++) {
+        DrVec3 n = dr_v3(b.n[3 * i], b.n[3 * i + 1], b.n[3 * i + 2]);
+        DrVec3 p = dr_v3(b.v[3 * i], b.v[3 * i + 1], b.v[3 * i + 2]);
+        assert_true(fabs(dr_v3_norm(n) - 1.0) < 1e-12);
+        /* Each corner touches three faces; their area-weighted sum points into the corner's octant. */
+        assert_true(n.x * p.x > 0 && n.y * p.y > 0 && n.z * p.z > 0);
+    }
+    dr_trimesh_free(&b);
+
+    /* A non-finite vertex is refused and nothing is written. */
+    scratch_path("nan_out.obj", path, sizeof path);
+    a.v[4] = NAN;
+    dr_error_clear(&err);
+    assert_int_equal(dr_io_write_obj(path, &a, NULL, &err), DR_ERR_RUNTIME);
+    assert_string_equal(err.file, path);
+    assert_non_null(strstr(err.message, "vertex 1 has a non-finite coordinate"));
+    assert_false(dr_io_exists(path));
+    assert_int_equal(count_tmp_files(g_dir), 0);
+    dr_trimesh_free(&a);
+
+    /* An empty mesh is a comment-only file. */
+    DrTriMesh empty = {0};
+    scratch_path("empty_out.obj", path, sizeof path);
+    assert_int_equal(dr_io_write_obj(path, &empty, "nothing", &err), DR_OK);
+    text = slurp(path);
+    assert_string_equal(text, "# nothing\n");
+    free(text);
+}
+
+/* ---- files ---- */
+
+static void test_files(void **state)
+{
+    (void)state;
+    char buf[64], expect[64];
+    dr_io_tmp_path("out/frame.0001.h5", buf, sizeof buf);
+    snprintf(expect, sizeof expect, "out/frame.0001.h5.tmp.%ld", (long)getpid());
+    assert_string_equal(buf, expect);
+
+    DrError err;
+    char dir[512], path[600], deep[600];
+    scratch_path("a/b//c/", dir, sizeof dir);
+    assert_int_equal(dr_io_mkdirs(dir, &err), DR_OK);
+    assert_int_equal(dr_io_mkdirs(dir, &err), DR_OK); /* existing: fine */
+    snprintf(path, sizeof path, "%s/a/b/c/note.txt", g_dir);
+    assert_int_equal(dr_io_write_text_atomic(path, "first\n", &err), DR_OK);
+    assert_int_equal(dr_io_write_text_atomic(path, "second line\nthird\n", &err), DR_OK); /* replaces */
+    char *text = slurp(path);
+    assert_string_equal(text, "second line\nthird\n");
+    free(text);
+    snprintf(deep, sizeof deep, "%s/a/b/c", g_dir);
+    assert_int_equal(count_tmp_files(deep), 0);
+
+    /* A regular file in the way of mkdir -p is an error naming it. */
+    snprintf(deep, sizeof deep, "%s/a/b/c/note.txt/d", g_dir);
+    dr_error_clear(&err);
+    assert_int_equal(dr_io_mkdirs(deep, &err), DR_ERR_IO);
+    assert_string_equal(err.file, path);
+    assert_non_null(strstr(err.message, "not a directory"));
+
+    /* Writing into a missing directory fails and leaves nothing. */
+    snprintf(deep, sizeof deep, "%s/missing/x.txt", g_dir);
+    assert_int_equal(dr_io_write_text_atomic(deep, "x", &err), DR_ERR_IO);
+    assert_string_equal(err.file, deep);
+    assert_false(dr_io_exists(deep));
+
+    /* Commit of a temporary file that does not exist. */
+    scratch_path("never.txt", path, sizeof path);
+    assert_int_equal(dr_io_commit("/nonexistent/x.tmp.1", path, &err), DR_ERR_IO);
+    assert_string_equal(err.file, path);
+    assert_false(dr_io_exists(path));
+
+    char *none = (char *)1;
+    assert_int_equal(dr_io_read_text(path, &none, &err), DR_ERR_INPUT);
+    assert_null(none);
+    assert_string_equal(err.file, path);
+    assert_true(dr_io_exists(g_dir));
+    assert_false(dr_io_exists(path));
+
+    /* An empty file reads as "". */
+    scratch_path("empty.txt", path, sizeof path);
+    assert_int_equal(dr_io_write_text_atomic(path, "", &err), DR_OK);
+    text = slurp(path);
+    assert_string_equal(text, "");
+    free(text);
+}
+
+static void touch(const char *dir, const char *name)
+{
+    char path[600];
+    snprintf(path, sizeof path, "%s/%s", dir, name);
+    FILE *f = fopen(path, "w");
+    assert_non_null(f);
+    fputs("partial", f);
+    fclose(f);
+}
+
+static bool exists_in(const char *dir, const char *name)
+{
+    char path[600];
+    snprintf(path, sizeof path, "%s/%s", dir, name);
+    return dr_io_exists(path);
+}
+
+static void test_remove_stale_tmp(void **state)
+{
+    (void)state;
+    char dir[512], mine[64];
+    DrError err;
+    scratch_path("stale", dir, sizeof dir);
+    assert_int_equal(dr_io_mkdirs(dir, &err), DR_OK);
+    /* Linux pids are below pid_max, which can be at most 2^22 = 4194304 (PID_MAX_LIMIT), so pid
+     * 999999999 cannot be running. Pid 1 (init) always is. */
+    touch(dir, "frame.0001.h5.tmp.999999999");
+    touch(dir, "frame.0002.h5.tmp.1");
+    snprintf(mine, sizeof mine, "frame.0003.h5.tmp.%ld", (long)getpid());
+    touch(dir, mine);
+    touch(dir, "frame.0004.h5");
+    touch(dir, "notes.tmp.abc");
+    touch(dir, "x.tmp.");
+    dr_io_remove_stale_tmp(dir);
+    assert_false(exists_in(dir, "frame.0001.h5.tmp.999999999"));
+    assert_true(exists_in(dir, "frame.0002.h5.tmp.1"));
+    assert_true(exists_in(dir, mine));
+    assert_true(exists_in(dir, "frame.0004.h5"));
+    assert_true(exists_in(dir, "notes.tmp.abc"));
+    assert_true(exists_in(dir, "x.tmp."));
+    dr_io_remove_stale_tmp("/nonexistent/dir"); /* no-op */
+}
+
+/* ---- manifests ---- */
+
+static void test_manifest(void **state)
+{
+    (void)state;
+    char dir[512], path[600];
+    DrError err;
+    scratch_path("out/shot/bake", dir, sizeof dir);
+    const char *inputs[] = {"asset assets/meshes/cube.obj 0123abcd", "precompute bem 77aa"};
+    const char *key = "0123456789abcdef0123456789abcdef";
+    assert_int_equal(dr_io_manifest_write(dir, "bake", key, "scenes/wet.json", inputs, 2, &err), DR_OK);
+    snprintf(path, sizeof path, "%s/MANIFEST", dir);
+    char *text = slurp(path);
+    char expect_head[256];
+    snprintf(expect_head, sizeof expect_head, "key %s\nstage bake\ntime ", key);
+    assert_true(strncmp(text, expect_head, strlen(expect_head)) == 0);
+    /* time: YYYY-MM-DDTHH:MM:SSZ */
+    const char *t = text + strlen(expect_head);
+    assert_true(t[4] == '-' && t[7] == '-' && t[10] == 'T' && t[13] == ':' && t[16] == ':' && t[19] == 'Z' &&
+                t[20] == '\n');
+    assert_non_null(strstr(text, "\ndrench_version " DR_VERSION "\nscene scenes/wet.json\n"
+                                 "input asset assets/meshes/cube.obj 0123abcd\ninput precompute bem 77aa\n"));
+    free(text);
+
+    char got[33];
+    bool found = false;
+    assert_int_equal(dr_io_manifest_read_key(dir, got, &found, &err), DR_OK);
+    assert_true(found);
+    assert_string_equal(got, key);
+
+    /* A manifest whose first line is not a key is not trusted. */
+    assert_int_equal(dr_io_write_text_atomic(path, "stage bake\n", &err), DR_OK);
+    assert_int_equal(dr_io_manifest_read_key(dir, got, &found, &err), DR_OK);
+    assert_false(found);
+    assert_string_equal(got, "");
+
+    assert_int_equal(dr_io_manifest_write(dir, "mesh", "beef", "s.json", NULL, 0, &err), DR_OK);
+    assert_int_equal(dr_io_manifest_read_key(dir, got, &found, &err), DR_OK);
+    assert_true(found);
+    assert_string_equal(got, "beef");
+    assert_int_equal(dr_io_manifest_remove(dir, &err), DR_OK);
+    assert_false(dr_io_exists(path));
+    assert_int_equal(dr_io_manifest_remove(dir, &err), DR_OK); /* absent: fine */
+    assert_int_equal(dr_io_manifest_read_key(dir, got, &found, &err), DR_OK);
+    assert_false(found);
+
+    /* A field with a line break or a bad key is refused and nothing is written. */
+    const char *bad[] = {"two\nlines"};
+    assert_int_equal(dr_io_manifest_write(dir, "bake", key, "s.json", bad, 1, &err), DR_ERR_INPUT);
+    assert_int_equal(dr_io_manifest_write(dir, "bake", "not-hex", "s.json", NULL, 0, &err), DR_ERR_INPUT);
+    assert_false(dr_io_exists(path));
+    assert_int_equal(count_tmp_files(dir), 0);
+}
+
+/* ---- HDF5 ---- */
+
+static void test_h5_round_trip(void **state)
+{
+    (void)state;
+    DrError err;
+    char path[512], tmp[600];
+    scratch_path("frame.0001.h5", path, sizeof path);
+    dr_io_tmp_path(path, tmp, sizeof tmp);
+
+    enum { N = 20000 };
+    double *pos = malloc(sizeof(double) * 3 * N);
+    double *aff = malloc(sizeof(double) * 9 * 5);
+    int64_t ids[7] = {INT64_MIN, -1, 0, 1, 42, INT64_MAX, 7};
+    uint64_t offs[4] = {0, 3, UINT64_MAX, 12};
+    assert_non_null(pos);
+    assert_non_null(aff);
+    /* Particles on a lattice: regular data that shuffle + deflate compress well. */
+    for (int i = 0; i < N; i++) {
+        pos[3 * i] = 0.01 * (i % 20);
+        pos[3 * i + 1] = 0.01 * ((i / 20) % 50);
+        pos[3 * i + 2] = 0.01 * (i / 1000);
+    }
+    for (int i = 0; i < 45; i++) aff[i] = (double)i / 3.0 - 1e-300 * i;
+
+    DrH5 *h = NULL;
+    assert_int_equal(dr_h5_create(path, &h, &err), DR_OK);
+    assert_true(dr_io_exists(tmp));
+    assert_false(dr_io_exists(path));
+    assert_string_equal(dr_h5_path(h), path);
+    uint64_t dpos[2] = {N, 3}, daff[3] = {5, 3, 3}, dids[1] = {7}, doffs[1] = {4}, dzero[2] = {0, 3};
+    assert_int_equal(dr_h5_attr_str(h, "/", "drench_version", DR_VERSION, &err), DR_OK);
+    assert_int_equal(dr_h5_attr_i64(h, "/", "frame", 1, &err), DR_OK);
+    assert_int_equal(dr_h5_attr_f64(h, "/", "time", 1.0 / 24.0, &err), DR_OK);
+    assert_int_equal(dr_h5_attr_str(h, "/", "scene_key", "", &err), DR_OK);
+    assert_int_equal(dr_h5_attr_str(h, "/", "scene_key", "abc123", &err), DR_OK); /* replaced */
+    assert_int_equal(dr_h5_write_f64(h, "/water/position", 2, dpos, pos, "m", true, &err), DR_OK);
+    assert_int_equal(dr_h5_write_f64(h, "/water/affine", 3, daff, aff, "1/s", false, &err), DR_OK);
+    assert_int_equal(dr_h5_write_i64(h, "/water/ids", 1, dids, ids, NULL, true, &err), DR_OK);
+    assert_int_equal(dr_h5_write_u64(h, "/fur/strand_offsets", 1, doffs, offs, false, &err), DR_OK);
+    assert_int_equal(dr_h5_write_f64(h, "/empty/position", 2, dzero, NULL, "m", true, &err), DR_OK);
+    assert_int_equal(dr_h5_write_f64(h, "/empty/velocity", 2, dzero, NULL, "m/s", false, &err), DR_OK);
+    assert_int_equal(dr_h5_attr_str(h, "/water", "material", "w\xc3\xa4sser \xc2\xb5m", &err), DR_OK);
+    assert_int_equal(dr_h5_attr_f64(h, "/diagnostics/energy", "kinetic", -0.0, &err), DR_OK); /* new group */
+    assert_int_equal(dr_h5_attr_i64(h, "/water/ids", "count", INT64_MIN, &err), DR_OK);     /* on a dataset */
+    dr_error_clear(&err);
+    assert_int_equal(dr_h5_write_f64(h, "/water/position", 2, dpos, pos, "m", true, &err), DR_ERR_INPUT);
+    assert_string_equal(err.file, path);
+    assert_non_null(strstr(err.message, "/water/position already exists"));
+    assert_int_equal(dr_h5_commit(&h, &err), DR_OK);
+    assert_null(h);
+    assert_true(dr_io_exists(path));
+    assert_false(dr_io_exists(tmp));
+
+    struct stat st;
+    assert_int_equal(stat(path, &st), 0);
+    /* Compression works: the whole file is well under the raw bytes of the positions alone
+     * (measured: 26%; without compression it would exceed 100%). */
+    assert_true((size_t)st.st_size < sizeof(double) * 3 * N / 2);
+
+    assert_int_equal(dr_h5_open(path, &h, &err), DR_OK);
+    int rank;
+    uint64_t dims[4];
+    double *f = NULL;
+    assert_int_equal(dr_h5_read_f64(h, "/water/position", &rank, dims, &f, &err), DR_OK);
+    assert_int_equal(rank, 2);
+    assert_true(dims[0] == N && dims[1] == 3);
+    assert_memory_equal(f, pos, sizeof(double) * 3 * N); /* bit-identical */
+    free(f);
+    assert_int_equal(dr_h5_read_f64(h, "/water/affine", &rank, dims, &f, &err), DR_OK);
+    assert_int_equal(rank, 3);
+    assert_true(dims[0] == 5 && dims[1] == 3 && dims[2] == 3);
+    assert_memory_equal(f, aff, sizeof(double) * 45);
+    free(f);
+    int64_t *i64 = NULL;
+    assert_int_equal(dr_h5_read_i64(h, "/water/ids", &rank, dims, &i64, &err), DR_OK);
+    assert_true(rank == 1 && dims[0] == 7);
+    assert_memory_equal(i64, ids, sizeof ids);
+    free(i64);
+    uint64_t *u64 = NULL;
+    assert_int_equal(dr_h5_read_u64(h, "/fur/strand_offsets", &rank, dims, &u64, &err), DR_OK);
+    assert_true(rank == 1 && dims[0] == 4);
+    assert_memory_equal(u64, offs, sizeof offs);
+    free(u64);
+    const char *zeros[] = {"/empty/position", "/empty/velocity"};
+    for (int k = 0; k < 2; k++) {
+        assert_int_equal(dr_h5_read_f64(h, zeros[k], &rank, dims, &f, &err), DR_OK);
+        assert_true(rank == 2 && dims[0] == 0 && dims[1] == 3);
+        assert_non_null(f);
+        free(f);
+    }
+
+    /* Attributes. */
+    char *s = NULL;
+    double x;
+    int64_t n;
+    assert_int_equal(dr_h5_read_attr_str(h, "/", "drench_version", &s, &err), DR_OK);
+    assert_string_equal(s, DR_VERSION);
+    free(s);
+    assert_int_equal(dr_h5_read_attr_str(h, "/", "scene_key", &s, &err), DR_OK);
+    assert_string_equal(s, "abc123");
+    free(s);
+    assert_int_equal(dr_h5_read_attr_str(h, "/water/position", "units", &s, &err), DR_OK);
+    assert_string_equal(s, "m");
+    free(s);
+    assert_int_equal(dr_h5_read_attr_str(h, "/water", "material", &s, &err), DR_OK);
+    assert_string_equal(s, "w\xc3\xa4sser \xc2\xb5m");
+    free(s);
+    assert_int_equal(dr_h5_read_attr_i64(h, "/", "frame", &n, &err), DR_OK);
+    assert_true(n == 1);
+    assert_int_equal(dr_h5_read_attr_i64(h, "/water/ids", "count", &n, &err), DR_OK);
+    assert_true(n == INT64_MIN);
+    assert_int_equal(dr_h5_read_attr_f64(h, "/", "time", &x, &err), DR_OK);
+    assert_memory_equal(&x, &(double){1.0 / 24.0}, sizeof x);
+    assert_int_equal(dr_h5_read_attr_f64(h, "/diagnostics/energy", "kinetic", &x, &err), DR_OK);
+    assert_true(x == 0.0 && signbit(x));
+    assert_false(dr_h5_has(h, "/water/ids/count")); /* attributes are not objects */
+
+    /* Structure. */
+    assert_true(dr_h5_has(h, "/water"));
+    assert_true(dr_h5_has(h, "/water/affine"));
+    assert_false(dr_h5_has(h, "/water/nope"));
+    assert_false(dr_h5_has(h, "/nope/deeper/still"));
+    char **names = NULL;
+    int count = 0;
+    assert_int_equal(dr_h5_list(h, "/", &names, &count, &err), DR_OK);
+    assert_int_equal(count, 4);
+    const char *expect_root[] = {"diagnostics", "empty", "fur", "water"};
+    for (int i = 0; i < count; i++) {
+        assert_string_equal(names[i], expect_root[i]);
+        free(names[i]);
+    }
+    free(names);
+    assert_int_equal(dr_h5_list(h, "/water", &names, &count, &err), DR_OK);
+    assert_int_equal(count, 3);
+    const char *expect_water[] = {"affine", "ids", "position"};
+    for (int i = 0; i < count; i++) {
+        assert_string_equal(names[i], expect_water[i]);
+        free(names[i]);
+    }
+    free(names);
+
+    /* Errors name the file and the object. */
+    dr_error_clear(&err);
+    assert_int_equal(dr_h5_read_f64(h, "/water/velocity", &rank, dims, &f, &err), DR_ERR_INPUT);
+    assert_null(f);
+    assert_string_equal(err.file, path);
+    assert_non_null(strstr(err.message, "/water/velocity"));
+    assert_int_equal(dr_h5_read_i64(h, "/water/position", &rank, dims, &i64, &err), DR_ERR_INPUT);
+    assert_non_null(strstr(err.message, "/water/position does not hold signed 64-bit integer"));
+    assert_int_equal(dr_h5_read_u64(h, "/water/ids", &rank, dims, &u64, &err), DR_ERR_INPUT);
+    assert_int_equal(dr_h5_read_attr_str(h, "/water", "color", &s, &err), DR_ERR_INPUT);
+    assert_non_null(strstr(err.message, "attribute color of /water is missing"));
+    assert_int_equal(dr_h5_read_attr_str(h, "/", "frame", &s, &err), DR_ERR_INPUT);
+    assert_int_equal(dr_h5_read_attr_f64(h, "/nope", "x", &x, &err), DR_ERR_INPUT);
+    assert_int_equal(dr_h5_list(h, "/water/position", &names, &count, &err), DR_ERR_INPUT);
+    assert_int_equal(dr_h5_write_f64(h, "/new", 1, dids, aff, NULL, false, &err), DR_ERR_INPUT); /* read-only */
+    dr_h5_close(&h);
+    assert_null(h);
+    assert_true(dr_io_exists(path)); /* closing a read handle keeps the file */
+
+    /* h5dump (when installed) shows the units attribute as text. */
+    if (system("command -v h5dump >/dev/null 2>&1") == 0) {
+        char cmd[1400], dump[600];
+        scratch_path("dump.txt", dump, sizeof dump);
+        snprintf(cmd, sizeof cmd, "h5dump -A '%s' > '%s' 2>&1", path, dump);
+        assert_int_equal(system(cmd), 0);
+        char *text = slurp(dump);
+        assert_non_null(strstr(text, "ATTRIBUTE \"units\""));
+        assert_non_null(strstr(text, "\"m/s\""));
+        assert_non_null(strstr(text, "H5T_CSET_UTF8"));
+        free(text);
+    }
+    free(pos);
+    free(aff);
+}
+
+static void test_h5_abandon_and_bad_files(void **state)
+{
+    (void)state;
+    DrError err;
+    char path[512], tmp[600];
+    scratch_path("abandoned.h5", path, sizeof path);
+    dr_io_tmp_path(path, tmp, sizeof tmp);
+    DrH5 *h = NULL;
+    assert_int_equal(dr_h5_create(path, &h, &err), DR_OK);
+    uint64_t d[1] = {3};
+    double v[3] = {1, 2, 3};
+    assert_int_equal(dr_h5_write_f64(h, "/a/b/c/d", 1, d, v, NULL, true, &err), DR_OK);
+    assert_true(dr_io_exists(tmp));
+    dr_h5_close(&h);
+    assert_null(h);
+    assert_false(dr_io_exists(tmp));
+    assert_false(dr_io_exists(path));
+    dr_h5_close(&h); /* NULL: no-op */
+
+    /* Opening a missing file or one that is not HDF5. */
+    dr_error_clear(&err);
+    assert_int_equal(dr_h5_open(path, &h, &err), DR_ERR_INPUT);
+    assert_null(h);
+    assert_string_equal(err.file, path);
+    scratch_path("garbage.h5", path, sizeof path);
+    assert_int_equal(dr_io_write_text_atomic(path, "this is not an HDF5 file\n", &err), DR_OK);
+    assert_int_equal(dr_h5_open(path, &h, &err), DR_ERR_INPUT);
+    assert_string_equal(err.file, path);
+    assert_non_null(strstr(err.message, "not HDF5"));
+
+    /* Creating in a missing directory. */
+    assert_int_equal(dr_h5_create("/nonexistent/dir/x.h5", &h, &err), DR_ERR_IO);
+    assert_null(h);
+    assert_string_equal(err.file, "/nonexistent/dir/x.h5");
+}
+
+/* ---- precompute cache ---- */
+
+static void test_precache(void **state)
+{
+    (void)state;
+    DrError err;
+    char root[512], path[DR_IO_PATH_MAX], other[DR_IO_PATH_MAX];
+    scratch_path("cache", root, sizeof root);
+    const char *key = "00112233445566778899aabbccddeeff";
+    const char *inputs = "{\"density\":1000,\"ratio\":32}";
+    DrH5 *h = NULL;
+    assert_int_equal(dr_io_precache_create(root, "bem", key, inputs, "feedface", &h, &err), DR_OK);
+    uint64_t d[2] = {2, 2};
+    double m[4] = {1.5, -2.5, 3.25, 1e-17};
+    assert_int_equal(dr_h5_write_f64(h, "/matrix", 2, d, m, "m/N", true, &err), DR_OK);
+    assert_int_equal(dr_h5_commit(&h, &err), DR_OK);
+    dr_io_precache_path(root, "bem", key, path, sizeof path);
+    snprintf(other, sizeof other, "%s/bem/%s.h5", root, key);
+    assert_string_equal(path, other);
+    assert_true(dr_io_exists(path));
+
+    bool found = false;
+    assert_int_equal(dr_io_precache_open(root, "bem", key, &h, &found, &err), DR_OK);
+    assert_true(found);
+    assert_non_null(h);
+    const char *names[] = {"kind", "key", "inputs", "asset_hash", "drench_version", "created"};
+    const char *values[] = {"bem", key, inputs, "feedface", DR_VERSION, NULL};
+    for (int i = 0; i < 6; i++) {
+        char *s = NULL;
+        assert_int_equal(dr_h5_read_attr_str(h, "/", names[i], &s, &err), DR_OK);
+        if (values[i]) assert_string_equal(s, values[i]);
+        else assert_int_equal((int)strlen(s), 20); /* YYYY-MM-DDTHH:MM:SSZ */
+        free(s);
+    }
+    int rank;
+    uint64_t dims[4];
+    double *back = NULL;
+    assert_int_equal(dr_h5_read_f64(h, "/matrix", &rank, dims, &back, &err), DR_OK);
+    assert_memory_equal(back, m, sizeof m);
+    free(back);
+    dr_h5_close(&h);
+
+    /* Another key: no file, not found. Another kind: not found. */
+    assert_int_equal(dr_io_precache_open(root, "bem", "abcd", &h, &found, &err), DR_OK);
+    assert_false(found);
+    assert_null(h);
+    assert_int_equal(dr_io_precache_open(root, "cohesion", key, &h, &found, &err), DR_OK);
+    assert_false(found);
+
+    /* A file whose recorded key differs from its name is not trusted. */
+    dr_log_set_level(DR_LOG_ERROR); /* the warnings below are expected */
+    dr_io_precache_path(root, "bem", "abcd", other, sizeof other);
+    assert_int_equal(rename(path, other), 0);
+    assert_int_equal(dr_io_precache_open(root, "bem", "abcd", &h, &found, &err), DR_OK);
+    assert_false(found);
+    assert_null(h);
+    /* Nor is a corrupt one. */
+    dr_io_precache_path(root, "bem", "ef01", other, sizeof other);
+    assert_int_equal(dr_io_write_text_atomic(other, "truncated", &err), DR_OK);
+    assert_int_equal(dr_io_precache_open(root, "bem", "ef01", &h, &found, &err), DR_OK);
+    assert_false(found);
+    assert_null(h);
+    dr_log_set_level(DR_LOG_INFO);
+
+    /* Cohesion table without an asset; bad kinds and keys are refused. */
+    assert_int_equal(dr_io_precache_create(root, "cohesion", "42", "{}", NULL, &h, &err), DR_OK);
+    assert_int_equal(dr_h5_commit(&h, &err), DR_OK);
+    assert_int_equal(dr_io_precache_open(root, "cohesion", "42", &h, &found, &err), DR_OK);
+    assert_true(found);
+    char *s = NULL;
+    assert_int_equal(dr_h5_read_attr_str(h, "/", "asset_hash", &s, &err), DR_OK);
+    assert_string_equal(s, "");
+    free(s);
+    dr_h5_close(&h);
+    assert_int_equal(dr_io_precache_create(root, "fluid", key, "{}", NULL, &h, &err), DR_ERR_INPUT);
+    assert_non_null(strstr(err.message, "\"fluid\""));
+    assert_int_equal(dr_io_precache_create(root, "bem", "../evil", "{}", NULL, &h, &err), DR_ERR_INPUT);
+    assert_int_equal(dr_io_precache_open(root, "bem", "", &h, &found, &err), DR_ERR_INPUT);
+    assert_null(h);
+    char bemdir[600];
+    snprintf(bemdir, sizeof bemdir, "%s/bem", root);
+    assert_int_equal(count_tmp_files(bemdir), 0);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_load_cube_formats),
+        cmocka_unit_test(test_load_sphere_and_ground),
+        cmocka_unit_test(test_load_bad_meshes),
+        cmocka_unit_test(test_write_obj_round_trip),
+        cmocka_unit_test(test_files),
+        cmocka_unit_test(test_remove_stale_tmp),
+        cmocka_unit_test(test_manifest),
+        cmocka_unit_test(test_h5_round_trip),
+        cmocka_unit_test(test_h5_abandon_and_bad_files),
+        cmocka_unit_test(test_precache),
+    };
+    return cmocka_run_group_tests(tests, group_setup, group_teardown);
+}
