@@ -1,0 +1,147 @@
+/* drench linalg: square sparse matrices in CSR form, preconditioned conjugate gradients with an
+ * inner-product hook, and two preconditioners (MIC(0) and Jacobi), plus the BLAS-1 helpers the
+ * other modules share.
+ *
+ * Determinism. Every reduction here (dr_dot, the norms and dot products inside dr_pcg_solve) splits
+ * [0, n) into blocks whose size depends on n only, sums each block sequentially, and adds the block
+ * partials in block order. The blocks are spread over threads with dr_parallel_for, so the result is
+ * bit-identical for any thread count, not only for a given one. OpenBLAS's ddot/daxpy were not used:
+ * their threaded reductions split work by thread count (results change with -j), and single-threaded
+ * they give up the parallelism; a memory-bound dot product gains nothing from their kernels here.
+ *
+ * Thread safety: the functions may be called from several threads on distinct objects; one DrMic0 or
+ * DrJacobi may be applied from several threads at once (application only reads it) as long as each
+ * caller passes its own output vector. Nothing here allocates except create/reserve/update and
+ * dr_pcg_solve with work == NULL. */
+#ifndef DR_LINALG_H
+#define DR_LINALG_H
+
+#include "core/core.h"
+
+/* ---- CSR matrices -------------------------------------------------------------------------- */
+
+/* An n×n sparse matrix: row i holds the entries col[rowptr[i] .. rowptr[i+1]-1] with values val[...],
+ * columns strictly increasing within a row, 0 <= col < n. rowptr has n+1 entries, rowptr[0] = 0 and
+ * rowptr[n] = nnz. The owner fills rowptr/col/val and sets nnz (<= nnz_capacity) directly. */
+typedef struct DrCsr {
+    int n;
+    int nnz;
+    int *rowptr;
+    int *col;
+    double *val;
+    int n_capacity;   /* rowptr holds n_capacity + 1 entries */
+    int nnz_capacity; /* col and val hold nnz_capacity entries */
+} DrCsr;
+
+/* Creates the n×n zero matrix (nnz = 0, rowptr all zero) with room for nnz_capacity entries.
+ * DR_ERR_INPUT for negative sizes, DR_ERR_NOMEM on exhaustion. */
+DR_NODISCARD DrStatus dr_csr_create(int n, int nnz_capacity, DrCsr **out, DrError *err);
+void dr_csr_destroy(DrCsr **A);
+/* Reuses storage between substeps: makes A the n×n zero matrix (nnz = 0, rowptr zeroed) with room for at
+ * least nnz_capacity entries; col/val contents are undefined. Reallocates only when the request exceeds
+ * the current capacity (then grows by 1/4 extra to avoid reallocating every substep). On failure A
+ * keeps its previous storage and contents. */
+DR_NODISCARD DrStatus dr_csr_reserve(DrCsr *A, int n, int nnz_capacity, DrError *err);
+/* Checks the structure (rowptr monotone from 0 to nnz, columns in range and strictly increasing per
+ * row) and that every value is finite. DR_ERR_INPUT naming the first offending row/entry. O(nnz). */
+DR_NODISCARD DrStatus dr_csr_check(const DrCsr *A, DrError *err);
+/* y = A x (x and y of length n, not aliased), parallel over rows with dr_parallel_for; each row is
+ * summed in column order, so y is bit-identical for any thread count. */
+void dr_csr_matvec(const DrCsr *A, const double *x, double *y);
+
+/* ---- linear operators ------------------------------------------------------------------------ */
+
+/* Linear operator and preconditioner as callbacks so matrix-free operators fit too. */
+typedef void (*DrApplyFn)(const double *x, double *y, void *ctx); /* y = Op(x), length n, x != y */
+typedef struct DrLinearOp { int n; DrApplyFn apply; void *ctx; } DrLinearOp;
+/* The operator x ↦ A x; A is borrowed and must outlive the returned value. */
+DrLinearOp dr_csr_op(const DrCsr *A);
+
+/* ---- preconditioned conjugate gradients ----------------------------------------------------- */
+
+/* Inner-product hook: NULL means the Euclidean dot product (dr_dot). MPM passes the mass inner
+ * product. CG needs A and M self-adjoint and positive (semi)definite in this inner product. */
+typedef double (*DrDotFn)(const double *a, const double *b, int n, void *ctx);
+typedef struct DrPcgDesc {
+    double rel_tol; /* stop when ||r|| <= rel_tol * ||b|| (norm from the inner product); default 1e-6 */
+    double abs_tol; /* also stop when ||r|| <= abs_tol; default 0 */
+    int max_iter;   /* default 2000 */
+    DrDotFn dot;    /* default NULL (Euclidean) */
+    void *dot_ctx;  /* passed to dot; default NULL */
+} DrPcgDesc;
+void dr_pcg_desc_default(DrPcgDesc *d);
+
+typedef struct DrPcgStats {
+    int iterations;      /* operator applications after the initial residual */
+    double residual;     /* ||r|| of the recursively updated residual when the solve stopped */
+    double rel_residual; /* residual / ||b|| (0 when b = 0) */
+    bool converged;
+} DrPcgStats;
+
+/* Solves A x = b by conjugate gradients preconditioned by M (M applies an approximation of A⁻¹).
+ * x holds the initial guess on entry and the solution on exit. M may be NULL (unpreconditioned CG).
+ * A->n (and M->n) must equal the length of b and x. desc NULL means dr_pcg_desc_default's values.
+ *
+ * Stopping: ||r|| <= max(rel_tol ||b||, abs_tol), tested on the initial residual too (a solution
+ * passed as guess returns after 0 iterations). b = 0 sets x = 0 and returns DR_OK after 0 iterations:
+ * zero is a solution for any A, also a singular one.
+ * Singular A (pure Neumann Poisson): converges on the range of A when b is compatible (orthogonal to the
+ * null space); x keeps the guess's null-space component plus rounding drift.
+ *
+ * Returns DR_OK when converged; DR_WARN_NOT_CONVERGED (positive) with stats and x filled with the last
+ * iterate when max_iter is reached (the caller logs it; never aborts); DR_ERR_RUNTIME, with a message,
+ * if b, the guess or an iterate holds a non-finite value, or on breakdown: pᵀAp <= 0 with a nonzero
+ * residual (A not positive definite) or rᵀM r <= 0 (M not positive definite). On DR_ERR_RUNTIME x holds
+ * the last iterate reached. stats (may be NULL) is filled in every case.
+ *
+ * `work` is optional scratch of 4n doubles (NULL: allocated and freed internally, DR_ERR_NOMEM on
+ * exhaustion) so callers avoid allocations per step. b, x and work must not overlap. */
+DR_NODISCARD DrStatus dr_pcg_solve(const DrLinearOp *A, const DrLinearOp *M, const double *b, double *x,
+                                   const DrPcgDesc *desc, double *work, DrPcgStats *stats, DrError *err);
+
+/* ---- MIC(0) preconditioner ------------------------------------------------------------------- */
+
+/* Modified incomplete Cholesky, level 0 (Bridson, "Fluid Simulation for Computer Graphics", the MIC(0)
+ * preconditioner of the pressure chapter):
+ * M = Uᵀ D U with U unit upper triangular on the pattern of A's strict upper triangle. Built from the
+ * lower triangle of A (entries with col <= row; the upper triangle is not read and must mirror it).
+ * Works for any sparsity pattern: fill that lands on the pattern updates the factor as in IC(0); fill
+ * off the pattern is dropped and tau times it is subtracted from the diagonal of both rows (tau = 1
+ * keeps M's row sums equal to A's when no row falls back, tau = 0 is plain IC(0)).
+ * Fallback: a row whose pivot d_j would fall below sigma * A_jj (in particular a non-positive pivot, as
+ * the last row of a pure Neumann matrix gives) uses d_j = A_jj instead; dr_mic0_fallbacks counts them.
+ * A row with a zero diagonal (a decoupled unknown) is preconditioned by the identity.
+ * Application is a forward then a backward substitution: sequential, O(nnz), no allocation. */
+typedef struct DrMic0 DrMic0;
+#define DR_MIC0_TAU_DEFAULT 0.97
+#define DR_MIC0_SIGMA_DEFAULT 0.25
+/* tau in [0, 1], sigma in [0, 1]. DR_ERR_INPUT for parameters out of range, a matrix failing
+ * dr_csr_check, or a negative diagonal entry (then A is not positive semidefinite); DR_ERR_NOMEM. */
+DR_NODISCARD DrStatus dr_mic0_create(const DrCsr *A, double tau, double sigma, DrMic0 **out, DrError *err);
+/* Refactors in place for a new matrix (any n and pattern) with the same tau and sigma. No allocation
+ * when n and the lower-triangle entry count fit the capacity reached so far; otherwise storage grows.
+ * Failures as for create; on failure M must be updated successfully before it is applied again. */
+DR_NODISCARD DrStatus dr_mic0_update(DrMic0 *M, const DrCsr *A, DrError *err);
+void dr_mic0_destroy(DrMic0 **M);
+/* The operator r ↦ M⁻¹ r; M is borrowed and must outlive the returned value. */
+DrLinearOp dr_mic0_op(const DrMic0 *M);
+/* Rows that used the diagonal fallback in the last factorisation. */
+int dr_mic0_fallbacks(const DrMic0 *M);
+
+/* ---- Jacobi preconditioner ------------------------------------------------------------------ */
+
+/* M = diag(A); application r ↦ r_i / A_ii (parallel). A zero diagonal entry is preconditioned by the
+ * identity. DR_ERR_INPUT for a matrix failing dr_csr_check or a negative diagonal entry; DR_ERR_NOMEM. */
+typedef struct DrJacobi DrJacobi;
+DR_NODISCARD DrStatus dr_jacobi_create(const DrCsr *A, DrJacobi **out, DrError *err);
+/* Recomputes the diagonal for a new matrix; allocates only when A->n exceeds the capacity so far. */
+DR_NODISCARD DrStatus dr_jacobi_update(DrJacobi *M, const DrCsr *A, DrError *err);
+void dr_jacobi_destroy(DrJacobi **M);
+DrLinearOp dr_jacobi_op(const DrJacobi *M);
+
+/* ---- BLAS-1 (parallel, bit-identical for any thread count) ------------------------------------ */
+
+double dr_dot(const double *a, const double *b, int n);  /* Σ a_i b_i in fixed block order */
+void dr_axpy(double a, const double *x, double *y, int n); /* y += a x */
+
+#endif
