@@ -1,0 +1,891 @@
+/* Scene loading: JSON text → validated, immutable DrScene, driven by the tables in scene_spec.c.
+ *
+ * One pass over the jansson tree. The parser keeps the JSON path it is at, so every error can name
+ * element.Component.field in words and carry the line and column of the culprit (scene_locate.c
+ * finds them in the text; jansson keeps no positions for values). Everything the scene owns lives in
+ * one arena, freed at once by dr_scene_destroy. */
+#include "scene_internal.h"
+
+#include <errno.h>
+#include <jansson.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#define MAX_DEPTH 8 /* elements / i / components / Motion / keys / row / column is the deepest path */
+#define WHERE_MAX 512
+
+typedef struct Parser {
+    DrScene *s;
+    const char *text;
+    size_t len;
+    const char *dir; /* the scene file's directory, "" when the path has none */
+    DrError *err;
+    DrJsonSeg path[MAX_DEPTH];
+    int depth;
+} Parser;
+
+static void push_key(Parser *p, const char *key)
+{
+    assert(p->depth < MAX_DEPTH);
+    p->path[p->depth++] = (DrJsonSeg){key, 0};
+}
+
+static void push_index(Parser *p, int index)
+{
+    assert(p->depth < MAX_DEPTH);
+    p->path[p->depth++] = (DrJsonSeg){NULL, index};
+}
+
+static void pop(Parser *p)
+{
+    assert(p->depth > 0);
+    p->depth--;
+}
+
+static DrStatus failv(Parser *p, bool at_key, const char *fmt, va_list ap)
+{
+    int line, col;
+    dr_scene_locate_(p->text, p->len, p->path, p->depth, at_key, &line, &col);
+    char msg[sizeof p->err->message];
+    vsnprintf(msg, sizeof msg, fmt, ap);
+    return dr_error_set(p->err, DR_ERR_INPUT, p->s->path, line, col, "%s", msg);
+}
+
+/* An error located at the value the parser is at. */
+DR_PRINTF(2, 3) static DrStatus fail(Parser *p, const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    DrStatus st = failv(p, false, fmt, ap);
+    va_end(ap);
+    return st;
+}
+
+/* An error located at the key of the member the parser is at (unknown or incomplete names). */
+DR_PRINTF(2, 3) static DrStatus fail_key(Parser *p, const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    DrStatus st = failv(p, true, fmt, ap);
+    va_end(ap);
+    return st;
+}
+
+static DrStatus nomem(Parser *p) { return dr_error_set(p->err, DR_ERR_NOMEM, p->s->path, 0, 0, "out of memory while loading the scene"); }
+
+static char *arena_strdup(DrArena *a, const char *s)
+{
+    size_t n = strlen(s) + 1;
+    char *d = dr_arena_alloc(a, n, 1);
+    if (d) memcpy(d, s, n);
+    return d;
+}
+
+static const char *json_type_name(const json_t *v)
+{
+    switch (json_typeof(v)) {
+    case JSON_OBJECT: return "object";
+    case JSON_ARRAY: return "array";
+    case JSON_STRING: return "string";
+    case JSON_INTEGER:
+    case JSON_REAL: return "number";
+    case JSON_TRUE:
+    case JSON_FALSE: return "boolean";
+    case JSON_NULL: return "null";
+    }
+    return "value";
+}
+
+/* "; did you mean 'x'?" or "." to end the sentence before the list of valid names. */
+static void suggestion(const char *word, const char *const *names, int n, char *buf, size_t size)
+{
+    const char *best = dr_scene_suggest_(word, names, n);
+    if (best)
+        snprintf(buf, size, "; did you mean '%s'?", best);
+    else
+        snprintf(buf, size, ".");
+}
+
+/* ---- single values ---------------------------------------------------------------------------------- */
+
+static const char *unit_suffix(const DrFieldSpec *f)
+{
+    if (f->kind == DR_FIELD_TABLE || strcmp(f->unit, "") == 0 || strcmp(f->unit, "1") == 0) return "";
+    return f->unit;
+}
+
+/* One number of a field: type, integrality, range. */
+static DrStatus parse_number(Parser *p, const DrFieldSpec *f, const json_t *v, const char *where, double *out)
+{
+    bool integral = f->kind == DR_FIELD_INT || f->kind == DR_FIELD_INT2;
+    if (!json_is_number(v))
+        return fail(p, "%s: expected %s, got %s", where, integral ? "an integer" : "a number", json_type_name(v));
+    double x = json_number_value(v);
+    char xs[32];
+    dr_scene_fmt_num_(x, xs, sizeof xs);
+    if (integral && x != floor(x)) return fail(p, "%s: expected an integer, got %s", where, xs);
+    if (f->ranged && ((f->lo_open ? !(x > f->lo) : !(x >= f->lo)) || (f->hi_open ? !(x < f->hi) : !(x <= f->hi)))) {
+        char range[96];
+        dr_scene_fmt_range_(f, range, sizeof range);
+        const char *unit = unit_suffix(f);
+        return fail(p, "%s = %s is out of range %s%s%s; %s", where, xs, range, unit[0] ? " " : "", unit,
+                    f->hint ? f->hint : "choose a value in that range");
+    }
+    *out = x == 0.0 ? 0.0 : x; /* -0 and 0 are one value */
+    return DR_OK;
+}
+
+/* An array of exactly n numbers of field f; `shape` describes it for messages. */
+static DrStatus parse_numbers(Parser *p, const DrFieldSpec *f, const json_t *v, const char *where, int n,
+                              const char *shape, double *out)
+{
+    if (!json_is_array(v)) return fail(p, "%s: expected %s, got %s", where, shape, json_type_name(v));
+    if (json_array_size(v) != (size_t)n)
+        return fail(p, "%s: expected %s, got an array of %zu", where, shape, json_array_size(v));
+    for (int i = 0; i < n; i++) {
+        char w[WHERE_MAX + 16];
+        snprintf(w, sizeof w, "%s[%d]", where, i);
+        push_index(p, i);
+        DR_TRY(parse_number(p, f, json_array_get(v, (size_t)i), w, &out[i]));
+        pop(p);
+    }
+    return DR_OK;
+}
+
+/* NULL for a valid NAME, else why not (written into buf). */
+static const char *name_problem(const char *s, char *buf, size_t size)
+{
+    size_t n = strlen(s);
+    if (n == 0) return "it is empty";
+    if (n > DR_SCENE_NAME_MAX) return "it is longer than 128 characters";
+    if (strcmp(s, ".") == 0 || strcmp(s, "..") == 0) return "'.' and '..' are reserved";
+    for (const char *c = s; *c; c++) {
+        if ((*c >= 'a' && *c <= 'z') || (*c >= 'A' && *c <= 'Z') || (*c >= '0' && *c <= '9') || *c == '_' ||
+            *c == '.' || *c == '-')
+            continue;
+        if (*c > ' ' && *c < 127) snprintf(buf, size, "it has '%c'", *c);
+        else snprintf(buf, size, "it has a space, a control or a non-ASCII character");
+        return buf;
+    }
+    return NULL;
+}
+
+static bool is_file(const char *path, bool *is_dir)
+{
+    struct stat st;
+    if (stat(path, &st) != 0) return false;
+    if (S_ISDIR(st.st_mode)) *is_dir = true;
+    return S_ISREG(st.st_mode);
+}
+
+/* Asset paths: relative to the scene file's directory first, then to the current directory. `raw`
+ * lives in the scene's arena, and so does *out. */
+static DrStatus resolve_path(Parser *p, const char *raw, const char *where, const char **out)
+{
+    if (raw[0] == '\0') return fail(p, "%s: empty path; give the asset file, relative to the scene file", where);
+    DrArena *a = p->s->arena;
+    const char *cand[2] = {raw, NULL};
+    int ncand = 1;
+    if (raw[0] != '/' && p->dir[0]) {
+        size_t n = strlen(p->dir) + strlen(raw) + 2;
+        char *joined = dr_arena_alloc(a, n, 1);
+        if (!joined) return nomem(p);
+        snprintf(joined, n, "%s/%s", p->dir, raw);
+        cand[0] = joined;
+        cand[1] = raw;
+        ncand = 2;
+    }
+    bool dir = false;
+    for (int i = 0; i < ncand; i++) {
+        if (is_file(cand[i], &dir)) {
+            *out = cand[i];
+            return DR_OK;
+        }
+    }
+    if (dir) return fail(p, "%s: asset '%s' is a directory, not a file; give the mesh file itself", where, raw);
+    char cwd[1024];
+    if (!getcwd(cwd, sizeof cwd)) snprintf(cwd, sizeof cwd, ".");
+    if (raw[0] == '/') return fail(p, "%s: asset '%s' not found; fix the path", where, raw);
+    if (ncand == 2)
+        return fail(p, "%s: asset '%s' not found (looked in %s/ and in the current directory %s/); fix the path",
+                    where, raw, p->dir, cwd);
+    return fail(p, "%s: asset '%s' not found (looked in %s/, the scene file's directory); fix the path", where,
+                raw, cwd);
+}
+
+static DrStatus parse_enum(Parser *p, const DrFieldSpec *f, const json_t *v, const char *where, DrValue *out)
+{
+    char split[256], list[256];
+    const char *names[16];
+    int n = dr_scene_split_choices_(f->choices, split, sizeof split, names, 16);
+    dr_scene_join_names_(names, n, list, sizeof list);
+    if (!json_is_string(v)) return fail(p, "%s: expected one of %s, got %s", where, list, json_type_name(v));
+    const char *s = json_string_value(v);
+    for (int i = 0; i < n; i++) {
+        if (strcmp(names[i], s) == 0) {
+            out->str = arena_strdup(p->s->arena, s);
+            return out->str ? DR_OK : nomem(p);
+        }
+    }
+    char sug[160];
+    suggestion(s, names, n, sug, sizeof sug);
+    return fail(p, "%s: '%s' is not a valid choice%s Choose one of %s", where, s, sug, list);
+}
+
+/* Any field: the JSON value v at the current path; fills out and marks it set. */
+static DrStatus parse_field(Parser *p, const DrFieldSpec *f, const json_t *v, const char *where, DrValue *out)
+{
+    DrArena *a = p->s->arena;
+    switch (f->kind) {
+    case DR_FIELD_NUMBER:
+    case DR_FIELD_INT: DR_TRY(parse_number(p, f, v, where, &out->num[0])); break;
+    case DR_FIELD_BOOL:
+        if (!json_is_boolean(v)) return fail(p, "%s: expected true or false, got %s", where, json_type_name(v));
+        out->num[0] = json_is_true(v) ? 1.0 : 0.0;
+        break;
+    case DR_FIELD_ENUM: DR_TRY(parse_enum(p, f, v, where, out)); break;
+    case DR_FIELD_NAME: {
+        if (!json_is_string(v)) return fail(p, "%s: expected a name string, got %s", where, json_type_name(v));
+        char reason[64];
+        const char *why = name_problem(json_string_value(v), reason, sizeof reason);
+        if (why)
+            return fail(p, "%s: '%s' is not a valid name (%s); use letters, digits, '_', '.' and '-', e.g. \"water\"",
+                        where, json_string_value(v), why);
+        out->str = arena_strdup(a, json_string_value(v));
+        if (!out->str) return nomem(p);
+        break;
+    }
+    case DR_FIELD_PATH:
+        if (!json_is_string(v)) return fail(p, "%s: expected a file path string, got %s", where, json_type_name(v));
+        out->raw = arena_strdup(a, json_string_value(v));
+        if (!out->raw) return nomem(p);
+        DR_TRY(resolve_path(p, out->raw, where, &out->str));
+        break;
+    case DR_FIELD_VEC3: DR_TRY(parse_numbers(p, f, v, where, 3, "an array of 3 numbers [x, y, z]", out->num)); break;
+    case DR_FIELD_INT2: DR_TRY(parse_numbers(p, f, v, where, 2, "an array of 2 integers", out->num)); break;
+    case DR_FIELD_BOX: {
+        const char *shape = "a box [[x0, y0, z0], [x1, y1, z1]]";
+        if (!json_is_array(v)) return fail(p, "%s: expected %s, got %s", where, shape, json_type_name(v));
+        if (json_array_size(v) != 2)
+            return fail(p, "%s: expected %s (two corners), got an array of %zu", where, shape, json_array_size(v));
+        for (int c = 0; c < 2; c++) {
+            char w[WHERE_MAX + 16];
+            snprintf(w, sizeof w, "%s[%d]", where, c);
+            push_index(p, c);
+            DR_TRY(parse_numbers(p, f, json_array_get(v, (size_t)c), w, 3, "a corner [x, y, z]", &out->num[3 * c]));
+            pop(p);
+        }
+        for (int k = 0; k < 3; k++) {
+            if (!(out->num[k] < out->num[3 + k])) {
+                char lo[32], hi[32];
+                dr_scene_fmt_num_(out->num[k], lo, sizeof lo);
+                dr_scene_fmt_num_(out->num[3 + k], hi, sizeof hi);
+                return fail(p, "%s: the lower corner must be below the upper corner on every axis, but on %c it "
+                               "goes from %s to %s; write [[x0, y0, z0], [x1, y1, z1]] with x0 < x1, y0 < y1, z0 < z1",
+                            where, "xyz"[k], lo, hi);
+            }
+        }
+        break;
+    }
+    case DR_FIELD_TABLE: {
+        char shape[64];
+        snprintf(shape, sizeof shape, "an array of rows of %d numbers", f->arity);
+        if (!json_is_array(v)) return fail(p, "%s: expected %s, got %s", where, shape, json_type_name(v));
+        size_t nrows = json_array_size(v);
+        if (nrows > (size_t)INT32_MAX / (size_t)f->arity)
+            return fail(p, "%s: %zu rows are too many", where, nrows);
+        double *rows = NULL;
+        if (nrows) {
+            rows = dr_arena_alloc(a, nrows * (size_t)f->arity, sizeof(double));
+            if (!rows) return nomem(p);
+        }
+        char row_shape[64];
+        snprintf(row_shape, sizeof row_shape, "a row of %d numbers", f->arity);
+        for (size_t r = 0; r < nrows; r++) {
+            char w[WHERE_MAX + 24];
+            snprintf(w, sizeof w, "%s[%zu]", where, r);
+            push_index(p, (int)r);
+            DR_TRY(parse_numbers(p, f, json_array_get(v, r), w, f->arity, row_shape, rows + r * (size_t)f->arity));
+            pop(p);
+        }
+        out->rows = rows;
+        out->nrows = (int)nrows;
+        break;
+    }
+    }
+    out->set = out->has = true;
+    return DR_OK;
+}
+
+/* ---- cross-field rules ------------------------------------------------------------------------------ */
+
+static const DrValue *value_at(const DrComponent *c, const char *field)
+{
+    int i = dr_scene_field_index_(c->spec, field);
+    assert(i >= 0);
+    return &c->values[i];
+}
+
+static DrStatus check_shot(Parser *p, const DrComponent *c, const char *where)
+{
+    const DrValue *fr = value_at(c, "frames");
+    if (fr->num[0] > fr->num[1]) {
+        push_key(p, "frames");
+        return fail(p, "%s.frames = [%.0f, %.0f]: frames out of order; the first frame must not come after the "
+                       "last, e.g. [%.0f, %.0f]", where, fr->num[0], fr->num[1], fr->num[1], fr->num[0]);
+    }
+    return DR_OK;
+}
+
+static DrStatus check_camera(Parser *p, const DrComponent *c, const char *where)
+{
+    const double *eye = value_at(c, "eye")->num, *target = value_at(c, "target")->num, *up = value_at(c, "up")->num;
+    DrVec3 view = dr_v3(target[0] - eye[0], target[1] - eye[1], target[2] - eye[2]);
+    DrVec3 u = dr_v3(up[0], up[1], up[2]);
+    if (dr_v3_norm(view) == 0.0) {
+        push_key(p, "target");
+        return fail(p, "%s: eye and target are the same point; move the target to where the camera should look", where);
+    }
+    /* parallel when |view × up| is tiny against |view||up| (also catches up = 0) */
+    if (!(dr_v3_norm(dr_v3_cross(view, u)) > 1e-9 * dr_v3_norm(view) * dr_v3_norm(u))) {
+        push_key(p, "up");
+        return fail(p, "%s.up is zero or parallel to the view direction (target - eye); use an up vector such "
+                       "as [0, 1, 0] that is not", where);
+    }
+    return DR_OK;
+}
+
+static DrStatus check_emitter(Parser *p, const DrComponent *c, const char *where)
+{
+    double start = value_at(c, "start")->num[0], end = value_at(c, "end")->num[0];
+    if (start > end) {
+        char a[32], b[32];
+        dr_scene_fmt_num_(start, a, sizeof a);
+        dr_scene_fmt_num_(end, b, sizeof b);
+        push_key(p, value_at(c, "end")->set ? "end" : "start");
+        return fail(p, "%s: start = %s s is after end = %s s; the emitter must start before it ends", where, a, b);
+    }
+    return DR_OK;
+}
+
+static DrStatus check_source(Parser *p, const DrComponent *c, const char *where)
+{
+    if (!value_at(c, "box")->set && !value_at(c, "mesh")->set)
+        return fail_key(p, "%s: needs \"box\" or \"mesh\" for the liquid present at t=0; add \"box\": [[x0, y0, z0], "
+                           "[x1, y1, z1]] or remove the component", where);
+    return DR_OK;
+}
+
+static DrStatus check_motion(Parser *p, const DrComponent *c, const char *where)
+{
+    const DrValue *k = value_at(c, "keys");
+    for (int r = 1; r < k->nrows; r++) {
+        double prev = k->rows[7 * (r - 1)], cur = k->rows[7 * r];
+        if (!(cur > prev)) {
+            char a[32], b[32];
+            dr_scene_fmt_num_(prev, a, sizeof a);
+            dr_scene_fmt_num_(cur, b, sizeof b);
+            push_key(p, "keys");
+            push_index(p, r);
+            return fail(p, "%s.keys[%d]: frames out of order (frame %s after frame %s); key frames must be "
+                           "strictly increasing", where, r, b, a);
+        }
+    }
+    return DR_OK;
+}
+
+typedef DrStatus (*CheckFn)(Parser *p, const DrComponent *c, const char *where);
+static const struct {
+    const char *spec;
+    CheckFn fn;
+} checks[] = {
+    {"shot", check_shot},       {"render.camera", check_camera}, {"Emitter", check_emitter},
+    {"LiquidSource", check_source}, {"Motion", check_motion},
+};
+
+/* ---- components and sections ------------------------------------------------------------------------- */
+
+static DrStatus init_component(DrScene *s, const DrComponentSpec *spec, DrComponent *c)
+{
+    c->spec = spec;
+    c->present = false;
+    c->values = dr_arena_alloc(s->arena, (size_t)spec->field_count, sizeof(DrValue));
+    if (!c->values) return DR_ERR_NOMEM;
+    for (int i = 0; i < spec->field_count; i++) {
+        const DrFieldSpec *f = &spec->fields[i];
+        DrValue *v = &c->values[i];
+        v->has = f->kind == DR_FIELD_TABLE || !(f->required || f->no_default || f->kind == DR_FIELD_PATH);
+        if (!v->has) continue;
+        memcpy(v->num, f->def, sizeof v->num);
+        v->str = f->def_str;
+    }
+    return DR_OK;
+}
+
+/* Index of the section nested in `parent` under `key` ("render" + "camera"), -1 if none. */
+static int child_section(const char *parent, const char *key)
+{
+    size_t n = strlen(parent);
+    for (int i = 0; i < dr_scene_section_count_; i++) {
+        const char *name = dr_scene_sections_[i].name;
+        if (strncmp(name, parent, n) == 0 && name[n] == '.' && strcmp(name + n + 1, key) == 0) return i;
+    }
+    return -1;
+}
+
+static const char *example_of(const DrFieldSpec *f)
+{
+    switch (f->kind) {
+    case DR_FIELD_BOX: return "[[x0, y0, z0], [x1, y1, z1]]";
+    case DR_FIELD_PATH: return "\"path/to/mesh.obj\"";
+    case DR_FIELD_VEC3: return "[x, y, z]";
+    default: return "...";
+    }
+}
+
+/* The JSON object v at the current path into c (a component, or a section when `sections` is given:
+ * then nested sections are accepted too). */
+static DrStatus parse_component(Parser *p, const json_t *v, DrComponent *c, const char *where, DrComponent *sections)
+{
+    const DrComponentSpec *spec = c->spec;
+    if (!json_is_object(v))
+        return fail(p, "%s: expected an object of fields {\"field\": value, ...}, got %s", where, json_type_name(v));
+    c->present = true;
+    const char *key;
+    json_t *fv;
+    json_object_foreach((json_t *)v, key, fv) {
+        push_key(p, key);
+        char w[WHERE_MAX];
+        snprintf(w, sizeof w, "%s.%s", where, key);
+        int fi = dr_scene_field_index_(spec, key);
+        int child = sections ? child_section(spec->name, key) : -1;
+        if (fi >= 0) {
+            DR_TRY(parse_field(p, &spec->fields[fi], fv, w, &c->values[fi]));
+        } else if (child >= 0) {
+            DR_TRY(parse_component(p, fv, &sections[child], w, sections));
+        } else {
+            const char *names[32];
+            int n = 0;
+            for (int i = 0; i < spec->field_count && n < 32; i++) names[n++] = spec->fields[i].name;
+            for (int i = 0; sections && i < dr_scene_section_count_ && n < 32; i++) {
+                const char *dot = strrchr(dr_scene_sections_[i].name, '.');
+                if (dot && child_section(spec->name, dot + 1) == i) names[n++] = dot + 1;
+            }
+            char sug[256], list[1024];
+            suggestion(key, names, n, sug, sizeof sug);
+            dr_scene_join_names_(names, n, list, sizeof list);
+            return fail_key(p, "%s: unknown field '%s'%s Fields of %s: %s", where, key, sug, spec->name, list);
+        }
+        pop(p);
+    }
+    for (int i = 0; i < spec->field_count; i++) {
+        const DrFieldSpec *f = &spec->fields[i];
+        if (f->required && !c->values[i].set)
+            return fail_key(p, "%s: missing required field '%s' (%s); add \"%s\": %s", where, f->name, f->doc,
+                            f->name, example_of(f));
+    }
+    for (size_t i = 0; i < sizeof checks / sizeof checks[0]; i++) {
+        if (strcmp(checks[i].spec, spec->name) != 0) continue;
+        int depth = p->depth;
+        DR_TRY(checks[i].fn(p, c, where));
+        p->depth = depth;
+    }
+    return DR_OK;
+}
+
+/* ---- elements ------------------------------------------------------------------------------------------ */
+
+static const DrFieldSpec element_name_spec = {.name = "name", .kind = DR_FIELD_NAME, .unit = "", .doc = "element name"};
+
+static DrStatus parse_element(Parser *p, const json_t *v, int index)
+{
+    DrScene *s = p->s;
+    DrElement *e = &s->elements[index];
+    e->index = index;
+    char label[WHERE_MAX];
+    snprintf(label, sizeof label, "elements[%d]", index);
+    if (!json_is_object(v))
+        return fail(p, "%s: expected an element object {\"name\": ..., \"type\": ..., \"components\": {...}}, got %s",
+                    label, json_type_name(v));
+    static const char *const element_keys[] = {"name", "type", "components"};
+    const char *key;
+    json_t *kv;
+    json_object_foreach((json_t *)v, key, kv) {
+        bool known = false;
+        for (int i = 0; i < 3; i++) known |= strcmp(key, element_keys[i]) == 0;
+        if (known) continue;
+        char sug[256];
+        suggestion(key, element_keys, 3, sug, sizeof sug);
+        push_key(p, key);
+        return fail_key(p, "%s: unknown key '%s'%s An element has \"name\", \"type\" and \"components\"", label, key, sug);
+    }
+
+    const json_t *name = json_object_get(v, "name");
+    if (!name) return fail(p, "%s: missing \"name\"; give every element a unique name such as \"water\"", label);
+    push_key(p, "name");
+    char w[WHERE_MAX + 8];
+    snprintf(w, sizeof w, "%s.name", label);
+    DrValue nv = {0};
+    DR_TRY(parse_field(p, &element_name_spec, name, w, &nv));
+    e->name = nv.str;
+    for (int j = 0; j < index; j++)
+        if (strcmp(s->elements[j].name, e->name) == 0)
+            return fail(p, "elements[%d] and elements[%d] are both named '%s'; element names must be unique", j,
+                        index, e->name);
+    pop(p);
+
+    const char *types[16];
+    for (int i = 0; i < dr_scene_type_count_ && i < 16; i++) types[i] = dr_scene_types_[i].type;
+    char type_list[512];
+    dr_scene_join_names_(types, dr_scene_type_count_, type_list, sizeof type_list);
+    const json_t *type = json_object_get(v, "type");
+    if (!type) return fail(p, "element '%s': missing \"type\"; add \"type\": one of %s", e->name, type_list);
+    push_key(p, "type");
+    if (!json_is_string(type))
+        return fail(p, "element '%s'.type: expected a string (one of %s), got %s", e->name, type_list, json_type_name(type));
+    e->spec = dr_scene_element_spec(json_string_value(type));
+    if (!e->spec) {
+        char sug[256];
+        suggestion(json_string_value(type), types, dr_scene_type_count_, sug, sizeof sug);
+        return fail(p, "element '%s': unknown type '%s'%s Types: %s", e->name, json_string_value(type), sug, type_list);
+    }
+    e->type = e->spec->type;
+    pop(p);
+
+    const DrElementSpec *t = e->spec;
+    e->components_ = dr_arena_alloc(s->arena, (size_t)t->component_count, sizeof(DrComponent));
+    if (!e->components_) return nomem(p);
+    for (int i = 0; i < t->component_count; i++)
+        if (init_component(s, dr_scene_component_spec(t->components[i]), &e->components_[i])) return nomem(p);
+
+    char where[WHERE_MAX];
+    snprintf(where, sizeof where, "element '%s' (%s)", e->name, e->type);
+    char comp_list[1024];
+    dr_scene_join_names_(t->components, t->component_count, comp_list, sizeof comp_list);
+    const json_t *comps = json_object_get(v, "components");
+    if (comps) {
+        push_key(p, "components");
+        if (!json_is_object(comps))
+            return fail(p, "%s: \"components\" must be an object {\"Component\": {...}}, got %s", where,
+                        json_type_name(comps));
+        json_object_foreach((json_t *)comps, key, kv) {
+            push_key(p, key);
+            int ci = -1;
+            for (int i = 0; i < t->component_count; i++)
+                if (strcmp(t->components[i], key) == 0) ci = i;
+            if (ci < 0) {
+                char sug[256], other[256] = "";
+                suggestion(key, t->components, t->component_count, sug, sizeof sug);
+                for (int i = 0; i < dr_scene_type_count_ && !other[0]; i++)
+                    for (int j = 0; j < dr_scene_types_[i].component_count; j++)
+                        if (strcmp(dr_scene_types_[i].components[j], key) == 0)
+                            snprintf(other, sizeof other, " ('%s' is a component of %s elements)", key,
+                                     dr_scene_types_[i].type);
+                return fail_key(p, "%s: unknown component '%s'%s%s Components of %s: %s", where, key, other, sug,
+                                t->type, comp_list);
+            }
+            char cw[WHERE_MAX + 64];
+            snprintf(cw, sizeof cw, "%s.%s", e->name, key);
+            DR_TRY(parse_component(p, kv, &e->components_[ci], cw, NULL));
+            pop(p);
+        }
+        pop(p);
+    }
+    for (int i = 0; i < t->required_count; i++) {
+        const DrComponent *c = dr_element_component(e, t->required_components[i]);
+        if (c->present) continue;
+        char need[512] = "";
+        size_t used = 0;
+        for (int f = 0; f < c->spec->field_count; f++)
+            if (c->spec->fields[f].required)
+                used += (size_t)snprintf(need + used, sizeof need - used, "%s\"%s\": %s", used ? ", " : "",
+                                         c->spec->fields[f].name, example_of(&c->spec->fields[f]));
+        return fail(p, "%s: missing component '%s' (%s); add \"%s\": {%s} to its components", where, c->spec->name,
+                    c->spec->doc, c->spec->name, need);
+    }
+    return DR_OK;
+}
+
+static DrStatus parse_elements(Parser *p, const json_t *v)
+{
+    DrScene *s = p->s;
+    if (!json_is_array(v))
+        return fail(p, "elements: expected an array of element objects, got %s", json_type_name(v));
+    size_t n = json_array_size(v);
+    if (n > (size_t)INT32_MAX) return fail(p, "elements: too many elements (%zu)", n);
+    s->elements = dr_arena_alloc(s->arena, n ? n : 1, sizeof(DrElement));
+    if (!s->elements) return nomem(p);
+    for (size_t i = 0; i < n; i++) {
+        push_index(p, (int)i);
+        DR_TRY(parse_element(p, json_array_get(v, i), (int)i));
+        pop(p);
+        s->element_count = (int)i + 1;
+    }
+    return DR_OK;
+}
+
+/* Every distinct resolved PATH value, sections first, then elements in order. */
+static DrStatus collect_assets(Parser *p)
+{
+    DrScene *s = p->s;
+    int cap = 0;
+    for (int pass = 0; pass < 2; pass++) {
+        if (pass == 1) {
+            s->assets = dr_arena_alloc(s->arena, (size_t)cap + 1, sizeof(DrAsset));
+            if (!s->assets) return nomem(p);
+        }
+        for (int e = -1; e < s->element_count; e++) {
+            int nc = e < 0 ? dr_scene_section_count_ : s->elements[e].spec->component_count;
+            const DrComponent *cs = e < 0 ? s->sections : s->elements[e].components_;
+            for (int c = 0; c < nc; c++) {
+                for (int f = 0; f < cs[c].spec->field_count; f++) {
+                    const DrValue *v = &cs[c].values[f];
+                    if (cs[c].spec->fields[f].kind != DR_FIELD_PATH || !v->set) continue;
+                    if (pass == 0) { cap++; continue; }
+                    bool dup = false;
+                    for (int k = 0; k < s->asset_count; k++) dup |= strcmp(s->assets[k].path, v->str) == 0;
+                    if (dup) continue;
+                    char where[WHERE_MAX];
+                    snprintf(where, sizeof where, "%s%s%s.%s", e < 0 ? "" : s->elements[e].name, e < 0 ? "" : ".",
+                             cs[c].spec->name, cs[c].spec->fields[f].name);
+                    DrAsset *a = &s->assets[s->asset_count++];
+                    a->path = v->str;
+                    a->element = e;
+                    a->where = arena_strdup(s->arena, where);
+                    if (!a->where) return nomem(p);
+                }
+            }
+        }
+    }
+    return DR_OK;
+}
+
+static DrStatus parse_root(Parser *p, const json_t *root)
+{
+    DrScene *s = p->s;
+    if (!json_is_object(root))
+        return fail(p, "the scene must be a JSON object {\"shot\": {...}, \"elements\": [...], ...}, got %s",
+                    json_type_name(root));
+    const char *key;
+    json_t *v;
+    json_object_foreach((json_t *)root, key, v) {
+        push_key(p, key);
+        int si = strchr(key, '.') ? -1 : dr_scene_section_index_(key);
+        if (strcmp(key, "elements") == 0) {
+            DR_TRY(parse_elements(p, v));
+        } else if (si >= 0) {
+            DR_TRY(parse_component(p, v, &s->sections[si], key, s->sections));
+        } else {
+            const char *names[32];
+            int n = 0;
+            for (int i = 0; i < dr_scene_section_count_ && n < 31; i++)
+                if (!strchr(dr_scene_sections_[i].name, '.')) names[n++] = dr_scene_sections_[i].name;
+            names[n++] = "elements";
+            char sug[256], list[512];
+            suggestion(key, names, n, sug, sizeof sug);
+            dr_scene_join_names_(names, n, list, sizeof list);
+            return fail_key(p, "unknown top-level key '%s'%s Top-level keys: %s", key, sug, list);
+        }
+        pop(p);
+    }
+    return collect_assets(p);
+}
+
+/* ---- load / destroy ------------------------------------------------------------------------------------ */
+
+static DrStatus read_text(const char *path, char **out, size_t *len, DrError *err)
+{
+    *out = NULL;
+    FILE *f = fopen(path, "rb");
+    if (!f)
+        return dr_error_set(err, DR_ERR_INPUT, path, 0, 0, "cannot open the scene file (%s); check the path",
+                            strerror(errno));
+    size_t cap = 1 << 16, n = 0;
+    char *buf = malloc(cap);
+    DrStatus st = DR_OK;
+    while (buf) {
+        n += fread(buf + n, 1, cap - n - 1, f);
+        if (ferror(f)) {
+            st = dr_error_set(err, DR_ERR_INPUT, path, 0, 0, "cannot read the scene file (%s); check the path",
+                              strerror(errno));
+            break;
+        }
+        if (feof(f)) break;
+        if (cap > SIZE_MAX / 2) { free(buf); buf = NULL; break; }
+        char *bigger = realloc(buf, cap * 2);
+        if (!bigger) { free(buf); buf = NULL; break; }
+        buf = bigger;
+        cap *= 2;
+    }
+    fclose(f);
+    if (!buf) return dr_error_set(err, DR_ERR_NOMEM, path, 0, 0, "out of memory reading the scene file");
+    if (st != DR_OK) { free(buf); return st; }
+    buf[n] = '\0';
+    *out = buf;
+    *len = n;
+    return DR_OK;
+}
+
+DrStatus dr_scene_load(const char *path, DrScene **out, DrError *err)
+{
+    assert(path && out);
+    *out = NULL;
+    dr_scene_check_tables_();
+    char *text = NULL;
+    size_t len = 0;
+    DR_TRY(read_text(path, &text, &len, err));
+    json_error_t jerr;
+    json_t *root = json_loadb(text, len, JSON_REJECT_DUPLICATES, &jerr);
+    if (!root) {
+        DrStatus st = dr_error_set(err, DR_ERR_INPUT, path, jerr.line > 0 ? jerr.line : 1,
+                                   jerr.column > 0 ? jerr.column : 1, "invalid JSON: %s", jerr.text);
+        free(text);
+        return st;
+    }
+
+    DrScene *s = NULL;
+    DrStatus st = dr_calloc(1, sizeof *s, &s, err);
+    if (st == DR_OK) st = dr_arena_create(1 << 16, &s->arena, err);
+    char *dir = NULL;
+    if (st == DR_OK) {
+        s->path = arena_strdup(s->arena, path);
+        dir = arena_strdup(s->arena, path);
+        s->sections = dr_arena_alloc(s->arena, (size_t)dr_scene_section_count_, sizeof(DrComponent));
+        if (!s->path || !dir || !s->sections) st = dr_error_set(err, DR_ERR_NOMEM, path, 0, 0, "out of memory while loading the scene");
+    }
+    for (int i = 0; st == DR_OK && i < dr_scene_section_count_; i++)
+        if (init_component(s, &dr_scene_sections_[i], &s->sections[i]))
+            st = dr_error_set(err, DR_ERR_NOMEM, path, 0, 0, "out of memory while loading the scene");
+    if (st == DR_OK) {
+        char *slash = strrchr(dir, '/');
+        if (!slash) dir[0] = '\0';
+        else if (slash == dir) dir[1] = '\0'; /* "/scene.json": the root */
+        else *slash = '\0';
+        Parser p = {.s = s, .text = text, .len = len, .dir = dir, .err = err};
+        st = parse_root(&p, root);
+    }
+    json_decref(root);
+    free(text);
+    if (st != DR_OK) {
+        dr_scene_destroy(&s);
+        return st;
+    }
+    *out = s;
+    return DR_OK;
+}
+
+void dr_scene_destroy(DrScene **scene)
+{
+    if (!scene || !*scene) return;
+    dr_arena_destroy(&(*scene)->arena);
+    free(*scene);
+    *scene = NULL;
+}
+
+/* ---- accessors ------------------------------------------------------------------------------------------ */
+
+const char *dr_scene_path(const DrScene *s) { return s->path; }
+int dr_scene_element_count(const DrScene *s) { return s->element_count; }
+
+const DrElement *dr_scene_element(const DrScene *s, int i)
+{
+    assert(i >= 0 && i < s->element_count);
+    return &s->elements[i];
+}
+
+const DrElement *dr_scene_find(const DrScene *s, const char *name)
+{
+    for (int i = 0; i < s->element_count; i++)
+        if (strcmp(s->elements[i].name, name) == 0) return &s->elements[i];
+    return NULL;
+}
+
+int dr_scene_count_type(const DrScene *s, const char *type)
+{
+    int n = 0;
+    for (int i = 0; i < s->element_count; i++) n += strcmp(s->elements[i].type, type) == 0;
+    return n;
+}
+
+const DrComponent *dr_scene_section(const DrScene *s, const char *name)
+{
+    int i = dr_scene_section_index_(name);
+    assert(i >= 0 && "unknown scene section");
+    return &s->sections[i];
+}
+
+const DrComponent *dr_element_component(const DrElement *e, const char *name)
+{
+    for (int i = 0; i < e->spec->component_count; i++)
+        if (strcmp(e->spec->components[i], name) == 0) return &e->components_[i];
+    assert(!"component not in the element type's table");
+    return NULL;
+}
+
+bool dr_component_present(const DrComponent *c) { return c->present; }
+
+static const DrValue *getter(const DrComponent *c, const char *field, DrFieldKind kind)
+{
+    int i = dr_scene_field_index_(c->spec, field);
+    assert(i >= 0 && "unknown field");
+    assert(c->spec->fields[i].kind == kind && "getter of the wrong kind for this field");
+    return &c->values[i];
+}
+
+bool dr_component_is_set(const DrComponent *c, const char *field)
+{
+    int i = dr_scene_field_index_(c->spec, field);
+    assert(i >= 0 && "unknown field");
+    return c->values[i].set;
+}
+
+double dr_component_num(const DrComponent *c, const char *field) { return getter(c, field, DR_FIELD_NUMBER)->num[0]; }
+int dr_component_int(const DrComponent *c, const char *field) { return (int)getter(c, field, DR_FIELD_INT)->num[0]; }
+bool dr_component_bool(const DrComponent *c, const char *field) { return getter(c, field, DR_FIELD_BOOL)->num[0] != 0.0; }
+
+const char *dr_component_str(const DrComponent *c, const char *field)
+{
+    int i = dr_scene_field_index_(c->spec, field);
+    assert(i >= 0 && "unknown field");
+    DrFieldKind k = c->spec->fields[i].kind;
+    assert((k == DR_FIELD_ENUM || k == DR_FIELD_NAME || k == DR_FIELD_PATH) && "getter of the wrong kind for this field");
+    (void)k;
+    return c->values[i].has ? c->values[i].str : NULL;
+}
+
+DrVec3 dr_component_vec3(const DrComponent *c, const char *field)
+{
+    const double *n = getter(c, field, DR_FIELD_VEC3)->num;
+    return dr_v3(n[0], n[1], n[2]);
+}
+
+void dr_component_int2(const DrComponent *c, const char *field, int out[2])
+{
+    const double *n = getter(c, field, DR_FIELD_INT2)->num;
+    out[0] = (int)n[0];
+    out[1] = (int)n[1];
+}
+
+void dr_component_box(const DrComponent *c, const char *field, DrVec3 *lo, DrVec3 *hi)
+{
+    const double *n = getter(c, field, DR_FIELD_BOX)->num;
+    *lo = dr_v3(n[0], n[1], n[2]);
+    *hi = dr_v3(n[3], n[4], n[5]);
+}
+
+int dr_component_table(const DrComponent *c, const char *field, const double **rows)
+{
+    const DrValue *v = getter(c, field, DR_FIELD_TABLE);
+    *rows = v->nrows ? v->rows : NULL;
+    return v->nrows;
+}
+
+int dr_scene_asset_count(const DrScene *s) { return s->asset_count; }
+
+const char *dr_scene_asset(const DrScene *s, int i)
+{
+    assert(i >= 0 && i < s->asset_count);
+    return s->assets[i].path;
+}

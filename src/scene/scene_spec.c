@@ -1,0 +1,535 @@
+/* The scene schema: every section, element type, component and field, in one set of tables that the
+ * parser, the validator, the canonical writer and the printed reference all read (DESIGN §3). Adding a
+ * field here is the whole job for a new parameter; a cross-field rule goes in scene.c's checks. */
+#include "scene_internal.h"
+
+#include <ctype.h>
+#include <string.h>
+
+#define RANGE(a, b) .ranged = true, .lo = (a), .hi = (b)
+#define RANGE_LO_OPEN(a, b) RANGE(a, b), .lo_open = true
+#define RANGE_OPEN(a, b) RANGE(a, b), .lo_open = true, .hi_open = true
+#define COUNT(arr) ((int)(sizeof(arr) / sizeof((arr)[0])))
+#define INT_MAX_31 2147483647.0
+/* Generous bounds for positions: a typo like 1e9 is caught, any real set fits. */
+#define POS_RANGE RANGE(-1e6, 1e6)
+
+/* ---- sections ------------------------------------------------------------------------------------------- */
+
+static const DrFieldSpec shot_fields[] = {
+    {.name = "name", .kind = DR_FIELD_NAME, .unit = "", .def_str = "shot",
+     .doc = "shot name; outputs go to out/<name>/"},
+    {.name = "fps", .kind = DR_FIELD_NUMBER, .unit = "1/s", .def = {24}, RANGE_LO_OPEN(0, 1000),
+     .doc = "frames per second", .hint = "use a frame rate such as 24"},
+    {.name = "frames", .kind = DR_FIELD_INT2, .unit = "", .def = {1, 48}, RANGE(0, 1000000),
+     .doc = "first and last frame, inclusive; first <= last"},
+    {.name = "gravity", .kind = DR_FIELD_VEC3, .unit = "m/s^2", .def = {0, -9.81, 0}, RANGE(-1000, 1000),
+     .doc = "gravitational acceleration (y is up)"},
+    {.name = "seed", .kind = DR_FIELD_INT, .unit = "", .def = {1}, RANGE(0, INT_MAX_31),
+     .doc = "seed of every random choice in the shot"},
+};
+
+static const DrFieldSpec solver_fields[] = {
+    {.name = "cfl", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {1.0}, RANGE(0.05, 10),
+     .doc = "CFL number: the largest distance a particle moves in one substep, in grid cells"},
+    {.name = "max_substeps", .kind = DR_FIELD_INT, .unit = "", .def = {64}, RANGE(1, 100000),
+     .doc = "upper bound on substeps per frame"},
+    {.name = "pressure_tolerance", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {1e-6}, RANGE(1e-14, 0.1),
+     .doc = "relative residual at which the pressure solve stops"},
+    {.name = "pressure_max_iterations", .kind = DR_FIELD_INT, .unit = "", .def = {2000}, RANGE(1, 1000000),
+     .doc = "iteration limit of the pressure solve (reaching it is a warning)"},
+    {.name = "checkpoint_every", .kind = DR_FIELD_INT, .unit = "", .def = {1}, RANGE(1, 100000),
+     .doc = "frames between checkpoints"},
+};
+
+static const DrFieldSpec mesh_fields[] = {
+    {.name = "voxel_size", .kind = DR_FIELD_NUMBER, .unit = "m", .def = {0}, RANGE(0, 10),
+     .doc = "voxel size of the liquid surface; 0 = automatic (half the liquid grid spacing)"},
+    {.name = "radius_scale", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {1.0}, RANGE(0.1, 10),
+     .doc = "particle sphere radius in voxels"},
+    {.name = "smoothing", .kind = DR_FIELD_INT, .unit = "", .def = {1}, RANGE(0, 50),
+     .doc = "mean-curvature smoothing passes of the level set"},
+    {.name = "adaptivity", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {0}, RANGE(0, 1),
+     .doc = "mesh adaptivity: 0 uniform triangles, 1 fewest triangles"},
+    {.name = "write_vdb", .kind = DR_FIELD_BOOL, .unit = "", .def = {1}, .doc = "write <element>.NNNN.vdb"},
+    {.name = "write_obj", .kind = DR_FIELD_BOOL, .unit = "", .def = {1}, .doc = "write <element>.NNNN.obj"},
+};
+
+static const DrFieldSpec render_fields[] = {
+    {.name = "resolution", .kind = DR_FIELD_INT2, .unit = "px", .def = {960, 540}, RANGE(16, 16384),
+     .doc = "image width and height"},
+    {.name = "contact_every", .kind = DR_FIELD_INT, .unit = "", .def = {4}, RANGE(1, 10000),
+     .doc = "every n-th frame goes on the contact sheet"},
+};
+
+static const DrFieldSpec camera_fields[] = {
+    {.name = "eye", .kind = DR_FIELD_VEC3, .unit = "m", .def = {0.6, 0.4, 0.8}, POS_RANGE,
+     .doc = "camera position"},
+    {.name = "target", .kind = DR_FIELD_VEC3, .unit = "m", .def = {0, 0.1, 0}, POS_RANGE,
+     .doc = "point the camera looks at"},
+    {.name = "up", .kind = DR_FIELD_VEC3, .unit = "1", .def = {0, 1, 0}, RANGE(-1e6, 1e6),
+     .doc = "up direction (need not be unit length; not parallel to the view direction)"},
+    {.name = "fov_deg", .kind = DR_FIELD_NUMBER, .unit = "deg", .def = {40}, RANGE_OPEN(1, 170),
+     .doc = "vertical field of view", .hint = "use a field of view such as 40"},
+};
+
+const DrComponentSpec dr_scene_sections_[] = {
+    {"shot", "name, frame range, frame rate, gravity and seed of the shot", shot_fields, COUNT(shot_fields)},
+    {"solver", "time stepping and linear solver controls", solver_fields, COUNT(solver_fields)},
+    {"mesh", "liquid surface extraction (the mesh stage)", mesh_fields, COUNT(mesh_fields)},
+    {"render", "images and contact sheet (the render stage); holds \"camera\"", render_fields,
+     COUNT(render_fields)},
+    {"render.camera", "the render camera (a pinhole looking from eye to target)", camera_fields,
+     COUNT(camera_fields)},
+};
+const int dr_scene_section_count_ = COUNT(dr_scene_sections_);
+
+/* ---- components ---------------------------------------------------------------------------------------- */
+
+static const DrFieldSpec domain_fields[] = {
+    {.name = "box", .kind = DR_FIELD_BOX, .unit = "m", .required = true, POS_RANGE,
+     .doc = "simulation grid bounds; walls at its faces"},
+    {.name = "voxel_size", .kind = DR_FIELD_NUMBER, .unit = "m", .def = {0.02}, RANGE(1e-4, 10),
+     .doc = "grid cell size", .hint = "use a cell size such as 0.02 (a 1 m box gets 50 cells a side)"},
+    {.name = "wall_boundary", .kind = DR_FIELD_ENUM, .unit = "", .def_str = "slip", .choices = "slip|no_slip",
+     .doc = "velocity condition at the domain walls"},
+};
+
+static const DrFieldSpec liquid_source_fields[] = {
+    {.name = "box", .kind = DR_FIELD_BOX, .unit = "m", .no_default = true, POS_RANGE,
+     .doc = "box filled with liquid at t=0"},
+    {.name = "mesh", .kind = DR_FIELD_PATH, .unit = "", .doc = "closed mesh whose volume is filled at t=0"},
+    {.name = "velocity", .kind = DR_FIELD_VEC3, .unit = "m/s", .def = {0, 0, 0}, RANGE(-1e4, 1e4),
+     .doc = "initial velocity"},
+};
+
+static const DrFieldSpec emitter_fields[] = {
+    {.name = "box", .kind = DR_FIELD_BOX, .unit = "m", .required = true, POS_RANGE,
+     .doc = "region kept full of liquid while the emitter is on"},
+    {.name = "velocity", .kind = DR_FIELD_VEC3, .unit = "m/s", .def = {0, 0, 0}, RANGE(-1e4, 1e4),
+     .doc = "velocity of emitted liquid"},
+    {.name = "start", .kind = DR_FIELD_NUMBER, .unit = "s", .def = {0}, RANGE(0, 1e6),
+     .doc = "time the emitter turns on"},
+    {.name = "end", .kind = DR_FIELD_NUMBER, .unit = "s", .def = {1e6}, RANGE(0, 1e6),
+     .doc = "time the emitter turns off (start <= end)"},
+};
+
+static const DrFieldSpec kill_box_fields[] = {
+    {.name = "box", .kind = DR_FIELD_BOX, .unit = "m", .required = true, POS_RANGE,
+     .doc = "particles entering this box are removed"},
+};
+
+static const DrFieldSpec liquid_material_fields[] = {
+    {.name = "density", .kind = DR_FIELD_NUMBER, .unit = "kg/m^3", .def = {1000}, RANGE(1, 1e5),
+     .doc = "mass density", .hint = "use a positive density such as 1000 for water"},
+    {.name = "viscosity", .kind = DR_FIELD_NUMBER, .unit = "Pa*s", .def = {0.001}, RANGE(0, 1e4),
+     .doc = "dynamic viscosity", .hint = "water is 0.001, honey about 10"},
+};
+
+static const DrFieldSpec transfer_fields[] = {
+    {.name = "scheme", .kind = DR_FIELD_ENUM, .unit = "", .def_str = "apic", .choices = "apic|flip|pic",
+     .doc = "particle-grid transfer"},
+    {.name = "flip_blend", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {0.97}, RANGE(0, 1),
+     .doc = "fraction of FLIP in the FLIP/PIC blend (scheme flip only)"},
+};
+
+static const DrFieldSpec particles_fields[] = {
+    {.name = "per_cell", .kind = DR_FIELD_INT, .unit = "", .def = {8}, RANGE(1, 64),
+     .doc = "particles seeded per grid cell"},
+    {.name = "jitter", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {1}, RANGE(0, 1),
+     .doc = "random offset of seeded particles, as a fraction of the sub-cell size"},
+    {.name = "seed", .kind = DR_FIELD_INT, .unit = "", .def = {1}, RANGE(0, INT_MAX_31),
+     .doc = "seed of the particle jitter (combined with shot.seed)"},
+};
+
+static const DrFieldSpec mesh_file_fields[] = {
+    {.name = "file", .kind = DR_FIELD_PATH, .unit = "", .required = true,
+     .doc = "triangle mesh file (OBJ, PLY, STL, ... anything assimp reads)"},
+};
+
+static const DrFieldSpec collider_fields[] = {
+    {.name = "friction", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {0}, RANGE(0, 10),
+     .doc = "Coulomb friction coefficient"},
+    {.name = "boundary", .kind = DR_FIELD_ENUM, .unit = "", .def_str = "slip", .choices = "slip|no_slip",
+     .doc = "velocity condition of liquid at the surface"},
+    {.name = "thickness", .kind = DR_FIELD_NUMBER, .unit = "m", .def = {0}, RANGE(0, 1),
+     .doc = "extra thickness added around the surface"},
+};
+
+static const DrFieldSpec transform_fields[] = {
+    {.name = "translate", .kind = DR_FIELD_VEC3, .unit = "m", .def = {0, 0, 0}, POS_RANGE,
+     .doc = "translation, applied last"},
+    {.name = "rotate_deg", .kind = DR_FIELD_VEC3, .unit = "deg", .def = {0, 0, 0}, RANGE(-36000, 36000),
+     .doc = "XYZ Euler angles (x applied first), applied after scale"},
+    {.name = "scale", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {1}, RANGE_LO_OPEN(0, 1e6),
+     .doc = "uniform scale, applied first"},
+};
+
+static const DrFieldSpec motion_fields[] = {
+    {.name = "keys", .kind = DR_FIELD_TABLE, .unit = "frame, m, deg", .arity = 7, POS_RANGE,
+     .doc = "rows [frame, tx, ty, tz, rx_deg, ry_deg, rz_deg]: rigid motion applied after Transform, "
+            "linear between keys; frames strictly increasing"},
+};
+
+const DrComponentSpec dr_scene_components_[] = {
+    {"Domain", "the simulation grid", domain_fields, COUNT(domain_fields)},
+    {"LiquidSource", "liquid present at t=0 (needs box or mesh)", liquid_source_fields,
+     COUNT(liquid_source_fields)},
+    {"Emitter", "a box that keeps emitting liquid between start and end", emitter_fields, COUNT(emitter_fields)},
+    {"KillBox", "a box that removes liquid", kill_box_fields, COUNT(kill_box_fields)},
+    {"LiquidMaterial", "material of the liquid", liquid_material_fields, COUNT(liquid_material_fields)},
+    {"Transfer", "particle-grid transfer scheme", transfer_fields, COUNT(transfer_fields)},
+    {"Particles", "particle seeding", particles_fields, COUNT(particles_fields)},
+    {"Mesh", "the element's surface mesh", mesh_file_fields, COUNT(mesh_file_fields)},
+    {"Collider", "how liquid and solids interact with the surface", collider_fields, COUNT(collider_fields)},
+    {"Transform", "rest placement of the mesh: scale, then rotate, then translate", transform_fields,
+     COUNT(transform_fields)},
+    {"Motion", "keyframed rigid motion", motion_fields, COUNT(motion_fields)},
+};
+const int dr_scene_component_count_ = COUNT(dr_scene_components_);
+
+/* ---- element types --------------------------------------------------------------------------------------- */
+
+static const char *const liquid_components[] = {"Domain",         "LiquidSource", "Emitter",  "KillBox",
+                                                "LiquidMaterial", "Transfer",     "Particles"};
+static const char *const liquid_required[] = {"Domain"};
+static const char *const collider_components[] = {"Mesh", "Collider", "Transform", "Motion"};
+static const char *const collider_required[] = {"Mesh"};
+
+const DrElementSpec dr_scene_types_[] = {
+    {"liquid", "a body of incompressible liquid (APIC/FLIP/PIC particles on a MAC grid inside its Domain)",
+     liquid_components, COUNT(liquid_components), liquid_required, COUNT(liquid_required), false},
+    {"collider", "a rigid obstacle given by a closed triangle mesh, optionally moving", collider_components,
+     COUNT(collider_components), collider_required, COUNT(collider_required), false},
+};
+const int dr_scene_type_count_ = COUNT(dr_scene_types_);
+
+/* ---- lookups ---------------------------------------------------------------------------------------------- */
+
+int dr_scene_section_index_(const char *name)
+{
+    for (int i = 0; i < dr_scene_section_count_; i++)
+        if (strcmp(dr_scene_sections_[i].name, name) == 0) return i;
+    return -1;
+}
+
+const DrComponentSpec *dr_scene_section_spec(const char *name)
+{
+    int i = dr_scene_section_index_(name);
+    return i < 0 ? NULL : &dr_scene_sections_[i];
+}
+
+const DrComponentSpec *dr_scene_component_spec(const char *name)
+{
+    for (int i = 0; i < dr_scene_component_count_; i++)
+        if (strcmp(dr_scene_components_[i].name, name) == 0) return &dr_scene_components_[i];
+    return NULL;
+}
+
+const DrElementSpec *dr_scene_element_spec(const char *type)
+{
+    for (int i = 0; i < dr_scene_type_count_; i++)
+        if (strcmp(dr_scene_types_[i].type, type) == 0) return &dr_scene_types_[i];
+    return NULL;
+}
+
+int dr_scene_field_index_(const DrComponentSpec *c, const char *field)
+{
+    for (int i = 0; i < c->field_count; i++)
+        if (strcmp(c->fields[i].name, field) == 0) return i;
+    return -1;
+}
+
+int dr_scene_kind_width_(const DrFieldSpec *f)
+{
+    switch (f->kind) {
+    case DR_FIELD_NUMBER:
+    case DR_FIELD_INT:
+    case DR_FIELD_BOOL: return 1;
+    case DR_FIELD_VEC3: return 3;
+    case DR_FIELD_INT2: return 2;
+    case DR_FIELD_BOX: return 6;
+    case DR_FIELD_TABLE: return f->arity;
+    case DR_FIELD_ENUM:
+    case DR_FIELD_NAME:
+    case DR_FIELD_PATH: return 0;
+    }
+    return 0;
+}
+
+int dr_scene_split_choices_(const char *choices, char *buf, size_t size, const char **names, int max)
+{
+    snprintf(buf, size, "%s", choices);
+    int n = 0;
+    for (char *p = buf; n < max;) {
+        names[n++] = p;
+        char *bar = strchr(p, '|');
+        if (!bar) break;
+        *bar = '\0';
+        p = bar + 1;
+    }
+    return n;
+}
+
+void dr_scene_join_names_(const char *const *names, int n, char *buf, size_t size)
+{
+    size_t used = 0;
+    if (size) buf[0] = '\0';
+    for (int i = 0; i < n && used < size; i++) used += (size_t)snprintf(buf + used, size - used, "%s%s", i ? ", " : "", names[i]);
+}
+
+static bool choice_ok(const char *choices, const char *s)
+{
+    char buf[256];
+    const char *names[16];
+    int n = dr_scene_split_choices_(choices, buf, sizeof buf, names, 16);
+    for (int i = 0; i < n; i++)
+        if (strcmp(names[i], s) == 0) return true;
+    return false;
+}
+
+static void check_component_spec(const DrComponentSpec *c)
+{
+    assert(c->name && c->doc && c->field_count > 0);
+    for (int i = 0; i < c->field_count; i++) {
+        const DrFieldSpec *f = &c->fields[i];
+        assert(f->name && f->unit && f->doc);
+        assert(dr_scene_field_index_(c, f->name) == i && "duplicate field name");
+        int w = dr_scene_kind_width_(f);
+        bool has_def = !f->required && !f->no_default;
+        if (f->kind == DR_FIELD_TABLE) assert(f->arity >= 1 && !f->required);
+        if (f->kind == DR_FIELD_ENUM) assert(f->choices && (!has_def || choice_ok(f->choices, f->def_str)));
+        if (f->kind == DR_FIELD_ENUM || f->kind == DR_FIELD_NAME) assert(!has_def || f->def_str);
+        if (f->kind == DR_FIELD_INT || f->kind == DR_FIELD_INT2)
+            assert(f->ranged && f->lo >= -INT_MAX_31 && f->hi <= INT_MAX_31 && "an INT needs a range that fits an int");
+        if (f->kind == DR_FIELD_PATH) assert(!f->def_str && "an asset path has no default");
+        if (!has_def || f->kind == DR_FIELD_TABLE) continue;
+        for (int k = 0; k < w; k++) {
+            double v = f->def[k];
+            if (f->kind == DR_FIELD_INT || f->kind == DR_FIELD_INT2) assert(v == floor(v));
+            if (f->ranged)
+                assert((f->lo_open ? v > f->lo : v >= f->lo) && (f->hi_open ? v < f->hi : v <= f->hi) &&
+                       "default outside its range");
+        }
+    }
+}
+
+void dr_scene_check_tables_(void)
+{
+    for (int i = 0; i < dr_scene_section_count_; i++) {
+        const DrComponentSpec *c = &dr_scene_sections_[i];
+        check_component_spec(c);
+        assert(dr_scene_section_index_(c->name) == i);
+        const char *dot = strrchr(c->name, '.');
+        if (dot) { /* a nested section follows its parent */
+            int parent = -1;
+            for (int j = 0; j < i; j++)
+                if (strlen(dr_scene_sections_[j].name) == (size_t)(dot - c->name) &&
+                    strncmp(dr_scene_sections_[j].name, c->name, (size_t)(dot - c->name)) == 0)
+                    parent = j;
+            assert(parent >= 0 && "nested section without a parent before it");
+            assert(dr_scene_field_index_(&dr_scene_sections_[parent], dot + 1) < 0);
+        }
+    }
+    for (int i = 0; i < dr_scene_component_count_; i++) {
+        check_component_spec(&dr_scene_components_[i]);
+        assert(dr_scene_component_spec(dr_scene_components_[i].name) == &dr_scene_components_[i]);
+    }
+    for (int i = 0; i < dr_scene_type_count_; i++) {
+        const DrElementSpec *t = &dr_scene_types_[i];
+        assert(dr_scene_element_spec(t->type) == t);
+        for (int j = 0; j < t->component_count; j++) assert(dr_scene_component_spec(t->components[j]));
+        for (int j = 0; j < t->required_count; j++) {
+            bool listed = false;
+            for (int k = 0; k < t->component_count; k++) listed |= strcmp(t->components[k], t->required_components[j]) == 0;
+            assert(listed);
+        }
+    }
+}
+
+/* ---- text helpers --------------------------------------------------------------------------------------- */
+
+#define EDIT_MAX 64 /* longer words get no suggestion; no schema name is this long */
+
+int dr_scene_edit_distance_(const char *a, const char *b)
+{
+    size_t n = strlen(a), m = strlen(b);
+    if (n > EDIT_MAX || m > EDIT_MAX) return 1 << 20;
+    int prev[EDIT_MAX + 1], cur[EDIT_MAX + 1];
+    for (size_t j = 0; j <= m; j++) prev[j] = (int)j;
+    for (size_t i = 1; i <= n; i++) {
+        cur[0] = (int)i;
+        for (size_t j = 1; j <= m; j++) {
+            int cost = tolower((unsigned char)a[i - 1]) != tolower((unsigned char)b[j - 1]);
+            int best = prev[j - 1] + cost;
+            if (prev[j] + 1 < best) best = prev[j] + 1;
+            if (cur[j - 1] + 1 < best) best = cur[j - 1] + 1;
+            cur[j] = best;
+        }
+        memcpy(prev, cur, sizeof(int) * (m + 1));
+    }
+    return prev[m];
+}
+
+const char *dr_scene_suggest_(const char *word, const char *const *names, int n)
+{
+    const char *best = NULL;
+    int best_d = 1 << 30;
+    size_t wlen = strlen(word);
+    for (int i = 0; i < n; i++) {
+        /* a third of the longer name: "viscoy" still finds "viscosity", "fps" never becomes "seed" */
+        size_t len = strlen(names[i]) > wlen ? strlen(names[i]) : wlen;
+        int limit = (int)(len / 3) < 2 ? 2 : (int)(len / 3);
+        int d = dr_scene_edit_distance_(word, names[i]);
+        if (d <= limit && d < best_d) { best_d = d; best = names[i]; }
+    }
+    return best;
+}
+
+void dr_scene_fmt_num_(double v, char *buf, size_t size) { snprintf(buf, size, "%.15g", v == 0.0 ? 0.0 : v); }
+
+void dr_scene_fmt_range_(const DrFieldSpec *f, char *buf, size_t size)
+{
+    if (!f->ranged) {
+        if (size) buf[0] = '\0';
+        return;
+    }
+    char lo[32], hi[32];
+    dr_scene_fmt_num_(f->lo, lo, sizeof lo);
+    dr_scene_fmt_num_(f->hi, hi, sizeof hi);
+    snprintf(buf, size, "%c%s, %s%c", f->lo_open ? '(' : '[', lo, hi, f->hi_open ? ')' : ']');
+}
+
+/* ---- the printed reference -------------------------------------------------------------------------------- */
+
+static void kind_text(const DrFieldSpec *f, char *buf, size_t size)
+{
+    switch (f->kind) {
+    case DR_FIELD_NUMBER: snprintf(buf, size, "number"); return;
+    case DR_FIELD_INT: snprintf(buf, size, "integer"); return;
+    case DR_FIELD_BOOL: snprintf(buf, size, "bool"); return;
+    case DR_FIELD_NAME: snprintf(buf, size, "name"); return;
+    case DR_FIELD_PATH: snprintf(buf, size, "path"); return;
+    case DR_FIELD_VEC3: snprintf(buf, size, "[x, y, z]"); return;
+    case DR_FIELD_INT2: snprintf(buf, size, "[int, int]"); return;
+    case DR_FIELD_BOX: snprintf(buf, size, "box [lo, hi]"); return;
+    case DR_FIELD_TABLE: snprintf(buf, size, "rows of %d", f->arity); return;
+    case DR_FIELD_ENUM: {
+        char split[256], list[256];
+        const char *names[16];
+        int n = dr_scene_split_choices_(f->choices, split, sizeof split, names, 16);
+        dr_scene_join_names_(names, n, list, sizeof list);
+        snprintf(buf, size, "one of %s", list);
+        return;
+    }
+    }
+}
+
+static void default_text(const DrFieldSpec *f, char *buf, size_t size)
+{
+    char a[32], b[32], c[32], d[32], e[32], g[32];
+    if (f->required) { snprintf(buf, size, "required"); return; }
+    if (f->kind == DR_FIELD_TABLE) { snprintf(buf, size, "[]"); return; }
+    if (f->no_default || f->kind == DR_FIELD_PATH) { snprintf(buf, size, "unset"); return; }
+    dr_scene_fmt_num_(f->def[0], a, sizeof a);
+    dr_scene_fmt_num_(f->def[1], b, sizeof b);
+    dr_scene_fmt_num_(f->def[2], c, sizeof c);
+    dr_scene_fmt_num_(f->def[3], d, sizeof d);
+    dr_scene_fmt_num_(f->def[4], e, sizeof e);
+    dr_scene_fmt_num_(f->def[5], g, sizeof g);
+    switch (f->kind) {
+    case DR_FIELD_NUMBER:
+    case DR_FIELD_INT: snprintf(buf, size, "%s", a); return;
+    case DR_FIELD_BOOL: snprintf(buf, size, "%s", f->def[0] != 0.0 ? "true" : "false"); return;
+    case DR_FIELD_ENUM:
+    case DR_FIELD_NAME: snprintf(buf, size, "\"%s\"", f->def_str); return;
+    case DR_FIELD_VEC3: snprintf(buf, size, "[%s, %s, %s]", a, b, c); return;
+    case DR_FIELD_INT2: snprintf(buf, size, "[%s, %s]", a, b); return;
+    case DR_FIELD_BOX: snprintf(buf, size, "[[%s, %s, %s], [%s, %s, %s]]", a, b, c, d, e, g); return;
+    case DR_FIELD_PATH:
+    case DR_FIELD_TABLE: return;
+    }
+}
+
+/* Markdown table cell text: '|' would end the cell, '<' and '>' would read as HTML. */
+static void put_md(FILE *f, const char *s)
+{
+    for (; *s; s++) {
+        if (*s == '|') fputs("\\|", f);
+        else if (*s == '<') fputs("&lt;", f);
+        else if (*s == '>') fputs("&gt;", f);
+        else fputc(*s, f);
+    }
+}
+
+static void print_fields(FILE *f, const DrComponentSpec *c, bool md)
+{
+    if (md) {
+        fprintf(f, "| field | type | unit | default | range | description |\n");
+        fprintf(f, "| --- | --- | --- | --- | --- | --- |\n");
+    }
+    for (int i = 0; i < c->field_count; i++) {
+        const DrFieldSpec *fs = &c->fields[i];
+        char kind[288], def[256], range[96];
+        kind_text(fs, kind, sizeof kind);
+        default_text(fs, def, sizeof def);
+        dr_scene_fmt_range_(fs, range, sizeof range);
+        const char *unit = strcmp(fs->unit, "") == 0 ? "-" : fs->unit;
+        if (md) {
+            fprintf(f, "| `%s` | %s | %s | %s%s%s | %s | ", fs->name, kind, unit, fs->required ? "**" : "`", def,
+                    fs->required ? "**" : "`", range[0] ? range : "-");
+            put_md(f, fs->doc);
+            fprintf(f, " |\n");
+        } else
+            fprintf(f, "    %-24s %-22s %-14s %-26s %-20s %s\n", fs->name, kind, unit, def, range[0] ? range : "-",
+                    fs->doc);
+    }
+    if (md) fprintf(f, "\n");
+}
+
+static void print_component(FILE *f, const char *heading, const DrComponentSpec *c, bool md)
+{
+    if (md) {
+        fprintf(f, "%s `%s`\n\n", heading, c->name);
+        put_md(f, c->doc);
+        fprintf(f, ".\n\n");
+    } else
+        fprintf(f, "  %s: %s\n", c->name, c->doc);
+    print_fields(f, c, md);
+}
+
+void dr_scene_print_reference(FILE *f, bool md)
+{
+    if (md)
+        fprintf(f, "# Scene reference\n\nGenerated from the tables the scene parser uses. Units are SI; angles "
+                   "in degrees. A range applies to every number of a field. Absent sections, components "
+                   "and fields take the defaults below.\n\n## Sections\n\nTop-level keys of the scene "
+                   "object, all optional; `render.camera` is the object `camera` inside `render`.\n\n");
+    else
+        fprintf(f, "drench scene reference (units SI, angles in degrees; a range applies to every number of "
+                   "a field)\n\nSections (top-level keys, all optional):\n    %-24s %-22s %-14s %-26s %-20s %s\n",
+                "field", "type", "unit", "default", "range", "description");
+    for (int i = 0; i < dr_scene_section_count_; i++) print_component(f, "###", &dr_scene_sections_[i], md);
+
+    if (md)
+        fprintf(f, "## Elements\n\n`\"elements\"` is an array of objects `{\"name\": ..., \"type\": ..., "
+                   "\"components\": {...}}`; names are unique identifiers ([A-Za-z0-9_.-]).\n\n");
+    else
+        fprintf(f, "\nElements: \"elements\": [{\"name\": NAME, \"type\": TYPE, \"components\": {COMPONENT: "
+                   "{FIELD: VALUE}}}], names unique\n");
+    for (int i = 0; i < dr_scene_type_count_; i++) {
+        const DrElementSpec *t = &dr_scene_types_[i];
+        if (md)
+            fprintf(f, "### Element type `%s`\n\n%s.\n\nComponents:", t->type, t->doc);
+        else
+            fprintf(f, "\nElement type %s: %s\n  components:", t->type, t->doc);
+        for (int j = 0; j < t->component_count; j++) {
+            bool req = false;
+            for (int k = 0; k < t->required_count; k++) req |= strcmp(t->required_components[k], t->components[j]) == 0;
+            fprintf(f, "%s %s%s", j ? "," : "", t->components[j], req ? " (required)" : "");
+        }
+        fprintf(f, md ? ".\n\n" : "\n");
+        for (int j = 0; j < t->component_count; j++)
+            print_component(f, "####", dr_scene_component_spec(t->components[j]), md);
+    }
+}

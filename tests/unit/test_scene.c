@@ -1,0 +1,836 @@
+/* src/scene: loading, defaults, every class of bad input (message, line, column), canonical JSON,
+ * cache keys and the printed reference. Scenes are written to a private temporary directory; the
+ * malformed scenes under tests/data/bad/ are shared with the pipeline tests. */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include <cmocka.h>
+#include <dirent.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include "scene/scene.h"
+
+static char g_dir[256]; /* this run's scratch directory */
+
+/* ---- helpers ------------------------------------------------------------------------------------------ */
+
+static void remove_tree(const char *path)
+{
+    DIR *d = opendir(path);
+    if (d) {
+        struct dirent *e;
+        while ((e = readdir(d))) {
+            if (strcmp(e->d_name, ".") == 0 || strcmp(e->d_name, "..") == 0) continue;
+            char sub[1024];
+            snprintf(sub, sizeof sub, "%s/%s", path, e->d_name);
+            remove_tree(sub);
+        }
+        closedir(d);
+        rmdir(path);
+    } else {
+        unlink(path);
+    }
+}
+
+static int group_setup(void **state)
+{
+    (void)state;
+    snprintf(g_dir, sizeof g_dir, "/tmp/drench_test_scene_XXXXXX");
+    if (!mkdtemp(g_dir)) return -1;
+    char sub[512];
+    snprintf(sub, sizeof sub, "%s/meshes", g_dir);
+    return mkdir(sub, 0755);
+}
+
+static int group_teardown(void **state)
+{
+    (void)state;
+    remove_tree(g_dir);
+    return 0;
+}
+
+static void tmp_path(const char *name, char *buf, size_t size) { snprintf(buf, size, "%s/%s", g_dir, name); }
+
+static void write_file(const char *path, const char *text)
+{
+    FILE *f = fopen(path, "wb");
+    assert_non_null(f);
+    assert_int_equal(fwrite(text, 1, strlen(text), f), strlen(text));
+    assert_int_equal(fclose(f), 0);
+}
+
+static const char *const TRI_OBJ = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n";
+
+/* Writes text to <g_dir>/<name> and loads it; fails the test with the error text if it does not load. */
+static DrScene *load_named(const char *name, const char *text)
+{
+    char path[512];
+    tmp_path(name, path, sizeof path);
+    write_file(path, text);
+    DrScene *s = NULL;
+    DrError err = {0};
+    DrStatus st = dr_scene_load(path, &s, &err);
+    if (st != DR_OK) {
+        char buf[4096];
+        dr_error_format(&err, buf, sizeof buf);
+        fail_msg("scene did not load: %s", buf);
+    }
+    assert_non_null(s);
+    return s;
+}
+
+static DrScene *load_text(const char *text) { return load_named("scene.json", text); }
+
+/* Loads text that must fail; returns the status, err filled, and checks that no scene came back and
+ * that the error names the file. */
+static DrStatus load_bad(const char *text, DrError *err)
+{
+    char path[512];
+    tmp_path("bad.json", path, sizeof path);
+    write_file(path, text);
+    DrScene *s = (DrScene *)(uintptr_t)1;
+    dr_error_clear(err);
+    DrStatus st = dr_scene_load(path, &s, err);
+    assert_null(s);
+    assert_string_equal(err->file, path);
+    return st;
+}
+
+static void assert_contains(const char *hay, const char *needle)
+{
+    if (!strstr(hay, needle)) fail_msg("expected \"%s\" in \"%s\"", needle, hay);
+}
+
+/* tests/data/bad/<name>; tests/run_tests.sh starts every binary in the repository root. */
+static void bad_file(const char *name, char *buf, size_t size)
+{
+    snprintf(buf, size, "tests/data/bad/%s", name);
+    if (access(buf, R_OK) != 0) fail_msg("%s not found: run the test from the repository root", buf);
+}
+
+static void keys_of(const char *text, DrSceneKeys *k)
+{
+    DrScene *s = load_text(text);
+    DrError err = {0};
+    DrStatus st = dr_scene_keys(s, k, &err);
+    if (st != DR_OK) fail_msg("dr_scene_keys: %s", err.message);
+    dr_scene_destroy(&s);
+    assert_null(s);
+}
+
+static void assert_hex32(const char *k)
+{
+    assert_int_equal(strlen(k), 32);
+    for (const char *c = k; *c; c++) assert_true((*c >= '0' && *c <= '9') || (*c >= 'a' && *c <= 'f'));
+}
+
+/* A valid liquid scene with extra components (inside "components") and extra top-level members. */
+static void liquid_scene(const char *extra_components, const char *extra_top, char *buf, size_t size)
+{
+    snprintf(buf, size,
+             "{\"elements\":[{\"name\":\"water\",\"type\":\"liquid\",\"components\":{\"Domain\":{\"box\":[[0,0,0],[1,1,1]]},"
+             "\"LiquidSource\":{\"box\":[[0,0,0],[0.5,0.5,0.5]]}%s}}]%s}",
+             extra_components, extra_top);
+}
+
+/* ---- a valid scene -------------------------------------------------------------------------------------- */
+
+static const char *const FULL_SCENE =
+    "{\n"
+    "  \"shot\": { \"name\": \"pour\", \"fps\": 30, \"frames\": [1, 10], \"gravity\": [0, -9.8, 0], \"seed\": 7 },\n"
+    "  \"solver\": { \"cfl\": 2, \"max_substeps\": 16 },\n"
+    "  \"mesh\": { \"voxel_size\": 0.01, \"write_obj\": false },\n"
+    "  \"render\": { \"resolution\": [640, 360], \"camera\": { \"fov_deg\": 35.5, \"eye\": [1, 1, 1] } },\n"
+    "  \"elements\": [\n"
+    "    { \"name\": \"water\", \"type\": \"liquid\",\n"
+    "      \"components\": {\n"
+    "        \"Domain\": { \"box\": [[0, 0, 0], [1, 1, 1]], \"voxel_size\": 0.05, \"wall_boundary\": \"no_slip\" },\n"
+    "        \"LiquidSource\": { \"box\": [[0.1, 0.1, 0.1], [0.5, 0.5, 0.5]], \"velocity\": [0, -1, 0] },\n"
+    "        \"Emitter\": { \"box\": [[0.4, 0.8, 0.4], [0.6, 0.9, 0.6]], \"start\": 0.5, \"end\": 1.5 },\n"
+    "        \"LiquidMaterial\": { \"density\": 1200, \"viscosity\": 0.5 },\n"
+    "        \"Transfer\": { \"scheme\": \"flip\", \"flip_blend\": 0.95 } } },\n"
+    "    { \"name\": \"cup\", \"type\": \"collider\",\n"
+    "      \"components\": {\n"
+    "        \"Mesh\": { \"file\": \"meshes/tri.obj\" },\n"
+    "        \"Motion\": { \"keys\": [[1, 0, 0, 0, 0, 0, 0], [10, 0.1, 0, 0, 0, 90, 0]] } } }\n"
+    "  ]\n"
+    "}\n";
+
+static void write_tri(void)
+{
+    char path[512];
+    tmp_path("meshes/tri.obj", path, sizeof path);
+    write_file(path, TRI_OBJ);
+}
+
+static void test_full_scene_getters(void **state)
+{
+    (void)state;
+    write_tri();
+    DrScene *s = load_text(FULL_SCENE);
+    char path[512];
+    tmp_path("scene.json", path, sizeof path);
+    assert_string_equal(dr_scene_path(s), path);
+
+    assert_int_equal(dr_scene_element_count(s), 2);
+    assert_int_equal(dr_scene_count_type(s, "liquid"), 1);
+    assert_int_equal(dr_scene_count_type(s, "collider"), 1);
+    assert_int_equal(dr_scene_count_type(s, "hair"), 0);
+    assert_null(dr_scene_find(s, "nope"));
+    const DrElement *water = dr_scene_find(s, "water"), *cup = dr_scene_find(s, "cup");
+    assert_ptr_equal(water, dr_scene_element(s, 0));
+    assert_ptr_equal(cup, dr_scene_element(s, 1));
+    assert_string_equal(water->type, "liquid");
+    assert_string_equal(cup->type, "collider");
+    assert_int_equal(cup->index, 1);
+    assert_ptr_equal(water->spec, dr_scene_element_spec("liquid"));
+
+    /* sections: written values, and defaults beside them */
+    const DrComponent *shot = dr_scene_section(s, "shot");
+    assert_true(dr_component_present(shot));
+    assert_string_equal(dr_component_str(shot, "name"), "pour");
+    assert_true(dr_component_num(shot, "fps") == 30.0);
+    int fr[2];
+    dr_component_int2(shot, "frames", fr);
+    assert_int_equal(fr[0], 1);
+    assert_int_equal(fr[1], 10);
+    DrVec3 g = dr_component_vec3(shot, "gravity");
+    assert_true(g.x == 0.0 && g.y == -9.8 && g.z == 0.0);
+    assert_int_equal(dr_component_int(shot, "seed"), 7);
+    const DrComponent *solver = dr_scene_section(s, "solver");
+    assert_true(dr_component_num(solver, "cfl") == 2.0);
+    assert_int_equal(dr_component_int(solver, "max_substeps"), 16);
+    assert_false(dr_component_is_set(solver, "pressure_tolerance"));
+    assert_true(dr_component_num(solver, "pressure_tolerance") == 1e-6);
+    assert_int_equal(dr_component_int(solver, "checkpoint_every"), 1);
+    const DrComponent *mesh = dr_scene_section(s, "mesh");
+    assert_true(dr_component_num(mesh, "voxel_size") == 0.01);
+    assert_false(dr_component_bool(mesh, "write_obj"));
+    assert_true(dr_component_bool(mesh, "write_vdb"));
+    const DrComponent *render = dr_scene_section(s, "render"), *cam = dr_scene_section(s, "render.camera");
+    dr_component_int2(render, "resolution", fr);
+    assert_int_equal(fr[0], 640);
+    assert_int_equal(fr[1], 360);
+    assert_int_equal(dr_component_int(render, "contact_every"), 4);
+    assert_true(dr_component_present(cam));
+    assert_true(dr_component_num(cam, "fov_deg") == 35.5);
+    DrVec3 eye = dr_component_vec3(cam, "eye"), target = dr_component_vec3(cam, "target");
+    assert_true(eye.x == 1.0 && eye.y == 1.0 && eye.z == 1.0);
+    assert_true(target.x == 0.0 && target.y == 0.1 && target.z == 0.0);
+
+    /* liquid components */
+    const DrComponent *dom = dr_element_component(water, "Domain");
+    DrVec3 lo, hi;
+    dr_component_box(dom, "box", &lo, &hi);
+    assert_true(lo.x == 0 && lo.y == 0 && lo.z == 0 && hi.x == 1 && hi.y == 1 && hi.z == 1);
+    assert_true(dr_component_num(dom, "voxel_size") == 0.05);
+    assert_string_equal(dr_component_str(dom, "wall_boundary"), "no_slip");
+    const DrComponent *src = dr_element_component(water, "LiquidSource");
+    assert_true(dr_component_is_set(src, "box"));
+    assert_false(dr_component_is_set(src, "mesh"));
+    assert_null(dr_component_str(src, "mesh"));
+    assert_true(dr_component_vec3(src, "velocity").y == -1.0);
+    const DrComponent *em = dr_element_component(water, "Emitter");
+    assert_true(dr_component_num(em, "start") == 0.5 && dr_component_num(em, "end") == 1.5);
+    assert_true(dr_component_vec3(em, "velocity").x == 0.0);
+    const DrComponent *mat = dr_element_component(water, "LiquidMaterial");
+    assert_true(dr_component_num(mat, "density") == 1200.0 && dr_component_num(mat, "viscosity") == 0.5);
+    const DrComponent *tr = dr_element_component(water, "Transfer");
+    assert_string_equal(dr_component_str(tr, "scheme"), "flip");
+    assert_true(dr_component_num(tr, "flip_blend") == 0.95);
+    /* absent components read as defaults */
+    const DrComponent *par = dr_element_component(water, "Particles");
+    assert_false(dr_component_present(par));
+    assert_int_equal(dr_component_int(par, "per_cell"), 8);
+    assert_true(dr_component_num(par, "jitter") == 1.0);
+    assert_int_equal(dr_component_int(par, "seed"), 1);
+    const DrComponent *kill = dr_element_component(water, "KillBox");
+    assert_false(dr_component_present(kill));
+    assert_false(dr_component_is_set(kill, "box"));
+    dr_component_box(kill, "box", &lo, &hi);
+    assert_true(lo.x == 0 && hi.x == 0 && hi.z == 0);
+
+    /* collider */
+    char tri[512];
+    tmp_path("meshes/tri.obj", tri, sizeof tri);
+    assert_string_equal(dr_component_str(dr_element_component(cup, "Mesh"), "file"), tri);
+    const double *rows = NULL;
+    assert_int_equal(dr_component_table(dr_element_component(cup, "Motion"), "keys", &rows), 2);
+    assert_true(rows[7] == 10.0 && rows[8] == 0.1 && rows[12] == 90.0);
+    const DrComponent *col = dr_element_component(cup, "Collider");
+    assert_false(dr_component_present(col));
+    assert_true(dr_component_num(col, "friction") == 0.0);
+    assert_string_equal(dr_component_str(col, "boundary"), "slip");
+    assert_true(dr_component_num(dr_element_component(cup, "Transform"), "scale") == 1.0);
+
+    assert_int_equal(dr_scene_asset_count(s), 1);
+    assert_string_equal(dr_scene_asset(s, 0), tri);
+    dr_scene_destroy(&s);
+    assert_null(s);
+    dr_scene_destroy(&s); /* NULL is a no-op */
+}
+
+static void test_empty_scene_is_all_defaults(void **state)
+{
+    (void)state;
+    const char *texts[] = {"{}", "{\"elements\": []}", "{\"shot\": {}, \"render\": {\"camera\": {}}}"};
+    for (int t = 0; t < 3; t++) {
+        DrScene *s = load_text(texts[t]);
+        assert_int_equal(dr_scene_element_count(s), 0);
+        assert_int_equal(dr_scene_asset_count(s), 0);
+        const DrComponent *shot = dr_scene_section(s, "shot");
+        assert_int_equal(dr_component_present(shot), t == 2);
+        assert_string_equal(dr_component_str(shot, "name"), "shot");
+        assert_true(dr_component_num(shot, "fps") == 24.0);
+        int fr[2];
+        dr_component_int2(shot, "frames", fr);
+        assert_true(fr[0] == 1 && fr[1] == 48);
+        assert_true(dr_component_vec3(shot, "gravity").y == -9.81);
+        assert_true(dr_component_num(dr_scene_section(s, "mesh"), "voxel_size") == 0.0);
+        assert_true(dr_component_num(dr_scene_section(s, "render.camera"), "fov_deg") == 40.0);
+        assert_true(dr_component_vec3(dr_scene_section(s, "render.camera"), "up").y == 1.0);
+        DrSceneKeys k;
+        DrError err;
+        assert_int_equal(dr_scene_keys(s, &k, &err), DR_OK);
+        assert_hex32(k.precompute);
+        assert_hex32(k.bake);
+        assert_hex32(k.mesh);
+        assert_hex32(k.render);
+        dr_scene_destroy(&s);
+    }
+}
+
+static void test_asset_resolution(void **state)
+{
+    (void)state;
+    char old_cwd[1024];
+    assert_non_null(getcwd(old_cwd, sizeof old_cwd));
+    assert_int_equal(chdir(g_dir), 0);
+    mkdir("sub", 0755);
+    write_file("sub/near.obj", TRI_OBJ); /* next to the scene */
+    write_file("cwd_only.obj", TRI_OBJ); /* only relative to the current directory */
+    write_file("near.obj", "v 9 9 9\n");  /* same name in cwd: the scene directory wins */
+    char abs[600];
+    snprintf(abs, sizeof abs, "%s/cwd_only.obj", g_dir);
+    char text[2048];
+    snprintf(text, sizeof text,
+             "{\"elements\":["
+             "{\"name\":\"a\",\"type\":\"collider\",\"components\":{\"Mesh\":{\"file\":\"near.obj\"}}},"
+             "{\"name\":\"b\",\"type\":\"collider\",\"components\":{\"Mesh\":{\"file\":\"cwd_only.obj\"}}},"
+             "{\"name\":\"c\",\"type\":\"collider\",\"components\":{\"Mesh\":{\"file\":\"near.obj\"}}},"
+             "{\"name\":\"d\",\"type\":\"collider\",\"components\":{\"Mesh\":{\"file\":\"%s\"}}}]}",
+             abs);
+    write_file("sub/scene.json", text);
+    DrScene *s = NULL;
+    DrError err;
+    DrStatus st = dr_scene_load("sub/scene.json", &s, &err);
+    assert_int_equal(chdir(old_cwd), 0);
+    if (st != DR_OK) fail_msg("%s", err.message);
+    assert_string_equal(dr_component_str(dr_element_component(dr_scene_find(s, "a"), "Mesh"), "file"), "sub/near.obj");
+    assert_string_equal(dr_component_str(dr_element_component(dr_scene_find(s, "b"), "Mesh"), "file"), "cwd_only.obj");
+    assert_string_equal(dr_component_str(dr_element_component(dr_scene_find(s, "d"), "Mesh"), "file"), abs);
+    /* distinct paths, first use order */
+    assert_int_equal(dr_scene_asset_count(s), 3);
+    assert_string_equal(dr_scene_asset(s, 0), "sub/near.obj");
+    assert_string_equal(dr_scene_asset(s, 1), "cwd_only.obj");
+    assert_string_equal(dr_scene_asset(s, 2), abs);
+    dr_scene_destroy(&s);
+}
+
+/* ---- bad input: the shared files ------------------------------------------------------------------------ */
+
+static DrStatus load_bad_file(const char *name, DrError *err)
+{
+    char path[1024];
+    bad_file(name, path, sizeof path);
+    DrScene *s = (DrScene *)(uintptr_t)1;
+    DrStatus st = dr_scene_load(path, &s, err);
+    assert_null(s);
+    assert_string_equal(err->file, path);
+    return st;
+}
+
+static void test_bad_files(void **state)
+{
+    (void)state;
+    DrError err;
+    /* syntax.json: the comma missing after the Domain line; jansson stops at the next key */
+    assert_int_equal(load_bad_file("syntax.json", &err), DR_ERR_INPUT);
+    assert_contains(err.message, "invalid JSON: ");
+    assert_int_equal(err.line, 7);
+    assert_int_equal(err.col, 22);
+
+    assert_int_equal(load_bad_file("unknown_component.json", &err), DR_ERR_INPUT);
+    assert_contains(err.message, "element 'water' (liquid): unknown component 'LiquidMaterail'; did you mean "
+                                 "'LiquidMaterial'? Components of liquid: Domain, LiquidSource, ");
+    assert_int_equal(err.line, 8); /* at the misspelt key */
+    assert_int_equal(err.col, 9);
+
+    assert_int_equal(load_bad_file("negative_density.json", &err), DR_ERR_INPUT);
+    assert_contains(err.message, "water.LiquidMaterial.density = -5 is out of range [1, 100000] kg/m^3; use a "
+                                 "positive density such as 1000 for water");
+    assert_int_equal(err.line, 8); /* at the value */
+    assert_int_equal(err.col, 40);
+
+    assert_int_equal(load_bad_file("missing_asset.json", &err), DR_ERR_INPUT);
+    assert_contains(err.message, "water.LiquidSource.mesh: asset 'meshes/does_not_exist.obj' not found (looked in ");
+    assert_contains(err.message, "data/bad/ and in the current directory ");
+    assert_int_equal(err.line, 7);
+
+    assert_int_equal(load_bad_file("frames_order.json", &err), DR_ERR_INPUT);
+    assert_contains(err.message, "shot.frames = [48, 1]: frames out of order");
+    assert_int_equal(err.line, 2);
+    assert_int_equal(err.col, 56);
+
+    char buf[4096];
+    dr_error_format(&err, buf, sizeof buf);
+    assert_contains(buf, "frames_order.json:2:56: error: shot.frames");
+}
+
+/* ---- bad input: every other class ---------------------------------------------------------------------- */
+
+typedef struct BadCase {
+    const char *components; /* added to the liquid element's components (leading comma) */
+    const char *top;        /* added at top level (leading comma) */
+    const char *whole;      /* or the whole file */
+    const char *expect[3];  /* substrings of the message */
+} BadCase;
+
+static void test_bad_input_messages(void **state)
+{
+    (void)state;
+    write_tri();
+    char tri[512], cup[1024];
+    tmp_path("meshes/tri.obj", tri, sizeof tri);
+    snprintf(cup, sizeof cup,
+             ",\"elements\":[{\"name\":\"cup\",\"type\":\"collider\",\"components\":{\"Mesh\":{\"file\":\"%s\"},"
+             "\"Motion\":{\"keys\":[[1,0,0,0,0,0,0],[5,0,0,0,0,0,0],[3,0,0,0,0,0,0]]}}}]",
+             tri);
+    char motion[1200];
+    snprintf(motion, sizeof motion, "{\"shot\":{}%s}", cup);
+    const BadCase cases[] = {
+        {",\"LiquidMaterial\":{\"densty\":1}", "", NULL,
+         {"water.LiquidMaterial: unknown field 'densty'; did you mean 'density'? Fields of LiquidMaterial: density, viscosity"}},
+        {",\"LiquidMaterial\":{\"density\":\"heavy\"}", "", NULL,
+         {"water.LiquidMaterial.density: expected a number, got string"}},
+        {",\"Emitter\":{\"box\":[[0,0,0],[1,1,1]],\"velocity\":[0,1]}", "", NULL,
+         {"water.Emitter.velocity: expected an array of 3 numbers [x, y, z], got an array of 2"}},
+        {",\"Emitter\":{\"box\":[[0,0,0],[1,1,1]],\"velocity\":[0,\"up\",0]}", "", NULL,
+         {"water.Emitter.velocity[1]: expected a number, got string"}},
+        {",\"KillBox\":{\"box\":[[0,0,0],[1,-1,1]]}", "", NULL,
+         {"water.KillBox.box: the lower corner must be below the upper corner on every axis, but on y it goes from 0 to -1"}},
+        {",\"KillBox\":{\"box\":[[0,0,0]]}", "", NULL, {"water.KillBox.box: expected a box [[x0, y0, z0], [x1, y1, z1]]"}},
+        {",\"Emitter\":{}", "", NULL, {"water.Emitter: missing required field 'box'", "add \"box\": [[x0, y0, z0], [x1, y1, z1]]"}},
+        {",\"Emitter\":{\"box\":[[0,0,0],[1,1,1]],\"start\":2,\"end\":1}", "", NULL,
+         {"water.Emitter: start = 2 s is after end = 1 s"}},
+        {",\"Transfer\":{\"scheme\":\"apci\"}", "", NULL,
+         {"water.Transfer.scheme: 'apci' is not a valid choice; did you mean 'apic'? Choose one of apic, flip, pic"}},
+        {",\"Particles\":{\"per_cell\":2.5}", "", NULL, {"water.Particles.per_cell: expected an integer, got 2.5"}},
+        {",\"Particles\":{\"per_cell\":65}", "", NULL, {"water.Particles.per_cell = 65 is out of range [1, 64]; "}},
+        {",\"Mesh\":{\"file\":\"x.obj\"}", "", NULL,
+         {"unknown component 'Mesh' ('Mesh' is a component of collider elements)", "Components of liquid: Domain"}},
+        {"", ",\"shoot\":{}", NULL,
+         {"unknown top-level key 'shoot'; did you mean 'shot'? Top-level keys: shot, solver, mesh, render, elements"}},
+        {"", ",\"foo\":1", NULL, {"unknown top-level key 'foo'. Top-level keys: shot, solver, mesh, render, elements"}},
+        {"", ",\"render.camera\":{}", NULL, {"unknown top-level key 'render.camera'"}},
+        {"", ",\"shot\":{\"frames\":[1,2],\"gravity\":[0,-2000,0]}", NULL,
+         {"shot.gravity[1] = -2000 is out of range [-1000, 1000] m/s^2"}},
+        {"", ",\"shot\":{\"fps\":0}", NULL, {"shot.fps = 0 is out of range (0, 1000] 1/s; use a frame rate such as 24"}},
+        {"", ",\"shot\":{\"name\":\"my shot\"}", NULL,
+         {"shot.name: 'my shot' is not a valid name (it has a space, a control or a non-ASCII character)"}},
+        {"", ",\"shot\":{\"name\":\"{water\"}", NULL, {"shot.name: '{water' is not a valid name (it has '{'); use letters"}},
+        {",\"LiquidMaterial\":{\"viscoy\":1}", "", NULL, {"unknown field 'viscoy'; did you mean 'viscosity'?"}},
+        {",\"LiquidMaterial\":{\"zzz\":1}", "", NULL, {"unknown field 'zzz'. Fields of LiquidMaterial: density, viscosity"}},
+        {"", ",\"shot\":{\"name\":\"..\"}", NULL, {"shot.name: '..' is not a valid name ('.' and '..' are reserved)"}},
+        {"", ",\"mesh\":{\"write_obj\":1}", NULL, {"mesh.write_obj: expected true or false, got number"}},
+        {"", ",\"render\":{\"camra\":{}}", NULL,
+         {"render: unknown field 'camra'; did you mean 'camera'? Fields of render: resolution, contact_every, camera"}},
+        {"", ",\"render\":{\"camera\":{\"fov_deg\":170}}", NULL,
+         {"render.camera.fov_deg = 170 is out of range (1, 170) deg"}},
+        {"", ",\"render\":{\"camera\":{\"eye\":[0,0.1,0]}}", NULL, {"render.camera: eye and target are the same point"}},
+        {"", ",\"render\":{\"camera\":{\"eye\":[0,1,0]}}", NULL, {"render.camera.up is zero or parallel to the view direction"}},
+        {"", ",\"render\":{\"camera\":3}", NULL, {"render.camera: expected an object of fields"}},
+        {NULL, NULL, motion, {"cup.Motion.keys[2]: frames out of order (frame 3 after frame 5)"}},
+        {NULL, NULL,
+         "{\"elements\":[{\"name\":\"water\",\"type\":\"liquidd\"}]}",
+         {"element 'water': unknown type 'liquidd'; did you mean 'liquid'? Types: liquid, collider"}},
+        {NULL, NULL,
+         "{\"elements\":[{\"name\":\"w\",\"type\":\"liquid\",\"components\":{\"Domain\":{\"box\":[[0,0,0],[1,1,1]]}}},"
+         "{\"name\":\"x\",\"type\":\"liquid\",\"components\":{\"Domain\":{\"box\":[[0,0,0],[1,1,1]]}}},"
+         "{\"name\":\"w\",\"type\":\"liquid\",\"components\":{\"Domain\":{\"box\":[[0,0,0],[1,1,1]]}}}]}",
+         {"elements[0] and elements[2] are both named 'w'; element names must be unique"}},
+        {NULL, NULL, "{\"elements\":[{\"name\":\"water\",\"type\":\"liquid\"}]}",
+         {"element 'water' (liquid): missing component 'Domain'", "add \"Domain\": {\"box\": [[x0, y0, z0], [x1, y1, z1]]}"}},
+        {NULL, NULL, "{\"elements\":[{\"name\":\"rock\",\"type\":\"collider\",\"components\":{}}]}",
+         {"element 'rock' (collider): missing component 'Mesh'", "add \"Mesh\": {\"file\": \"path/to/mesh.obj\"}"}},
+        {NULL, NULL,
+         "{\"elements\":[{\"name\":\"w\",\"type\":\"liquid\",\"components\":{\"Domain\":{\"box\":[[0,0,0],[1,1,1]]},"
+         "\"LiquidSource\":{\"velocity\":[0,0,0]}}}]}",
+         {"w.LiquidSource: needs \"box\" or \"mesh\""}},
+        {NULL, NULL, "{\"elements\":[{\"type\":\"liquid\"}]}", {"elements[0]: missing \"name\""}},
+        {NULL, NULL, "{\"elements\":[{\"name\":\"w\"}]}", {"element 'w': missing \"type\"; add \"type\": one of liquid, collider"}},
+        {NULL, NULL, "{\"elements\":[{\"name\":\"w\",\"type\":\"liquid\",\"component\":{}}]}",
+         {"elements[0]: unknown key 'component'; did you mean 'components'?"}},
+        {NULL, NULL, "{\"elements\":[{\"name\":\"w\",\"type\":\"liquid\",\"components\":[]}]}",
+         {"element 'w' (liquid): \"components\" must be an object"}},
+        {NULL, NULL, "{\"elements\":[3]}", {"elements[0]: expected an element object"}},
+        {NULL, NULL, "{\"elements\":{}}", {"elements: expected an array of element objects, got object"}},
+        {NULL, NULL, "[1, 2]", {"the scene must be a JSON object"}},
+        {NULL, NULL, "{\"shot\":{},\n \"shot\":{}}", {"invalid JSON: duplicate object key"}},
+        {NULL, NULL, "{\"shot\":{\"fps\":1e999}}", {"invalid JSON: real number overflow"}},
+        {NULL, NULL, "", {"invalid JSON: "}},
+    };
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+        const BadCase *c = &cases[i];
+        char text[4096];
+        if (c->whole)
+            snprintf(text, sizeof text, "%s", c->whole);
+        else
+            liquid_scene(c->components, c->top, text, sizeof text);
+        DrError err;
+        DrStatus st = load_bad(text, &err);
+        if (st != DR_ERR_INPUT) fail_msg("case %zu: status %d for %s", i, (int)st, text);
+        for (int k = 0; k < 3 && c->expect[k]; k++) {
+            if (!strstr(err.message, c->expect[k]))
+                fail_msg("case %zu: expected \"%s\" in \"%s\"", i, c->expect[k], err.message);
+        }
+        if (err.line < 1 || err.col < 1) fail_msg("case %zu: no position (%d:%d) for %s", i, err.line, err.col, err.message);
+    }
+}
+
+static void test_missing_scene_file(void **state)
+{
+    (void)state;
+    DrScene *s = NULL;
+    DrError err;
+    assert_int_equal(dr_scene_load("/nonexistent/drench/scene.json", &s, &err), DR_ERR_INPUT);
+    assert_null(s);
+    assert_string_equal(err.file, "/nonexistent/drench/scene.json");
+    assert_contains(err.message, "cannot open the scene file");
+    assert_int_equal(dr_scene_load(g_dir, &s, &err), DR_ERR_INPUT); /* a directory */
+    assert_null(s);
+}
+
+/* Line and 1-based column (characters, not bytes) of the first `needle` in text: what an editor shows. */
+static void position_of(const char *text, const char *needle, int *line, int *col)
+{
+    const char *at = strstr(text, needle);
+    assert_non_null(at);
+    *line = 1;
+    *col = 1;
+    for (const char *c = text; c < at; c++) {
+        if (*c == '\n') {
+            (*line)++;
+            *col = 1;
+        } else if ((*c & 0xC0) != 0x80) {
+            (*col)++;
+        }
+    }
+}
+
+static void assert_error_at(const char *text, const char *needle, const char *message)
+{
+    DrError err;
+    int line, col;
+    position_of(text, needle, &line, &col);
+    assert_int_equal(load_bad(text, &err), DR_ERR_INPUT);
+    assert_contains(err.message, message);
+    if (err.line != line || err.col != col)
+        fail_msg("\"%s\" reported at %d:%d, expected %d:%d (at %s)", message, err.line, err.col, line, col, needle);
+}
+
+/* Semantic errors point at the key or value in the text, past escapes, multi-byte characters, and
+ * strings and arrays that hold brackets. */
+static void test_error_positions(void **state)
+{
+    (void)state;
+    assert_error_at("{\n  \"shot\": { \"name\": \"caf\\u00e9\" },\n  \"elements\": []\n}\n", "\"caf", "shot.name: ");
+    assert_error_at("{\"elements\": [ { \"name\": \"w\", \"type\": \"liquid\", \"components\": {\n"
+                    "    \"Domain\": { \"box\": [[0, 0, 0], [1, 1, 1]] },\n"
+                    "    \"LiquidMaterial\": { \"é\": 1, \"density\": -5 } } } ]\n}\n",
+                    "\"é\"", "w.LiquidMaterial: unknown field 'é'");
+    assert_error_at("{\"elements\": [ { \"name\": \"w\", \"type\": \"liquid\", \"components\": {\n"
+                    "    \"Domain\": { \"voxel_size\": 0.05, \"box\": [[0, 0, 0], [1, 1, 1]] },\n"
+                    "    \"Particles\": { \"seed\": 3 },\n"
+                    "    \"LiquidMaterial\": { \"viscosity\": 0.1,\n"
+                    "      \"dens\\u0069ty\": -5 } } } ]\n}\n",
+                    "-5", "w.LiquidMaterial.density = -5 is out of range");
+    assert_error_at("{\"elements\": [ { \"name\": \"w\", \"type\": \"liquid\", \"components\": {\n"
+                    "    \"Domain\": { \"box\": [[0, 0, 0], [1, 1, 1]] }, \"Emitter\": { } } } ]\n}\n",
+                    "\"Emitter\"", "w.Emitter: missing required field 'box'");
+
+    /* a file whose name has a multi-byte character, a quote and brackets, before the culprit on its line */
+    char odd[512], text[2048];
+    tmp_path("odd é\"}].obj", odd, sizeof odd);
+    write_file(odd, TRI_OBJ);
+    char esc[600];
+    size_t n = 0;
+    for (const char *c = odd; *c && n + 2 < sizeof esc; c++) {
+        if (*c == '"') esc[n++] = '\\';
+        esc[n++] = *c;
+    }
+    esc[n] = '\0';
+    snprintf(text, sizeof text,
+             "{\"elements\": [\n"
+             "  { \"name\": \"cup\", \"type\": \"collider\", \"components\": { \"Mesh\": { \"file\": \"%s\" }, "
+             "\"Motion\": { \"keys\": [[1, 0, 0, 0, 0, 0, 0], [2, 0, 0, 0, 0, 0, 0]] }, "
+             "\"Collider\": { \"fricti\\u006fn\": -1 } } } ]\n}\n",
+             esc);
+    assert_error_at(text, "-1", "cup.Collider.friction = -1 is out of range [0, 10]");
+}
+
+/* ---- canonical JSON and keys ---------------------------------------------------------------------------- */
+
+static void test_canonical_json(void **state)
+{
+    (void)state;
+    DrScene *s = load_text("{\"elements\":[{\"name\":\"w\",\"type\":\"liquid\",\"components\":{"
+                           "\"LiquidMaterial\":{},\"Domain\":{\"box\":[[0,0,-0.0],[1,1,1.0]]}}}],"
+                           "\"render\":{\"camera\":{\"fov_deg\":30}}}");
+    char *c = dr_scene_canonical(s, "solver");
+    assert_string_equal(c, "{\"cfl\":1,\"checkpoint_every\":1,\"max_substeps\":64,\"pressure_max_iterations\":2000,"
+                           "\"pressure_tolerance\":9.9999999999999995e-07}");
+    free(c);
+    c = dr_scene_canonical(s, "elements");
+    assert_string_equal(c, "[{\"components\":{\"Domain\":{\"box\":[[0,0,0],[1,1,1]],\"voxel_size\":0.02,"
+                           "\"wall_boundary\":\"slip\"},\"LiquidMaterial\":{\"density\":1000,\"viscosity\":0.001}},"
+                           "\"name\":\"w\",\"type\":\"liquid\"}]");
+    free(c);
+    c = dr_scene_canonical(s, "render");
+    assert_string_equal(c, "{\"camera\":{\"eye\":[0.59999999999999998,0.40000000000000002,0.80000000000000004],"
+                           "\"fov_deg\":30,\"target\":[0,0.10000000000000001,0],\"up\":[0,1,0]},\"contact_every\":4,"
+                           "\"resolution\":[960,540]}");
+    free(c);
+    c = dr_scene_canonical(s, "render.camera");
+    assert_non_null(strstr(c, "\"fov_deg\":30"));
+    free(c);
+    c = dr_scene_canonical(s, "mesh");
+    assert_string_equal(c, "{\"adaptivity\":0,\"radius_scale\":1,\"smoothing\":1,\"voxel_size\":0,\"write_obj\":true,"
+                           "\"write_vdb\":true}");
+    free(c);
+    dr_scene_destroy(&s);
+
+    /* a path keeps what was written, escaped */
+    char q[512];
+    tmp_path("q\"uote\\.obj", q, sizeof q);
+    write_file(q, TRI_OBJ);
+    s = load_text("{\"elements\":[{\"name\":\"c\",\"type\":\"collider\",\"components\":{\"Mesh\":{\"file\":"
+                  "\"q\\\"uote\\\\.obj\"},\"Motion\":{}}}]}");
+    c = dr_scene_canonical(s, "elements");
+    assert_string_equal(c, "[{\"components\":{\"Mesh\":{\"file\":\"q\\\"uote\\\\.obj\"},\"Motion\":{\"keys\":[]}},"
+                           "\"name\":\"c\",\"type\":\"collider\"}]");
+    free(c);
+    assert_string_equal(dr_scene_asset(s, 0), q);
+    dr_scene_destroy(&s);
+}
+
+static const char *const KEY_BASE =
+    "{\"shot\":{\"name\":\"k\",\"frames\":[1,4]},\"mesh\":{\"voxel_size\":0.01},"
+    "\"render\":{\"camera\":{\"fov_deg\":40}},"
+    "\"elements\":[{\"name\":\"water\",\"type\":\"liquid\",\"components\":{\"Domain\":{\"box\":[[0,0,0],[1,1,1]]},"
+    "\"LiquidSource\":{\"box\":[[0,0,0],[0.5,0.5,0.5]]},\"LiquidMaterial\":{\"viscosity\":0.001}}}]}";
+
+static void test_keys_survive_reformatting(void **state)
+{
+    (void)state;
+    DrSceneKeys a, b;
+    keys_of(KEY_BASE, &a);
+    assert_hex32(a.precompute);
+    assert_hex32(a.bake);
+    assert_hex32(a.mesh);
+    assert_hex32(a.render);
+    assert_string_not_equal(a.bake, a.mesh);
+    /* whitespace, key order, 1 vs 1.0, -0 vs 0, 1e-3 vs 0.001, defaults written out */
+    keys_of("{\n  \"elements\": [\n    { \"type\": \"liquid\", \"components\": {\n"
+            "        \"LiquidMaterial\": { \"viscosity\": 1e-3, \"density\": 1000.0 },\n"
+            "        \"LiquidSource\": { \"box\": [[0.0, -0.0, 0], [0.50, 0.5, 5e-1]] },\n"
+            "        \"Domain\": { \"voxel_size\": 0.02, \"box\": [[0, 0, 0], [1.0, 1, 1]] } },\n"
+            "      \"name\": \"water\" } ],\n"
+            "  \"render\": { \"camera\": { \"fov_deg\": 40.0 }, \"resolution\": [960, 540] },\n"
+            "  \"mesh\": { \"voxel_size\": 1e-2 },\n"
+            "  \"shot\": { \"frames\": [1.0, 4], \"name\": \"k\", \"fps\": 24, \"gravity\": [-0.0, -9.81, 0] }\n}\n",
+            &b);
+    assert_string_equal(a.precompute, b.precompute);
+    assert_string_equal(a.bake, b.bake);
+    assert_string_equal(a.mesh, b.mesh);
+    assert_string_equal(a.render, b.render);
+}
+
+/* KEY_BASE with one substring replaced. */
+static void keys_with(const char *from, const char *to, DrSceneKeys *k)
+{
+    const char *at = strstr(KEY_BASE, from);
+    assert_non_null(at);
+    char text[4096];
+    snprintf(text, sizeof text, "%.*s%s%s", (int)(at - KEY_BASE), KEY_BASE, to, at + strlen(from));
+    keys_of(text, k);
+}
+
+static void test_keys_invalidate_what_changed(void **state)
+{
+    (void)state;
+    DrSceneKeys base, k;
+    keys_of(KEY_BASE, &base);
+
+    keys_with("\"mesh\":{\"voxel_size\":0.01}", "\"mesh\":{\"voxel_size\":0.005}", &k);
+    assert_string_equal(k.precompute, base.precompute);
+    assert_string_equal(k.bake, base.bake);
+    assert_string_not_equal(k.mesh, base.mesh);
+    assert_string_not_equal(k.render, base.render);
+
+    keys_with("\"viscosity\":0.001", "\"viscosity\":0.002", &k);
+    assert_string_equal(k.precompute, base.precompute);
+    assert_string_not_equal(k.bake, base.bake);
+    assert_string_not_equal(k.mesh, base.mesh);
+    assert_string_not_equal(k.render, base.render);
+
+    keys_with("\"fov_deg\":40", "\"fov_deg\":41", &k);
+    assert_string_equal(k.precompute, base.precompute);
+    assert_string_equal(k.bake, base.bake);
+    assert_string_equal(k.mesh, base.mesh);
+    assert_string_not_equal(k.render, base.render);
+
+    keys_with("\"frames\":[1,4]", "\"frames\":[1,5]", &k);
+    assert_string_not_equal(k.bake, base.bake);
+
+    /* presence of a component is meaningful even with all-default fields */
+    keys_with("\"LiquidMaterial\":{\"viscosity\":0.001}", "\"LiquidMaterial\":{},\"Particles\":{}", &k);
+    assert_string_not_equal(k.bake, base.bake);
+}
+
+static void test_keys_follow_asset_bytes(void **state)
+{
+    (void)state;
+    char obj[512], text[2048];
+    tmp_path("meshes/key.obj", obj, sizeof obj);
+    write_file(obj, TRI_OBJ);
+    snprintf(text, sizeof text,
+             "{\"elements\":[{\"name\":\"cup\",\"type\":\"collider\",\"components\":{\"Mesh\":{\"file\":\"%s\"}}}]}", obj);
+    DrSceneKeys a, b;
+    keys_of(text, &a);
+    write_file(obj, "v 0 0 0\nv 2 0 0\nv 0 1 0\nf 1 2 3\n"); /* one byte changed */
+    keys_of(text, &b);
+    assert_string_equal(a.precompute, b.precompute);
+    assert_string_not_equal(a.bake, b.bake);
+    assert_string_not_equal(a.mesh, b.mesh);
+    assert_string_not_equal(a.render, b.render);
+
+    /* an asset that vanishes after load: the key names it */
+    DrScene *s = load_text(text);
+    assert_int_equal(unlink(obj), 0);
+    DrError err;
+    DrSceneKeys k;
+    assert_int_equal(dr_scene_keys(s, &k, &err), DR_ERR_INPUT);
+    assert_contains(err.message, obj);
+    assert_contains(err.message, "cup.Mesh.file");
+    dr_scene_destroy(&s);
+}
+
+/* ---- reference and tables --------------------------------------------------------------------------------- */
+
+static char *reference(bool md)
+{
+    char *buf = NULL;
+    size_t len = 0;
+    FILE *f = open_memstream(&buf, &len);
+    assert_non_null(f);
+    dr_scene_print_reference(f, md);
+    fclose(f);
+    return buf;
+}
+
+static void test_reference_lists_everything(void **state)
+{
+    (void)state;
+    char *text = reference(false), *md = reference(true);
+    const char *sections[] = {"shot", "solver", "mesh", "render", "render.camera"};
+    for (int i = 0; i < 5; i++) {
+        const DrComponentSpec *c = dr_scene_section_spec(sections[i]);
+        assert_non_null(c);
+        char head[128];
+        snprintf(head, sizeof head, "\n  %s: ", c->name);
+        assert_contains(text, head);
+        for (int f = 0; f < c->field_count; f++) {
+            char row[128];
+            snprintf(row, sizeof row, "\n    %s ", c->fields[f].name);
+            assert_contains(text, row);
+            snprintf(row, sizeof row, "| `%s` |", c->fields[f].name);
+            assert_contains(md, row);
+        }
+    }
+    const char *types[] = {"liquid", "collider"};
+    for (int i = 0; i < 2; i++) {
+        const DrElementSpec *t = dr_scene_element_spec(types[i]);
+        assert_non_null(t);
+        char head[128];
+        snprintf(head, sizeof head, "### Element type `%s`", t->type);
+        assert_contains(md, head);
+        for (int j = 0; j < t->component_count; j++) {
+            const DrComponentSpec *c = dr_scene_component_spec(t->components[j]);
+            assert_non_null(c);
+            snprintf(head, sizeof head, "#### `%s`", c->name);
+            assert_contains(md, head);
+            for (int f = 0; f < c->field_count; f++) {
+                char row[128];
+                snprintf(row, sizeof row, "| `%s` |", c->fields[f].name);
+                assert_contains(md, row);
+            }
+        }
+    }
+    assert_contains(text, "components: Domain (required), LiquidSource, Emitter, KillBox, LiquidMaterial, Transfer, Particles");
+    assert_contains(text, "    density                  number                 kg/m^3         1000                       "
+                          "[1, 100000]          mass density");
+    assert_contains(text, "    fov_deg                  number                 deg            40                         "
+                          "(1, 170)             vertical field of view");
+    assert_contains(md, "| `density` | number | kg/m^3 | `1000` | [1, 100000] | mass density |");
+    assert_contains(md, "| `box` | box [lo, hi] | m | **required** |");
+    assert_contains(md, "| `scheme` | one of apic, flip, pic | - | `\"apic\"` | - |");
+    assert_contains(md, "out/&lt;name&gt;/"); /* no raw HTML in the Markdown */
+    free(text);
+    free(md);
+}
+
+static void test_spec_lookups(void **state)
+{
+    (void)state;
+    const DrElementSpec *liquid = dr_scene_element_spec("liquid");
+    assert_non_null(liquid);
+    assert_int_equal(liquid->component_count, 7);
+    assert_int_equal(liquid->required_count, 1);
+    assert_string_equal(liquid->required_components[0], "Domain");
+    assert_false(liquid->needs_precompute);
+    assert_null(dr_scene_element_spec("hair"));
+    assert_null(dr_scene_component_spec("Nope"));
+    assert_null(dr_scene_section_spec("elements"));
+    const DrComponentSpec *mat = dr_scene_component_spec("LiquidMaterial");
+    assert_non_null(mat);
+    assert_string_equal(mat->fields[0].name, "density");
+    assert_string_equal(mat->fields[0].unit, "kg/m^3");
+    assert_true(mat->fields[0].def[0] == 1000.0 && mat->fields[0].lo == 1.0 && mat->fields[0].hi == 1e5);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_full_scene_getters),
+        cmocka_unit_test(test_empty_scene_is_all_defaults),
+        cmocka_unit_test(test_asset_resolution),
+        cmocka_unit_test(test_bad_files),
+        cmocka_unit_test(test_bad_input_messages),
+        cmocka_unit_test(test_missing_scene_file),
+        cmocka_unit_test(test_error_positions),
+        cmocka_unit_test(test_canonical_json),
+        cmocka_unit_test(test_keys_survive_reformatting),
+        cmocka_unit_test(test_keys_invalidate_what_changed),
+        cmocka_unit_test(test_keys_follow_asset_bytes),
+        cmocka_unit_test(test_reference_lists_everything),
+        cmocka_unit_test(test_spec_lookups),
+    };
+    return cmocka_run_group_tests(tests, group_setup, group_teardown);
+}
