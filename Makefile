@@ -55,19 +55,23 @@ $(LIB): $(LIB_OBJ)
 	@mkdir -p $(@D)
 	rm -f $@ && ar rcs $@ $^
 
-bin/%: build/%/main.o $(wildcard %/*.c) $(LIB)
+# A stage links its own folder's objects (main.c and any stage-only code) with the library.
+.SECONDEXPANSION:
+stage_objs = $(patsubst %.c,build/%.o,$(wildcard $(1)/*.c))
+bin/%: $$(call stage_objs,$$*) $(LIB)
 	@mkdir -p $(@D)
-	$(CC) $(CFLAGS) $(filter %.o,$^) $(patsubst %.c,build/%.o,$(filter-out $*/main.c,$(wildcard $*/*.c))) $(LIB) $(LDLIBS) -o $@
-
-STAGE_OBJ := $(patsubst %.c,build/%.o,$(foreach s,$(STAGES),$(wildcard $(s)/*.c)))
-$(BINS): $(STAGE_OBJ)
+	$(CC) $(CFLAGS) $(filter %.o,$^) $(LIB) $(LDLIBS) -o $@
 
 build/tests/%: tests/%.c $(LIB)
 	@mkdir -p $(@D)
 	$(CC) $(CPPFLAGS) $(CFLAGS) $< $(LIB) $(LDLIBS) -lcmocka -o $@
 
+build/tests/objcheck: tests/pipeline/objcheck.c $(LIB)
+	@mkdir -p $(@D)
+	$(CC) $(CPPFLAGS) $(CFLAGS) $< $(LIB) $(LDLIBS) -o $@
+
 test: deps
-	@$(MAKE) --no-print-directory all $(TEST_BIN)
+	@$(MAKE) --no-print-directory all $(TEST_BIN) build/tests/objcheck
 	@bash tests/run_tests.sh $(TEST_BIN)
 
 bench: deps

@@ -1,0 +1,257 @@
+/* bake: simulates a shot frame by frame into out/<shot>/bake/ (frame caches, checkpoint, progress, report). */
+#include <dirent.h>
+#include <jansson.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "io/io.h"
+#include "scene/scene.h"
+#include "world/world.h"
+
+typedef struct Totals {
+    double p2g, pressure, g2p, advect, other, io, frames_seconds;
+    long pressure_total;
+    int pressure_max, not_converged, substeps_max, frames;
+    long particles_first, particles_last;
+    double volume_drift_max;
+} Totals;
+
+static void remove_previous_outputs(const char *dir)
+{
+    DIR *d = opendir(dir);
+    if (!d) return;
+    struct dirent *e;
+    char path[4096];
+    while ((e = readdir(d))) {
+        const char *n = e->d_name;
+        bool frame = !strncmp(n, "frame.", 6) && strstr(n, ".h5");
+        if (frame || !strcmp(n, "checkpoint.h5") || !strcmp(n, "progress.jsonl") || !strcmp(n, "report.json")) {
+            snprintf(path, sizeof path, "%s/%s", dir, n);
+            unlink(path);
+        }
+    }
+    closedir(d);
+}
+
+/* On resume, keeps only the progress lines of frames the checkpoint covers (later ones are baked again). */
+static DrStatus trim_progress(const char *path, int last_frame, DrError *err)
+{
+    char *text = NULL;
+    if (!dr_io_exists(path)) return DR_OK;
+    DR_TRY(dr_io_read_text(path, &text, err));
+    size_t cap = strlen(text) + 1, len = 0;
+    char *out = calloc(cap, 1);
+    if (!out) {
+        free(text);
+        return dr_error_set(err, DR_ERR_NOMEM, path, 0, 0, "out of memory");
+    }
+    for (char *line = strtok(text, "\n"); line; line = strtok(NULL, "\n")) {
+        const char *f = strstr(line, "\"frame\":");
+        if (f && atoi(f + 8) <= last_frame) len += (size_t)snprintf(out + len, cap - len, "%s\n", line);
+    }
+    DrStatus s = dr_io_write_text_atomic(path, out, err);
+    free(text);
+    free(out);
+    return s;
+}
+
+static void append_progress(const char *path, const DrFrameStats *fs, double io_seconds)
+{
+    FILE *f = fopen(path, "a");
+    if (!f) {
+        dr_log_warn("cannot append to %s; progress of this frame is not logged", path);
+        return;
+    }
+    fprintf(f,
+            "{\"frame\":%d,\"time\":%.9g,\"substeps\":%d,\"particles\":%ld,\"pressure_iterations_max\":%d,"
+            "\"pressure_iterations_total\":%ld,\"pressure_not_converged\":%d,\"liquid_volume\":%.9g,"
+            "\"volume_drift\":%.6g,\"kinetic_energy\":%.9g,\"seconds\":{\"p2g\":%.6f,\"pressure\":%.6f,"
+            "\"g2p\":%.6f,\"advect\":%.6f,\"other\":%.6f,\"io\":%.6f,\"frame\":%.6f}}\n",
+            fs->frame, fs->time, fs->substeps, fs->particles, fs->pressure_iterations_max,
+            fs->pressure_iterations_total, fs->pressure_not_converged, fs->liquid_volume, fs->volume_drift,
+            fs->kinetic_energy, fs->seconds_p2g, fs->seconds_pressure, fs->seconds_g2p, fs->seconds_advect,
+            fs->seconds_other, io_seconds, fs->seconds + io_seconds);
+    fclose(f);
+}
+
+static DrStatus write_report(const char *dir, const char *status, const char *message, const DrStageArgs *args,
+                             const DrScene *scene, const char *key, int first, int last, const Totals *t,
+                             double wall, DrError *err)
+{
+    json_t *r = json_pack("{s:s, s:s, s:s, s:s, s:s, s:[i,i], s:i, s:i, s:f}", "status", status, "message",
+                          message ? message : "", "scene", dr_scene_path(scene), "key", key, "drench_version",
+                          DR_VERSION, "frames", first, last, "frames_baked", t->frames, "threads", dr_threads(),
+                          "seconds_total", wall);
+    json_object_set_new(r, "seconds_by_phase",
+                        json_pack("{s:f, s:f, s:f, s:f, s:f, s:f}", "p2g", t->p2g, "pressure", t->pressure, "g2p",
+                                  t->g2p, "advect", t->advect, "other", t->other, "io", t->io));
+    json_object_set_new(r, "pressure_iterations",
+                        json_pack("{s:i, s:I, s:i}", "max", t->pressure_max, "total", (json_int_t)t->pressure_total,
+                                  "not_converged_substeps", t->not_converged));
+    json_object_set_new(r, "particles",
+                        json_pack("{s:I, s:I}", "first_frame", (json_int_t)t->particles_first, "last_frame",
+                                  (json_int_t)t->particles_last));
+    json_object_set_new(r, "liquid_volume", json_pack("{s:f}", "max_relative_drift", t->volume_drift_max));
+    json_object_set_new(r, "substeps_max", json_integer(t->substeps_max));
+    (void)args;
+    char *text = json_dumps(r, JSON_INDENT(2) | JSON_REAL_PRECISION(9));
+    json_decref(r);
+    char path[4096];
+    snprintf(path, sizeof path, "%s/report.json", dir);
+    size_t n = strlen(text);
+    char *withnl = malloc(n + 2);
+    memcpy(withnl, text, n);
+    withnl[n] = '\n';
+    withnl[n + 1] = 0;
+    DrStatus s = dr_io_write_text_atomic(path, withnl, err);
+    free(text);
+    free(withnl);
+    return s;
+}
+
+static int fail(const DrError *err)
+{
+    dr_error_print("bake", err);
+    return dr_exit_code(err->status);
+}
+
+int main(int argc, char **argv)
+{
+    DrError err;
+    dr_error_clear(&err);
+    DrStageArgs args;
+    bool done;
+    if (dr_stage_parse_args(DR_STAGE_BAKE, argc, argv, &args, &done, &err) < 0) return fail(&err);
+    if (done) return 0;
+    if (args.list_components) {
+        dr_scene_print_reference(stdout, args.markdown);
+        return 0;
+    }
+    double t_start = dr_time_now();
+    DrScene *scene = NULL;
+    if (dr_scene_load(args.scene_path, &scene, &err) < 0) return fail(&err);
+    DrSceneKeys keys;
+    int first, last;
+    if (dr_scene_keys(scene, &keys, &err) < 0 || dr_stage_frame_range(&args, scene, &first, &last, &err) < 0) {
+        dr_scene_destroy(&scene);
+        return fail(&err);
+    }
+    char dir[2048];
+    dr_stage_out_dir(&args, scene, DR_STAGE_BAKE, dir, sizeof dir);
+    if (args.print_key || args.print_out_dir) {
+        printf("%s\n", args.print_key ? keys.bake : dir);
+        dr_scene_destroy(&scene);
+        return 0;
+    }
+    int shot_first = first;
+    {
+        int fr[2];
+        dr_component_int2(dr_scene_section(scene, "shot"), "frames", fr);
+        shot_first = fr[0];
+    }
+    if (args.frames_given && !args.resume && first != shot_first) {
+        dr_error_set(&err, DR_ERR_INPUT, NULL, 0, 0,
+                     "bake --frames %d-%d: a bake starts at the shot's first frame %d (or continues with --resume); "
+                     "use --frames %d-%d", first, last, shot_first, shot_first, last);
+        dr_scene_destroy(&scene);
+        return fail(&err);
+    }
+
+    /* Everything that can be bad input is checked here, before anything is written. */
+    DrWorld *world = NULL;
+    DrStatus s = dr_world_create(scene, &world, &err);
+    char ckpt[4096], progress[4096], path[4096];
+    snprintf(ckpt, sizeof ckpt, "%s/checkpoint.h5", dir);
+    snprintf(progress, sizeof progress, "%s/progress.jsonl", dir);
+    if (s == DR_OK && args.resume) {
+        if (dr_io_exists(ckpt)) {
+            s = dr_world_read_checkpoint(world, ckpt, keys.bake, &err);
+            if (s == DR_OK) dr_log_info("resuming after frame %d from %s", dr_world_frame(world), ckpt);
+        } else {
+            dr_log_info("no checkpoint in %s: baking from the first frame", dir);
+        }
+    }
+    if (s == DR_OK && dr_world_frame(world) >= last) {
+        dr_log_info("nothing to bake: the checkpoint is already at frame %d", dr_world_frame(world));
+    }
+    if (s == DR_OK) s = dr_io_mkdirs(dir, &err);
+    if (s == DR_OK) s = dr_io_manifest_remove(dir, &err); /* the folder is stale until this bake completes */
+    if (s == DR_OK) {
+        dr_io_remove_stale_tmp(dir);
+        if (!args.resume || dr_world_frame(world) < shot_first) remove_previous_outputs(dir);
+        else s = trim_progress(progress, dr_world_frame(world), &err);
+    }
+    if (s < 0) {
+        dr_world_destroy(&world);
+        dr_scene_destroy(&scene);
+        return fail(&err);
+    }
+
+    int checkpoint_every = dr_component_int(dr_scene_section(scene, "solver"), "checkpoint_every");
+    dr_log_info("baking '%s' frames %d-%d into %s (%d threads, key %s)", dr_scene_path(scene),
+                dr_world_frame(world) + 1, last, dir, dr_threads(), keys.bake);
+    Totals tot = {0};
+    DrProgress prog;
+    dr_progress_begin(&prog, "bake", last - dr_world_frame(world));
+    while (s >= 0 && dr_world_frame(world) < last) {
+        DrFrameStats fs;
+        s = dr_world_step_frame(world, &fs, &err);
+        if (s < 0) break;
+        double t_io = dr_time_now();
+        dr_stage_frame_path(dir, "frame", fs.frame, "h5", path, sizeof path);
+        s = dr_world_write_frame(world, &fs, path, keys.bake, &err);
+        if (s == DR_OK && ((fs.frame - shot_first + 1) % checkpoint_every == 0 || fs.frame == last))
+            s = dr_world_write_checkpoint(world, ckpt, keys.bake, &err);
+        if (s < 0) break;
+        double io = dr_time_now() - t_io;
+        append_progress(progress, &fs, io);
+        if (tot.frames == 0) tot.particles_first = fs.particles;
+        tot.frames++;
+        tot.particles_last = fs.particles;
+        tot.p2g += fs.seconds_p2g;
+        tot.pressure += fs.seconds_pressure;
+        tot.g2p += fs.seconds_g2p;
+        tot.advect += fs.seconds_advect;
+        tot.other += fs.seconds_other;
+        tot.io += io;
+        tot.pressure_total += fs.pressure_iterations_total;
+        if (fs.pressure_iterations_max > tot.pressure_max) tot.pressure_max = fs.pressure_iterations_max;
+        if (fs.substeps > tot.substeps_max) tot.substeps_max = fs.substeps;
+        tot.not_converged += fs.pressure_not_converged;
+        if (fabs(fs.volume_drift) > fabs(tot.volume_drift_max)) tot.volume_drift_max = fs.volume_drift;
+        char detail[256];
+        snprintf(detail, sizeof detail, "frame %d substeps %d iters %d particles %ld vol %+.2f%% %.2fs", fs.frame,
+                 fs.substeps, fs.pressure_iterations_max, fs.particles, 100.0 * fs.volume_drift, fs.seconds + io);
+        dr_progress_step(&prog, detail);
+    }
+    dr_progress_end(&prog);
+    double wall = dr_time_now() - t_start;
+    DrError rerr;
+    dr_error_clear(&rerr);
+    char msg[sizeof err.message + 64] = "";
+    if (s < 0) dr_error_format(&err, msg, sizeof msg);
+    DrStatus rs = write_report(dir, s < 0 ? "failed" : "ok", msg, &args, scene, keys.bake, shot_first, last, &tot,
+                               wall, &rerr);
+    if (s >= 0 && rs < 0) {
+        s = rs;
+        err = rerr;
+    }
+    int fr[2];
+    dr_component_int2(dr_scene_section(scene, "shot"), "frames", fr);
+    if (s >= 0 && last == fr[1]) {
+        const char *inputs[1] = {path};
+        snprintf(path, sizeof path, "frames %d-%d", fr[0], fr[1]);
+        s = dr_io_manifest_write(dir, "bake", keys.bake, dr_scene_path(scene), inputs, 1, &err);
+    } else if (s >= 0) {
+        dr_log_info("partial bake (frames up to %d of %d): MANIFEST not written, later stages see bake as stale",
+                    last, fr[1]);
+    }
+    dr_world_destroy(&world);
+    dr_scene_destroy(&scene);
+    if (s < 0) return fail(&err);
+    fprintf(stderr, "bake: %d frames in %.1fs (%.2fs/frame, %d threads), %ld particles, pressure iterations max %d%s\n",
+            tot.frames, wall, tot.frames ? wall / tot.frames : 0.0, dr_threads(), tot.particles_last, tot.pressure_max,
+            tot.not_converged ? ", some pressure solves did not converge (see warnings)" : "");
+    return 0;
+}

@@ -1,0 +1,203 @@
+/* mesh: turns each baked frame's liquid particles into an OpenVDB level set (.vdb) and a surface (.obj), and
+ * exports colliders as OBJ, into out/<shot>/mesh/. */
+#include <stdlib.h>
+#include <string.h>
+
+#include "io/io.h"
+#include "scene/scene.h"
+#include "vdb/vdb.h"
+#include "world/world.h"
+
+static int fail(const DrError *err)
+{
+    dr_error_print("mesh", err);
+    return dr_exit_code(err->status);
+}
+
+/* Colliders in their scene pose (Transform applied); moving colliders also per frame. */
+static DrStatus load_collider_mesh(const DrElement *e, DrTriMesh *m, DrError *err)
+{
+    DR_TRY(dr_io_load_mesh(dr_component_str(dr_element_component(e, "Mesh"), "file"), m, err));
+    const DrComponent *tr = dr_element_component(e, "Transform");
+    double s = dr_component_num(tr, "scale");
+    DrMat3 R = dr_m3_from_euler_xyz(dr_v3_scale(dr_component_vec3(tr, "rotate_deg"), DR_PI / 180.0));
+    DrVec3 t = dr_component_vec3(tr, "translate");
+    for (int i = 0; i < m->nv; i++) {
+        DrVec3 p = dr_v3_add(dr_m3_apply(R, dr_v3_scale(dr_v3(m->v[3 * i], m->v[3 * i + 1], m->v[3 * i + 2]), s)), t);
+        m->v[3 * i] = p.x;
+        m->v[3 * i + 1] = p.y;
+        m->v[3 * i + 2] = p.z;
+    }
+    free(m->n);
+    m->n = NULL;
+    return DR_OK;
+}
+
+static void apply_pose(const DrTriMesh *rest, const double R[9], const double t[3], DrTriMesh *out)
+{
+    for (int i = 0; i < rest->nv; i++) {
+        const double *p = rest->v + 3 * i;
+        for (int a = 0; a < 3; a++)
+            out->v[3 * i + a] = R[3 * a] * p[0] + R[3 * a + 1] * p[1] + R[3 * a + 2] * p[2] + t[a];
+    }
+}
+
+static DrStatus mesh_frame(const DrScene *scene, const char *bake_dir, const char *dir, int frame, const char *bake_key,
+                           double fps, long *triangles, DrError *err)
+{
+    char path[4096], out[4096];
+    dr_stage_frame_path(bake_dir, "frame", frame, "h5", path, sizeof path);
+    if (!dr_io_exists(path))
+        return dr_error_set(err, DR_ERR_INPUT, path, 0, 0, "frame %d has not been baked; run bake (or pipeline.sh) first",
+                            frame);
+    DrH5 *h = NULL;
+    DR_TRY(dr_h5_open(path, &h, err));
+    char *key = NULL;
+    DrStatus s = dr_h5_read_attr_str(h, "/", "scene_key", &key, err);
+    if (s == DR_OK && strcmp(key, bake_key) != 0)
+        s = dr_error_set(err, DR_ERR_INPUT, path, 0, 0,
+                         "frame %d was baked from another version of the scene; rerun bake (pipeline.sh does it)",
+                         frame);
+    free(key);
+    const DrComponent *ms = dr_scene_section(scene, "mesh");
+    for (int i = 0; s == DR_OK && i < dr_scene_element_count(scene); i++) {
+        const DrElement *e = dr_scene_element(scene, i);
+        if (strcmp(e->type, "collider") == 0 && dr_component_present(dr_element_component(e, "Motion"))) {
+            double *R = NULL, *t = NULL;
+            int rank;
+            uint64_t d1[4], d2[4];
+            snprintf(path, sizeof path, "/%s/rotation", e->name);
+            s = dr_h5_read_f64(h, path, &rank, d1, &R, err);
+            snprintf(path, sizeof path, "/%s/translation", e->name);
+            if (s == DR_OK) s = dr_h5_read_f64(h, path, &rank, d2, &t, err);
+            DrTriMesh rest = {0}, posed = {0};
+            if (s == DR_OK) s = load_collider_mesh(e, &rest, err);
+            if (s == DR_OK) s = load_collider_mesh(e, &posed, err);
+            if (s == DR_OK) {
+                apply_pose(&rest, R, t, &posed);
+                dr_stage_frame_path(dir, e->name, frame, "obj", out, sizeof out);
+                s = dr_io_write_obj(out, &posed, "drench collider (posed for this frame)", err);
+            }
+            dr_trimesh_free(&rest);
+            dr_trimesh_free(&posed);
+            free(R);
+            free(t);
+            continue;
+        }
+        if (strcmp(e->type, "liquid") != 0) continue;
+        double *x = NULL, *v = NULL;
+        int rank;
+        uint64_t dx_[4], dv[4];
+        snprintf(path, sizeof path, "/%s/position", e->name);
+        s = dr_h5_read_f64(h, path, &rank, dx_, &x, err);
+        snprintf(path, sizeof path, "/%s/velocity", e->name);
+        if (s == DR_OK) s = dr_h5_read_f64(h, path, &rank, dv, &v, err);
+        const DrComponent *dom = dr_element_component(e, "Domain");
+        const DrComponent *par = dr_element_component(e, "Particles");
+        double cell = dr_component_num(dom, "voxel_size");
+        double voxel = dr_component_num(ms, "voxel_size");
+        if (voxel <= 0.0) voxel = 0.5 * cell;
+        /* Particles sit 1/cbrt(per_cell) of a cell apart. Jittered within their sub-cells, their union of
+           spheres has dips where an outer particle sits deep; a radius of 0.8 spacings (the default) gives
+           back the seeded volume of a box within 2 % (tests/validation/test_world.c). */
+        double spacing = cell / cbrt((double)dr_component_int(par, "per_cell"));
+        DrVdbSurfaceDesc sd = {voxel, dr_component_num(ms, "radius_scale") * spacing, dr_component_int(ms, "smoothing"),
+                               dr_component_num(ms, "adaptivity")};
+        DrVdbSurface *surf = NULL;
+        if (s == DR_OK) s = dr_vdb_surface_from_particles(x, v, (long)dx_[0], &sd, &surf, err);
+        if (s == DR_OK && dr_component_bool(ms, "write_vdb")) {
+            DrVdbMeta meta = {frame, fps, bake_key};
+            dr_stage_frame_path(dir, e->name, frame, "vdb", out, sizeof out);
+            s = dr_vdb_surface_write(surf, out, &meta, err);
+        }
+        if (s == DR_OK && dr_component_bool(ms, "write_obj")) {
+            DrTriMesh m = {0};
+            s = dr_vdb_surface_to_mesh(surf, &m, err);
+            if (s == DR_OK) {
+                char comment[256];
+                snprintf(comment, sizeof comment, "drench %s liquid '%s' frame %d (m, y up)", DR_VERSION, e->name, frame);
+                dr_stage_frame_path(dir, e->name, frame, "obj", out, sizeof out);
+                s = dr_io_write_obj(out, &m, comment, err);
+                *triangles += m.nt;
+            }
+            dr_trimesh_free(&m);
+        }
+        dr_vdb_surface_destroy(&surf);
+        free(x);
+        free(v);
+    }
+    dr_h5_close(&h);
+    return s;
+}
+
+int main(int argc, char **argv)
+{
+    DrError err;
+    dr_error_clear(&err);
+    DrStageArgs args;
+    bool done;
+    if (dr_stage_parse_args(DR_STAGE_MESH, argc, argv, &args, &done, &err) < 0) return fail(&err);
+    if (done) return 0;
+    double t0 = dr_time_now();
+    DrScene *scene = NULL;
+    if (dr_scene_load(args.scene_path, &scene, &err) < 0) return fail(&err);
+    DrSceneKeys keys;
+    int first, last;
+    char dir[2048], bake_dir[2048];
+    DrStatus s = dr_scene_keys(scene, &keys, &err);
+    if (s == DR_OK) s = dr_stage_frame_range(&args, scene, &first, &last, &err);
+    dr_stage_out_dir(&args, scene, DR_STAGE_MESH, dir, sizeof dir);
+    dr_stage_out_dir(&args, scene, DR_STAGE_BAKE, bake_dir, sizeof bake_dir);
+    if (s == DR_OK && (args.print_key || args.print_out_dir)) {
+        printf("%s\n", args.print_key ? keys.mesh : dir);
+        dr_scene_destroy(&scene);
+        return 0;
+    }
+    /* Validate every collider asset before writing anything. */
+    for (int i = 0; s == DR_OK && i < dr_scene_element_count(scene); i++) {
+        const DrElement *e = dr_scene_element(scene, i);
+        if (strcmp(e->type, "collider") != 0) continue;
+        DrTriMesh m = {0};
+        s = load_collider_mesh(e, &m, &err);
+        dr_trimesh_free(&m);
+    }
+    if (s == DR_OK) s = dr_vdb_init(&err);
+    if (s == DR_OK) s = dr_io_mkdirs(dir, &err);
+    if (s == DR_OK) s = dr_io_manifest_remove(dir, &err);
+    if (s == DR_OK) dr_io_remove_stale_tmp(dir);
+    /* colliders once, in their scene pose */
+    for (int i = 0; s == DR_OK && i < dr_scene_element_count(scene); i++) {
+        const DrElement *e = dr_scene_element(scene, i);
+        if (strcmp(e->type, "collider") != 0) continue;
+        DrTriMesh m = {0};
+        char out[4096];
+        snprintf(out, sizeof out, "%s/%s.obj", dir, e->name);
+        s = load_collider_mesh(e, &m, &err);
+        if (s == DR_OK) s = dr_io_write_obj(out, &m, "drench collider (scene pose)", &err);
+        dr_trimesh_free(&m);
+    }
+    double fps = dr_component_num(dr_scene_section(scene, "shot"), "fps");
+    long triangles = 0;
+    DrProgress prog;
+    if (s == DR_OK) dr_progress_begin(&prog, "mesh", last - first + 1);
+    for (int f = first; s == DR_OK && f <= last; f++) {
+        double tf = dr_time_now();
+        s = mesh_frame(scene, bake_dir, dir, f, keys.bake, fps, &triangles, &err);
+        char detail[128];
+        snprintf(detail, sizeof detail, "frame %d %.2fs", f, dr_time_now() - tf);
+        if (s == DR_OK) dr_progress_step(&prog, detail);
+    }
+    int fr[2];
+    dr_component_int2(dr_scene_section(scene, "shot"), "frames", fr);
+    if (s == DR_OK && first == fr[0] && last == fr[1]) {
+        char line[128];
+        snprintf(line, sizeof line, "frames %d-%d", first, last);
+        const char *inputs[2] = {line, keys.bake};
+        s = dr_io_manifest_write(dir, "mesh", keys.mesh, dr_scene_path(scene), inputs, 2, &err);
+    }
+    dr_scene_destroy(&scene);
+    if (s < 0) return fail(&err);
+    fprintf(stderr, "mesh: %d frames in %.1fs, %ld triangles written to %s\n", last - first + 1, dr_time_now() - t0,
+            triangles, dir);
+    return 0;
+}

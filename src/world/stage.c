@@ -1,0 +1,152 @@
+/* Command-line plumbing shared by the four stage executables. */
+#include "world/world.h"
+
+#include <stdlib.h>
+#include <string.h>
+
+static const char *const stage_names[] = {"precompute", "bake", "mesh", "render"};
+
+const char *dr_stage_name(DrStageId stage) { return stage_names[stage]; }
+
+static const char *stage_summary(DrStageId stage)
+{
+    switch (stage) {
+    case DR_STAGE_PRECOMPUTE: return "computes per-asset data (cohesion tables, BEM matrices) into cache/";
+    case DR_STAGE_BAKE: return "simulates the shot and writes one HDF5 frame cache per frame";
+    case DR_STAGE_MESH: return "turns the bake's frames into OpenVDB level sets and OBJ meshes";
+    case DR_STAGE_RENDER: return "renders preview PNGs of the meshed frames";
+    }
+    return "";
+}
+
+static void print_help(DrStageId stage)
+{
+    const char *n = dr_stage_name(stage);
+    printf("usage: %s SCENE.json [options]\n\n%s %s.\n\noptions:\n", n, n, stage_summary(stage));
+    if (stage != DR_STAGE_PRECOMPUTE) printf("  --frames A-B        limit to frames A..B of the shot\n");
+    if (stage == DR_STAGE_BAKE) {
+        printf("  --resume            continue from out/<shot>/bake/checkpoint.h5 (bit-identical to an\n"
+               "                      uninterrupted bake)\n"
+               "  --list-components   print every element type, component and field (unit, default,\n"
+               "                      range) and exit; add --markdown for a Markdown reference\n");
+    }
+    printf("  -j N                threads (default: all cores)\n"
+           "  --out DIR           output root (default $DRENCH_OUT or ./out)\n"
+           "  --cache DIR         precompute cache root (default $DRENCH_CACHE or ./cache)\n"
+           "  --print-key         print this stage's cache key for the scene and exit\n"
+           "  --print-out-dir     print this stage's output folder for the scene and exit\n"
+           "  -q, --quiet         only warnings and errors\n"
+           "  --help, --version\n\n"
+           "exit codes: 0 success, 1 runtime failure, 2 bad input (scene, asset or arguments)\n");
+}
+
+static DrStatus usage_error(DrStageId stage, DrError *err, const char *fmt, const char *arg)
+{
+    char msg[512];
+    snprintf(msg, sizeof msg, fmt, arg);
+    return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "%s; run '%s --help' for usage", msg, dr_stage_name(stage));
+}
+
+static bool parse_int(const char *s, int *out)
+{
+    char *end;
+    long v = strtol(s, &end, 10);
+    if (end == s || *end || v < -1000000000L || v > 1000000000L) return false;
+    *out = (int)v;
+    return true;
+}
+
+DrStatus dr_stage_parse_args(DrStageId stage, int argc, char **argv, DrStageArgs *a, bool *done, DrError *err)
+{
+    memset(a, 0, sizeof *a);
+    a->stage = stage;
+    *done = false;
+    a->out_root = getenv("DRENCH_OUT") && *getenv("DRENCH_OUT") ? getenv("DRENCH_OUT") : "out";
+    a->cache_root = getenv("DRENCH_CACHE") && *getenv("DRENCH_CACHE") ? getenv("DRENCH_CACHE") : "cache";
+    for (int i = 1; i < argc; i++) {
+        const char *s = argv[i];
+        bool has_next = i + 1 < argc;
+        if (!strcmp(s, "--help") || !strcmp(s, "-h")) {
+            print_help(stage);
+            *done = true;
+            return DR_OK;
+        } else if (!strcmp(s, "--version")) {
+            printf("%s (drench) %s\n", dr_stage_name(stage), DR_VERSION);
+            *done = true;
+            return DR_OK;
+        } else if (!strcmp(s, "--frames")) {
+            if (!has_next) return usage_error(stage, err, "%s needs a range A-B", s);
+            const char *r = argv[++i];
+            char buf[64];
+            snprintf(buf, sizeof buf, "%s", r);
+            char *dash = strchr(buf + 1, '-');
+            if (dash) *dash = 0;
+            if (!dash || !parse_int(buf, &a->frame_first) || !parse_int(dash + 1, &a->frame_last))
+                return usage_error(stage, err, "--frames '%s' is not a range like 1-48", r);
+            if (a->frame_first > a->frame_last)
+                return usage_error(stage, err, "--frames '%s' is out of order: the first frame must not exceed the last", r);
+            a->frames_given = true;
+        } else if (!strcmp(s, "-j") || !strcmp(s, "--threads")) {
+            if (!has_next || !parse_int(argv[i + 1], &a->threads) || a->threads < 1 || a->threads > 1024)
+                return usage_error(stage, err, "%s needs a thread count between 1 and 1024", s);
+            i++;
+        } else if (!strncmp(s, "-j", 2) && s[2]) {
+            if (!parse_int(s + 2, &a->threads) || a->threads < 1 || a->threads > 1024)
+                return usage_error(stage, err, "'%s' needs a thread count between 1 and 1024", s);
+        } else if (!strcmp(s, "--out") || !strcmp(s, "--cache")) {
+            if (!has_next) return usage_error(stage, err, "%s needs a folder", s);
+            if (!strcmp(s, "--out")) a->out_root = argv[++i];
+            else a->cache_root = argv[++i];
+        } else if (!strcmp(s, "--resume") && stage == DR_STAGE_BAKE) {
+            a->resume = true;
+        } else if (!strcmp(s, "--list-components") && stage == DR_STAGE_BAKE) {
+            a->list_components = true;
+        } else if (!strcmp(s, "--markdown")) {
+            a->markdown = true;
+        } else if (!strcmp(s, "--print-key")) {
+            a->print_key = true;
+        } else if (!strcmp(s, "--print-out-dir")) {
+            a->print_out_dir = true;
+        } else if (!strcmp(s, "-q") || !strcmp(s, "--quiet")) {
+            a->quiet = true;
+        } else if (s[0] == '-' && s[1]) {
+            return usage_error(stage, err, "unknown option '%s'", s);
+        } else if (a->scene_path) {
+            return usage_error(stage, err, "more than one scene given ('%s')", s);
+        } else {
+            a->scene_path = s;
+        }
+    }
+    if (!a->scene_path && !a->list_components)
+        return usage_error(stage, err, "%s", "no scene given: pass the scene file, e.g. assets/scenes/default.json");
+    if (a->quiet) dr_log_set_level(DR_LOG_WARN);
+    if (a->threads > 0) dr_set_threads(a->threads);
+    return DR_OK;
+}
+
+void dr_stage_out_dir(const DrStageArgs *a, const DrScene *scene, DrStageId stage, char *buf, size_t size)
+{
+    snprintf(buf, size, "%s/%s/%s", a->out_root, dr_component_str(dr_scene_section(scene, "shot"), "name"),
+             dr_stage_name(stage));
+}
+
+DrStatus dr_stage_frame_range(const DrStageArgs *a, const DrScene *scene, int *first, int *last, DrError *err)
+{
+    int fr[2];
+    dr_component_int2(dr_scene_section(scene, "shot"), "frames", fr);
+    *first = fr[0];
+    *last = fr[1];
+    if (!a->frames_given) return DR_OK;
+    if (a->frame_first < fr[0] || a->frame_last > fr[1])
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                            "--frames %d-%d is outside the shot's frames %d-%d (shot.frames in %s)", a->frame_first,
+                            a->frame_last, fr[0], fr[1], dr_scene_path(scene));
+    *first = a->frame_first;
+    *last = a->frame_last;
+    return DR_OK;
+}
+
+void dr_stage_frame_path(const char *dir, const char *prefix, int frame, const char *ext, char *buf, size_t size)
+{
+    snprintf(buf, size, "%s/%s.%04d.%s", dir, prefix, frame, ext);
+}

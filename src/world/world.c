@@ -1,0 +1,544 @@
+/* DrWorld: scene → solvers, one frame at a time; frame caches and checkpoints. */
+#include "world/world.h"
+
+#include <stdlib.h>
+#include <string.h>
+
+#include "grid/grid.h"
+#include "io/io.h"
+#include "liquid/liquid.h"
+#include "vdb/vdb.h"
+
+/* snprintf into an array that must hold the result: element names are at most 128 characters, so the
+ * HDF5 paths built here always fit; a truncation would be a programming error. */
+#define PATHF(buf, ...)                                                                                     \
+    do {                                                                                                    \
+        int n_ = snprintf(buf, sizeof buf, __VA_ARGS__);                                                    \
+        assert(n_ >= 0 && (size_t)n_ < sizeof buf);                                                         \
+    } while (0)
+
+typedef struct WorldCollider {
+    const DrElement *element;
+    DrCollider *collider;    /* NULL when no solver needs an SDF (a scene without liquid) */
+} WorldCollider;
+
+typedef struct WorldLiquid {
+    const DrElement *element;
+    DrLiquid *liquid;
+    DrCollider **shapes;     /* LiquidSource mesh volumes, needed at creation only */
+    int nshapes;
+    double volume0;          /* first frame's liquid-cell volume, for the drift diagnostic */
+    DrLiquidStats last;
+} WorldLiquid;
+
+struct DrWorld {
+    const DrScene *scene;
+    int first_frame, last_frame, frame;
+    double fps;
+    DrVec3 gravity;
+    WorldCollider *colliders;
+    int ncolliders;
+    const DrCollider **collider_ptrs; /* the live colliders, in element order, as the solvers take them */
+    int nlive;
+    WorldLiquid *liquids;
+    int nliquids;
+};
+
+int dr_world_first_frame(const DrWorld *w) { return w->first_frame; }
+int dr_world_last_frame(const DrWorld *w) { return w->last_frame; }
+int dr_world_frame(const DrWorld *w) { return w->frame; }
+int dr_world_liquid_count(const DrWorld *w) { return w->nliquids; }
+const DrLiquid *dr_world_liquid(const DrWorld *w, int i) { return w->liquids[i].liquid; }
+const DrElement *dr_world_liquid_element(const DrWorld *w, int i) { return w->liquids[i].element; }
+int dr_world_live_collider_count(const DrWorld *w) { return w->nlive; }
+
+double dr_world_frame_time(const DrWorld *w, int frame) { return (double)(frame - w->first_frame + 1) / w->fps; }
+
+/* Prefixes an asset error with the element and field it came from, keeping the file name. */
+static DrStatus asset_context(DrStatus s, const char *element, const char *field, DrError *err)
+{
+    if (s >= 0 || !err) return s;
+    char msg[sizeof err->message];
+    int n = snprintf(msg, sizeof msg, "%s.%s: %s", element, field, err->message);
+    if (n >= (int)sizeof msg) msg[sizeof msg - 2] = '.'; /* long messages keep their start */
+    memcpy(err->message, msg, sizeof msg);
+    return s;
+}
+
+/* Loads a mesh and applies the element's Transform component (scale, then rotation, then translation). */
+static DrStatus load_transformed_mesh(const DrElement *e, const char *path, DrTriMesh *mesh, DrError *err)
+{
+    DR_TRY(asset_context(dr_io_load_mesh(path, mesh, err), e->name, "Mesh.file", err));
+    const DrComponent *tr = dr_element_component(e, "Transform");
+    if (!tr) return DR_OK;
+    double s = dr_component_num(tr, "scale");
+    DrVec3 rd = dr_component_vec3(tr, "rotate_deg");
+    DrMat3 R = dr_m3_from_euler_xyz(dr_v3_scale(rd, DR_PI / 180.0));
+    DrVec3 t = dr_component_vec3(tr, "translate");
+    for (int i = 0; i < mesh->nv; i++) {
+        DrVec3 p = dr_v3(mesh->v[3 * i], mesh->v[3 * i + 1], mesh->v[3 * i + 2]);
+        p = dr_v3_add(dr_m3_apply(R, dr_v3_scale(p, s)), t);
+        mesh->v[3 * i] = p.x;
+        mesh->v[3 * i + 1] = p.y;
+        mesh->v[3 * i + 2] = p.z;
+    }
+    return DR_OK;
+}
+
+/* SDF of a mesh as a collider (or a source shape) with optional motion keys. */
+static DrStatus make_collider(const DrTriMesh *mesh, double dx, double friction, bool no_slip, double thickness,
+                              int nkeys, const double *keys, DrCollider **out, DrError *err)
+{
+    DrDenseSdf sdf = {0};
+    DR_TRY(dr_vdb_mesh_to_sdf(mesh, dx, 4, &sdf, err));
+    DrColliderDesc d = {0};
+    d.phi = sdf.phi;
+    d.nx = sdf.nx;
+    d.ny = sdf.ny;
+    d.nz = sdf.nz;
+    d.origin = sdf.origin;
+    d.dx = sdf.dx;
+    d.friction = friction;
+    d.no_slip = no_slip;
+    d.thickness = thickness;
+    d.nkeys = nkeys;
+    d.keys = keys;
+    DrStatus s = dr_collider_create(&d, out, err);
+    dr_dense_sdf_free(&sdf);
+    return s;
+}
+
+static double smallest_liquid_dx(const DrScene *scene)
+{
+    double dx = 0.0;
+    for (int i = 0; i < dr_scene_element_count(scene); i++) {
+        const DrElement *e = dr_scene_element(scene, i);
+        if (strcmp(e->type, "liquid") != 0) continue;
+        double d = dr_component_num(dr_element_component(e, "Domain"), "voxel_size");
+        if (dx == 0.0 || d < dx) dx = d;
+    }
+    return dx;
+}
+
+static DrStatus build_colliders(DrWorld *w, DrError *err)
+{
+    const DrScene *scene = w->scene;
+    int n = dr_scene_count_type(scene, "collider");
+    DR_TRY(dr_calloc((size_t)n + 1, sizeof(WorldCollider), &w->colliders, err));
+    DR_TRY(dr_calloc((size_t)n + 1, sizeof(DrCollider *), &w->collider_ptrs, err));
+    /* The SDF resolves the smallest grid cell twice so face fractions see the collider's shape. */
+    double dx = smallest_liquid_dx(scene) * 0.5;
+    for (int i = 0; i < dr_scene_element_count(scene); i++) {
+        const DrElement *e = dr_scene_element(scene, i);
+        if (strcmp(e->type, "collider") != 0) continue;
+        WorldCollider *wc = &w->colliders[w->ncolliders++];
+        wc->element = e;
+        DrTriMesh mesh = {0};
+        DR_TRY(load_transformed_mesh(e, dr_component_str(dr_element_component(e, "Mesh"), "file"), &mesh, err));
+        if (dx <= 0.0) { /* nothing in the scene samples colliders: validate the asset, build nothing */
+            dr_trimesh_free(&mesh);
+            continue;
+        }
+        const DrComponent *c = dr_element_component(e, "Collider");
+        const DrComponent *m = dr_element_component(e, "Motion");
+        const double *rows = NULL;
+        int nrows = dr_component_table(m, "keys", &rows);
+        double *keys = NULL;
+        DrStatus s = dr_calloc((size_t)nrows * 7 + 1, sizeof(double), &keys, err);
+        for (int k = 0; s == DR_OK && k < nrows; k++) {
+            /* fractional frames are allowed in keys: keep the exact time */
+            keys[7 * k] = (rows[7 * k] - w->first_frame + 1) / w->fps;
+            for (int j = 1; j < 4; j++) keys[7 * k + j] = rows[7 * k + j];
+            for (int j = 4; j < 7; j++) keys[7 * k + j] = rows[7 * k + j] * DR_PI / 180.0;
+        }
+        if (s == DR_OK)
+            s = make_collider(&mesh, dx, dr_component_num(c, "friction"),
+                              strcmp(dr_component_str(c, "boundary"), "no_slip") == 0, dr_component_num(c, "thickness"),
+                              nrows, keys, &wc->collider, err);
+        free(keys);
+        dr_trimesh_free(&mesh);
+        DR_TRY(asset_context(s, e->name, "Mesh.file", err));
+        w->collider_ptrs[w->nlive++] = wc->collider;
+    }
+    return DR_OK;
+}
+
+static void box_of(const DrComponent *c, const char *field, DrVec3 *lo, DrVec3 *hi) { dr_component_box(c, field, lo, hi); }
+
+static DrStatus build_liquid(DrWorld *w, const DrElement *e, WorldLiquid *wl, DrError *err)
+{
+    const DrScene *scene = w->scene;
+    const DrComponent *solver = dr_scene_section(scene, "solver");
+    const DrComponent *shot = dr_scene_section(scene, "shot");
+    const DrComponent *dom = dr_element_component(e, "Domain");
+    const DrComponent *src = dr_element_component(e, "LiquidSource");
+    const DrComponent *emit = dr_element_component(e, "Emitter");
+    const DrComponent *kill = dr_element_component(e, "KillBox");
+    const DrComponent *mat = dr_element_component(e, "LiquidMaterial");
+    const DrComponent *tr = dr_element_component(e, "Transfer");
+    const DrComponent *par = dr_element_component(e, "Particles");
+    wl->element = e;
+
+    DrLiquidDesc d;
+    dr_liquid_desc_default(&d);
+    box_of(dom, "box", &d.domain_lo, &d.domain_hi);
+    d.dx = dr_component_num(dom, "voxel_size");
+    d.wall_no_slip = strcmp(dr_component_str(dom, "wall_boundary"), "no_slip") == 0;
+    d.density = dr_component_num(mat, "density");
+    d.viscosity = dr_component_num(mat, "viscosity");
+    const char *scheme = dr_component_str(tr, "scheme");
+    d.scheme = !strcmp(scheme, "pic") ? DR_TRANSFER_PIC : !strcmp(scheme, "flip") ? DR_TRANSFER_FLIP : DR_TRANSFER_APIC;
+    d.flip_blend = dr_component_num(tr, "flip_blend");
+    d.per_cell = dr_component_int(par, "per_cell");
+    d.jitter = dr_component_num(par, "jitter");
+    /* the element's seed mixed with the shot's so two shots of one asset differ only if asked to */
+    d.seed = (uint64_t)dr_component_int(par, "seed") * 0x9e3779b97f4a7c15ULL + (uint64_t)dr_component_int(shot, "seed");
+    d.gravity = w->gravity;
+    d.cfl = dr_component_num(solver, "cfl");
+    d.max_substeps = dr_component_int(solver, "max_substeps");
+    d.pressure_tol = dr_component_num(solver, "pressure_tolerance");
+    d.pressure_max_iter = dr_component_int(solver, "pressure_max_iterations");
+
+    DrBoxVel source = {0}, emitter = {0};
+    DrVec3 kill_lo, kill_hi, shape_vel = dr_v3(0, 0, 0);
+    if (dr_component_present(src)) {
+        shape_vel = dr_component_vec3(src, "velocity");
+        if (dr_component_is_set(src, "box")) {
+            box_of(src, "box", &source.lo, &source.hi);
+            source.velocity = shape_vel;
+            d.nsource_boxes = 1;
+            d.source_boxes = &source;
+        }
+        if (dr_component_is_set(src, "mesh")) {
+            DrTriMesh mesh = {0};
+            DR_TRY(asset_context(dr_io_load_mesh(dr_component_str(src, "mesh"), &mesh, err), e->name, "LiquidSource.mesh", err));
+            DR_TRY(dr_calloc(1, sizeof(DrCollider *), &wl->shapes, err));
+            DrStatus s = make_collider(&mesh, d.dx * 0.5, 0, false, 0, 0, NULL, &wl->shapes[0], err);
+            dr_trimesh_free(&mesh);
+            DR_TRY(asset_context(s, e->name, "LiquidSource.mesh", err));
+            wl->nshapes = 1;
+            d.nsource_shapes = 1;
+            d.source_shapes = (const DrCollider *const *)wl->shapes;
+            d.source_shape_velocity = &shape_vel;
+        }
+    }
+    if (dr_component_present(emit)) {
+        box_of(emit, "box", &emitter.lo, &emitter.hi);
+        emitter.velocity = dr_component_vec3(emit, "velocity");
+        emitter.start = dr_component_num(emit, "start");
+        emitter.end = dr_component_num(emit, "end");
+        d.nemitters = 1;
+        d.emitters = &emitter;
+    }
+    if (dr_component_present(kill)) {
+        box_of(kill, "box", &kill_lo, &kill_hi);
+        d.nkill_boxes = 1;
+        d.kill_lo = &kill_lo;
+        d.kill_hi = &kill_hi;
+    }
+    return dr_liquid_create(&d, w->collider_ptrs, w->nlive, &wl->liquid, err);
+}
+
+DrStatus dr_world_create(const DrScene *scene, DrWorld **out, DrError *err)
+{
+    DrWorld *w = NULL;
+    DR_TRY(dr_calloc(1, sizeof *w, &w, err));
+    w->scene = scene;
+    const DrComponent *shot = dr_scene_section(scene, "shot");
+    int fr[2];
+    dr_component_int2(shot, "frames", fr);
+    w->first_frame = fr[0];
+    w->last_frame = fr[1];
+    w->frame = fr[0] - 1;
+    w->fps = dr_component_num(shot, "fps");
+    w->gravity = dr_component_vec3(shot, "gravity");
+    DrStatus s = dr_vdb_init(err);
+    if (s == DR_OK) s = build_colliders(w, err);
+    int nl = dr_scene_count_type(scene, "liquid");
+    if (s == DR_OK) s = dr_calloc((size_t)nl + 1, sizeof(WorldLiquid), &w->liquids, err);
+    for (int i = 0; s == DR_OK && i < dr_scene_element_count(scene); i++) {
+        const DrElement *e = dr_scene_element(scene, i);
+        if (strcmp(e->type, "liquid") == 0) s = build_liquid(w, e, &w->liquids[w->nliquids++], err);
+    }
+    if (s < 0) {
+        dr_world_destroy(&w);
+        return s;
+    }
+    *out = w;
+    return DR_OK;
+}
+
+void dr_world_destroy(DrWorld **world)
+{
+    if (!world || !*world) return;
+    DrWorld *w = *world;
+    for (int i = 0; i < w->nliquids; i++) {
+        dr_liquid_destroy(&w->liquids[i].liquid);
+        for (int k = 0; k < w->liquids[i].nshapes; k++) dr_collider_destroy(&w->liquids[i].shapes[k]);
+        free(w->liquids[i].shapes);
+    }
+    for (int i = 0; i < w->ncolliders; i++) dr_collider_destroy(&w->colliders[i].collider);
+    free(w->liquids);
+    free(w->colliders);
+    free(w->collider_ptrs);
+    free(w);
+    *world = NULL;
+}
+
+static bool all_finite(const double *a, long n)
+{
+    for (long i = 0; i < n; i++)
+        if (!isfinite(a[i])) return false;
+    return true;
+}
+
+DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrError *err)
+{
+    assert(w->frame < w->last_frame);
+    double t_start = dr_time_now();
+    int frame = w->frame + 1;
+    double t0 = dr_world_frame_time(w, frame - 1), t1 = dr_world_frame_time(w, frame);
+    memset(stats, 0, sizeof *stats);
+    stats->frame = frame;
+    stats->time = t1;
+    double volume = 0.0, volume0 = 0.0;
+    for (int i = 0; i < w->nliquids; i++) {
+        WorldLiquid *wl = &w->liquids[i];
+        DrLiquidStats ls;
+        DR_TRY(dr_liquid_advance(wl->liquid, w->collider_ptrs, w->nlive, t0, t1, &ls, err));
+        const DrLiquidState *st = dr_liquid_state(wl->liquid);
+        if (!all_finite(st->x, 3 * st->n) || !all_finite(st->v, 3 * st->n))
+            return dr_error_set(err, DR_ERR_RUNTIME, NULL, 0, 0,
+                                "liquid '%s' became non-finite in frame %d; lower solver.cfl or raise "
+                                "solver.max_substeps", wl->element->name, frame);
+        wl->last = ls;
+        double dx = dr_liquid_grid(wl->liquid)->dx;
+        double vol = (double)ls.liquid_cells * dx * dx * dx;
+        if (wl->volume0 == 0.0) wl->volume0 = vol;
+        volume += vol;
+        volume0 += wl->volume0;
+        double mass, ke;
+        DrVec3 p, l;
+        dr_liquid_totals(wl->liquid, &mass, &p, &l, &ke);
+        stats->kinetic_energy += ke;
+        if (ls.substeps > stats->substeps) stats->substeps = ls.substeps;
+        stats->particles += ls.particles;
+        if (ls.pressure_iterations_max > stats->pressure_iterations_max)
+            stats->pressure_iterations_max = ls.pressure_iterations_max;
+        stats->pressure_iterations_total += ls.pressure_iterations_total;
+        stats->pressure_not_converged += ls.pressure_not_converged;
+        stats->seconds_p2g += ls.seconds_p2g;
+        stats->seconds_pressure += ls.seconds_pressure;
+        stats->seconds_g2p += ls.seconds_g2p;
+        stats->seconds_advect += ls.seconds_advect;
+        stats->seconds_other += ls.seconds_other;
+    }
+    stats->liquid_volume = volume;
+    stats->volume_drift = volume0 > 0 ? volume / volume0 - 1.0 : 0.0;
+    w->frame = frame;
+    stats->seconds = dr_time_now() - t_start;
+    return DR_OK;
+}
+
+/* ---- frame caches and checkpoints --------------------------------------------------------------- */
+
+static DrStatus write_scalar(DrH5 *h, const char *group, const char *name, double v, const char *units, DrError *err)
+{
+    char path[512];
+    PATHF(path, "%s/%s", group, name);
+    uint64_t dims[1] = {1};
+    return dr_h5_write_f64(h, path, 1, dims, &v, units, false, err);
+}
+
+static DrStatus write_vec(DrH5 *h, const char *group, const char *name, DrVec3 v, const char *units, DrError *err)
+{
+    char path[512];
+    PATHF(path, "%s/%s", group, name);
+    uint64_t dims[1] = {3};
+    double a[3] = {v.x, v.y, v.z};
+    return dr_h5_write_f64(h, path, 1, dims, a, units, false, err);
+}
+
+static DrStatus write_liquid_arrays(DrH5 *h, const WorldLiquid *wl, bool compress, DrError *err)
+{
+    const DrLiquidState *st = dr_liquid_state(wl->liquid);
+    char path[512];
+    const char *name = wl->element->name;
+    uint64_t d2[2] = {(uint64_t)st->n, 3}, d3[3] = {(uint64_t)st->n, 3, 3};
+    PATHF(path, "/%s/position", name);
+    DR_TRY(dr_h5_write_f64(h, path, 2, d2, st->x, "m", compress, err));
+    PATHF(path, "/%s/velocity", name);
+    DR_TRY(dr_h5_write_f64(h, path, 2, d2, st->v, "m/s", compress, err));
+    PATHF(path, "/%s/affine", name);
+    DR_TRY(dr_h5_write_f64(h, path, 3, d3, st->c, "1/s", compress, err));
+    return DR_OK;
+}
+
+static DrStatus write_frame_body(const DrWorld *w, const DrFrameStats *stats, DrH5 *h, const char *bake_key,
+                                 DrError *err)
+{
+    DR_TRY(dr_h5_attr_str(h, "/", "drench_version", DR_VERSION, err));
+    DR_TRY(dr_h5_attr_i64(h, "/", "frame", w->frame, err));
+    DR_TRY(dr_h5_attr_f64(h, "/", "time", dr_world_frame_time(w, w->frame), err));
+    DR_TRY(dr_h5_attr_i64(h, "/", "substeps", stats->substeps, err));
+    DR_TRY(dr_h5_attr_str(h, "/", "scene_key", bake_key, err));
+    DR_TRY(dr_h5_attr_str(h, "/", "units", "SI: m, s, kg", err));
+    for (int i = 0; i < w->nliquids; i++) {
+        const WorldLiquid *wl = &w->liquids[i];
+        char g[512];
+        PATHF(g, "/%s", wl->element->name);
+        DR_TRY(write_liquid_arrays(h, wl, true, err));
+        DR_TRY(dr_h5_attr_str(h, g, "type", "liquid", err));
+        double mass, ke;
+        DrVec3 p, l;
+        dr_liquid_totals(wl->liquid, &mass, &p, &l, &ke);
+        const DrLiquidStats *ls = &wl->last;
+        double dx = dr_liquid_grid(wl->liquid)->dx;
+        PATHF(g, "/diagnostics/%s", wl->element->name);
+        DR_TRY(write_scalar(h, g, "particles", (double)ls->particles, "1", err));
+        DR_TRY(write_scalar(h, g, "mass", mass, "kg", err));
+        DR_TRY(write_scalar(h, g, "kinetic_energy", ke, "J", err));
+        DR_TRY(write_vec(h, g, "linear_momentum", p, "kg*m/s", err));
+        DR_TRY(write_vec(h, g, "angular_momentum", l, "kg*m^2/s", err));
+        DR_TRY(write_scalar(h, g, "volume_cells", (double)ls->liquid_cells * dx * dx * dx, "m^3", err));
+        DR_TRY(write_scalar(h, g, "max_speed", ls->max_speed, "m/s", err));
+        DR_TRY(write_scalar(h, g, "divergence_mean", ls->divergence_mean, "1", err));
+        DR_TRY(write_scalar(h, g, "pressure_iterations_max", ls->pressure_iterations_max, "1", err));
+        DR_TRY(write_scalar(h, g, "pressure_iterations_total", (double)ls->pressure_iterations_total, "1", err));
+        DR_TRY(write_scalar(h, g, "pressure_residual_max", ls->pressure_residual_max, "1", err));
+        DR_TRY(write_scalar(h, g, "emitted", (double)ls->emitted, "1", err));
+        DR_TRY(write_scalar(h, g, "killed", (double)ls->killed, "1", err));
+    }
+    for (int i = 0; i < w->ncolliders; i++) {
+        const WorldCollider *wc = &w->colliders[i];
+        if (!wc->collider) continue;
+        DrXform X = dr_collider_pose(wc->collider, dr_world_frame_time(w, w->frame));
+        char path[512];
+        PATHF(path, "/%s/rotation", wc->element->name);
+        uint64_t d33[2] = {3, 3}, d3[1] = {3};
+        DR_TRY(dr_h5_write_f64(h, path, 2, d33, &X.R.m[0][0], "1", false, err));
+        PATHF(path, "/%s/translation", wc->element->name);
+        double t[3] = {X.t.x, X.t.y, X.t.z};
+        DR_TRY(dr_h5_write_f64(h, path, 1, d3, t, "m", false, err));
+        PATHF(path, "/%s", wc->element->name);
+        DR_TRY(dr_h5_attr_str(h, path, "type", "collider", err));
+    }
+    const char *g = "/diagnostics";
+    DR_TRY(write_scalar(h, g, "substeps", stats->substeps, "1", err));
+    DR_TRY(write_scalar(h, g, "liquid_volume_cells", stats->liquid_volume, "m^3", err));
+    /* Wall-clock seconds per phase are not written here: frame caches are bit-identical between runs
+       (a determinism test compares them); timings go to progress.jsonl and report.json. */
+    return DR_OK;
+}
+
+DrStatus dr_world_write_frame(const DrWorld *w, const DrFrameStats *stats, const char *path, const char *bake_key,
+                              DrError *err)
+{
+    DrH5 *h = NULL;
+    DR_TRY(dr_h5_create(path, &h, err));
+    DrStatus s = write_frame_body(w, stats, h, bake_key, err);
+    if (s < 0) {
+        dr_h5_close(&h); /* uncommitted: the tmp file is removed, nothing appears at path */
+        return s;
+    }
+    return dr_h5_commit(&h, err);
+}
+
+DrStatus dr_world_write_checkpoint(const DrWorld *w, const char *path, const char *bake_key, DrError *err)
+{
+    DrH5 *h = NULL;
+    DR_TRY(dr_h5_create(path, &h, err));
+    DrStatus s = dr_h5_attr_str(h, "/", "scene_key", bake_key, err);
+    if (s == DR_OK) s = dr_h5_attr_i64(h, "/", "frame", w->frame, err);
+    if (s == DR_OK) s = dr_h5_attr_str(h, "/", "drench_version", DR_VERSION, err);
+    for (int i = 0; s == DR_OK && i < w->nliquids; i++) {
+        const WorldLiquid *wl = &w->liquids[i];
+        /* uncompressed: a checkpoint is written every frame and read rarely */
+        s = write_liquid_arrays(h, wl, false, err);
+        uint64_t rng[4], d[1] = {4};
+        dr_liquid_rng_state(wl->liquid, rng);
+        char p[512];
+        PATHF(p, "/%s/rng", wl->element->name);
+        if (s == DR_OK) s = dr_h5_write_u64(h, p, 1, d, rng, false, err);
+        PATHF(p, "/%s/volume0", wl->element->name);
+        uint64_t d1[1] = {1};
+        if (s == DR_OK) s = dr_h5_write_f64(h, p, 1, d1, &wl->volume0, "m^3", false, err);
+    }
+    if (s < 0) {
+        dr_h5_close(&h);
+        return s;
+    }
+    return dr_h5_commit(&h, err);
+}
+
+static DrStatus read_liquid(DrH5 *h, const char *path, WorldLiquid *wl, DrError *err)
+{
+    const char *name = wl->element->name;
+    char p[512];
+    int rank;
+    uint64_t dx[4], dv[4], dc[4], dr[4], d0[4];
+    double *x = NULL, *v = NULL, *c = NULL, *v0 = NULL;
+    uint64_t *rng = NULL;
+    DrStatus s;
+    PATHF(p, "/%s/position", name);
+    s = dr_h5_read_f64(h, p, &rank, dx, &x, err);
+    PATHF(p, "/%s/velocity", name);
+    if (s == DR_OK) s = dr_h5_read_f64(h, p, &rank, dv, &v, err);
+    PATHF(p, "/%s/affine", name);
+    if (s == DR_OK) s = dr_h5_read_f64(h, p, &rank, dc, &c, err);
+    PATHF(p, "/%s/rng", name);
+    if (s == DR_OK) s = dr_h5_read_u64(h, p, &rank, dr, &rng, err);
+    PATHF(p, "/%s/volume0", name);
+    if (s == DR_OK) s = dr_h5_read_f64(h, p, &rank, d0, &v0, err);
+    if (s == DR_OK && (dx[0] != dv[0] || dx[0] != dc[0] || dr[0] != 4))
+        s = dr_error_set(err, DR_ERR_INPUT, path, 0, 0, "checkpoint arrays of '%s' disagree in size; delete the "
+                         "checkpoint and bake without --resume", name);
+    if (s == DR_OK) s = dr_liquid_restore(wl->liquid, (long)dx[0], x, v, c, rng, err);
+    if (s == DR_OK) wl->volume0 = v0[0];
+    free(x);
+    free(v);
+    free(c);
+    free(rng);
+    free(v0);
+    return s;
+}
+
+DrStatus dr_world_read_checkpoint(DrWorld *w, const char *path, const char *bake_key, DrError *err)
+{
+    DrH5 *h = NULL;
+    DR_TRY(dr_h5_open(path, &h, err));
+    char *key = NULL;
+    int64_t frame = 0;
+    DrStatus s = dr_h5_read_attr_str(h, "/", "scene_key", &key, err);
+    if (s == DR_OK && strcmp(key, bake_key) != 0)
+        s = dr_error_set(err, DR_ERR_INPUT, path, 0, 0,
+                         "checkpoint was written for another version of the scene (key %s, now %s); bake without "
+                         "--resume to start over", key, bake_key);
+    if (s == DR_OK) s = dr_h5_read_attr_i64(h, "/", "frame", &frame, err);
+    if (s == DR_OK && (frame < w->first_frame - 1 || frame >= w->last_frame))
+        s = dr_error_set(err, DR_ERR_INPUT, path, 0, 0, "checkpoint frame %lld is outside the shot's frames %d-%d",
+                         (long long)frame, w->first_frame, w->last_frame);
+    for (int i = 0; s == DR_OK && i < w->nliquids; i++) s = read_liquid(h, path, &w->liquids[i], err);
+    if (s == DR_OK) w->frame = (int)frame;
+    free(key);
+    dr_h5_close(&h);
+    return s;
+}
+
+DrHash dr_world_state_hash(const DrWorld *w)
+{
+    DrHasher h;
+    dr_hasher_init(&h);
+    dr_hasher_update(&h, &w->frame, sizeof w->frame);
+    for (int i = 0; i < w->nliquids; i++) {
+        const DrLiquidState *st = dr_liquid_state(w->liquids[i].liquid);
+        dr_hasher_update(&h, &st->n, sizeof st->n);
+        dr_hasher_update(&h, st->x, 3 * sizeof(double) * (size_t)st->n);
+        dr_hasher_update(&h, st->v, 3 * sizeof(double) * (size_t)st->n);
+        dr_hasher_update(&h, st->c, 9 * sizeof(double) * (size_t)st->n);
+        uint64_t rng[4];
+        dr_liquid_rng_state(w->liquids[i].liquid, rng);
+        dr_hasher_update(&h, rng, sizeof rng);
+    }
+    return dr_hasher_final(&h);
+}

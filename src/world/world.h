@@ -1,0 +1,96 @@
+/* DrWorld: builds only the solvers a scene's elements need and advances the shot one frame at a time in a
+ * fixed, readable order; frame caches and checkpoints (DESIGN §4). Also the command-line plumbing shared by
+ * the four stage executables (arguments, output folders, manifests), so every stage behaves alike.
+ *
+ * Time: the initial state is t = 0; shot frame f holds the state at t = (f − f_first + 1)/fps, so a 48-frame
+ * shot at 24 fps ends at t = 2 s. Motion keys use the same frame numbering (frame f_first − 1 is t = 0).
+ * Thread safety: one world per thread; the solvers inside use dr_parallel_for themselves. */
+#ifndef DR_WORLD_H
+#define DR_WORLD_H
+
+#include "core/core.h"
+#include "scene/scene.h"
+
+typedef struct DrWorld DrWorld;
+
+/* What one frame cost and did, summed over every solver (written to progress.jsonl and diagnostics). */
+typedef struct DrFrameStats {
+    int frame;
+    double time;             /* s, at the end of the frame */
+    int substeps;            /* largest substep count of any solver this frame */
+    long particles;          /* liquid particles, all elements */
+    int pressure_iterations_max;
+    long pressure_iterations_total;
+    int pressure_not_converged;
+    double liquid_volume;    /* m³: liquid cells × dx³ (a cheap frame-to-frame estimate) */
+    double volume_drift;     /* relative to the first frame's estimate */
+    double kinetic_energy;   /* J */
+    double seconds_p2g, seconds_pressure, seconds_g2p, seconds_advect, seconds_other, seconds_io;
+    double seconds;          /* wall time of the frame */
+} DrFrameStats;
+
+/* Loads every asset the scene references (meshes through assimp, collider SDFs through OpenVDB) and builds
+ * the solvers. All bad input (broken asset, empty mesh, NaN) is reported here, before anything is written.
+ * A scene without liquid creates no grid. */
+DR_NODISCARD DrStatus dr_world_create(const DrScene *scene, DrWorld **out, DrError *err);
+void dr_world_destroy(DrWorld **world);
+
+int dr_world_first_frame(const DrWorld *w);
+int dr_world_last_frame(const DrWorld *w);
+int dr_world_frame(const DrWorld *w);      /* last completed frame; first_frame − 1 before any step */
+double dr_world_frame_time(const DrWorld *w, int frame);
+int dr_world_liquid_count(const DrWorld *w);
+/* The i-th liquid solver (element order) and its element, for diagnostics and tests. */
+typedef struct DrLiquid DrLiquid;
+const DrLiquid *dr_world_liquid(const DrWorld *w, int i);
+const DrElement *dr_world_liquid_element(const DrWorld *w, int i);
+/* Colliders whose SDF was built (none when no solver samples colliders). */
+int dr_world_live_collider_count(const DrWorld *w);
+
+/* Advances to the next frame. Warnings (a pressure solve that did not converge) are logged and counted in
+ * stats; DR_ERR_RUNTIME when a solver produced non-finite values. */
+DR_NODISCARD DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrError *err);
+
+/* Frame cache (DESIGN §4), written atomically: root attributes drench_version, frame, time, substeps,
+ * scene_key; one group per element; /diagnostics. */
+DR_NODISCARD DrStatus dr_world_write_frame(const DrWorld *w, const DrFrameStats *stats, const char *path,
+                                           const char *bake_key, DrError *err);
+/* Checkpoint: everything a bit-identical continuation needs (particles in their current order, rng states,
+ * frame). Read refuses a checkpoint whose bake key differs (DR_ERR_INPUT, with what to do). */
+DR_NODISCARD DrStatus dr_world_write_checkpoint(const DrWorld *w, const char *path, const char *bake_key,
+                                                DrError *err);
+DR_NODISCARD DrStatus dr_world_read_checkpoint(DrWorld *w, const char *path, const char *bake_key,
+                                               DrError *err);
+/* Hash of the whole simulation state (for determinism tests and logs). */
+DrHash dr_world_state_hash(const DrWorld *w);
+
+/* ---- stage plumbing ----------------------------------------------------------------------------- */
+
+typedef enum DrStageId { DR_STAGE_PRECOMPUTE, DR_STAGE_BAKE, DR_STAGE_MESH, DR_STAGE_RENDER } DrStageId;
+
+typedef struct DrStageArgs {
+    DrStageId stage;
+    const char *scene_path;  /* NULL when only --help/--version/--list-components */
+    int frame_first, frame_last; /* --frames A-B; 0,0 when not given */
+    bool frames_given;
+    bool resume;             /* bake --resume */
+    int threads;             /* -j N; 0 = all cores */
+    const char *out_root;    /* --out DIR, else $DRENCH_OUT, else "out" */
+    const char *cache_root;  /* --cache DIR, else $DRENCH_CACHE, else "cache" */
+    bool print_key, print_out_dir, list_components, markdown, quiet;
+} DrStageArgs;
+
+/* Parses the common options. Returns DR_OK, or DR_ERR_INPUT with a usage message. --help and --version are
+ * handled here: they print and set *done (the caller exits 0). */
+DR_NODISCARD DrStatus dr_stage_parse_args(DrStageId stage, int argc, char **argv, DrStageArgs *args, bool *done,
+                                          DrError *err);
+const char *dr_stage_name(DrStageId stage);
+/* <out_root>/<shot name>/<stage> */
+void dr_stage_out_dir(const DrStageArgs *args, const DrScene *scene, DrStageId stage, char *buf, size_t size);
+/* Resolves --frames against the shot (DR_ERR_INPUT when out of the shot's range or out of order). */
+DR_NODISCARD DrStatus dr_stage_frame_range(const DrStageArgs *args, const DrScene *scene, int *first, int *last,
+                                           DrError *err);
+/* Frame file name inside a stage folder: "<prefix>.NNNN.<ext>" (4 digits, more if needed). */
+void dr_stage_frame_path(const char *dir, const char *prefix, int frame, const char *ext, char *buf, size_t size);
+
+#endif

@@ -1,0 +1,21 @@
+# Every executable: --help, --version, --print-key, exit codes (DESIGN §1).
+source "$(dirname "$0")/lib.sh"
+scene="$ROOT/assets/scenes/small_dam.json"
+for st in precompute bake mesh render; do
+  check "$st --help exits 0" bash -c "'$BIN/$st' --help | grep -q usage"
+  check "$st --version exits 0" bash -c "'$BIN/$st' --version | grep -q drench"
+  check "$st --print-key prints 32 hex digits" bash -c "'$BIN/$st' --print-key '$scene' | grep -Eq '^[0-9a-f]{32}$'"
+  expect_exit "$st unknown option exits 2" 2 "unknown option '--bogus'" "$BIN/$st" --bogus "$scene"
+  expect_exit "$st without a scene exits 2" 2 "no scene given" "$BIN/$st"
+done
+expect_exit "render is honest about not being available" 1 "not available yet" "$BIN/render" "$scene"
+check "render --available says no" bash -c "! '$BIN/render' --available 2>/dev/null"
+expect_exit "bake --frames out of order exits 2" 2 "out of order" "$BIN/bake" "$scene" --frames 9-3
+expect_exit "bake --frames outside the shot exits 2" 2 "outside the shot" "$BIN/bake" "$scene" --frames 1-400
+expect_exit "bad -j exits 2" 2 "thread count" "$BIN/bake" "$scene" -j 0
+check "list-components names every component" bash -c \
+  "'$BIN/bake' --list-components | grep -q LiquidMaterial && '$BIN/bake' --list-components | grep -q Motion"
+check "list-components gives units and ranges" bash -c "'$BIN/bake' --list-components | grep -E 'density' | grep -q 'kg/m'"
+check "precompute says there is nothing to do" bash -c "'$BIN/precompute' '$scene' 2>&1 | grep -q 'nothing to do'"
+check "nothing but MANIFEST written by precompute" bash -c "[ \"\$(ls '$DRENCH_OUT/small_dam/precompute')\" = MANIFEST ]"
+check "precompute computes nothing into the cache" bash -c "[ ! -e '$DRENCH_CACHE' ] || [ -z \"\$(ls -A '$DRENCH_CACHE')\" ]"
