@@ -28,7 +28,7 @@ TEST_BIN := $(TEST_C:%.c=build/%)
 BENCH_C := $(sort $(wildcard tests/bench/bench_*.c))
 BENCH_BIN := $(BENCH_C:%.c=build/%)
 
-.PHONY: all deps test bench clean
+.PHONY: all deps test bench clean readme
 all: $(BINS)
 
 deps:
@@ -77,6 +77,12 @@ test: deps
 bench: deps
 	@$(MAKE) --no-print-directory all $(BENCH_BIN)
 	@bash tests/bench/run_bench.sh $(BENCH_BIN)
+
+# Refreshes the README's component reference from the scene tables (headings moved under README's own).
+readme: bin/bake
+	@bin/bake --list-components --markdown | tail -n +2 | sed 's/^#### /###### /; s/^### /##### /; s/^## /#### /' > build/reference.md
+	@awk 'BEGIN{skip=0} /<!-- BEGIN COMPONENT REFERENCE -->/{print; while ((getline l < "build/reference.md") > 0) print l; skip=1; next} \
+	     /<!-- END COMPONENT REFERENCE -->/{skip=0} !skip{print}' README.md > README.md.tmp && mv README.md.tmp README.md
 
 clean:
 	rm -rf build bin

@@ -19,3 +19,9 @@ check "list-components gives units and ranges" bash -c "'$BIN/bake' --list-compo
 check "precompute says there is nothing to do" bash -c "'$BIN/precompute' '$scene' 2>&1 | grep -q 'nothing to do'"
 check "nothing but MANIFEST written by precompute" bash -c "[ \"\$(ls '$DRENCH_OUT/small_dam/precompute')\" = MANIFEST ]"
 check "precompute computes nothing into the cache" bash -c "[ ! -e '$DRENCH_CACHE' ] || [ -z \"\$(ls -A '$DRENCH_CACHE')\" ]"
+readme_in_sync() {
+  local want; want=$("$BIN/bake" --list-components --markdown | tail -n +2 | sed 's/^#### /###### /; s/^### /##### /; s/^## /#### /')
+  local have; have=$(awk '/<!-- BEGIN COMPONENT REFERENCE -->/{on=1; next} /<!-- END COMPONENT REFERENCE -->/{on=0} on' "$ROOT/README.md")
+  [ "$want" = "$have" ]
+}
+check "README component reference matches --list-components (make readme)" readme_in_sync
