@@ -122,27 +122,17 @@ int main(int argc, char **argv)
     dr_error_clear(&err);
     DrStageArgs args;
     bool done;
-    if (dr_stage_parse_args(DR_STAGE_BAKE, argc, argv, &args, &done, &err) < 0) return fail(&err);
-    if (done) return 0;
-    if (args.list_components) {
-        dr_scene_print_reference(stdout, args.markdown);
-        return 0;
-    }
-    double t_start = dr_time_now();
     DrScene *scene = NULL;
-    if (dr_scene_load(args.scene_path, &scene, &err) < 0) return fail(&err);
     DrSceneKeys keys;
+    char dir[2048];
+    double t_start = dr_time_now();
+    if (dr_stage_begin(DR_STAGE_BAKE, argc, argv, &args, &scene, &keys, dir, sizeof dir, &done, &err) < 0)
+        return fail(&err);
+    if (done) return 0;
     int first, last;
-    if (dr_scene_keys(scene, &keys, &err) < 0 || dr_stage_frame_range(&args, scene, &first, &last, &err) < 0) {
+    if (dr_stage_frame_range(&args, scene, &first, &last, &err) < 0) {
         dr_scene_destroy(&scene);
         return fail(&err);
-    }
-    char dir[2048];
-    dr_stage_out_dir(&args, scene, DR_STAGE_BAKE, dir, sizeof dir);
-    if (args.print_key || args.print_out_dir) {
-        printf("%s\n", args.print_key ? keys.bake : dir);
-        dr_scene_destroy(&scene);
-        return 0;
     }
     int shot_first = first;
     {

@@ -14,31 +14,12 @@ static int fail(const DrError *err)
     return dr_exit_code(err->status);
 }
 
-/* Colliders in their scene pose (Transform applied); moving colliders also per frame. */
-static DrStatus load_collider_mesh(const DrElement *e, DrTriMesh *m, DrError *err)
+/* out = R·rest + t for nv vertices (R row-major 3×3 as stored in the frame cache). */
+static void apply_pose(const double *rest, int nv, const double R[9], const double t[3], double *out)
 {
-    DR_TRY(dr_io_load_mesh(dr_component_str(dr_element_component(e, "Mesh"), "file"), m, err));
-    const DrComponent *tr = dr_element_component(e, "Transform");
-    double s = dr_component_num(tr, "scale");
-    DrMat3 R = dr_m3_from_euler_xyz(dr_v3_scale(dr_component_vec3(tr, "rotate_deg"), DR_PI / 180.0));
-    DrVec3 t = dr_component_vec3(tr, "translate");
-    for (int i = 0; i < m->nv; i++) {
-        DrVec3 p = dr_v3_add(dr_m3_apply(R, dr_v3_scale(dr_v3(m->v[3 * i], m->v[3 * i + 1], m->v[3 * i + 2]), s)), t);
-        m->v[3 * i] = p.x;
-        m->v[3 * i + 1] = p.y;
-        m->v[3 * i + 2] = p.z;
-    }
-    free(m->n);
-    m->n = NULL;
-    return DR_OK;
-}
-
-static void apply_pose(const DrTriMesh *rest, const double R[9], const double t[3], DrTriMesh *out)
-{
-    for (int i = 0; i < rest->nv; i++) {
-        const double *p = rest->v + 3 * i;
-        for (int a = 0; a < 3; a++)
-            out->v[3 * i + a] = R[3 * a] * p[0] + R[3 * a + 1] * p[1] + R[3 * a + 2] * p[2] + t[a];
+    for (int i = 0; i < nv; i++) {
+        const double *p = rest + 3 * i;
+        for (int a = 0; a < 3; a++) out[3 * i + a] = R[3 * a] * p[0] + R[3 * a + 1] * p[1] + R[3 * a + 2] * p[2] + t[a];
     }
 }
 
@@ -70,15 +51,17 @@ static DrStatus mesh_frame(const DrScene *scene, const char *bake_dir, const cha
             s = dr_h5_read_f64(h, path, &rank, d1, &R, err);
             snprintf(path, sizeof path, "/%s/translation", e->name);
             if (s == DR_OK) s = dr_h5_read_f64(h, path, &rank, d2, &t, err);
-            DrTriMesh rest = {0}, posed = {0};
-            if (s == DR_OK) s = load_collider_mesh(e, &rest, err);
-            if (s == DR_OK) s = load_collider_mesh(e, &posed, err);
+            DrTriMesh posed = {0};
+            double *rest = NULL;
+            if (s == DR_OK) s = dr_world_load_collider_mesh(e, &posed, err);
+            if (s == DR_OK) s = dr_calloc(3 * (size_t)posed.nv, sizeof(double), &rest, err);
             if (s == DR_OK) {
-                apply_pose(&rest, R, t, &posed);
+                memcpy(rest, posed.v, 3 * (size_t)posed.nv * sizeof(double));
+                apply_pose(rest, posed.nv, R, t, posed.v);
                 dr_stage_frame_path(dir, e->name, frame, "obj", out, sizeof out);
                 s = dr_io_write_obj(out, &posed, "drench collider (posed for this frame)", err);
             }
-            dr_trimesh_free(&rest);
+            free(rest);
             dr_trimesh_free(&posed);
             free(R);
             free(t);
@@ -136,29 +119,22 @@ int main(int argc, char **argv)
     dr_error_clear(&err);
     DrStageArgs args;
     bool done;
-    if (dr_stage_parse_args(DR_STAGE_MESH, argc, argv, &args, &done, &err) < 0) return fail(&err);
-    if (done) return 0;
     double t0 = dr_time_now();
     DrScene *scene = NULL;
-    if (dr_scene_load(args.scene_path, &scene, &err) < 0) return fail(&err);
     DrSceneKeys keys;
-    int first, last;
     char dir[2048], bake_dir[2048];
-    DrStatus s = dr_scene_keys(scene, &keys, &err);
-    if (s == DR_OK) s = dr_stage_frame_range(&args, scene, &first, &last, &err);
-    dr_stage_out_dir(&args, scene, DR_STAGE_MESH, dir, sizeof dir);
+    if (dr_stage_begin(DR_STAGE_MESH, argc, argv, &args, &scene, &keys, dir, sizeof dir, &done, &err) < 0)
+        return fail(&err);
+    if (done) return 0;
+    int first, last;
+    DrStatus s = dr_stage_frame_range(&args, scene, &first, &last, &err);
     dr_stage_out_dir(&args, scene, DR_STAGE_BAKE, bake_dir, sizeof bake_dir);
-    if (s == DR_OK && (args.print_key || args.print_out_dir)) {
-        printf("%s\n", args.print_key ? keys.mesh : dir);
-        dr_scene_destroy(&scene);
-        return 0;
-    }
     /* Validate every collider asset before writing anything. */
     for (int i = 0; s == DR_OK && i < dr_scene_element_count(scene); i++) {
         const DrElement *e = dr_scene_element(scene, i);
         if (strcmp(e->type, "collider") != 0) continue;
         DrTriMesh m = {0};
-        s = load_collider_mesh(e, &m, &err);
+        s = dr_world_load_collider_mesh(e, &m, &err);
         dr_trimesh_free(&m);
     }
     if (s == DR_OK) s = dr_vdb_init(&err);
@@ -172,7 +148,7 @@ int main(int argc, char **argv)
         DrTriMesh m = {0};
         char out[4096];
         snprintf(out, sizeof out, "%s/%s.obj", dir, e->name);
-        s = load_collider_mesh(e, &m, &err);
+        s = dr_world_load_collider_mesh(e, &m, &err);
         if (s == DR_OK) s = dr_io_write_obj(out, &m, "drench collider (scene pose)", &err);
         dr_trimesh_free(&m);
     }

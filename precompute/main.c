@@ -18,19 +18,13 @@ int main(int argc, char **argv)
     dr_error_clear(&err);
     DrStageArgs args;
     bool done;
-    if (dr_stage_parse_args(DR_STAGE_PRECOMPUTE, argc, argv, &args, &done, &err) < 0) return fail(&err);
-    if (done) return 0;
     DrScene *scene = NULL;
-    if (dr_scene_load(args.scene_path, &scene, &err) < 0) return fail(&err);
     DrSceneKeys keys;
     char dir[2048];
-    DrStatus s = dr_scene_keys(scene, &keys, &err);
-    dr_stage_out_dir(&args, scene, DR_STAGE_PRECOMPUTE, dir, sizeof dir);
-    if (s == DR_OK && (args.print_key || args.print_out_dir)) {
-        printf("%s\n", args.print_key ? keys.precompute : dir);
-        dr_scene_destroy(&scene);
-        return 0;
-    }
+    if (dr_stage_begin(DR_STAGE_PRECOMPUTE, argc, argv, &args, &scene, &keys, dir, sizeof dir, &done, &err) < 0)
+        return fail(&err);
+    if (done) return 0;
+    DrStatus s = DR_OK;
     /* Today's element types (liquid, collider) need no precomputed data; the cohesion tables (hair with
        Wetting) and BEM matrices (bem_solid) are computed here when those elements exist. */
     int needs = 0;

@@ -150,3 +150,40 @@ void dr_stage_frame_path(const char *dir, const char *prefix, int frame, const c
 {
     snprintf(buf, size, "%s/%s.%04d.%s", dir, prefix, frame, ext);
 }
+
+static const char *stage_key(const DrSceneKeys *k, DrStageId stage)
+{
+    switch (stage) {
+    case DR_STAGE_PRECOMPUTE: return k->precompute;
+    case DR_STAGE_BAKE: return k->bake;
+    case DR_STAGE_MESH: return k->mesh;
+    case DR_STAGE_RENDER: return k->render;
+    }
+    return "";
+}
+
+DrStatus dr_stage_begin(DrStageId stage, int argc, char **argv, DrStageArgs *args, DrScene **scene,
+                        DrSceneKeys *keys, char *dir, size_t dir_size, bool *done, DrError *err)
+{
+    *scene = NULL;
+    DR_TRY(dr_stage_parse_args(stage, argc, argv, args, done, err));
+    if (*done) return DR_OK;
+    if (args->list_components) {
+        dr_scene_print_reference(stdout, args->markdown);
+        *done = true;
+        return DR_OK;
+    }
+    DR_TRY(dr_scene_load(args->scene_path, scene, err));
+    DrStatus s = dr_scene_keys(*scene, keys, err);
+    if (s < 0) {
+        dr_scene_destroy(scene);
+        return s;
+    }
+    dr_stage_out_dir(args, *scene, stage, dir, dir_size);
+    if (args->print_key || args->print_out_dir) {
+        printf("%s\n", args->print_key ? stage_key(keys, stage) : dir);
+        dr_scene_destroy(scene);
+        *done = true;
+    }
+    return DR_OK;
+}

@@ -65,10 +65,12 @@ static DrStatus asset_context(DrStatus s, const char *element, const char *field
     return s;
 }
 
-/* Loads a mesh and applies the element's Transform component (scale, then rotation, then translation). */
-static DrStatus load_transformed_mesh(const DrElement *e, const char *path, DrTriMesh *mesh, DrError *err)
+DrStatus dr_world_load_collider_mesh(const DrElement *e, DrTriMesh *mesh, DrError *err)
 {
+    const char *path = dr_component_str(dr_element_component(e, "Mesh"), "file");
     DR_TRY(asset_context(dr_io_load_mesh(path, mesh, err), e->name, "Mesh.file", err));
+    free(mesh->n); /* file normals would not follow the transform; consumers recompute what they need */
+    mesh->n = NULL;
     const DrComponent *tr = dr_element_component(e, "Transform");
     if (!tr) return DR_OK;
     double s = dr_component_num(tr, "scale");
@@ -134,7 +136,7 @@ static DrStatus build_colliders(DrWorld *w, DrError *err)
         WorldCollider *wc = &w->colliders[w->ncolliders++];
         wc->element = e;
         DrTriMesh mesh = {0};
-        DR_TRY(load_transformed_mesh(e, dr_component_str(dr_element_component(e, "Mesh"), "file"), &mesh, err));
+        DR_TRY(dr_world_load_collider_mesh(e, &mesh, err));
         if (dx <= 0.0) { /* nothing in the scene samples colliders: validate the asset, build nothing */
             dr_trimesh_free(&mesh);
             continue;
@@ -189,6 +191,9 @@ static DrStatus build_liquid(DrWorld *w, const DrElement *e, WorldLiquid *wl, Dr
     const char *scheme = dr_component_str(tr, "scheme");
     d.scheme = !strcmp(scheme, "pic") ? DR_TRANSFER_PIC : !strcmp(scheme, "flip") ? DR_TRANSFER_FLIP : DR_TRANSFER_APIC;
     d.flip_blend = dr_component_num(tr, "flip_blend");
+    d.pressure = strcmp(dr_component_str(dr_element_component(e, "Pressure"), "formulation"), "mass_weighted") == 0
+                     ? DR_PRESSURE_MASS_WEIGHTED
+                     : DR_PRESSURE_GHOST_FLUID;
     d.per_cell = dr_component_int(par, "per_cell");
     d.jitter = dr_component_num(par, "jitter");
     /* the element's seed mixed with the shot's so two shots of one asset differ only if asked to */

@@ -44,6 +44,9 @@ int dr_world_liquid_count(const DrWorld *w);
 typedef struct DrLiquid DrLiquid;
 const DrLiquid *dr_world_liquid(const DrWorld *w, int i);
 const DrElement *dr_world_liquid_element(const DrWorld *w, int i);
+/* Loads a collider element's Mesh.file and applies its Transform component (scale, then rotation, then
+ * translation): the collider in its scene pose. Errors name the element, the field and the file. */
+DR_NODISCARD DrStatus dr_world_load_collider_mesh(const DrElement *e, DrTriMesh *mesh, DrError *err);
 /* Colliders whose SDF was built (none when no solver samples colliders). */
 int dr_world_live_collider_count(const DrWorld *w);
 
@@ -84,6 +87,11 @@ typedef struct DrStageArgs {
  * handled here: they print and set *done (the caller exits 0). */
 DR_NODISCARD DrStatus dr_stage_parse_args(DrStageId stage, int argc, char **argv, DrStageArgs *args, bool *done,
                                           DrError *err);
+/* Everything a stage does before its own work: parses the arguments, loads the scene and its keys, fills
+ * the stage's output folder, and answers --help, --version, --list-components, --print-key and
+ * --print-out-dir (then *done is set: the caller exits 0). On failure *scene is NULL and err says why. */
+DR_NODISCARD DrStatus dr_stage_begin(DrStageId stage, int argc, char **argv, DrStageArgs *args, DrScene **scene,
+                                     DrSceneKeys *keys, char *dir, size_t dir_size, bool *done, DrError *err);
 const char *dr_stage_name(DrStageId stage);
 /* <out_root>/<shot name>/<stage> */
 void dr_stage_out_dir(const DrStageArgs *args, const DrScene *scene, DrStageId stage, char *buf, size_t size);
