@@ -21,8 +21,10 @@ int main(int argc, char **argv)
         bool framed = strchr(base, '.') != strrchr(base, '.'); /* name.NNNN.obj */
         bool closed = dr_trimesh_is_closed(&m);
         double vol = dr_trimesh_volume(&m);
-        printf("%s: %d vertices, %d triangles, volume %.6g m^3, %s\n", base, m.nv, m.nt, vol,
-               closed ? "closed" : "open");
+        DrVec3 lo = {0, 0, 0}, hi = {0, 0, 0};
+        dr_trimesh_bounds(&m, &lo, &hi);
+        printf("%s: %d vertices, %d triangles, volume %.6g m^3, %s, centre %.6g %.6g %.6g\n", base, m.nv, m.nt,
+               vol, closed ? "closed" : "open", 0.5 * (lo.x + hi.x), 0.5 * (lo.y + hi.y), 0.5 * (lo.z + hi.z));
         if (framed && (!closed || vol <= 0.0)) bad++;
         dr_trimesh_free(&m);
     }

@@ -50,3 +50,13 @@ out=$("$ROOT/pipeline.sh" --no-build "$scene" --force mesh 2>&1)
 check "--force mesh reruns mesh only" bash -c "echo '$out' | grep -q 'bake: up to date' && echo '$out' | grep -q 'mesh: running'"
 out=$("$ROOT/pipeline.sh" --no-build "$scene" --from bake 2>&1)
 check "--from bake reruns bake and mesh" bash -c "echo '$out' | grep -q 'bake: running' && echo '$out' | grep -q 'mesh: running'"
+
+# A collider moved by Motion keys is exported in its scene pose once and posed in every frame.
+moving="$ROOT/tests/data/moving_collider.json"
+"$BIN/bake" "$moving" -q >/dev/null 2>&1 && "$BIN/mesh" "$moving" -q >/dev/null 2>&1
+pd="$DRENCH_OUT/paddle/mesh"
+check "moving collider: rest pose and 4 posed frames" bash -c "[ -f '$pd/paddle.obj' ] && [ \$(ls '$pd'/paddle.*.obj | wc -l) -eq 4 ]"
+# keys move it 0.2 m along x over frames 0..4: frame 2 is halfway (0.1 m), frame 4 at 0.2 m
+centre_x() { "$ROOT/build/tests/objcheck" "$1" | sed 's/.*centre \([^ ]*\).*/\1/'; }
+check "moving collider: frame 2 halfway along its keys" awk -v c="$(centre_x "$pd/paddle.0002.obj")" 'BEGIN{exit !(c > 0.199 && c < 0.201)}'
+check "moving collider: frame 4 at its last key" awk -v c="$(centre_x "$pd/paddle.0004.obj")" 'BEGIN{exit !(c > 0.299 && c < 0.301)}'
