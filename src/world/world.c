@@ -190,7 +190,8 @@ static DrStatus build_liquid(DrWorld *w, const DrElement *e, WorldLiquid *wl, Dr
     d.viscosity = dr_component_num(mat, "viscosity");
     const char *scheme = dr_component_str(tr, "scheme");
     d.scheme = !strcmp(scheme, "pic") ? DR_TRANSFER_PIC : !strcmp(scheme, "flip") ? DR_TRANSFER_FLIP : DR_TRANSFER_APIC;
-    d.flip_blend = dr_component_num(tr, "flip_blend");
+    /* the scene gives the FLIP fraction of the blend; the liquid takes the PIC fraction */
+    d.flip_blend = 1.0 - dr_component_num(tr, "flip_blend");
     d.pressure = strcmp(dr_component_str(dr_element_component(e, "Pressure"), "formulation"), "mass_weighted") == 0
                      ? DR_PRESSURE_MASS_WEIGHTED
                      : DR_PRESSURE_GHOST_FLUID;
