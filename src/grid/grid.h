@@ -1,0 +1,134 @@
+/* drench grid: the staggered (MAC) grid of the liquid, the interpolation kernels shared by the
+ * particle–grid transfers (quadratic B-spline, linear), and rigid colliders given as dense signed
+ * distance fields moving by keyed transforms.
+ *
+ * Units: metres, seconds. Thread safety: a DrMacGrid or DrCollider may be read from several threads
+ * at once; nothing here mutates shared state after creation. */
+#ifndef DR_GRID_H
+#define DR_GRID_H
+
+#include "core/core.h"
+
+/* ---- MAC grid ---------------------------------------------------------------------------------- */
+
+/* nx·ny·nz cubic cells of edge dx; cell (i,j,k) spans origin + dx·[i,i+1]×[j,j+1]×[k,k+1].
+ * Face component a (0 = u, 1 = v, 2 = w) lives on the faces normal to axis a: u(i,j,k) at
+ * origin + dx·(i, j+½, k+½), i in [0, nx], and likewise for v and w. Arrays are x fastest:
+ * u index i + (nx+1)·(j + ny·k), v index i + nx·(j + (ny+1)·k), w index i + nx·(j + ny·k).
+ * The grid owns its arrays (dr_mac_grid_create/destroy). */
+typedef struct DrMacGrid {
+    int nx, ny, nz;
+    double dx;
+    DrVec3 origin;
+    int fdim[3][3]; /* fdim[a] = face counts of component a along x, y, z */
+    long nfaces[3]; /* fdim[a][0]·fdim[a][1]·fdim[a][2] */
+    union {
+        struct { double *u, *v, *w; };
+        double *f[3]; /* f[a] == u, v, w: face velocities, m/s */
+    };
+} DrMacGrid;
+
+/* DR_ERR_INPUT for non-positive sizes or dx, DR_ERR_NOMEM on exhaustion or size overflow. */
+DR_NODISCARD DrStatus dr_mac_grid_create(int nx, int ny, int nz, double dx, DrVec3 origin,
+                                         DrMacGrid **out, DrError *err);
+void dr_mac_grid_destroy(DrMacGrid **g);
+
+static inline long dr_mac_cell_index(const DrMacGrid *g, int i, int j, int k)
+{
+    return (long)i + (long)g->nx * ((long)j + (long)g->ny * (long)k);
+}
+static inline long dr_mac_face_index(const DrMacGrid *g, int a, int i, int j, int k)
+{
+    return (long)i + (long)g->fdim[a][0] * ((long)j + (long)g->fdim[a][1] * (long)k);
+}
+/* Offset (in cells) of face component a's node lattice: 0 along axis a, ½ along the others. */
+static inline double dr_mac_face_offset(int a, int axis) { return a == axis ? 0.0 : 0.5; }
+/* World position of face (a; i,j,k). */
+DrVec3 dr_mac_face_position(const DrMacGrid *g, int a, int i, int j, int k);
+DrVec3 dr_mac_cell_center(const DrMacGrid *g, int i, int j, int k);
+
+/* ---- kernels --------------------------------------------------------------------------------------- */
+
+/* One axis of a quadratic B-spline stencil: nodes base, base+1, base+2 with weights w[] (sum 1) and
+ * derivatives dw[] (per grid unit). `s` is the sample position in grid units relative to node 0.
+ * The kernel reproduces linear functions exactly and Σ w (node − s)² = ¼ (so D = Δx²/4·I, APIC §5.9). */
+typedef struct DrStencil3 { int base; double w[3]; double dw[3]; } DrStencil3;
+static inline DrStencil3 dr_kernel_quadratic(double s)
+{
+    DrStencil3 st;
+    double fb = floor(s - 0.5);
+    st.base = (int)fb;
+    double fx = s - fb; /* in [0.5, 1.5) */
+    double a = 1.5 - fx, b = fx - 1.0, c = fx - 0.5;
+    st.w[0] = 0.5 * a * a;
+    st.w[1] = 0.75 - b * b;
+    st.w[2] = 0.5 * c * c;
+    st.dw[0] = -a;
+    st.dw[1] = -2.0 * b;
+    st.dw[2] = c;
+    return st;
+}
+/* One axis of a linear (tent) stencil: nodes base, base+1 with weights w[0], w[1]. */
+typedef struct DrStencil2 { int base; double w[2]; } DrStencil2;
+static inline DrStencil2 dr_kernel_linear(double s)
+{
+    DrStencil2 st;
+    double fb = floor(s);
+    st.base = (int)fb;
+    double f = s - fb;
+    st.w[0] = 1.0 - f;
+    st.w[1] = f;
+    return st;
+}
+
+/* Trilinear interpolation of face component a at world position x (clamped to the face lattice). */
+double dr_mac_sample_face(const DrMacGrid *g, int a, DrVec3 x);
+
+/* ---- colliders ----------------------------------------------------------------------------------- */
+
+typedef struct DrColliderDesc {
+    const float *phi; int nx, ny, nz; DrVec3 origin; double dx; /* dense SDF in the collider's rest frame,
+                                              negative inside, node (i,j,k) at origin + dx*(i,j,k), x fastest;
+                                              copied; nx, ny, nz >= 2 */
+    double friction;   /* Coulomb coefficient, >= 0 */
+    bool no_slip;      /* no-slip: the liquid takes the collider's velocity at contact; slip: only the normal */
+    double thickness;  /* m, added to the surface (phi - thickness) */
+    int nkeys; const double *keys; /* rows of 7: [time_s, tx, ty, tz, rx, ry, rz (radians, XYZ Euler as
+                                      dr_m3_from_euler_xyz)], strictly increasing time; 0 rows = static
+                                      identity; linear interpolation between keys, constant outside; copied */
+} DrColliderDesc;
+typedef struct DrCollider DrCollider;
+/* DR_ERR_INPUT (naming the field) for a missing/too small SDF, non-positive dx, negative friction,
+ * non-finite values or keys not strictly increasing in time; DR_ERR_NOMEM. */
+DR_NODISCARD DrStatus dr_collider_create(const DrColliderDesc *desc, DrCollider **out, DrError *err);
+void dr_collider_destroy(DrCollider **c);
+DrXform dr_collider_pose(const DrCollider *c, double t); /* rest frame -> world at time t */
+/* Signed distance (world, minus thickness) at x and time t; outside the SDF box it is the distance to the
+   box plus the boundary value (positive = outside). Trilinear inside the box. grad may be NULL; grad is
+   the world-space unit gradient (central differences of half an SDF cell, rotated to world). */
+double dr_collider_phi(const DrCollider *c, double t, DrVec3 x, DrVec3 *grad);
+/* Rigid velocity of the collider point at x (m/s): zero outside the key range (the pose is constant
+   there); inside a key interval the derivative of the interpolated pose. */
+DrVec3 dr_collider_velocity(const DrCollider *c, double t, DrVec3 x);
+double dr_collider_friction(const DrCollider *c);
+bool dr_collider_no_slip(const DrCollider *c);
+
+/* Per-substep form: the pose and rigid motion evaluated once at time t, then queried many times. */
+typedef struct DrColliderFrame {
+    const DrCollider *c;
+    DrXform pose;     /* rest -> world */
+    DrVec3 lin_vel;   /* velocity of the world origin's image: v(x) = lin_vel + omega × (x - pose.t) */
+    DrVec3 omega;     /* world angular velocity, rad/s */
+} DrColliderFrame;
+DrColliderFrame dr_collider_frame(const DrCollider *c, double t);
+double dr_collider_frame_phi(const DrColliderFrame *f, DrVec3 x, DrVec3 *grad);
+DrVec3 dr_collider_frame_velocity(const DrColliderFrame *f, DrVec3 x);
+/* World-space axis-aligned bounds of the collider's SDF box at the frame's pose. */
+void dr_collider_frame_bounds(const DrColliderFrame *f, DrVec3 *lo, DrVec3 *hi);
+
+/* Fraction of the axis-aligned square face (corners c00, c10, c11, c01 in order around it) that lies
+   where phi >= 0 (outside solids), from the four corner values: the face is split into four triangles
+   around its centre (centre value = mean of corners), each clipped linearly. In [0, 1]. */
+double dr_face_fraction_outside(double p00, double p10, double p11, double p01);
+
+#endif

@@ -1,0 +1,134 @@
+/* drench liquid: incompressible bulk liquid on a MAC grid with APIC/FLIP/PIC particles (PHYSICS §3).
+ *
+ * One substep: P2G (transfer.h) → gravity and explicit viscosity → boundary conditions (domain walls;
+ * colliders as variational face fractions with their velocity on blocked faces) → pressure projection
+ * (DrPressureFormulation below; PCG + MIC(0)) → extrapolation of the grid's velocity change into the
+ * faces the projection did not update → collider velocity constraint (slip with Coulomb
+ * friction, or no-slip) → G2P → x += Δt v_p^{n+1} → push out of colliders, clamp into the domain →
+ * emitters, kill boxes.
+ *
+ * Free surface. The liquid level set at a cell centre is φ = (½ − min(1, n_c / per_cell))·Δx from the
+ * cell's particle count n_c: a full cell puts the surface on its faces (a flat, face-aligned surface is
+ * exactly flat whatever the jitter), a partly filled one moves it inward. θ = φ_F/(φ_F − φ_A) ≥ 0.01.
+ *
+ * Units SI. Determinism: a run is bit-identical for any thread count (fixed-order reductions, coloured
+ * P2G). Thread safety: one DrLiquid belongs to one thread at a time (it parallelises internally).
+ * Memory: everything is sized in dr_liquid_create; particle arrays (and their scratch copies for the
+ * sort below) grow (by 1/4 + slack) only when emitters add particles.
+ * Particle order: every substep sorts the particles by grid cell (stable: ties keep their order) so the
+ * transfers walk memory in grid order; the order, and the array pointers of DrLiquidState, change in
+ * dr_liquid_advance and dr_liquid_restore: re-read them after each call. */
+#ifndef DR_LIQUID_H
+#define DR_LIQUID_H
+
+#include "core/core.h"
+#include "grid/grid.h"
+#include "transfer/transfer.h"
+
+/* DrTransferScheme { DR_TRANSFER_APIC, DR_TRANSFER_FLIP, DR_TRANSFER_PIC } comes from transfer.h. */
+
+/* Pressure projection. Both solve A q = −Δx·div u* for q = pΔt/ρ with MIC(0)-preconditioned CG, use the
+ * collider face weights w_f of the variational boundary, and treat domain walls as closed faces; they
+ * differ in what they minimise and where the free-surface condition p = 0 sits.
+ *
+ * DR_PRESSURE_GHOST_FLUID (default): uniform density ρ on every face, Poisson coefficients w_f, unknowns
+ *   on the cells holding particles, p = 0 on the level-set surface between a fluid and an air cell (ghost
+ *   fluid, θ from the particle-count level set), the velocity change extrapolated into the faces not next
+ *   to a fluid cell. Keeps still water still for any seeding jitter (a full, face-aligned surface lies
+ *   exactly on the faces: hydrostatic tank ~1e-9 m/s). Conserves neither linear nor angular momentum
+ *   exactly at a free surface (θ ≠ 1 and the extrapolated faces carry momentum the solve did not
+ *   balance): an APIC rotating free blob in zero gravity drifts by 8.4e-3 of |L| per 100 steps.
+ * DR_PRESSURE_MASS_WEIGHTED: the kinetic-energy projection with the P2G face masses m_f: minimises
+ *   Σ_f m_f |u_f − u*_f|² subject to the discrete divergence constraint, i.e. u_f = u*_f − Δt/ρ_f (G p)_f,
+ *   ρ_f = m_f/Δx³, Poisson coefficients w_f/ρ_f, applied to EVERY face with mass (no extrapolation into
+ *   them). The constraint holds on the cells holding particles and on the cells whose six faces all carry
+ *   mass (the kernel's reach just outside the liquid); p = 0 at the centres of the remaining cells.
+ *   Since m_f Δu_f = −Δt Δx² (G p)_f does not depend on m_f, summation by parts turns Σ_f m_f Δu_f e_a
+ *   and Σ_f x_f × m_f Δu_f e_a into sums over cells of p_c times the moments of the faces of c that carry
+ *   mass: zero for every cell with six such faces, and p = 0 on the others. So, away from walls and
+ *   colliders (w_f = 1), the projection conserves linear and angular momentum exactly whatever p (an
+ *   unconverged solve included); with APIC and no gravity or viscosity a whole step conserves angular
+ *   momentum to round-off (the rotating blob: ~4e-15 of |L| per 100 steps). The price: the face densities
+ *   follow the particle distribution, and a face density varying sideways is a horizontal density
+ *   gradient that gravity turns into flow. Unjittered seeding (jitter 0) gives uniform face masses (walls
+ *   fold the kernel back, transfer.h) and still water stays still (~5e-8 m/s); fully jittered seeding
+ *   does not (~0.24 m/s of slow circulation in the same tank). Faces with little mass get large
+ *   coefficients (ρ/ρ_f), which costs PCG iterations (a small dam break: at most 74 against 18). Use it
+ *   where momentum matters more than resting water (splashes, free rotating bodies of liquid); use the
+ *   default for tanks and pools. */
+typedef enum DrPressureFormulation { DR_PRESSURE_GHOST_FLUID, DR_PRESSURE_MASS_WEIGHTED } DrPressureFormulation;
+
+typedef struct DrBoxVel { DrVec3 lo, hi, velocity; double start, end; } DrBoxVel; /* emitter: active start<=t<end */
+typedef struct DrLiquidDesc {
+    DrVec3 domain_lo, domain_hi; double dx; bool wall_no_slip;   /* grid = ceil((hi - lo)/dx) cells from lo */
+    double density, viscosity;                                    /* kg/m³, Pa·s (dynamic) */
+    DrTransferScheme scheme; double flip_blend;                   /* flip_blend: PIC fraction of FLIP, [0,1] */
+    int per_cell; double jitter; uint64_t seed;                   /* seeding: per_cell particles per cell (8 =
+                                                                      2x2x2 sub-cells; a cube k³ uses k³
+                                                                      sub-cells, other counts uniform random
+                                                                      positions), jitter in [0,1] of a sub-cell */
+    DrVec3 gravity; double cfl; int max_substeps; double pressure_tol; int pressure_max_iter;
+    DrPressureFormulation pressure;                               /* default DR_PRESSURE_GHOST_FLUID */
+    int nsource_boxes; const DrBoxVel *source_boxes;              /* liquid at t=0 (start/end unused) */
+    int nsource_shapes; const DrCollider *const *source_shapes; const DrVec3 *source_shape_velocity;
+                                       /* liquid at t=0 inside these SDFs (phi(x, 0) < 0) — closed meshes;
+                                          velocity array may be NULL (at rest) */
+    int nemitters; const DrBoxVel *emitters;                      /* fill their box every substep where empty
+                                                                      (in cells whose centre is inside, the
+                                                                      seeding sub-cells holding no particle;
+                                                                      without a k³ lattice, empty cells); copied */
+    int nkill_boxes; const DrVec3 *kill_lo, *kill_hi;             /* copied */
+} DrLiquidDesc;
+/* Water (1000 kg/m³, 1e-3 Pa·s), APIC, flip_blend 0.05, 8 per cell, jitter 1, seed 1, gravity −9.81 y,
+   cfl 1, 64 substeps, tolerance 1e-6, 1000 iterations, ghost-fluid pressure, unit box domain, dx 1/32,
+   no sources. */
+void dr_liquid_desc_default(DrLiquidDesc *d);
+
+typedef struct DrLiquidState { long n; double *x, *v, *c; } /* 3n positions (m), 3n velocities (m/s), 9n affine:
+      c[9p + 3a + b] = component b of c_pa, the affine vector of face component a (APIC; zero for PIC/FLIP) */ DrLiquidState;
+
+typedef struct DrLiquidStats {
+    int substeps; int pressure_iterations_max; long pressure_iterations_total; double pressure_residual_max;
+    int pressure_not_converged;   /* substeps whose solve stopped at max_iter (each also logged as a warning) */
+    long particles; long liquid_cells; double max_speed; double divergence_mean; /* mean |div u|·dx/|u|max after
+                                   projection over liquid cells (dimensionless; last substep) */
+    double seconds_p2g, seconds_pressure, seconds_g2p, seconds_advect, seconds_other;
+    long emitted, killed;
+    /* Momentum the grid phases (forces, projection, boundaries, extrapolation, collider constraint) gave
+       the liquid: Σ over substeps of Σ_f m_f (u_f^final − u_f^P2G) e_a and of the same times x_f ×.
+       With APIC and particles away from the domain walls, transfers and advection conserve both exactly
+       ([APIC] §5.3), so the change of dr_liquid_totals' momentum/angular equals these (before the
+       push-out/clamp/emitter/kill phases, which the caller avoids when checking). */
+    DrVec3 grid_linear_impulse, grid_angular_impulse;
+} DrLiquidStats;
+
+typedef struct DrLiquid DrLiquid;
+/* Creates the grid and seeds particles (no particle seeded where any collider has phi < 0 at t=0).
+   Allocates the grid ONLY here (a scene without liquid never calls it). DR_ERR_INPUT naming the field for
+   out-of-range parameters; DR_ERR_NOMEM. colliders are borrowed for the call only. */
+DR_NODISCARD DrStatus dr_liquid_create(const DrLiquidDesc *desc, const DrCollider *const *colliders, int ncolliders,
+                                       DrLiquid **out, DrError *err);
+void dr_liquid_destroy(DrLiquid **liq);
+/* Advances from t0 to t1 with adaptive substeps (CFL: dt <= cfl·dx/max(|v_p| + (6√3/dx)‖B_p‖_F +
+   √(5·dx·|g|)), also the explicit-viscosity limit dx²/(6ν); at most max_substeps — if the CFL would need
+   more, the substeps are clamped and a warning is logged once per call; viscosity then acts with the
+   largest stable coefficient). Fills *stats (zeroed first) with the sums/maxima over all substeps.
+   A pressure solve that does not converge is a warning (stats), never a failure. DR_ERR_RUNTIME if the
+   solver breaks down (non-finite values); DR_ERR_NOMEM if growing for emitters fails. */
+DR_NODISCARD DrStatus dr_liquid_advance(DrLiquid *liq, const DrCollider *const *colliders, int ncolliders,
+                                        double t0, double t1, DrLiquidStats *stats, DrError *err);
+const DrLiquidState *dr_liquid_state(const DrLiquid *liq);
+DrLiquidState *dr_liquid_state_mut(DrLiquid *liq);  /* for initial conditions in tests; keep arrays' length n */
+/* Checkpoint support: everything besides the particle arrays that a bit-identical continuation needs. */
+void dr_liquid_rng_state(const DrLiquid *liq, uint64_t out[4]);
+/* Replaces the particles (copies n rows of x, v, c) and the rng state. DR_ERR_INPUT for n < 0 or
+   non-finite data; DR_ERR_NOMEM. */
+DR_NODISCARD DrStatus dr_liquid_restore(DrLiquid *liq, long n, const double *x, const double *v, const double *c,
+                                        const uint64_t rng[4], DrError *err);
+/* Diagnostics: total mass, linear momentum, angular momentum about the origin INCLUDING the affine part
+   (APIC: L_p = x_p × m_p v_p + m_p ε:(B_pᵀ), B_p = C_p D), kinetic energy ½ Σ m |v_p|². */
+void dr_liquid_totals(const DrLiquid *liq, double *mass, DrVec3 *momentum, DrVec3 *angular, double *kinetic);
+double dr_liquid_particle_mass(const DrLiquid *liq); /* density·dx³/per_cell */
+const DrMacGrid *dr_liquid_grid(const DrLiquid *liq);
+
+#endif
