@@ -28,6 +28,9 @@ struct DrLiquid {
     unsigned char *valid[3], *valid2[3], *valid3[3];
     double *nphi;            /* collider union phi at grid nodes (cell corners) */
     double *cphi;            /* liquid phi at cell centres */
+    double *dens;            /* per cell: P2G face masses / (6ρΔx³), 0 in cells without particles */
+    double *div_target;      /* per pressure row: Δx·D, the volume-correction divergence target (m/s) */
+    double dt;               /* the current substep */
     int *row;                /* cell → pressure unknown, −1 if not a fluid cell */
     long *cells_of_row;
     DrCsr *A;
@@ -64,6 +67,7 @@ void dr_liquid_desc_default(DrLiquidDesc *d)
     d->viscosity = 1e-3;
     d->scheme = DR_TRANSFER_APIC;
     d->flip_blend = 0.05;
+    d->volume_correction = 1.0;
     d->per_cell = 8;
     d->jitter = 1.0;
     d->seed = 1;
@@ -210,6 +214,8 @@ static DrStatus check_desc(const DrLiquidDesc *d, int ncolliders, DrError *err)
     if (!(d->pressure_tol > 0.0 && d->pressure_tol < 1.0)) BAD("liquid pressure_tol must be in (0, 1) (got %g).", d->pressure_tol);
     if (d->pressure != DR_PRESSURE_GHOST_FLUID && d->pressure != DR_PRESSURE_MASS_WEIGHTED)
         BAD("liquid pressure formulation %d is unknown (ghost_fluid, mass_weighted).", (int)d->pressure);
+    if (!(d->volume_correction >= 0.0) || !isfinite(d->volume_correction))
+        BAD("liquid volume_correction must be >= 0 (got %g).", d->volume_correction);
     if (d->pressure_max_iter < 1) BAD("liquid pressure_max_iter must be >= 1 (got %d).", d->pressure_max_iter);
     if (d->nsource_boxes < 0 || (d->nsource_boxes > 0 && !d->source_boxes)) BAD("liquid source boxes missing.");
     if (d->nsource_shapes < 0 || (d->nsource_shapes > 0 && !d->source_shapes)) BAD("liquid source shapes missing.");
@@ -256,6 +262,8 @@ DrStatus dr_liquid_create(const DrLiquidDesc *desc, const DrCollider *const *col
     }
     if ((s = dr_calloc((size_t)L->nnodes, sizeof(double), &L->nphi, err)) < 0) goto fail;
     if ((s = dr_calloc((size_t)L->ncells, sizeof(double), &L->cphi, err)) < 0) goto fail;
+    if ((s = dr_calloc((size_t)L->ncells, sizeof(double), &L->dens, err)) < 0) goto fail;
+    if ((s = dr_calloc((size_t)L->ncells, sizeof(double), &L->div_target, err)) < 0) goto fail;
     if ((s = dr_calloc((size_t)L->ncells, sizeof(int), &L->row, err)) < 0) goto fail;
     if ((s = dr_calloc((size_t)L->ncells, sizeof(long), &L->cells_of_row, err)) < 0) goto fail;
     if ((s = dr_calloc((size_t)L->ncells, sizeof(double), &L->rhs, err)) < 0) goto fail;
@@ -330,7 +338,7 @@ void dr_liquid_destroy(DrLiquid **liq)
         free(L->fm[a]); free(L->uold[a]); free(L->wgt[a]); free(L->us[a]);
         free(L->tmp[a]); free(L->tmp2[a]); free(L->valid[a]); free(L->valid2[a]); free(L->valid3[a]);
     }
-    free(L->nphi); free(L->cphi); free(L->row); free(L->cells_of_row);
+    free(L->nphi); free(L->cphi); free(L->dens); free(L->div_target); free(L->row); free(L->cells_of_row);
     free(L->rhs); free(L->q); free(L->work); free(L->impulse_partial);
     dr_csr_destroy(&L->A);
     dr_mic0_destroy(&L->M);
@@ -528,6 +536,33 @@ static inline double face_inv_density(const DrLiquid *L, int a, long f)
     return m > 0.0 ? L->vol_density / m : 0.0;
 }
 
+/* Volume correction (liquid.h): Δx·D for cell c, D = κ·(ρ̃ − 1 − band)/Δt where the smoothed density ρ̃
+   exceeds 1 + band. A q = −Δx²(div u* − D), so the row's right-hand side gains Δx·(Δx·D). */
+#define VOLUME_BAND 0.04
+static double smoothed_density(const DrLiquid *L, long c)
+{
+    const DrMacGrid *g = L->g;
+    int i = (int)(c % g->nx), j = (int)((c / g->nx) % g->ny), k = (int)(c / ((long)g->nx * g->ny));
+    double sum = 0.0;
+    int n = 0;
+    for (int dk = -1; dk <= 1; dk++)
+        for (int dj = -1; dj <= 1; dj++)
+            for (int di = -1; di <= 1; di++) {
+                int ii = i + di, jj = j + dj, kk = k + dk;
+                if (ii < 0 || jj < 0 || kk < 0 || ii >= g->nx || jj >= g->ny || kk >= g->nz) continue;
+                sum += L->dens[ii + (long)g->nx * (jj + (long)g->ny * kk)];
+                n++;
+            }
+    return sum / n;
+}
+
+static inline double volume_target(const DrLiquid *L, long c)
+{
+    if (L->d.volume_correction <= 0.0) return 0.0;
+    double excess = smoothed_density(L, c) - 1.0 - VOLUME_BAND;
+    return excess > 0.0 ? L->g->dx * L->d.volume_correction * excess / L->dt : 0.0;
+}
+
 /* Row r of the pressure matrix (ascending column order: −z, −y, −x, diagonal, +x, +y, +z) and its
    right-hand side −Δx²·div u*. Returns the number of entries. */
 static int pressure_row(const DrLiquid *L, int r, int col[7], double val[7], double *rhs_out)
@@ -569,7 +604,7 @@ static int pressure_row(const DrLiquid *L, int r, int col[7], double val[7], dou
             }
         }
     }
-    *rhs_out = rhs * g->dx;
+    *rhs_out = (rhs + volume_target(L, c)) * g->dx;
     int cnt = 0;
     for (int q = 0; q < 3; q++)
         if (offcol[q] >= 0) { col[cnt] = offcol[q]; val[cnt++] = off[q]; }
@@ -597,7 +632,31 @@ static void assemble_rows(long begin, long end, void *vctx)
         int at = A->rowptr[r];
         for (int q = 0; q < cnt; q++) { A->col[at + q] = col[q]; A->val[at + q] = val[q]; }
         ctx->L->rhs[r] = rhs;
+        ctx->L->div_target[r] = volume_target(ctx->L, ctx->L->cells_of_row[r]);
     }
+}
+
+/* Relative particle density of every cell from the P2G face masses (z-slices in parallel). */
+typedef struct DensCtx { DrLiquid *L; double unused; } DensCtx;
+
+static void density_slices(long begin, long end, void *vctx)
+{
+    DensCtx *ctx = vctx;
+    DrLiquid *L = ctx->L;
+    const DrMacGrid *g = L->g;
+    const long *cs = L->bins->cell_start;
+    for (long k = begin; k < end; k++)
+        for (int j = 0; j < g->ny; j++)
+            for (int i = 0; i < g->nx; i++) {
+                long c = i + (long)g->nx * (j + (long)g->ny * k);
+                double m = 0.0;
+                if (cs[c + 1] > cs[c])
+                    for (int a = 0; a < 3; a++) {
+                        long f = low_face(g, a, i, j, (int)k);
+                        m += L->fm[a][f] + L->fm[a][f + face_stride(g, a)];
+                    }
+                L->dens[c] = m / (6.0 * L->vol_density);
+            }
 }
 
 static DrStatus pressure_solve(DrLiquid *L, DrLiquidStats *stats, DrError *err)
@@ -639,6 +698,14 @@ static DrStatus pressure_solve(DrLiquid *L, DrLiquidStats *stats, DrError *err)
     }
     stats->liquid_cells = nrow;
     if (nrow == 0) return DR_OK;
+    if (L->d.volume_correction > 0.0) {
+        DensCtx dctx = {L, 0.0};
+        dr_parallel_for(g->nz, 1, density_slices, &dctx);
+        for (int r = 0; r < nrow; r++) {
+            double rho = smoothed_density(L, L->cells_of_row[r]);
+            if (rho > stats->density_max) stats->density_max = rho;
+        }
+    }
     DR_TRY(dr_csr_reserve(L->A, nrow, nrow * 7, err));
     DrCsr *A = L->A;
     /* rows in parallel: count the entries of each row, prefix-sum the counts (serial, in row order),
@@ -757,7 +824,7 @@ static void divergence_chunks(long begin, long end, void *vctx)
                 dv += L->wgt[a][fhi] * g->f[a][fhi] + (1.0 - L->wgt[a][fhi]) * L->us[a][fhi];
                 dv -= L->wgt[a][flo] * g->f[a][flo] + (1.0 - L->wgt[a][flo]) * L->us[a][flo];
             }
-            sum += fabs(dv);
+            sum += fabs(dv - L->div_target[r]);
         }
         ctx->part[ch] = sum;
         ctx->umax[ch] = umax;
@@ -1232,6 +1299,7 @@ static DrStatus substep(DrLiquid *L, double t, double dt, bool visc_clamped, DrL
     double t_2 = dr_time_now();
 
     /* 4. pressure projection */
+    L->dt = dt;
     DR_TRY(pressure_solve(L, stats, err));
     for (int a = 0; a < 3; a++) run_faces(L, project_slices, a);
     stats->divergence_mean = divergence_mean(L, stats->liquid_cells);

@@ -195,6 +195,7 @@ static DrStatus build_liquid(DrWorld *w, const DrElement *e, WorldLiquid *wl, Dr
     d.pressure = strcmp(dr_component_str(dr_element_component(e, "Pressure"), "formulation"), "mass_weighted") == 0
                      ? DR_PRESSURE_MASS_WEIGHTED
                      : DR_PRESSURE_GHOST_FLUID;
+    d.volume_correction = dr_component_num(dr_element_component(e, "Pressure"), "volume_correction");
     d.per_cell = dr_component_int(par, "per_cell");
     d.jitter = dr_component_num(par, "jitter");
     /* the element's seed mixed with the shot's so two shots of one asset differ only if asked to */

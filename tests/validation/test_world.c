@@ -50,6 +50,19 @@ static double levelset_volume(const DrWorld *w)
     return v;
 }
 
+/* Relative level-set volume change of a scene's liquid over its 48 frames (2 s). */
+static double dam_volume_change(const char *path)
+{
+    DrScene *scene = NULL;
+    DrWorld *w = load_world(path, &scene);
+    double v0 = levelset_volume(w);
+    step(w, 48);
+    double change = levelset_volume(w) / v0 - 1.0;
+    dr_world_destroy(&w);
+    dr_scene_destroy(&scene);
+    return change;
+}
+
 static void test_dam_break_volume_from_level_set(void **state)
 {
     (void)state;
@@ -68,6 +81,19 @@ static void test_dam_break_volume_from_level_set(void **state)
     assert_int_equal(dr_liquid_state(dr_world_liquid(w, 0))->n, n0); /* no kill box: no particle lost */
     dr_world_destroy(&w);
     dr_scene_destroy(&scene);
+}
+
+/* The volume correction (Pressure.volume_correction, liquid.h) is what keeps the dam break within 5 %:
+   without it the same scene loses about twice as much (measured −8.2 % against −4.2 %). */
+static void test_volume_correction_recovers_compressed_volume(void **state)
+{
+    (void)state;
+    double off = dam_volume_change(DATA "dam_volume_uncorrected.json");
+    double on = dam_volume_change(DATA "dam_volume.json");
+    print_message("level-set volume change over 2 s: %+.2f %% without correction, %+.2f %% with\n", 100 * off,
+                  100 * on);
+    assert_true(off < -0.05);           /* the uncorrected loss is real, beyond the acceptance bound */
+    assert_true(fabs(on) < fabs(off) - 0.02);
 }
 
 static void test_scene_without_liquid_builds_no_solver(void **state)
@@ -120,6 +146,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_dam_break_volume_from_level_set),
+        cmocka_unit_test(test_volume_correction_recovers_compressed_volume),
         cmocka_unit_test(test_scene_without_liquid_builds_no_solver),
         cmocka_unit_test(test_checkpoint_continuation_is_bit_identical),
     };
