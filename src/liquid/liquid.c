@@ -30,7 +30,7 @@ struct DrLiquid {
     double *cphi;            /* liquid phi at cell centres */
     double *dens;            /* per cell: P2G face masses / (6ρΔx³), 0 in cells without particles */
     double *div_target;      /* per pressure row: Δx·D, the volume-correction divergence target (m/s) */
-    double dt;               /* the current substep */
+    double span;             /* duration of the current dr_liquid_advance call (a frame), s */
     int *row;                /* cell → pressure unknown, −1 if not a fluid cell */
     long *cells_of_row;
     DrCsr *A;
@@ -67,7 +67,7 @@ void dr_liquid_desc_default(DrLiquidDesc *d)
     d->viscosity = 1e-3;
     d->scheme = DR_TRANSFER_APIC;
     d->flip_blend = 0.05;
-    d->volume_correction = 1.0;
+    d->volume_correction = 4.0;
     d->per_cell = 8;
     d->jitter = 1.0;
     d->seed = 1;
@@ -536,8 +536,10 @@ static inline double face_inv_density(const DrLiquid *L, int a, long f)
     return m > 0.0 ? L->vol_density / m : 0.0;
 }
 
-/* Volume correction (liquid.h): Δx·D for cell c, D = κ·(ρ̃ − 1 − band)/Δt where the smoothed density ρ̃
-   exceeds 1 + band. A q = −Δx²(div u* − D), so the row's right-hand side gains Δx·(Δx·D). */
+/* Volume correction (liquid.h): Δx·D for cell c, D = κ·(ρ̃ − 1 − band)/T where the smoothed density ρ̃
+   exceeds 1 + band and T is the advance interval (a frame), not the substep: a rate tied to the substep
+   would grow as the CFL condition shortens it and speed the flow up further. A q = −Δx²(div u* − D), so
+   the row's right-hand side gains Δx·(Δx·D). */
 #define VOLUME_BAND 0.04
 static double smoothed_density(const DrLiquid *L, long c)
 {
@@ -560,7 +562,7 @@ static inline double volume_target(const DrLiquid *L, long c)
 {
     if (L->d.volume_correction <= 0.0) return 0.0;
     double excess = smoothed_density(L, c) - 1.0 - VOLUME_BAND;
-    return excess > 0.0 ? L->g->dx * L->d.volume_correction * excess / L->dt : 0.0;
+    return excess > 0.0 ? L->g->dx * L->d.volume_correction * excess / L->span : 0.0;
 }
 
 /* Row r of the pressure matrix (ascending column order: −z, −y, −x, diagonal, +x, +y, +z) and its
@@ -1299,7 +1301,6 @@ static DrStatus substep(DrLiquid *L, double t, double dt, bool visc_clamped, DrL
     double t_2 = dr_time_now();
 
     /* 4. pressure projection */
-    L->dt = dt;
     DR_TRY(pressure_solve(L, stats, err));
     for (int a = 0; a < 3; a++) run_faces(L, project_slices, a);
     stats->divergence_mean = divergence_mean(L, stats->liquid_cells);
@@ -1346,6 +1347,7 @@ DrStatus dr_liquid_advance(DrLiquid *liq, const DrCollider *const *colliders, in
         return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "liquid advance: t1 (%g) must not precede t0 (%g).", t1, t0);
     liq->nframes = ncolliders;
     for (int c = 0; c < ncolliders; c++) liq->frames[c] = dr_collider_frame(colliders[c], t0);
+    liq->span = t1 > t0 ? t1 - t0 : 1.0;
     const DrMacGrid *g = liq->g;
     double nu = liq->d.viscosity / liq->d.density;
     double gspeed = sqrt(5.0 * g->dx * dr_v3_norm(liq->d.gravity));

@@ -69,12 +69,13 @@ typedef struct DrLiquidDesc {
                                                                       positions), jitter in [0,1] of a sub-cell */
     DrVec3 gravity; double cfl; int max_substeps; double pressure_tol; int pressure_max_iter;
     DrPressureFormulation pressure;                               /* default DR_PRESSURE_GHOST_FLUID */
-    double volume_correction;     /* κ ≥ 0, default 1 (0 = off). Particles drift together where the flow
+    double volume_correction;     /* κ ≥ 0, default 4 (0 = off). Particles drift together where the flow
                                      converges or meets a wall (advection is not divergence-free), and the
-                                     liquid loses volume: a dam break loses ~8 % in 2 s without this. Each
-                                     substep the pressure solve targets a divergence D = κ·(ρ̃ − 1 − 0.04)/Δt
-                                     in cells whose smoothed particle density ρ̃ exceeds the seeded one by
-                                     more than 4 %, expanding them back (compression only; never a sink).
+                                     liquid loses volume: a dam break loses ~8 % in 2 s without this. The
+                                     pressure solve targets a divergence D = κ·(ρ̃ − 1 − 0.04)/T, T the
+                                     duration of the dr_liquid_advance call (a frame), in cells whose smoothed
+                                     particle density ρ̃ exceeds the seeded one by more than 4 %, expanding
+                                     them back at κ of the excess per frame (compression only; never a sink).
                                      ρ̃ = the mean over the 3×3×3 block of cells of the P2G face masses of
                                      each cell / ρΔx³ (0 for empty cells, so the surface never triggers it).
                                      4 % is above the spread of freshly jittered seeding (ρ̃ ≤ 1.03), so
@@ -91,7 +92,7 @@ typedef struct DrLiquidDesc {
     int nkill_boxes; const DrVec3 *kill_lo, *kill_hi;             /* copied */
 } DrLiquidDesc;
 /* Water (1000 kg/m³, 1e-3 Pa·s), APIC, flip_blend 0.05, 8 per cell, jitter 1, seed 1, gravity −9.81 y,
-   cfl 1, 64 substeps, tolerance 1e-6, 1000 iterations, ghost-fluid pressure, volume correction 1, unit box
+   cfl 1, 64 substeps, tolerance 1e-6, 1000 iterations, ghost-fluid pressure, volume correction 4, unit box
    domain, dx 1/32,
    no sources. */
 void dr_liquid_desc_default(DrLiquidDesc *d);

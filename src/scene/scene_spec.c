@@ -140,9 +140,9 @@ static const DrFieldSpec pressure_fields[] = {
      .doc = "ghost_fluid: uniform density and a ghost-fluid free surface (still water stays exactly still); "
             "mass_weighted: kinetic-energy projection with the particles' face masses (conserves linear and "
             "angular momentum exactly with APIC)"},
-    {.name = "volume_correction", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {1}, RANGE(0, 10),
+    {.name = "volume_correction", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {4}, RANGE(0, 100),
      .doc = "rate at which liquid compressed by more than 4 % over its seeded density is expanded back, as the "
-            "fraction of the excess removed per substep; 0 turns it off"},
+            "rate of excess removed per frame (the excess decays like exp(-k t/frame)); 0 turns it off"},
 };
 
 static const DrFieldSpec particles_fields[] = {

@@ -84,7 +84,7 @@ static void test_dam_break_volume_from_level_set(void **state)
 }
 
 /* The volume correction (Pressure.volume_correction, liquid.h) is what keeps the dam break within 5 %:
-   without it the same scene loses about twice as much (measured −8.2 % against −4.2 %). */
+   without it the same scene loses almost twice as much (measured −8.2 % against −4.6 %). */
 static void test_volume_correction_recovers_compressed_volume(void **state)
 {
     (void)state;
@@ -93,7 +93,7 @@ static void test_volume_correction_recovers_compressed_volume(void **state)
     print_message("level-set volume change over 2 s: %+.2f %% without correction, %+.2f %% with\n", 100 * off,
                   100 * on);
     assert_true(off < -0.05);           /* the uncorrected loss is real, beyond the acceptance bound */
-    assert_true(fabs(on) < fabs(off) - 0.02);
+    assert_true(fabs(on) < fabs(off) - 0.03);
 }
 
 static void test_scene_without_liquid_builds_no_solver(void **state)
