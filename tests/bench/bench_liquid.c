@@ -1,5 +1,5 @@
 /* Liquid benchmark, three parts, each a markdown table on stdout and a CSV under out/bench/:
- *  1. per-phase seconds per substep of a dam break in the unit cube at 32³ … 96³ cells for N substeps
+ *  1. per-phase seconds per substep of a dam break in the unit cube at 32³ … 128³ cells for N substeps
  *     (the first csv, default out/bench/liquid.csv);
  *  2. the default shot: an 80×40×30 dam break of 180k particles (dx 0.02), F frames at 24 fps
  *     (out/bench/liquid_shot.csv);
@@ -98,8 +98,8 @@ static void phases(const char *csv, int nsub)
     fprintf(f, "cells,particles,substeps,seconds_per_substep,p2g,pressure,g2p,advect,other,pcg_iter_mean,pcg_iter_max\n");
     printf("| grid | particles | substeps | s/substep | P2G | pressure | G2P | advect | other | PCG it. mean | max |\n");
     printf("|---|---|---|---|---|---|---|---|---|---|---|\n");
-    int res[4] = {32, 48, 64, 96};
-    for (int r = 0; r < 4; r++) {
+    int res[5] = {32, 48, 64, 96, 128};
+    for (int r = 0; r < 5; r++) {
         DrLiquidStats best;
         memset(&best, 0, sizeof best);
         double best_wall = INFINITY;
