@@ -55,6 +55,9 @@ $(LIB): $(LIB_OBJ)
 	@mkdir -p $(@D)
 	rm -f $@ && ar rcs $@ $^
 
+# Objects are kept, not treated as intermediate files to delete after linking.
+.SECONDARY:
+
 # A stage links its own folder's objects (main.c and any stage-only code) with the library.
 .SECONDEXPANSION:
 stage_objs = $(patsubst %.c,build/%.o,$(wildcard $(1)/*.c))
