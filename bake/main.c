@@ -75,8 +75,7 @@ static void append_progress(const char *path, const DrFrameStats *fs, double io_
     fclose(f);
 }
 
-static DrStatus write_report(const char *dir, const char *status, const char *message, const DrStageArgs *args,
-                             const DrScene *scene, const char *key, int first, int last, const Totals *t,
+static DrStatus write_report(const char *dir, const char *status, const char *message, const DrScene *scene, const char *key, int first, int last, const Totals *t,
                              double wall, DrError *err)
 {
     json_t *r = json_pack("{s:s, s:s, s:s, s:s, s:s, s:[i,i], s:i, s:i, s:f}", "status", status, "message",
@@ -96,7 +95,6 @@ static DrStatus write_report(const char *dir, const char *status, const char *me
        partly); the mesh stage's level set measures the volume itself */
     json_object_set_new(r, "occupied_cell_volume", json_pack("{s:f}", "max_relative_drift", t->volume_drift_max));
     json_object_set_new(r, "substeps_max", json_integer(t->substeps_max));
-    (void)args;
     char *text = json_dumps(r, JSON_INDENT(2) | JSON_REAL_PRECISION(9));
     json_decref(r);
     char path[4096];
@@ -223,7 +221,7 @@ int main(int argc, char **argv)
     dr_error_clear(&rerr);
     char msg[sizeof err.message + 64] = "";
     if (s < 0) dr_error_format(&err, msg, sizeof msg);
-    DrStatus rs = write_report(dir, s < 0 ? "failed" : "ok", msg, &args, scene, keys.bake, shot_first, last, &tot,
+    DrStatus rs = write_report(dir, s < 0 ? "failed" : "ok", msg, scene, keys.bake, shot_first, last, &tot,
                                wall, &rerr);
     if (s >= 0 && rs < 0) {
         s = rs;

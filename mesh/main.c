@@ -23,8 +23,9 @@ static void apply_pose(const double *rest, int nv, const double R[9], const doub
     }
 }
 
-static DrStatus mesh_frame(const DrScene *scene, const char *bake_dir, const char *dir, int frame, const char *bake_key,
-                           double fps, long *triangles, DrError *err)
+/* rest[i]: element i's collider mesh in its scene pose (loaded once; empty for other elements). */
+static DrStatus mesh_frame(const DrScene *scene, const DrTriMesh *rest, const char *bake_dir, const char *dir,
+                           int frame, const char *bake_key, double fps, long *triangles, DrError *err)
 {
     char path[4096], out[4096];
     dr_stage_frame_path(bake_dir, "frame", frame, "h5", path, sizeof path);
@@ -51,18 +52,17 @@ static DrStatus mesh_frame(const DrScene *scene, const char *bake_dir, const cha
             s = dr_h5_read_f64(h, path, &rank, d1, &R, err);
             snprintf(path, sizeof path, "/%s/translation", e->name);
             if (s == DR_OK) s = dr_h5_read_f64(h, path, &rank, d2, &t, err);
-            DrTriMesh posed = {0};
-            double *rest = NULL;
-            if (s == DR_OK) s = dr_world_load_collider_mesh(e, &posed, err);
-            if (s == DR_OK) s = dr_calloc(3 * (size_t)posed.nv, sizeof(double), &rest, err);
+            /* the posed copy shares the rest mesh's triangles and owns only its vertices */
+            DrTriMesh posed = rest[i];
+            posed.n = NULL;
+            posed.v = NULL;
+            if (s == DR_OK) s = dr_calloc(3 * (size_t)posed.nv, sizeof(double), &posed.v, err);
             if (s == DR_OK) {
-                memcpy(rest, posed.v, 3 * (size_t)posed.nv * sizeof(double));
-                apply_pose(rest, posed.nv, R, t, posed.v);
+                apply_pose(rest[i].v, posed.nv, R, t, posed.v);
                 dr_stage_frame_path(dir, e->name, frame, "obj", out, sizeof out);
                 s = dr_io_write_obj(out, &posed, "drench collider (posed for this frame)", err);
             }
-            free(rest);
-            dr_trimesh_free(&posed);
+            free(posed.v);
             free(R);
             free(t);
             continue;
@@ -129,28 +129,25 @@ int main(int argc, char **argv)
     int first, last;
     DrStatus s = dr_stage_frame_range(&args, scene, &first, &last, &err);
     dr_stage_out_dir(&args, scene, DR_STAGE_BAKE, bake_dir, sizeof bake_dir);
-    /* Validate every collider asset before writing anything. */
-    for (int i = 0; s == DR_OK && i < dr_scene_element_count(scene); i++) {
+    /* Every collider asset is loaded (and so validated) once, before anything is written. */
+    int nel = dr_scene_element_count(scene);
+    DrTriMesh *rest = NULL;
+    if (s == DR_OK) s = dr_calloc((size_t)nel + 1, sizeof(DrTriMesh), &rest, &err);
+    for (int i = 0; s == DR_OK && i < nel; i++) {
         const DrElement *e = dr_scene_element(scene, i);
-        if (strcmp(e->type, "collider") != 0) continue;
-        DrTriMesh m = {0};
-        s = dr_world_load_collider_mesh(e, &m, &err);
-        dr_trimesh_free(&m);
+        if (strcmp(e->type, "collider") == 0) s = dr_world_load_collider_mesh(e, &rest[i], &err);
     }
     if (s == DR_OK) s = dr_vdb_init(&err);
     if (s == DR_OK) s = dr_io_mkdirs(dir, &err);
     if (s == DR_OK) s = dr_io_manifest_remove(dir, &err);
     if (s == DR_OK) dr_io_remove_stale_tmp(dir);
     /* colliders once, in their scene pose */
-    for (int i = 0; s == DR_OK && i < dr_scene_element_count(scene); i++) {
+    for (int i = 0; s == DR_OK && i < nel; i++) {
         const DrElement *e = dr_scene_element(scene, i);
         if (strcmp(e->type, "collider") != 0) continue;
-        DrTriMesh m = {0};
         char out[4096];
         snprintf(out, sizeof out, "%s/%s.obj", dir, e->name);
-        s = dr_world_load_collider_mesh(e, &m, &err);
-        if (s == DR_OK) s = dr_io_write_obj(out, &m, "drench collider (scene pose)", &err);
-        dr_trimesh_free(&m);
+        s = dr_io_write_obj(out, &rest[i], "drench collider (scene pose)", &err);
     }
     double fps = dr_component_num(dr_scene_section(scene, "shot"), "fps");
     long triangles = 0;
@@ -158,7 +155,7 @@ int main(int argc, char **argv)
     if (s == DR_OK) dr_progress_begin(&prog, "mesh", last - first + 1);
     for (int f = first; s == DR_OK && f <= last; f++) {
         double tf = dr_time_now();
-        s = mesh_frame(scene, bake_dir, dir, f, keys.bake, fps, &triangles, &err);
+        s = mesh_frame(scene, rest, bake_dir, dir, f, keys.bake, fps, &triangles, &err);
         char detail[128];
         snprintf(detail, sizeof detail, "frame %d %.2fs", f, dr_time_now() - tf);
         if (s == DR_OK) dr_progress_step(&prog, detail);
@@ -171,6 +168,8 @@ int main(int argc, char **argv)
         const char *inputs[2] = {line, keys.bake};
         s = dr_io_manifest_write(dir, "mesh", keys.mesh, dr_scene_path(scene), inputs, 2, &err);
     }
+    for (int i = 0; rest && i < nel; i++) dr_trimesh_free(&rest[i]);
+    free(rest);
     dr_scene_destroy(&scene);
     if (s < 0) return fail(&err);
     fprintf(stderr, "mesh: %d frames in %.1fs, %ld triangles written to %s\n", last - first + 1, dr_time_now() - t0,
