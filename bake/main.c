@@ -1,6 +1,7 @@
 /* bake: simulates a shot frame by frame into out/<shot>/bake/ (frame caches, checkpoint, progress, report). */
 #include <dirent.h>
 #include <jansson.h>
+#include <signal.h>
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
@@ -16,6 +17,32 @@ typedef struct Totals {
     long particles_first, particles_last;
     double volume_drift_max;
 } Totals;
+
+/* Exit code of a bake stopped by SIGUSR1, SIGTERM or SIGINT after writing its checkpoint: the caller (a
+ * person, pipeline.sh, or a farm job asked to leave before its time limit) continues with --resume. */
+enum { EXIT_INTERRUPTED = 3 };
+
+static volatile sig_atomic_t stop_signal;
+
+/* The first signal asks for a clean stop at the next frame boundary; a second one kills as usual. */
+static void on_stop_signal(int sig)
+{
+    stop_signal = sig;
+    signal(sig, SIG_DFL);
+}
+
+static void install_stop_handlers(void)
+{
+    const int sigs[] = {SIGUSR1, SIGTERM, SIGINT};
+    for (size_t i = 0; i < sizeof sigs / sizeof sigs[0]; i++) {
+        struct sigaction sa;
+        memset(&sa, 0, sizeof sa);
+        sa.sa_handler = on_stop_signal;
+        sa.sa_flags = SA_RESTART; /* file writes in flight (HDF5) must not fail with EINTR */
+        sigemptyset(&sa.sa_mask);
+        sigaction(sigs[i], &sa, NULL);
+    }
+}
 
 static void remove_previous_outputs(const char *dir)
 {
@@ -179,6 +206,7 @@ int main(int argc, char **argv)
     }
 
     int checkpoint_every = dr_component_int(dr_scene_section(scene, "solver"), "checkpoint_every");
+    install_stop_handlers();
     dr_log_info("baking '%s' frames %d-%d into %s (%d threads, key %s)", dr_scene_path(scene),
                 dr_world_frame(world) + 1, last, dir, dr_threads(), keys.bake);
     Totals tot = {0};
@@ -191,7 +219,7 @@ int main(int argc, char **argv)
         double t_io = dr_time_now();
         dr_stage_frame_path(dir, "frame", fs.frame, "h5", path, sizeof path);
         s = dr_world_write_frame(world, &fs, path, keys.bake, &err);
-        if (s == DR_OK && ((fs.frame - shot_first + 1) % checkpoint_every == 0 || fs.frame == last))
+        if (s == DR_OK && ((fs.frame - shot_first + 1) % checkpoint_every == 0 || fs.frame == last || stop_signal))
             s = dr_world_write_checkpoint(world, ckpt, keys.bake, &err);
         if (s < 0) break;
         double io = dr_time_now() - t_io;
@@ -214,14 +242,19 @@ int main(int argc, char **argv)
         snprintf(detail, sizeof detail, "frame %d substeps %d iters %d particles %ld cells %+.1f%% %.2fs", fs.frame,
                  fs.substeps, fs.pressure_iterations_max, fs.particles, 100.0 * fs.volume_drift, fs.seconds + io);
         dr_progress_step(&prog, detail);
+        if (stop_signal && dr_world_frame(world) < last) break;
     }
     dr_progress_end(&prog);
+    bool interrupted = s >= 0 && stop_signal && dr_world_frame(world) < last;
     double wall = dr_time_now() - t_start;
     DrError rerr;
     dr_error_clear(&rerr);
     char msg[sizeof err.message + 64] = "";
     if (s < 0) dr_error_format(&err, msg, sizeof msg);
-    DrStatus rs = write_report(dir, s < 0 ? "failed" : "ok", msg, scene, keys.bake, shot_first, last, &tot,
+    if (interrupted)
+        snprintf(msg, sizeof msg, "stopped by signal %d after frame %d; the checkpoint holds it: continue with --resume",
+                 (int)stop_signal, dr_world_frame(world));
+    DrStatus rs = write_report(dir, s < 0 ? "failed" : interrupted ? "interrupted" : "ok", msg, scene, keys.bake, shot_first, last, &tot,
                                wall, &rerr);
     if (s >= 0 && rs < 0) {
         s = rs;
@@ -229,6 +262,12 @@ int main(int argc, char **argv)
     }
     int fr[2];
     dr_component_int2(dr_scene_section(scene, "shot"), "frames", fr);
+    if (s >= 0 && interrupted) {
+        dr_world_destroy(&world);
+        dr_scene_destroy(&scene);
+        fprintf(stderr, "bake: %s\n", msg);
+        return EXIT_INTERRUPTED;
+    }
     if (s >= 0 && last == fr[1]) {
         const char *inputs[1] = {path};
         snprintf(path, sizeof path, "frames %d-%d", fr[0], fr[1]);

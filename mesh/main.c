@@ -113,6 +113,42 @@ static DrStatus mesh_frame(const DrScene *scene, const DrTriMesh *rest, const ch
     return s;
 }
 
+/* mesh --finish: every output a full run would have written must be there (the frame ranges ran as separate
+ * processes, e.g. a farm's job array); then the folder is complete and the MANIFEST may say so. */
+static DrStatus check_outputs(const DrScene *scene, const char *dir, int first, int last, DrError *err)
+{
+    const DrComponent *ms = dr_scene_section(scene, "mesh");
+    char path[4096];
+    for (int i = 0; i < dr_scene_element_count(scene); i++) {
+        const DrElement *e = dr_scene_element(scene, i);
+        bool liquid = strcmp(e->type, "liquid") == 0, collider = strcmp(e->type, "collider") == 0;
+        bool moving = collider && dr_component_present(dr_element_component(e, "Motion"));
+        if (collider) {
+            snprintf(path, sizeof path, "%s/%s.obj", dir, e->name);
+            if (!dr_io_exists(path)) goto missing;
+        }
+        for (int f = first; f <= last; f++) {
+            const char *ext[2] = {NULL, NULL};
+            if (liquid && dr_component_bool(ms, "write_obj")) ext[0] = "obj";
+            if (liquid && dr_component_bool(ms, "write_vdb")) ext[1] = "vdb";
+            if (moving) ext[0] = "obj";
+            for (int k = 0; k < 2; k++) {
+                if (!ext[k]) continue;
+                dr_stage_frame_path(dir, e->name, f, ext[k], path, sizeof path);
+                if (!dr_io_exists(path))
+                    return dr_error_set(err, DR_ERR_INPUT, path, 0, 0,
+                                        "mesh --finish: frame %d of element '%s' is missing; run mesh --frames %d-%d "
+                                        "(or pipeline.sh) first",
+                                        f, e->name, f, f);
+            }
+        }
+    }
+    return DR_OK;
+missing:
+    return dr_error_set(err, DR_ERR_INPUT, path, 0, 0,
+                        "mesh --finish: the collider mesh is missing; run mesh --frames on any range first");
+}
+
 int main(int argc, char **argv)
 {
     DrError err;
@@ -129,6 +165,17 @@ int main(int argc, char **argv)
     int first, last;
     DrStatus s = dr_stage_frame_range(&args, scene, &first, &last, &err);
     dr_stage_out_dir(&args, scene, DR_STAGE_BAKE, bake_dir, sizeof bake_dir);
+    if (s == DR_OK && args.finish) {
+        char line[128];
+        snprintf(line, sizeof line, "frames %d-%d (ran in separate ranges)", first, last);
+        const char *inputs[2] = {line, keys.bake};
+        s = check_outputs(scene, dir, first, last, &err);
+        if (s == DR_OK) s = dr_io_manifest_write(dir, "mesh", keys.mesh, dr_scene_path(scene), inputs, 2, &err);
+        dr_scene_destroy(&scene);
+        if (s < 0) return fail(&err);
+        fprintf(stderr, "mesh: frames %d-%d complete in %s; MANIFEST written\n", first, last, dir);
+        return 0;
+    }
     /* Every collider asset is loaded (and so validated) once, before anything is written. */
     int nel = dr_scene_element_count(scene);
     DrTriMesh *rest = NULL;

@@ -23,7 +23,14 @@ static void print_help(DrStageId stage)
 {
     const char *n = dr_stage_name(stage);
     printf("usage: %s SCENE.json [options]\n\n%s %s.\n\noptions:\n", n, n, stage_summary(stage));
-    if (stage != DR_STAGE_PRECOMPUTE) printf("  --frames A-B        limit to frames A..B of the shot\n");
+    if (stage != DR_STAGE_PRECOMPUTE) printf("  --frames A-B        limit to frames A..B of the shot (no MANIFEST is written)\n");
+    if (stage == DR_STAGE_MESH || stage == DR_STAGE_RENDER)
+        printf("  --finish            after frame ranges ran separately (a farm's job array): check every\n"
+               "                      frame's output is there and write the MANIFEST%s\n",
+               stage == DR_STAGE_RENDER ? ", contact sheet and plots" : "");
+    if (stage == DR_STAGE_RENDER)
+        printf("  --plots             only turn the bake's progress.jsonl into PNG plots (gnuplot)\n"
+               "  --no-plots          render frames and contact sheet without the plots\n");
     if (stage == DR_STAGE_BAKE) {
         printf("  --resume            continue from out/<shot>/bake/checkpoint.h5 (bit-identical to an\n"
                "                      uninterrupted bake)\n"
@@ -38,6 +45,9 @@ static void print_help(DrStageId stage)
            "  -q, --quiet         only warnings and errors\n"
            "  --help, --version\n\n"
            "exit codes: 0 success, 1 runtime failure, 2 bad input (scene, asset or arguments)\n");
+    if (stage == DR_STAGE_BAKE)
+        printf("            3 stopped by SIGUSR1, SIGTERM or SIGINT: the frame in progress was finished and\n"
+               "              checkpointed; continue with --resume (a second signal stops at once)\n");
 }
 
 static DrStatus usage_error(DrStageId stage, DrError *err, const char *fmt, const char *arg)
@@ -99,6 +109,12 @@ DrStatus dr_stage_parse_args(DrStageId stage, int argc, char **argv, DrStageArgs
             else a->cache_root = argv[++i];
         } else if (!strcmp(s, "--resume") && stage == DR_STAGE_BAKE) {
             a->resume = true;
+        } else if (!strcmp(s, "--finish") && (stage == DR_STAGE_MESH || stage == DR_STAGE_RENDER)) {
+            a->finish = true;
+        } else if (!strcmp(s, "--plots") && stage == DR_STAGE_RENDER) {
+            a->plots_only = true;
+        } else if (!strcmp(s, "--no-plots") && stage == DR_STAGE_RENDER) {
+            a->no_plots = true;
         } else if (!strcmp(s, "--list-components") && stage == DR_STAGE_BAKE) {
             a->list_components = true;
         } else if (!strcmp(s, "--markdown")) {
@@ -119,6 +135,10 @@ DrStatus dr_stage_parse_args(DrStageId stage, int argc, char **argv, DrStageArgs
     }
     if (!a->scene_path && !a->list_components)
         return usage_error(stage, err, "%s", "no scene given: pass the scene file, e.g. assets/scenes/default.json");
+    if (a->finish && a->frames_given)
+        return usage_error(stage, err, "%s", "--finish covers the whole shot; it does not take --frames");
+    if (a->plots_only && (a->finish || a->no_plots))
+        return usage_error(stage, err, "%s", "--plots cannot be combined with --finish or --no-plots");
     if (a->quiet) dr_log_set_level(DR_LOG_WARN);
     if (a->threads > 0) dr_set_threads(a->threads);
     return DR_OK;

@@ -77,6 +77,8 @@ typedef struct DrStageArgs {
     int frame_first, frame_last; /* --frames A-B; 0,0 when not given */
     bool frames_given;
     bool resume;             /* bake --resume */
+    bool finish;             /* mesh/render --finish: seal frame ranges that ran separately */
+    bool plots_only, no_plots; /* render --plots / --no-plots */
     int threads;             /* -j N; 0 = all cores */
     const char *out_root;    /* --out DIR, else $DRENCH_OUT, else "out" */
     const char *cache_root;  /* --cache DIR, else $DRENCH_CACHE, else "cache" */
