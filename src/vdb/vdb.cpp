@@ -8,6 +8,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <cctype>
 #include <cerrno>
 #include <climits>
 #include <cmath>
@@ -649,6 +650,36 @@ extern "C" DrStatus dr_vdb_surface_to_mesh(const DrVdbSurface *s, DrTriMesh *out
     }
 }
 
+/* OpenVDB stamps every file with a random UUID (bytes 21..56 of the header: magic, format and library
+ * versions, the offsets flag, then 36 characters). A random stamp would make two identical surfaces differ
+ * byte for byte, so the stamp is replaced by one derived from the file's content (the hash of the file
+ * with the stamp blanked): same content, same bytes; other content, another UUID, which is all OpenVDB's
+ * readers use it for. Returns false when the header is not laid out as expected (left untouched). */
+static bool stamp_content_uuid(const std::string &path)
+{
+    const long at = 21, len = 36;
+    FILE *f = std::fopen(path.c_str(), "r+b");
+    if (!f) return false;
+    std::vector<unsigned char> bytes;
+    unsigned char buf[65536];
+    size_t n;
+    while ((n = std::fread(buf, 1, sizeof buf, f)) > 0) bytes.insert(bytes.end(), buf, buf + n);
+    bool ok = bytes.size() > (size_t)(at + len);
+    for (long i = 0; ok && i < len; i++) {
+        const unsigned char c = bytes[(size_t)(at + i)];
+        ok = (i == 8 || i == 13 || i == 18 || i == 23) ? c == '-' : std::isxdigit(c) != 0;
+    }
+    if (ok) {
+        std::memset(&bytes[(size_t)at], '0', (size_t)len);
+        char hex[33], uuid[37];
+        dr_hash_hex(dr_hash_bytes(bytes.data(), bytes.size()), hex);
+        std::snprintf(uuid, sizeof uuid, "%.8s-%.4s-%.4s-%.4s-%.12s", hex, hex + 8, hex + 12, hex + 16, hex + 20);
+        ok = std::fseek(f, at, SEEK_SET) == 0 && std::fwrite(uuid, 1, (size_t)len, f) == (size_t)len;
+    }
+    ok = (std::fclose(f) == 0) && ok;
+    return ok;
+}
+
 extern "C" DrStatus dr_vdb_surface_write(const DrVdbSurface *s, const char *path, const DrVdbMeta *meta,
                                          DrError *err)
 {
@@ -670,6 +701,13 @@ extern "C" DrStatus dr_vdb_surface_write(const DrVdbSurface *s, const char *path
         {
             openvdb::io::File file(tmp);
             file.write(grids, info);
+        }
+        if (!stamp_content_uuid(tmp)) {
+            std::remove(tmp.c_str());
+            return dr_error_set(err, DR_ERR_IO, path, 0, 0,
+                                "writing %s: could not rewrite the file's UUID stamp (unexpected OpenVDB header "
+                                "or a write error); check free disk space",
+                                path);
         }
         /* Read the descriptors back before the rename: a short write (disk full) fails here,
          * not in a later stage that trusts the file. */
