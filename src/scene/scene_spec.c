@@ -60,7 +60,11 @@ static const DrFieldSpec render_fields[] = {
     {.name = "resolution", .kind = DR_FIELD_INT2, .unit = "px", .def = {960, 540}, RANGE(16, 16384),
      .doc = "image width and height"},
     {.name = "contact_every", .kind = DR_FIELD_INT, .unit = "", .def = {4}, RANGE(1, 10000),
-     .doc = "every n-th frame goes on the contact sheet"},
+     .doc = "every n-th frame goes on the contact sheet (and the last frame)"},
+    {.name = "samples", .kind = DR_FIELD_INT, .unit = "", .def = {3}, RANGE(1, 8),
+     .doc = "antialiasing: supersamples per pixel side (3 = 9 per pixel)"},
+    {.name = "ground", .kind = DR_FIELD_BOOL, .unit = "", .def = {1},
+     .doc = "draw a ground plane under the lowest liquid domain floor or collider"},
 };
 
 static const DrFieldSpec camera_fields[] = {
