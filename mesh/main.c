@@ -187,7 +187,9 @@ int main(int argc, char **argv)
     if (s == DR_OK) s = dr_vdb_init(&err);
     if (s == DR_OK) s = dr_io_mkdirs(dir, &err);
     if (s == DR_OK) s = dr_io_manifest_remove(dir, &err);
-    if (s == DR_OK) dr_io_remove_stale_tmp(dir);
+    /* A frame range may run beside others on other machines (a farm's job array), whose temporary files
+       look stale from here: only a run that owns the whole folder clears them. */
+    if (s == DR_OK && !args.frames_given) dr_io_remove_stale_tmp(dir);
     /* colliders once, in their scene pose */
     for (int i = 0; s == DR_OK && i < nel; i++) {
         const DrElement *e = dr_scene_element(scene, i);

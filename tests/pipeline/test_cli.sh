@@ -8,8 +8,11 @@ for st in precompute bake mesh render; do
   expect_exit "$st unknown option exits 2" 2 "unknown option '--bogus'" "$BIN/$st" --bogus "$scene"
   expect_exit "$st without a scene exits 2" 2 "no scene given" "$BIN/$st"
 done
-expect_exit "render is honest about not being available" 1 "not available yet" "$BIN/render" "$scene"
-check "render --available says no" bash -c "! '$BIN/render' --available 2>/dev/null"
+expect_exit "render before mesh: missing mesh folder exits 2" 2 "mesh folder is missing" "$BIN/render" "$scene"
+check "render wrote nothing without meshes" test ! -e "$DRENCH_OUT/small_dam/render"
+expect_exit "render --finish with --frames exits 2" 2 "does not take --frames" "$BIN/render" "$scene" --finish --frames 1-2
+expect_exit "bake does not take --finish" 2 "unknown option '--finish'" "$BIN/bake" "$scene" --finish
+check "--print-frames prints the shot's range" bash -c "[ \"\$('$BIN/mesh' --print-frames '$scene')\" = '1 12' ] && [ \"\$('$BIN/mesh' --print-frames '$scene' --frames 3-5)\" = '3 5' ]"
 expect_exit "bake --frames out of order exits 2" 2 "out of order" "$BIN/bake" "$scene" --frames 9-3
 expect_exit "bake --frames outside the shot exits 2" 2 "outside the shot" "$BIN/bake" "$scene" --frames 1-400
 expect_exit "bad -j exits 2" 2 "thread count" "$BIN/bake" "$scene" -j 0
