@@ -16,6 +16,8 @@ LDLIBS   := -L$(HDF5_LIB) -lopenvdb -ltbb -lImath-3_1 -lassimp -lhdf5 -ljansson 
 DEB_PACKAGES := build-essential pkg-config libopenvdb-dev libboost-dev libtbb-dev libassimp-dev \
     libhdf5-dev hdf5-tools libsuitesparse-dev libopenblas-dev libpng-dev libjansson-dev \
     libcmocka-dev libxxhash-dev libopenvdb-tools gnuplot-nox
+# Only `make test` needs these: the farm test brings up a one-node Slurm (tests/pipeline/test_farm.sh).
+TEST_PACKAGES := slurmctld slurmd slurm-client munge
 
 LIB_C   := $(sort $(wildcard src/*/*.c))
 LIB_CXX := $(sort $(wildcard src/*/*.cpp))
@@ -28,11 +30,13 @@ TEST_BIN := $(TEST_C:%.c=build/%)
 BENCH_C := $(sort $(wildcard tests/bench/bench_*.c))
 BENCH_BIN := $(BENCH_C:%.c=build/%)
 
-.PHONY: all deps test bench clean readme
+.PHONY: all deps test-deps test bench clean readme
 all: $(BINS)
 
-deps:
-	@missing=""; for p in $(DEB_PACKAGES); do \
+deps: PACKAGES = $(DEB_PACKAGES)
+test-deps: PACKAGES = $(DEB_PACKAGES) $(TEST_PACKAGES)
+deps test-deps:
+	@missing=""; for p in $(PACKAGES); do \
 	  dpkg-query -W -f='$${Status}' $$p 2>/dev/null | grep -q "install ok installed" || missing="$$missing $$p"; \
 	done; \
 	if [ -n "$$missing" ]; then \
@@ -73,7 +77,7 @@ build/tests/objcheck: tests/pipeline/objcheck.c $(LIB)
 	@mkdir -p $(@D)
 	$(CC) $(CPPFLAGS) $(CFLAGS) $< $(LIB) $(LDLIBS) -o $@
 
-test: deps
+test: test-deps
 	@$(MAKE) --no-print-directory all $(TEST_BIN) build/tests/objcheck
 	@bash tests/run_tests.sh $(TEST_BIN)
 

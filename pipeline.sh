@@ -1,18 +1,30 @@
 #!/usr/bin/env bash
 # drench pipeline: precompute → bake → mesh → render for one scene, rerunning only what changed.
 #
-#   ./pipeline.sh [SCENE] [--force STAGE] [--from STAGE] [--frames A-B] [-j N] [--no-build]
+#   ./pipeline.sh [SCENE] [--force STAGE] [--from STAGE] [--frames A-B] [-j N] [--no-build] [--no-plots]
+#   ./pipeline.sh [SCENE] --farm slurm [--dry-run] [--partition P] [--chunk N] [--time HH:MM:SS]
 #
 # Each stage prints its cache key (`--print-key`); the key is compared with the MANIFEST in the stage's
 # output folder, and a stage runs when the two differ, when it is forced, or when an earlier stage ran.
 # SCENE defaults to assets/scenes/default.json. Outputs go to out/<shot>/ (DRENCH_OUT to change).
+# --farm slurm submits the stale stages as Slurm jobs instead (scripts kept in out/<shot>/farm/);
+# README "Running on a Slurm farm" lists the DRENCH_SLURM_* settings.
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 stages=(precompute bake mesh render)
-scene=""; force=""; from=""; frames=""; threads=""; build=1
+scene=""; force=""; from=""; frames=""; threads=""; build=1; plots=1
+farm=""; dry_run=0
+partition="${DRENCH_SLURM_PARTITION:-}"
+chunk="${DRENCH_SLURM_CHUNK:-8}"
+time_limit="${DRENCH_SLURM_TIME:-04:00:00}"
+bake_time_limit="${DRENCH_SLURM_BAKE_TIME:-24:00:00}"
+cpus="${DRENCH_SLURM_CPUS:-}"
+signal_lead="${DRENCH_SLURM_SIGNAL_LEAD:-300}"
+account="${DRENCH_SLURM_ACCOUNT:-}"
+sbatch_extra="${DRENCH_SLURM_SBATCH_ARGS:-}"
 
 die() { echo "pipeline.sh: error: $*" >&2; exit 2; }
-usage() { sed -n '2,9p' "$0" | sed 's/^# \{0,1\}//'; }
+usage() { sed -n '2,11p' "$0" | sed 's/^# \{0,1\}//'; }
 stage_index() { local i; for i in "${!stages[@]}"; do [ "${stages[$i]}" = "$1" ] && { echo "$i"; return; }; done
                 die "unknown stage '$1' (stages: ${stages[*]})"; }
 
@@ -24,12 +36,27 @@ while [ $# -gt 0 ]; do
     --frames) [ $# -ge 2 ] || die "--frames needs a range A-B"; frames="$2"; shift 2 ;;
     -j) [ $# -ge 2 ] || die "-j needs a thread count"; threads="$2"; shift 2 ;;
     --no-build) build=0; shift ;;
+    --no-plots) plots=0; shift ;;
+    --farm) [ $# -ge 2 ] || die "--farm needs a scheduler (slurm)"; farm="$2"; shift 2
+            [ "$farm" = slurm ] || die "--farm '$farm' is not supported; use --farm slurm" ;;
+    --dry-run) dry_run=1; shift ;;
+    --partition) [ $# -ge 2 ] || die "--partition needs a name"; partition="$2"; shift 2 ;;
+    --chunk) [ $# -ge 2 ] || die "--chunk needs a frame count"; chunk="$2"; shift 2 ;;
+    --time) [ $# -ge 2 ] || die "--time needs a limit like 04:00:00"; time_limit="$2"; shift 2 ;;
     -*) die "unknown option '$1' (see --help)" ;;
     *) [ -z "$scene" ] || die "more than one scene given"; scene="$1"; shift ;;
   esac
 done
 scene="${scene:-$here/assets/scenes/default.json}"
 [ -f "$scene" ] || die "scene '$scene' not found"
+if [ -z "$farm" ]; then
+  [ "$dry_run" = 0 ] || die "--dry-run needs --farm slurm"
+else
+  [[ "$chunk" =~ ^[1-9][0-9]*$ ]] || die "--chunk (DRENCH_SLURM_CHUNK) '$chunk' must be a positive frame count"
+  [[ "$signal_lead" =~ ^[0-9]+$ ]] || die "DRENCH_SLURM_SIGNAL_LEAD '$signal_lead' must be seconds"
+  [ -z "$cpus" ] || [[ "$cpus" =~ ^[1-9][0-9]*$ ]] || die "DRENCH_SLURM_CPUS '$cpus' must be a positive count"
+  [ -z "$frames" ] || die "--frames and --farm do not mix: the farm runs whole stages"
+fi
 
 t0=$EPOCHREALTIME
 if [ "$build" = 1 ]; then
@@ -39,35 +66,197 @@ if [ "$build" = 1 ]; then
 fi
 bin="$here/bin"
 
-extra=()
-[ -n "$threads" ] && extra+=(-j "$threads")
+# Stale stages, in order: a stage runs when forced, when its key differs from its MANIFEST, or when an
+# earlier stage runs.
 first_stale=99
 [ -n "$from" ] && first_stale=$(stage_index "$from")
-ran=0; skipped=0
+declare -A reason_of
 for i in "${!stages[@]}"; do
   st=${stages[$i]}
-  if [ "$st" = render ] && ! "$bin/render" --available >/dev/null 2>&1; then
-    echo "render: not available yet (skipped)"; continue
-  fi
   key=$("$bin/$st" --print-key "$scene") || exit $?
   dir=$("$bin/$st" --print-out-dir "$scene") || exit $?
   have=""
   [ -f "$dir/MANIFEST" ] && have=$(awk '$1=="key"{print $2; exit}' "$dir/MANIFEST")
   reason=""
-  if [ "$i" -ge "$first_stale" ]; then reason="an earlier stage ran or --from"
+  if [ "$i" -ge "$first_stale" ]; then reason="an earlier stage is stale or --from"
   elif [ "$st" = "$force" ]; then reason="--force"
   elif [ -z "$have" ]; then reason="no complete output yet"
   elif [ "$have" != "$key" ]; then reason="inputs changed"
   fi
-  if [ -z "$reason" ]; then
-    echo "$st: up to date (key $key)"; skipped=$((skipped + 1)); continue
-  fi
-  echo "$st: running ($reason)"
-  args=("$scene" "${extra[@]}")
-  [ -n "$frames" ] && [ "$st" != precompute ] && args+=(--frames "$frames")
-  "$bin/$st" "${args[@]}"
-  ran=$((ran + 1))
-  [ "$i" -lt "$first_stale" ] && first_stale=$i
+  reason_of[$st]="$reason"
+  [ -n "$reason" ] && [ "$i" -lt "$first_stale" ] && first_stale=$i
+  eval "key_$st=\$key"
 done
-secs=$(awk -v a="$t0" -v b="$EPOCHREALTIME" 'BEGIN{printf "%.1f", b-a}')
-echo "pipeline: $ran stage(s) ran, $skipped up to date, ${secs}s"
+
+if [ -z "$farm" ]; then
+  extra=()
+  [ -n "$threads" ] && extra+=(-j "$threads")
+  ran=0; skipped=0
+  for st in "${stages[@]}"; do
+    key_var="key_$st"
+    if [ -z "${reason_of[$st]}" ]; then
+      echo "$st: up to date (key ${!key_var})"; skipped=$((skipped + 1)); continue
+    fi
+    echo "$st: running (${reason_of[$st]})"
+    args=("$scene" "${extra[@]}")
+    [ -n "$frames" ] && [ "$st" != precompute ] && args+=(--frames "$frames")
+    [ "$st" = render ] && [ "$plots" = 0 ] && args+=(--no-plots)
+    "$bin/$st" "${args[@]}"
+    ran=$((ran + 1))
+  done
+  secs=$(awk -v a="$t0" -v b="$EPOCHREALTIME" 'BEGIN{printf "%.1f", b-a}')
+  echo "pipeline: $ran stage(s) ran, $skipped up to date, ${secs}s"
+  exit 0
+fi
+
+# ---- farm: one sbatch script per job, chained with afterok -----------------------------------------
+# The binaries know nothing of Slurm. Every path in a script is absolute, so a job runs from any folder
+# of a filesystem the nodes share with this machine.
+abs() { (cd "$(dirname "$1")" && echo "$(pwd)/$(basename "$1")"); }
+scene_abs=$(abs "$scene")
+shot_dir=$(dirname "$("$bin/bake" --print-out-dir "$scene")")
+mkdir -p "$shot_dir"
+shot_dir=$(cd "$shot_dir" && pwd)
+out_root=$(dirname "$shot_dir")
+shot=$(basename "$shot_dir")
+cache_root="${DRENCH_CACHE:-cache}"
+mkdir -p "$cache_root"
+cache_root=$(cd "$cache_root" && pwd)
+farm_dir="$shot_dir/farm"
+read -r first last < <("$bin/bake" --print-frames "$scene")
+nframes=$((last - first + 1))
+ntasks=$(( (nframes + chunk - 1) / chunk ))
+
+if [ "$dry_run" = 0 ]; then
+  for t in sbatch squeue; do
+    command -v "$t" >/dev/null || die "'$t' not found: install the Slurm client (Debian package slurm-client) and point SLURM_CONF at the farm's slurm.conf"
+  done
+  mkdir -p "$farm_dir/logs"
+fi
+
+# header NAME TIME ARRAY [#SBATCH LINE...]: the #SBATCH lines (sbatch reads them only before the first
+# command, so every one is here), then the commands every drench job starts with.
+header() {
+  local name="$1" limit="$2" array="$3"
+  shift 3
+  echo "#!/bin/bash"
+  echo "#SBATCH --job-name=$name"
+  if [ -n "$array" ]; then
+    echo "#SBATCH --array=$array"
+    echo "#SBATCH --output=$farm_dir/logs/%x-%A_%a.out"
+  else
+    echo "#SBATCH --output=$farm_dir/logs/%x-%j.out"
+  fi
+  echo "#SBATCH --time=$limit"
+  [ -n "$partition" ] && echo "#SBATCH --partition=$partition"
+  [ -n "$account" ] && echo "#SBATCH --account=$account"
+  [ -n "$cpus" ] && echo "#SBATCH --cpus-per-task=$cpus"
+  local line
+  for line in "$@"; do echo "#SBATCH $line"; done
+  echo "# written by drench pipeline.sh for scene $scene_abs"
+  echo "set -uo pipefail"
+  echo "export DRENCH_OUT='$out_root' DRENCH_CACHE='$cache_root'"
+  echo 'threads=${SLURM_CPUS_PER_TASK:-${SLURM_CPUS_ON_NODE:-1}}'
+}
+
+# The frame range of this array task: chunks of $chunk frames from the shot's first frame.
+chunk_lines() {
+  echo "first=\$(( $first + SLURM_ARRAY_TASK_ID * $chunk )); last=\$(( first + $chunk - 1 ))"
+  echo "[ \$last -gt $last ] && last=$last"
+}
+
+script_precompute() {
+  header "$1" "$time_limit" ""
+  echo "exec '$bin/precompute' '$scene_abs' -j \"\$threads\""
+}
+
+# The bake asks Slurm for SIGUSR1 $signal_lead s before its time limit, passes it to bake (which finishes
+# the frame in progress, checkpoints and exits 3) and requeues itself; the requeued job resumes.
+script_bake() {
+  header "$1" "$bake_time_limit" "" "--signal=B:USR1@$signal_lead" --requeue --open-mode=append
+  echo "resume=()"
+  echo "[ \"\${SLURM_RESTART_COUNT:-0}\" -gt 0 ] && resume=(--resume)"
+  echo "'$bin/bake' '$scene_abs' -j \"\$threads\" \"\${resume[@]}\" &"
+  echo "pid=\$!"
+  echo "trap 'echo \"drench: time limit near: asking bake to checkpoint\"; kill -USR1 \$pid' USR1"
+  echo "wait \$pid; rc=\$?"
+  echo "while kill -0 \$pid 2>/dev/null; do wait \$pid; rc=\$?; done"
+  echo "if [ \$rc -eq 3 ]; then"
+  echo "  echo \"drench: bake checkpointed; requeueing job \$SLURM_JOB_ID to resume\""
+  echo "  scontrol requeue \"\$SLURM_JOB_ID\" && exit 0"
+  echo "fi"
+  echo "exit \$rc"
+}
+
+script_frames() { # STAGE NAME
+  header "$2" "$time_limit" "0-$((ntasks - 1))"
+  chunk_lines
+  local opt=""
+  [ "$1" = render ] && opt=" --no-plots"
+  echo "exec '$bin/$1' '$scene_abs' --frames \"\$first-\$last\" -j \"\$threads\"$opt"
+}
+
+script_finish() { # STAGE NAME
+  header "$2" "$time_limit" ""
+  local opt=""
+  [ "$1" = render ] && [ "$plots" = 0 ] && opt=" --no-plots"
+  echo "exec '$bin/$1' '$scene_abs' --finish -j \"\$threads\"$opt"
+}
+
+# submit NAME SCRIPT_TEXT DEPENDENCY: prints the job id. A job of the same name (same shot, stage and
+# key) already queued or running is reused, so submitting twice does not duplicate work.
+submit() {
+  local name="$1" text="$2" dep="$3" file="$farm_dir/$1.sbatch"
+  local dep_args=()
+  [ -n "$dep" ] && dep_args=(--dependency="afterok:$dep" --kill-on-invalid-dep=yes)
+  if [ "$dry_run" = 1 ]; then
+    printf '%s\n' "----- sbatch --parsable ${dep_args[*]} $file" "$text" >&3
+    echo "<$name>"
+    return
+  fi
+  local existing
+  existing=$(squeue -h -n "$name" -o "%F" 2>/dev/null | head -1 || true)
+  if [ -n "$existing" ]; then
+    echo "  $name is already queued as job $existing; not submitted again" >&2
+    echo "$existing"; return
+  fi
+  printf '%s\n' "$text" > "$file.tmp.$$" && mv "$file.tmp.$$" "$file"
+  # shellcheck disable=SC2086
+  sbatch --parsable "${dep_args[@]}" $sbatch_extra "$file" | cut -d';' -f1
+}
+
+exec 3>&1 # the dry run prints the scripts here while job ids are captured from submit's stdout
+dep=""
+graph=()
+submitted=0
+for st in "${stages[@]}"; do
+  key_var="key_$st"; key=${!key_var}
+  if [ -z "${reason_of[$st]}" ]; then
+    echo "$st: up to date (key $key), not submitted"; continue
+  fi
+  name="drench-$shot-$st-${key:0:12}"
+  case "$st" in
+    precompute)
+      # One job per asset that needs precomputation; until an element needs one, a single job records
+      # the stage's MANIFEST.
+      id=$(submit "$name" "$(script_precompute "$name")" "$dep")
+      graph+=("precompute: job $id${dep:+ after $dep}") ;;
+    bake)
+      id=$(submit "$name" "$(script_bake "$name")" "$dep")
+      graph+=("bake: job $id${dep:+ after $dep} (requeues itself near its time limit and resumes)") ;;
+    mesh|render)
+      arr=$(submit "$name" "$(script_frames "$st" "$name")" "$dep")
+      id=$(submit "$name-finish" "$(script_finish "$st" "$name-finish")" "$arr")
+      graph+=("$st: array job $arr ($ntasks tasks of $chunk frames)${dep:+ after $dep}, then job $id after $arr (--finish)") ;;
+  esac
+  echo "$st: submitted (${reason_of[$st]})"
+  dep=$id
+  submitted=$((submitted + 1))
+done
+if [ "$dry_run" = 0 ] && [ ${#graph[@]} -gt 0 ]; then
+  printf '%s\n' "${graph[@]}" > "$farm_dir/jobs.txt"
+fi
+[ ${#graph[@]} -gt 0 ] && printf '  %s\n' "${graph[@]}"
+note=""
+[ "$dry_run" = 1 ] && note=" (dry run: nothing submitted)"
+echo "pipeline: $submitted stage(s) submitted to Slurm$note; last job ${dep:-none}"

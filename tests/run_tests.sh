@@ -3,7 +3,7 @@
 # and ends with one line `N passed, N failed`. A binary that crashes counts as one failure.
 set -u
 cd "$(dirname "$0")/.."
-passed=0; failed=0; failures=()
+passed=0; failed=0; failures=(); skips=()
 log_dir=out/test-logs; mkdir -p "$log_dir"
 t0=$(date +%s)
 for bin in "$@"; do
@@ -25,11 +25,13 @@ for script in tests/pipeline/test_*.sh; do
   bash "$script" >"$log" 2>&1; rc=$?
   secs=$(awk -v a="$start" -v b="$EPOCHREALTIME" 'BEGIN{printf "%.1f", b-a}')
   p=$(grep -c '^PASS ' "$log"); f=$(grep -c '^FAIL ' "$log")
+  while IFS= read -r line; do skips+=("$line"); done < <(grep '^SKIP ' "$log")
   if [ "$rc" -ne 0 ] && [ "$f" -eq 0 ]; then f=1; fi
   passed=$((passed + p)); failed=$((failed + f))
   if [ "$f" -ne 0 ]; then failures+=("$name"); echo "FAIL $name ($p passed, $f failed, ${secs}s) — see $log"; grep '^FAIL ' "$log" | head -20
   else echo "ok   $name ($p checks, ${secs}s)"; fi
 done
+for line in "${skips[@]+"${skips[@]}"}"; do echo "$line"; done
 echo "tests took $(( $(date +%s) - t0 ))s"
 echo "$passed passed, $failed failed"
 [ "$failed" -eq 0 ]

@@ -42,6 +42,7 @@ static void print_help(DrStageId stage)
            "  --cache DIR         precompute cache root (default $DRENCH_CACHE or ./cache)\n"
            "  --print-key         print this stage's cache key for the scene and exit\n"
            "  --print-out-dir     print this stage's output folder for the scene and exit\n"
+           "  --print-frames      print the shot's first and last frame (after --frames) and exit\n"
            "  -q, --quiet         only warnings and errors\n"
            "  --help, --version\n\n"
            "exit codes: 0 success, 1 runtime failure, 2 bad input (scene, asset or arguments)\n");
@@ -123,6 +124,8 @@ DrStatus dr_stage_parse_args(DrStageId stage, int argc, char **argv, DrStageArgs
             a->print_key = true;
         } else if (!strcmp(s, "--print-out-dir")) {
             a->print_out_dir = true;
+        } else if (!strcmp(s, "--print-frames")) {
+            a->print_frames = true;
         } else if (!strcmp(s, "-q") || !strcmp(s, "--quiet")) {
             a->quiet = true;
         } else if (s[0] == '-' && s[1]) {
@@ -200,6 +203,14 @@ DrStatus dr_stage_begin(DrStageId stage, int argc, char **argv, DrStageArgs *arg
         return s;
     }
     dr_stage_out_dir(args, *scene, stage, dir, dir_size);
+    if (args->print_frames) {
+        int first, last;
+        s = dr_stage_frame_range(args, *scene, &first, &last, err);
+        if (s == DR_OK) printf("%d %d\n", first, last);
+        dr_scene_destroy(scene);
+        *done = s == DR_OK;
+        return s;
+    }
     if (args->print_key || args->print_out_dir) {
         printf("%s\n", args->print_key ? stage_key(keys, stage) : dir);
         dr_scene_destroy(scene);

@@ -82,7 +82,7 @@ typedef struct DrStageArgs {
     int threads;             /* -j N; 0 = all cores */
     const char *out_root;    /* --out DIR, else $DRENCH_OUT, else "out" */
     const char *cache_root;  /* --cache DIR, else $DRENCH_CACHE, else "cache" */
-    bool print_key, print_out_dir, list_components, markdown, quiet;
+    bool print_key, print_out_dir, print_frames, list_components, markdown, quiet;
 } DrStageArgs;
 
 /* Parses the common options. Returns DR_OK, or DR_ERR_INPUT with a usage message. --help and --version are
