@@ -450,7 +450,7 @@ static void test_bad_input_messages(void **state)
         {"", ",\"shot\":{\"name\":\"..\"}", NULL, {"shot.name: '..' is not a valid name ('.' and '..' are reserved)"}},
         {"", ",\"mesh\":{\"write_obj\":1}", NULL, {"mesh.write_obj: expected true or false, got number"}},
         {"", ",\"render\":{\"camra\":{}}", NULL,
-         {"render: unknown field 'camra'; did you mean 'camera'? Fields of render: resolution, contact_every, camera"}},
+         {"render: unknown field 'camra'; did you mean 'camera'? Fields of render: resolution, contact_every, samples, ground, camera"}},
         {"", ",\"render\":{\"camera\":{\"fov_deg\":170}}", NULL,
          {"render.camera.fov_deg = 170 is out of range (1, 170) deg"}},
         {"", ",\"render\":{\"camera\":{\"eye\":[0,0.1,0]}}", NULL, {"render.camera: eye and target are the same point"}},
@@ -605,7 +605,7 @@ static void test_canonical_json(void **state)
     c = dr_scene_canonical(s, "render");
     assert_string_equal(c, "{\"camera\":{\"eye\":[0.59999999999999998,0.40000000000000002,0.80000000000000004],"
                            "\"fov_deg\":30,\"target\":[0,0.10000000000000001,0],\"up\":[0,1,0]},\"contact_every\":4,"
-                           "\"resolution\":[960,540]}");
+                           "\"ground\":true,\"resolution\":[960,540],\"samples\":3}");
     free(c);
     c = dr_scene_canonical(s, "render.camera");
     assert_non_null(strstr(c, "\"fov_deg\":30"));
