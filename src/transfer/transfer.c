@@ -346,7 +346,7 @@ static void g2p_component(const G2pCtx *ctx, int a, const double X[3], const int
 {
     const DrMacGrid *g = ctx->g;
     const double dx = g->dx;
-    bool apic = ctx->scheme == DR_TRANSFER_APIC, flip = ctx->old != NULL;
+    bool apic = ctx->scheme == DR_TRANSFER_APIC || ctx->scheme == DR_TRANSFER_RPIC, flip = ctx->old != NULL;
     AxisStencil ax[3];
     int lo[3];
     bool inside = blk != NULL;
@@ -436,12 +436,24 @@ static void g2p_range(long begin, long end, void *vctx)
                 ctx->v[3 * p + a] = vel;
             if (ctx->c) {
                 double *ca = ctx->c + 9 * p + 3 * a;
-                if (ctx->scheme == DR_TRANSFER_APIC) {
+                if (ctx->scheme == DR_TRANSFER_APIC || ctx->scheme == DR_TRANSFER_RPIC) {
                     ca[0] = dinv * mom[0]; ca[1] = dinv * mom[1]; ca[2] = dinv * mom[2];
                 } else {
                     ca[0] = ca[1] = ca[2] = 0.0;
                 }
             }
+        }
+        /* RPIC ([APIC] §2.1): ω = K⁻¹ l̂ with K = m(tr D·I − D) = 2m·D for the isotropic D, which makes
+           ω× the skew part of the APIC C = B D⁻¹; the affine rows are the skew part of the full matrix */
+        if (ctx->scheme == DR_TRANSFER_RPIC) {
+            double *cp = ctx->c + 9 * p;
+            for (int r = 0; r < 3; r++)
+                for (int q = r + 1; q < 3; q++) {
+                    double w = 0.5 * (cp[3 * r + q] - cp[3 * q + r]);
+                    cp[3 * r + q] = w;
+                    cp[3 * q + r] = -w;
+                }
+            cp[0] = cp[4] = cp[8] = 0.0;
         }
     }
 }
@@ -449,7 +461,7 @@ static void g2p_range(long begin, long end, void *vctx)
 void dr_transfer_g2p_mac(const DrMacGrid *g, const double *const old[3], DrTransferScheme scheme,
                          double flip_blend, bool wall_no_slip, long n, const double *x, double *v, double *c)
 {
-    assert(scheme != DR_TRANSFER_APIC || c);
+    assert((scheme != DR_TRANSFER_APIC && scheme != DR_TRANSFER_RPIC) || c);
     assert(scheme != DR_TRANSFER_FLIP || old);
     G2pCtx ctx = {g, scheme == DR_TRANSFER_FLIP ? old : NULL, scheme, flip_blend, wall_no_slip ? -1.0 : 1.0,
                   x, v, c};
