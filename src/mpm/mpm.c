@@ -1,0 +1,1112 @@
+/* The MPM solver ([APIC] §3–4): particle storage, one step (P2G, grid update, boundary conditions, G2P,
+ * F update), the implicit solves of §4.1–4.2, CFL (§4.3), sampling and diagnostics.
+ *
+ * Grid update in one form for the three integrators. With u_i the grid displacement at which forces are
+ * evaluated and Δv_i = ṽ_i − v_i:
+ *   symplectic Euler  u = 0                      (forces at x^n and F^n, λ = 0 of eqs. 27–30)
+ *   midpoint          u = Δt/2 v + Δt/4 Δv       (§4.1: x^n + ½(x̃ − x^n), λ = ½)
+ *   backward Euler    u = Δt v + Δt Δv           (x̃ itself)
+ * and m_i Δv_i = Δt f_i(u). The implicit ones are the minimisation of
+ *   E(Δv) = Σ_i c m_i ‖Δv_i‖²/2 + Φ(u(Δv)),  u = α v + β Δv,  c = β/Δt
+ * (midpoint α = Δt/2, β = Δt/4, c = 1/4: the m/8 of §4.1; backward Euler α = β = Δt, c = 1). [APIC] prints
+ * E_be with Φ(x + Δt v + Δt² Δv); its gradient would then be mΔv − Δt² f, which is not backward Euler, so
+ * the Δt² is read as Δt. Φ = Σ_p V_p Ψ(F_p(u)) + anchors + gravity (−Σ m_i g·u_i).
+ * ∇E = c M r with the velocity-like residual r = Δv − Δt M⁻¹ f(u); the Hessian is c M A₂ with
+ * A₂ = I + βΔt M⁻¹ K (K = −∂f/∂u, ζ = −βΔt in the paper's notation). Each Newton step solves A₂ δ = −r by
+ * CG in the mass inner product (dr_pcg_solve's DrDotFn hook): A₂ is self-adjoint there and every CG
+ * vector is velocity-like, so an early CG stop keeps Σ m Δv = Δt Σ f (§4.2). A backtracking line search
+ * on E accepts the step; a configuration where Ψ is undefined (Neo-Hookean J ≤ 0) has E = +∞ and is
+ * rejected.
+ *
+ * Deformation gradient at u: F_p(u) = (I + G_p + q G_p²) F_p^n, G_p = Σ_i u_i ∇w_ipᵀ. q = 0 is eq. (28)
+ * with eq. (27). q = 1/(2λ) (λ = ½ midpoint, 1 backward Euler) is the same F^{n+λ} built from eqs.
+ * (109)–(111), so the implicit energy, forces and F update use one rule for f_update_order = 2:
+ *   P : dF = Q : dG + q (Q Gᵀ + Gᵀ Q) : dG,   Q = P F^nᵀ,
+ * hence the force f_i = Σ_p M_p ∇w_ip with M_p = −V_p (Q + q(Q Gᵀ + Gᵀ Q)) (eq. 34 for q = 0), applied
+ * through dr_node_scatter_gradient, and its differential (eqs. 35–36) likewise with
+ *   δM_p = −V_p (δQ + q(δQ Gᵀ + Gᵀ δQ + Q δGᵀ + δGᵀ Q)),  δQ = dP(F_p; δF_p) F^nᵀ,
+ *   δF_p = (δG + q(δG G + G δG)) F^n,  δG from dr_node_gather_gradient.
+ *
+ * Boundary conditions. Box walls constrain components of whole nodes (slip: the normal component of nodes
+ * on or beyond the wall plane; no-slip: all of it). They are a fixed linear projection Π, applied to v
+ * after P2G and kept on ṽ by projecting the Newton residual and every CG vector, so ṽ = Π ṽ exactly and
+ * the grid motion Δt(λ v + (1 − λ) ṽ) that G2P uses is the one the solve saw. Π is per node and
+ * orthogonal, hence self-adjoint in the mass inner product, and Π A₂ Π stays a CG operator. Colliders
+ * (one-sided, possibly moving) act as in mpm.h: on v after P2G and on ṽ after the solve.
+ * FLIP sees the projection of v as part of the grid change: its particles get Σ w (Π v − v) too.
+ *
+ * Determinism: per-particle loops run through dr_parallel_for and write disjoint entries; every sum over
+ * particles or nodes is sequential in index order (the solve's vectors hold 3 entries per active node,
+ * small next to the particle work), and the transfer functions are thread-count independent. */
+#include "mpm/mpm.h"
+
+#include "linalg/linalg.h"
+
+#include <float.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* Particles per parallel chunk: a stress evaluation or differential costs ~1 µs, so below ~2k particles a
+   parallel region (a few µs idle, far more on a loaded machine) costs more than it saves. */
+#define GRAIN 2048
+
+struct DrMpm {
+    DrMpmDesc d;
+    int dim, pad;
+    DrNodeGrid *grid;
+    DrNodeBins *bins;
+    long bins_cap;
+    /* particles */
+    long n, cap;
+    double *x, *v, *C, *F, *mass, *vol0, *mu, *lam, *ak, *at;
+    unsigned char *model;
+    int *body;
+    bool anchors;
+    /* per-particle scratch */
+    double *G, *Fu, *Q, *dG, *dM, *px, *pf, *bx, *bv, *bC, *bF;
+    double *psi;
+    /* bodies */
+    int nbodies;
+    long *body_start;
+    DrMpmMaterial *mats;
+    /* colliders */
+    int ncol;
+    DrMpmCollider *cols;
+    /* grid scratch (3·nnodes) */
+    double *vn, *v0, *vnew, *uf, *ff, *tf;
+    unsigned char *fix; /* per node: bit a set = component a fixed by a wall */
+    /* compact solve vectors, 3 per active node */
+    long *act;
+    long nact;
+    double *mact, *dv, *res, *del, *tmp, *cgw;
+};
+
+static const char *integrator_name(DrMpmIntegrator i)
+{
+    return i == DR_MPM_SYMPLECTIC_EULER ? "symplectic Euler" : (i == DR_MPM_MIDPOINT ? "midpoint" : "backward Euler");
+}
+
+void dr_mpm_desc_default(DrMpmDesc *d)
+{
+    memset(d, 0, sizeof *d);
+    d->dim = 3;
+    d->lo = dr_v3(0, 0, 0);
+    d->hi = dr_v3(1, 1, 1);
+    d->dx = 1.0 / 32.0;
+    d->kernel = DR_KERNEL_QUADRATIC;
+    d->scheme = DR_TRANSFER_APIC;
+    d->flip_blend = 0.0;
+    d->integrator = DR_MPM_MIDPOINT;
+    d->f_update_order = 1;
+    d->gravity = dr_v3(0, 0, 0);
+    for (int f = 0; f < 6; f++) d->wall[f] = DR_MPM_WALL_SLIP;
+    d->cfl = 1.0;
+    d->newton_tolerance = 1e-10;
+    d->newton_max_iterations = 50;
+    d->cg_tolerance = 1e-10;
+    d->cg_max_iterations = 1000;
+}
+
+/* ---- creation and storage ----------------------------------------------------------------- */
+
+DrStatus dr_mpm_create(const DrMpmDesc *desc, DrMpm **out, DrError *err)
+{
+    assert(desc && out);
+    *out = NULL;
+    const DrMpmDesc *d = desc;
+    if (d->dim != 2 && d->dim != 3)
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "mpm: dim = %d must be 2 or 3", d->dim);
+    if (!(d->dx > 0.0) || !isfinite(d->dx))
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "mpm: dx = %g must be positive and finite", d->dx);
+    for (int a = 0; a < d->dim; a++) {
+        double lo = dr_v3_get(d->lo, a), hi = dr_v3_get(d->hi, a);
+        if (!isfinite(lo) || !isfinite(hi) || !(hi > lo))
+            return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                                "mpm: box axis %d is [%g, %g]; give finite bounds with hi > lo", a, lo, hi);
+        if ((hi - lo) / d->dx > 4096.0)
+            return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                                "mpm: box axis %d spans %.0f cells (more than 4096); raise dx", a, (hi - lo) / d->dx);
+    }
+    if (d->kernel != DR_KERNEL_LINEAR && d->kernel != DR_KERNEL_QUADRATIC && d->kernel != DR_KERNEL_CUBIC)
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "mpm: unknown kernel %d", (int)d->kernel);
+    if (d->scheme != DR_TRANSFER_APIC && d->scheme != DR_TRANSFER_FLIP && d->scheme != DR_TRANSFER_PIC &&
+        d->scheme != DR_TRANSFER_RPIC)
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "mpm: unknown transfer scheme %d", (int)d->scheme);
+    if (d->integrator != DR_MPM_SYMPLECTIC_EULER && d->integrator != DR_MPM_MIDPOINT &&
+        d->integrator != DR_MPM_BACKWARD_EULER)
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "mpm: unknown integrator %d", (int)d->integrator);
+    if (!(d->flip_blend >= 0.0 && d->flip_blend <= 1.0))
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "mpm: flip_blend = %g must lie in [0, 1]", d->flip_blend);
+    if (d->f_update_order != 1 && d->f_update_order != 2)
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "mpm: f_update_order = %d must be 1 or 2",
+                            d->f_update_order);
+    if (!dr_v3_isfinite(d->gravity))
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "mpm: gravity is not finite");
+    if (!(d->cfl > 0.0) || !isfinite(d->cfl))
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "mpm: cfl = %g must be positive", d->cfl);
+    if (!(d->newton_tolerance >= 0.0) || !(d->cg_tolerance >= 0.0) || d->newton_max_iterations < 1 ||
+        d->cg_max_iterations < 1)
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                            "mpm: tolerances (%g, %g) must be >= 0 and iteration caps (%d, %d) >= 1",
+                            d->newton_tolerance, d->cg_tolerance, d->newton_max_iterations, d->cg_max_iterations);
+    for (int f = 0; f < 6; f++)
+        if (d->wall[f] != DR_MPM_WALL_NONE && d->wall[f] != DR_MPM_WALL_SLIP && d->wall[f] != DR_MPM_WALL_NO_SLIP)
+            return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "mpm: wall[%d] = %d is not a DrMpmWall", f,
+                                (int)d->wall[f]);
+
+    DrMpm *m = NULL;
+    DR_TRY(dr_calloc(1, sizeof *m, &m, err));
+    m->d = *d;
+    m->dim = d->dim;
+    /* the stencil reach plus two nodes: particles may drift a little past a slip wall (their positions
+       interpolate the grid motion) without their stencil leaving the grid */
+    m->pad = dr_kernel_reach(d->kernel) + 2;
+    int n[3] = {1, 1, 1};
+    for (int a = 0; a < d->dim; a++)
+        n[a] = (int)ceil((dr_v3_get(d->hi, a) - dr_v3_get(d->lo, a)) / d->dx - 1e-9) + 1 + 2 * m->pad;
+    DrVec3 origin = dr_v3_sub(d->lo, dr_v3(m->pad * d->dx, m->pad * d->dx, d->dim == 3 ? m->pad * d->dx : 0.0));
+    DrStatus s = dr_node_grid_create(d->dim, n, d->dx, origin, d->kernel, &m->grid, err);
+    if (s == DR_OK) s = dr_node_bins_create(m->grid, 1024, &m->bins, err);
+    m->bins_cap = 1024;
+    long nn = m->grid ? m->grid->nnodes : 0;
+    double **grid_arrays[] = {&m->vn, &m->v0, &m->vnew, &m->uf, &m->ff, &m->tf,
+                              &m->mact, &m->dv, &m->res, &m->del, &m->tmp};
+    for (size_t k = 0; s == DR_OK && k < sizeof grid_arrays / sizeof *grid_arrays; k++)
+        s = dr_calloc(3 * (size_t)nn, sizeof(double), grid_arrays[k], err);
+    if (s == DR_OK) s = dr_calloc(12 * (size_t)nn, sizeof(double), &m->cgw, err);
+    if (s == DR_OK) s = dr_calloc((size_t)nn, sizeof(unsigned char), &m->fix, err);
+    if (s == DR_OK) s = dr_calloc((size_t)nn, sizeof(long), &m->act, err);
+    if (s != DR_OK) {
+        dr_mpm_destroy(&m);
+        return s;
+    }
+    /* wall layers: nodes on or beyond each wall plane */
+    for (long i = 0; i < nn; i++) {
+        DrVec3 p = dr_node_position(m->grid, i);
+        unsigned char fx = 0;
+        for (int a = 0; a < d->dim; a++) {
+            double c = dr_v3_get(p, a), eps = 1e-9 * d->dx;
+            DrMpmWall lo = d->wall[2 * a], hi = d->wall[2 * a + 1];
+            DrMpmWall w = c <= dr_v3_get(d->lo, a) + eps ? lo : (c >= dr_v3_get(d->hi, a) - eps ? hi : DR_MPM_WALL_NONE);
+            if (w == DR_MPM_WALL_SLIP) fx |= (unsigned char)(1u << a);
+            if (w == DR_MPM_WALL_NO_SLIP) fx |= 7u;
+        }
+        if (d->dim == 2) fx |= 4u; /* z velocity is not a degree of freedom in 2-D */
+        m->fix[i] = fx;
+    }
+    *out = m;
+    return DR_OK;
+}
+
+void dr_mpm_destroy(DrMpm **mpm)
+{
+    if (!mpm || !*mpm) return;
+    DrMpm *m = *mpm;
+    dr_node_bins_destroy(&m->bins);
+    dr_node_grid_destroy(&m->grid);
+    void *arrays[] = {m->x, m->v, m->C, m->F, m->mass, m->vol0, m->mu, m->lam, m->ak, m->at, m->model, m->body,
+                      m->G, m->Fu, m->Q, m->dG, m->dM, m->px, m->pf, m->bx, m->bv, m->bC, m->bF, m->psi,
+                      m->body_start, m->mats, m->cols, m->vn, m->v0, m->vnew, m->uf, m->ff, m->tf, m->fix,
+                      m->act, m->mact, m->dv, m->res, m->del, m->tmp, m->cgw};
+    for (size_t k = 0; k < sizeof arrays / sizeof *arrays; k++) free(arrays[k]);
+    free(m);
+    *mpm = NULL;
+}
+
+static DrStatus reserve(DrMpm *m, long need, DrError *err)
+{
+    if (need <= m->cap) return DR_OK;
+    long cap = m->cap > 0 ? m->cap : 256;
+    while (cap < need) cap *= 2;
+    struct { void *p; size_t per; } arr[] = {
+        {&m->x, 3 * sizeof(double)},  {&m->v, 3 * sizeof(double)},  {&m->C, 9 * sizeof(double)},
+        {&m->F, 9 * sizeof(double)},  {&m->mass, sizeof(double)},   {&m->vol0, sizeof(double)},
+        {&m->mu, sizeof(double)},     {&m->lam, sizeof(double)},    {&m->ak, sizeof(double)},
+        {&m->at, 3 * sizeof(double)}, {&m->model, 1},               {&m->body, sizeof(int)},
+        {&m->G, 9 * sizeof(double)},  {&m->Fu, 9 * sizeof(double)}, {&m->Q, 9 * sizeof(double)},
+        {&m->dG, 9 * sizeof(double)}, {&m->dM, 9 * sizeof(double)}, {&m->px, 3 * sizeof(double)},
+        {&m->pf, 3 * sizeof(double)}, {&m->bx, 3 * sizeof(double)}, {&m->bv, 3 * sizeof(double)},
+        {&m->bC, 9 * sizeof(double)}, {&m->bF, 9 * sizeof(double)}, {&m->psi, sizeof(double)},
+    };
+    for (size_t k = 0; k < sizeof arr / sizeof *arr; k++) DR_TRY(dr_realloc((size_t)cap, arr[k].per, arr[k].p, err));
+    /* anchors of particles added later are "none" */
+    memset(m->ak + m->cap, 0, (size_t)(cap - m->cap) * sizeof(double));
+    memset(m->at + 3 * m->cap, 0, (size_t)(cap - m->cap) * 3 * sizeof(double));
+    m->cap = cap;
+    if (cap > m->bins_cap) {
+        DrNodeBins *nb = NULL;
+        DR_TRY(dr_node_bins_create(m->grid, cap, &nb, err));
+        dr_node_bins_destroy(&m->bins);
+        m->bins = nb;
+        m->bins_cap = cap;
+    }
+    return DR_OK;
+}
+
+static bool inside_box(const DrMpm *m, const double *x)
+{
+    for (int a = 0; a < m->dim; a++)
+        if (!(x[a] >= dr_v3_get(m->d.lo, a) && x[a] <= dr_v3_get(m->d.hi, a))) return false;
+    return true;
+}
+
+static bool affine_scheme(const DrMpm *m)
+{
+    return m->d.scheme == DR_TRANSFER_APIC || m->d.scheme == DR_TRANSFER_RPIC;
+}
+
+DrStatus dr_mpm_add_particles(DrMpm *mpm, long n, const double *x, const double *v, const double *vol,
+                              const double *C0, const DrMpmMaterial *mat, int *body, DrError *err)
+{
+    assert(mpm && mat);
+    DrMpm *m = mpm;
+    if (n < 0 || (n > 0 && (!x || !v || !vol)))
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "mpm: %ld particles with missing arrays", n);
+    if (mat->model != DR_MPM_NEOHOOKEAN && mat->model != DR_MPM_FIXED_COROTATED)
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "mpm: unknown material model %d", (int)mat->model);
+    if (!(mat->density > 0.0) || !isfinite(mat->density) || !(mat->youngs >= 0.0) || !isfinite(mat->youngs) ||
+        !(mat->poisson >= 0.0 && mat->poisson < 0.5))
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                            "mpm: material density %g, Young's modulus %g, Poisson ratio %g: need density > 0, "
+                            "E >= 0 and 0 <= nu < 0.5", mat->density, mat->youngs, mat->poisson);
+    if (C0)
+        for (int k = 0; k < 9; k++)
+            if (!isfinite(C0[k])) return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "mpm: C0[%d] is not finite", k);
+    for (long p = 0; p < n; p++) {
+        bool fin = isfinite(vol[p]) && vol[p] > 0.0;
+        for (int a = 0; a < 3; a++) fin = fin && isfinite(x[3 * p + a]) && isfinite(v[3 * p + a]);
+        if (!fin)
+            return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                                "mpm: particle %ld has a non-finite position or velocity or a volume <= 0", p);
+        if (!inside_box(m, x + 3 * p))
+            return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                                "mpm: particle %ld at (%g, %g, %g) lies outside the simulation box; enlarge the box "
+                                "or move the body", p, x[3 * p], x[3 * p + 1], x[3 * p + 2]);
+    }
+    DR_TRY(reserve(m, m->n + n, err));
+    DR_TRY(dr_realloc((size_t)m->nbodies + 2, sizeof(long), &m->body_start, err));
+    DR_TRY(dr_realloc((size_t)m->nbodies + 1, sizeof(DrMpmMaterial), &m->mats, err));
+    double mu, lam;
+    dr_mpm_lame(mat, &mu, &lam);
+    int b = m->nbodies;
+    for (long k = 0; k < n; k++) {
+        long p = m->n + k;
+        for (int a = 0; a < 3; a++) {
+            m->x[3 * p + a] = x[3 * k + a];
+            m->v[3 * p + a] = (a == 2 && m->dim == 2) ? 0.0 : v[3 * k + a];
+        }
+        for (int q = 0; q < 9; q++) {
+            double c = (C0 && affine_scheme(m)) ? C0[q] : 0.0;
+            if (m->dim == 2 && (q % 3 == 2 || q >= 6)) c = 0.0;
+            m->C[9 * p + q] = c;
+            m->F[9 * p + q] = (q % 4 == 0) ? 1.0 : 0.0;
+        }
+        if (m->d.scheme == DR_TRANSFER_RPIC) {
+            double *c = m->C + 9 * p; /* RPIC keeps the skew part only (§2.1) */
+            for (int i = 0; i < 3; i++)
+                for (int j = i + 1; j < 3; j++) {
+                    double s = 0.5 * (c[3 * i + j] - c[3 * j + i]);
+                    c[3 * i + j] = s, c[3 * j + i] = -s;
+                }
+            c[0] = c[4] = c[8] = 0.0;
+        }
+        m->vol0[p] = vol[k];
+        m->mass[p] = mat->density * vol[k];
+        m->mu[p] = mu, m->lam[p] = lam;
+        m->model[p] = (unsigned char)mat->model;
+        m->body[p] = b;
+    }
+    m->body_start[b] = m->n;
+    m->n += n;
+    m->body_start[b + 1] = m->n;
+    m->mats[b] = *mat;
+    m->nbodies++;
+    if (body) *body = b;
+    return DR_OK;
+}
+
+DrStatus dr_mpm_sample_body(DrMpm *mpm, DrMpmInsideFn inside, void *ctx, DrVec3 box_lo, DrVec3 box_hi,
+                            int per_cell, DrVec3 v0, DrVec3 omega, DrVec3 centre, const DrMpmMaterial *mat,
+                            int *body, long *count, DrError *err)
+{
+    assert(mpm && inside && mat);
+    DrMpm *m = mpm;
+    if (per_cell < 1 || per_cell > 16)
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "mpm: per_cell = %d must lie in [1, 16]", per_cell);
+    if (!dr_v3_isfinite(box_lo) || !dr_v3_isfinite(box_hi) || !dr_v3_isfinite(v0) || !dr_v3_isfinite(omega) ||
+        !dr_v3_isfinite(centre))
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "mpm: sample_body got a non-finite box or velocity");
+    double h = m->d.dx / per_cell;
+    long j0[3] = {0, 0, 0}, j1[3] = {0, 0, 0};
+    for (int a = 0; a < m->dim; a++) {
+        double lo = dr_v3_get(m->d.lo, a);
+        j0[a] = (long)ceil((dr_v3_get(box_lo, a) - lo) / h - 0.5);
+        j1[a] = (long)floor((dr_v3_get(box_hi, a) - lo) / h - 0.5);
+        if (j1[a] - j0[a] > 100000)
+            return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "mpm: sample_body box is too large for the spacing");
+    }
+    long cnt = 0;
+    double *x = NULL, *v = NULL, *vol = NULL;
+    for (int pass = 0; pass < 2; pass++) {
+        long k = 0;
+        for (long jz = j0[2]; jz <= j1[2]; jz++)
+            for (long jy = j0[1]; jy <= j1[1]; jy++)
+                for (long jx = j0[0]; jx <= j1[0]; jx++) {
+                    long jj[3] = {jx, jy, jz};
+                    double p[3];
+                    for (int a = 0; a < 3; a++)
+                        p[a] = a < m->dim ? dr_v3_get(m->d.lo, a) + (jj[a] + 0.5) * h : dr_v3_get(centre, a);
+                    DrVec3 pv = dr_v3(p[0], p[1], p[2]);
+                    if (!inside(pv, ctx)) continue;
+                    if (pass == 1) {
+                        DrVec3 vel = dr_v3_add(v0, dr_v3_cross(omega, dr_v3_sub(pv, centre)));
+                        for (int a = 0; a < 3; a++) x[3 * k + a] = p[a], v[3 * k + a] = dr_v3_get(vel, a);
+                        vol[k] = pow(h, m->dim);
+                    }
+                    k++;
+                }
+        if (pass == 0) {
+            cnt = k;
+            DrStatus s = dr_calloc((size_t)(cnt > 0 ? cnt : 1), 3 * sizeof(double), &x, err);
+            if (s == DR_OK) s = dr_calloc((size_t)(cnt > 0 ? cnt : 1), 3 * sizeof(double), &v, err);
+            if (s == DR_OK) s = dr_calloc((size_t)(cnt > 0 ? cnt : 1), sizeof(double), &vol, err);
+            if (s != DR_OK) {
+                free(x), free(v), free(vol);
+                return s;
+            }
+        }
+    }
+    /* C0 = [ω]×: the velocity gradient of the rigid rotation v0 + ω × (x − centre) */
+    double C0[9] = {0, -omega.z, omega.y, omega.z, 0, -omega.x, -omega.y, omega.x, 0};
+    DrStatus s = dr_mpm_add_particles(m, cnt, x, v, vol, C0, mat, body, err);
+    free(x), free(v), free(vol);
+    if (count) *count = s == DR_OK ? cnt : 0;
+    return s;
+}
+
+DrStatus dr_mpm_set_anchors(DrMpm *mpm, const double *k, const double *target, DrError *err)
+{
+    assert(mpm);
+    DrMpm *m = mpm;
+    if (m->n > 0 && (!k || !target))
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "mpm: set_anchors needs k and target arrays");
+    for (long p = 0; p < m->n; p++) {
+        bool ok = isfinite(k[p]) && k[p] >= 0.0;
+        for (int a = 0; a < 3; a++) ok = ok && isfinite(target[3 * p + a]);
+        if (!ok)
+            return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                                "mpm: anchor of particle %ld has k = %g (need finite, >= 0) or a non-finite target", p,
+                                k[p]);
+    }
+    bool any = false;
+    for (long p = 0; p < m->n; p++) {
+        m->ak[p] = k[p];
+        for (int a = 0; a < 3; a++) m->at[3 * p + a] = target[3 * p + a];
+        any = any || k[p] > 0.0;
+    }
+    m->anchors = any;
+    return DR_OK;
+}
+
+DrStatus dr_mpm_add_collider(DrMpm *mpm, const DrMpmCollider *c, DrError *err)
+{
+    assert(mpm && c);
+    if (!c->sdf || !dr_v3_isfinite(c->velocity) || !(c->friction >= 0.0) || !isfinite(c->friction))
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                            "mpm: a collider needs an sdf, a finite velocity and friction >= 0");
+    DR_TRY(dr_realloc((size_t)mpm->ncol + 1, sizeof(DrMpmCollider), &mpm->cols, err));
+    mpm->cols[mpm->ncol++] = *c;
+    return DR_OK;
+}
+
+DrMpmState dr_mpm_state(const DrMpm *mpm)
+{
+    DrMpmState s = {mpm->n, mpm->x, mpm->v, mpm->C, mpm->F, mpm->mass, mpm->vol0, mpm->body};
+    return s;
+}
+
+DrStatus dr_mpm_restore(DrMpm *mpm, long n, const double *x, const double *v, const double *C, const double *F,
+                        DrError *err)
+{
+    assert(mpm);
+    if (n != mpm->n)
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "mpm: restore of %ld particles into a solver holding %ld",
+                            n, mpm->n);
+    for (long i = 0; i < 3 * n; i++)
+        if (!isfinite(x[i]) || !isfinite(v[i]))
+            return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "mpm: restore: particle %ld is not finite", i / 3);
+    for (long i = 0; i < 9 * n; i++)
+        if (!isfinite(C[i]) || !isfinite(F[i]))
+            return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "mpm: restore: C or F of particle %ld is not finite",
+                                i / 9);
+    memcpy(mpm->x, x, 3 * (size_t)n * sizeof(double));
+    memcpy(mpm->v, v, 3 * (size_t)n * sizeof(double));
+    memcpy(mpm->C, C, 9 * (size_t)n * sizeof(double));
+    memcpy(mpm->F, F, 9 * (size_t)n * sizeof(double));
+    return DR_OK;
+}
+
+/* ---- diagnostics -------------------------------------------------------------------------- */
+
+static double kernel_d(DrKernel k, double dx)
+{
+    double dinv = dr_kernel_dinv(k, dx);
+    return dinv > 0.0 ? 1.0 / dinv : 0.0;
+}
+
+DrMpmTotals dr_mpm_totals(const DrMpm *mpm, int body)
+{
+    const DrMpm *m = mpm;
+    DrMpmTotals t;
+    memset(&t, 0, sizeof t);
+    long b0 = 0, b1 = m->n;
+    if (body >= 0) {
+        if (body >= m->nbodies) return t;
+        b0 = m->body_start[body], b1 = m->body_start[body + 1];
+    }
+    if (b1 <= b0) return t;
+    dr_node_particle_totals(m->d.kernel, m->d.dx, b1 - b0, m->x + 3 * b0, m->v + 3 * b0, m->C + 9 * b0, m->mass + b0,
+                            &t.momentum, &t.angular, &t.kinetic);
+    for (long p = b0; p < b1; p++) {
+        double psi = 0.0;
+        if (!dr_mpm_energy_density((DrMpmModel)m->model[p], m->dim, m->mu[p], m->lam[p], m->F + 9 * p, &psi))
+            psi = INFINITY;
+        t.elastic += m->vol0[p] * psi;
+        const double *x = m->x + 3 * p;
+        t.gravity_potential -= m->mass[p] * (m->d.gravity.x * x[0] + m->d.gravity.y * x[1] + m->d.gravity.z * x[2]);
+    }
+    return t;
+}
+
+double dr_mpm_cfl_dt(const DrMpm *mpm)
+{
+    const DrMpm *m = mpm;
+    double D = kernel_d(m->d.kernel, m->d.dx), worst = 0.0;
+    for (long p = 0; p < m->n; p++) {
+        const double *v = m->v + 3 * p, *c = m->C + 9 * p;
+        double cn = 0.0;
+        for (int k = 0; k < 9; k++) cn += c[k] * c[k];
+        cn = sqrt(cn);
+        /* B = C D; the linear kernel has no D (lagged C): bound the velocity spread over a cell by ‖C‖ Δx */
+        double spread = D > 0.0 ? 6.0 * sqrt((double)m->dim) / m->d.dx * D * cn : cn * m->d.dx;
+        double s = sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) + spread;
+        if (s > worst) worst = s;
+    }
+    return worst > 0.0 ? m->d.cfl * m->d.dx / worst : INFINITY;
+}
+
+/* Explicit stability limit of symplectic Euler: ν Δx / c with the dilatational wave speed
+   c = √((λ + 2μ)/ρ), and 2/ω for the stiffest anchor (ω² = k/m, a particle's own spring). */
+static double explicit_dt(const DrMpm *m)
+{
+    double worst = 0.0;
+    for (int b = 0; b < m->nbodies; b++) {
+        double mu, lam;
+        dr_mpm_lame(&m->mats[b], &mu, &lam);
+        double c = sqrt((lam + 2.0 * mu) / m->mats[b].density);
+        if (c > worst) worst = c;
+    }
+    double dt = worst > 0.0 ? m->d.cfl * m->d.dx / worst : INFINITY;
+    for (long p = 0; p < m->n && m->anchors; p++)
+        if (m->ak[p] > 0.0) dt = fmin(dt, m->d.cfl * 2.0 / sqrt(m->ak[p] / m->mass[p]));
+    return dt;
+}
+
+/* ---- per-particle kernels ------------------------------------------------------------------- */
+
+static void m3mul(const double *A, const double *B, double *out)
+{
+    double r[9];
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++) r[3 * i + j] = A[3 * i] * B[j] + A[3 * i + 1] * B[3 + j] + A[3 * i + 2] * B[6 + j];
+    memcpy(out, r, sizeof r);
+}
+
+/* out = A Bᵀ */
+static void m3mul_nt(const double *A, const double *B, double *out)
+{
+    double r[9];
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++)
+            r[3 * i + j] = A[3 * i] * B[3 * j] + A[3 * i + 1] * B[3 * j + 1] + A[3 * i + 2] * B[3 * j + 2];
+    memcpy(out, r, sizeof r);
+}
+
+/* out = Aᵀ B */
+static void m3mul_tn(const double *A, const double *B, double *out)
+{
+    double r[9];
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++) r[3 * i + j] = A[i] * B[j] + A[3 + i] * B[3 + j] + A[6 + i] * B[6 + j];
+    memcpy(out, r, sizeof r);
+}
+
+typedef struct Eval {
+    DrMpm *m;
+    double q;       /* F rule (see the banner) */
+    bool ok;        /* per range: all Ψ and P defined (written only on failure, read after the loop) */
+    long bad;
+} Eval;
+
+/* Fu = (I + G + qG²) F^n, ψ_p = V Ψ(Fu), Q = P(Fu) F^nᵀ and the force matrix M_p in dM. */
+static void eval_range(long b, long e, void *vctx)
+{
+    Eval *ev = vctx;
+    DrMpm *m = ev->m;
+    for (long p = b; p < e; p++) {
+        const double *G = m->G + 9 * p, *Fn = m->F + 9 * p;
+        double N[9], G2[9];
+        m3mul(G, G, G2);
+        for (int k = 0; k < 9; k++) N[k] = ((k % 4 == 0) ? 1.0 : 0.0) + G[k] + ev->q * G2[k];
+        double *Fu = m->Fu + 9 * p;
+        m3mul(N, Fn, Fu);
+        double psi, P[9];
+        DrMpmModel model = (DrMpmModel)m->model[p];
+        if (!dr_mpm_energy_density(model, m->dim, m->mu[p], m->lam[p], Fu, &psi) ||
+            !dr_mpm_pk1(model, m->dim, m->mu[p], m->lam[p], Fu, P)) {
+            m->psi[p] = INFINITY;
+#pragma omp critical(dr_mpm_eval_bad)
+            {
+                if (ev->ok || p < ev->bad) ev->bad = p;
+                ev->ok = false;
+            }
+            continue;
+        }
+        m->psi[p] = m->vol0[p] * psi;
+        double *Q = m->Q + 9 * p, *M = m->dM + 9 * p;
+        m3mul_nt(P, Fn, Q);
+        double QGt[9], GtQ[9];
+        m3mul_nt(Q, G, QGt);
+        m3mul_tn(G, Q, GtQ);
+        for (int k = 0; k < 9; k++) M[k] = -m->vol0[p] * (Q[k] + ev->q * (QGt[k] + GtQ[k]));
+    }
+}
+
+/* Force differential per particle: dM from dG (δG), with G, Fu, Q of the current iterate. */
+typedef struct DiffCtx { DrMpm *m; double q; } DiffCtx;
+static void diff_range(long b, long e, void *vctx)
+{
+    DiffCtx *c = vctx;
+    DrMpm *m = c->m;
+    double q = c->q;
+    for (long p = b; p < e; p++) {
+        const double *G = m->G + 9 * p, *dG = m->dG + 9 * p, *Fn = m->F + 9 * p, *Q = m->Q + 9 * p;
+        double dN[9], t1[9], t2[9];
+        if (q != 0.0) {
+            m3mul(dG, G, t1);
+            m3mul(G, dG, t2);
+            for (int k = 0; k < 9; k++) dN[k] = dG[k] + q * (t1[k] + t2[k]);
+        } else {
+            memcpy(dN, dG, sizeof dN);
+        }
+        double dF[9], dP[9];
+        m3mul(dN, Fn, dF);
+        if (!dr_mpm_dpk1((DrMpmModel)m->model[p], m->dim, m->mu[p], m->lam[p], m->Fu + 9 * p, dF, dP))
+            memset(dP, 0, sizeof dP); /* only reachable where E = +∞, which the line search never accepts */
+        double dQ[9], *M = m->dM + 9 * p;
+        m3mul_nt(dP, Fn, dQ);
+        /* K δu = −δf: the sign of eq. (36) flipped, so the operator is positive */
+        if (q == 0.0) {
+            for (int k = 0; k < 9; k++) M[k] = m->vol0[p] * dQ[k];
+            continue;
+        }
+        double a[9], bb[9], cc[9], dd[9];
+        m3mul_nt(dQ, G, a);
+        m3mul_tn(G, dQ, bb);
+        m3mul_nt(Q, dG, cc);
+        m3mul_tn(dG, Q, dd);
+        for (int k = 0; k < 9; k++) M[k] = m->vol0[p] * (dQ[k] + q * (a[k] + bb[k] + cc[k] + dd[k]));
+    }
+}
+
+/* anchors: pf = −k (x_p + px − target) (force) or k·px (stiffness product), per particle */
+typedef struct AnchorCtx { DrMpm *m; bool product; } AnchorCtx;
+static void anchor_range(long b, long e, void *vctx)
+{
+    AnchorCtx *c = vctx;
+    DrMpm *m = c->m;
+    for (long p = b; p < e; p++)
+        for (int a = 0; a < 3; a++) {
+            double k = m->ak[p], d = m->px[3 * p + a];
+            m->pf[3 * p + a] = c->product ? k * d : -k * (m->x[3 * p + a] + d - m->at[3 * p + a]);
+        }
+}
+
+/* ---- grid helpers ---------------------------------------------------------------------------- */
+
+static void project_fixed(const DrMpm *m, long i, double *u)
+{
+    unsigned char f = m->fix[i];
+    for (int a = 0; a < 3; a++)
+        if (f & (1u << a)) u[a] = 0.0;
+}
+
+/* mass inner product over the active nodes (sequential: bit-identical for any thread count) */
+static double mdot(const double *a, const double *b, int n, void *ctx)
+{
+    const DrMpm *m = ctx;
+    double s = 0.0;
+    for (int k = 0; k < n; k++) s += m->mact[k] * a[k] * b[k];
+    return s;
+}
+
+/* Collider projection of one node velocity (relative to the collider): remove the approaching normal
+   component, then Coulomb friction on the tangential part, or zero it all for sticky colliders. */
+static bool collide_node(const DrMpm *m, DrVec3 xi, double *vel)
+{
+    bool hit = false;
+    for (int c = 0; c < m->ncol; c++) {
+        const DrMpmCollider *col = m->cols + c;
+        DrVec3 n;
+        double phi = col->sdf(xi, &n, col->ctx);
+        if (!(phi <= 0.0)) continue;
+        n = dr_v3_normalize(n);
+        DrVec3 vr = dr_v3_sub(dr_v3(vel[0], vel[1], vel[2]), col->velocity);
+        if (col->sticky) {
+            vr = dr_v3(0, 0, 0);
+        } else {
+            double vn = dr_v3_dot(vr, n);
+            if (vn >= 0.0) continue;
+            DrVec3 vt = dr_v3_sub(vr, dr_v3_scale(n, vn));
+            double vtn = dr_v3_norm(vt);
+            if (col->friction > 0.0 && vtn > 0.0) {
+                double keep = fmax(0.0, 1.0 + col->friction * vn / vtn);
+                vt = dr_v3_scale(vt, keep);
+            }
+            vr = vt;
+        }
+        DrVec3 out = dr_v3_add(vr, col->velocity);
+        vel[0] = out.x, vel[1] = out.y, vel[2] = m->dim == 2 ? 0.0 : out.z;
+        hit = true;
+    }
+    return hit;
+}
+
+/* ---- the implicit solve ---------------------------------------------------------------------- */
+
+typedef struct Solve {
+    DrMpm *m;
+    double dt, alpha, beta, c, q;
+    DrStatus status;
+    DrError *err;
+} Solve;
+
+/* Fills uf (grid displacement α v0 + β Δv on active nodes), G, Fu, ψ, Q, dM and ff (force f(u)).
+   Returns E(Δv) (+∞ where Ψ is undefined), and in *bad the first such particle. */
+static double evaluate(Solve *s, const double *dv, bool with_force, long *bad)
+{
+    DrMpm *m = s->m;
+    DrNodeGrid *g = m->grid;
+    for (long k = 0; k < m->nact; k++) {
+        long i = m->act[k];
+        for (int a = 0; a < 3; a++) m->uf[3 * i + a] = s->alpha * m->v0[3 * i + a] + s->beta * dv[3 * k + a];
+    }
+    dr_node_gather_gradient(g, m->uf, m->n, m->x, m->G);
+    Eval ev = {m, s->q, true, -1};
+    dr_parallel_for(m->n, GRAIN, eval_range, &ev);
+    if (bad) *bad = ev.bad;
+    if (!ev.ok) return INFINITY;
+    double E = 0.0;
+    for (long p = 0; p < m->n; p++) E += m->psi[p];
+    if (m->anchors) {
+        dr_node_gather_vector(g, m->uf, m->n, m->x, m->px);
+        for (long p = 0; p < m->n; p++) {
+            double d2 = 0.0;
+            for (int a = 0; a < 3; a++) {
+                double d = m->x[3 * p + a] + m->px[3 * p + a] - m->at[3 * p + a];
+                d2 += d * d;
+            }
+            E += 0.5 * m->ak[p] * d2;
+        }
+    }
+    DrVec3 gr = m->d.gravity;
+    for (long k = 0; k < m->nact; k++) {
+        long i = m->act[k];
+        double mi = m->mact[3 * k];
+        const double *u = m->uf + 3 * i, *d = dv + 3 * k;
+        E += 0.5 * s->c * mi * (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+        E -= mi * (gr.x * u[0] + gr.y * u[1] + gr.z * u[2]);
+    }
+    if (with_force) {
+        dr_node_scatter_gradient(m->bins, m->x, m->dM, g, m->ff);
+        if (m->anchors) {
+            AnchorCtx ac = {m, false};
+            dr_parallel_for(m->n, GRAIN, anchor_range, &ac);
+            dr_node_scatter_vector(m->bins, m->x, m->pf, g, m->tf);
+            for (long k = 0; k < m->nact; k++)
+                for (int a = 0; a < 3; a++) m->ff[3 * m->act[k] + a] += m->tf[3 * m->act[k] + a];
+        }
+    }
+    return E;
+}
+
+/* r = Π(Δv − Δt M⁻¹ f) on the compact vector */
+static void residual(Solve *s, const double *dv, double *r)
+{
+    DrMpm *m = s->m;
+    DrVec3 gr = m->d.gravity;
+    for (long k = 0; k < m->nact; k++) {
+        long i = m->act[k];
+        double mi = m->mact[3 * k];
+        for (int a = 0; a < 3; a++)
+            r[3 * k + a] = dv[3 * k + a] - s->dt * (m->ff[3 * i + a] / mi + dr_v3_get(gr, a));
+        project_fixed(m, i, r + 3 * k);
+    }
+}
+
+/* y = Π A₂ Π x = Π(x + βΔt M⁻¹ K Π x) */
+static void apply_a2(const double *x, double *y, void *ctx)
+{
+    Solve *s = ctx;
+    DrMpm *m = s->m;
+    DrNodeGrid *g = m->grid;
+    for (long k = 0; k < m->nact; k++) {
+        long i = m->act[k];
+        double u[3] = {x[3 * k], x[3 * k + 1], x[3 * k + 2]};
+        project_fixed(m, i, u);
+        for (int a = 0; a < 3; a++) m->uf[3 * i + a] = u[a], y[3 * k + a] = u[a];
+    }
+    dr_node_gather_gradient(g, m->uf, m->n, m->x, m->dG);
+    DiffCtx dc = {m, s->q};
+    dr_parallel_for(m->n, GRAIN, diff_range, &dc);
+    dr_node_scatter_gradient(m->bins, m->x, m->dM, g, m->ff);
+    if (m->anchors) {
+        dr_node_gather_vector(g, m->uf, m->n, m->x, m->px);
+        AnchorCtx ac = {m, true};
+        dr_parallel_for(m->n, GRAIN, anchor_range, &ac);
+        dr_node_scatter_vector(m->bins, m->x, m->pf, g, m->tf);
+        for (long k = 0; k < m->nact; k++)
+            for (int a = 0; a < 3; a++) m->ff[3 * m->act[k] + a] += m->tf[3 * m->act[k] + a];
+    }
+    double z = s->beta * s->dt;
+    for (long k = 0; k < m->nact; k++) {
+        long i = m->act[k];
+        double mi = m->mact[3 * k];
+        for (int a = 0; a < 3; a++) y[3 * k + a] += z * m->ff[3 * i + a] / mi;
+        project_fixed(m, i, y + 3 * k);
+    }
+}
+
+/* Newton on E (§4.1) from Δv = 0; leaves Δv in m->dv. */
+static DrStatus newton(Solve *s, DrMpmStats *st)
+{
+    DrMpm *m = s->m;
+    const int n3 = (int)(3 * m->nact);
+    double *dv = m->dv, *r = m->res, *del = m->del, *trial = m->tmp;
+    memset(dv, 0, (size_t)n3 * sizeof(double));
+    long bad = -1;
+    double E = evaluate(s, dv, true, &bad);
+    if (!isfinite(E)) {
+        /* Δv = 0 (grid moving with v for the step) already inverts a particle. Δv = −(α/β) v makes u = 0,
+           the configuration of F^n, which is admissible whenever the state is: start there instead.
+           v is wall-projected, so this start satisfies the constraints too. */
+        for (long k = 0; k < m->nact; k++)
+            for (int a = 0; a < 3; a++) dv[3 * k + a] = -(s->alpha / s->beta) * m->v0[3 * m->act[k] + a];
+        E = evaluate(s, dv, true, &bad);
+    }
+    if (!isfinite(E)) {
+        /* the start itself (α v of the midpoint) inverts a particle: no descent direction is defined */
+        const double *x = m->x + 3 * bad;
+        return dr_error_set(s->err, DR_ERR_RUNTIME, NULL, 0, 0,
+                            "mpm: particle %ld at (%g, %g, %g) has an undefined energy (Neo-Hookean J <= 0) in its "
+                            "current state (F^n), so the %s solve cannot start; reduce the time step", bad, x[0], x[1], x[2],
+                            integrator_name(m->d.integrator));
+    }
+    residual(s, dv, r);
+    double r0 = sqrt(mdot(r, r, n3, m)), rn = r0;
+    double vscale = 0.0;
+    for (long k = 0; k < m->nact; k++)
+        for (int a = 0; a < 3; a++) vscale += m->mact[3 * k] * m->v0[3 * m->act[k] + a] * m->v0[3 * m->act[k] + a];
+    vscale = sqrt(vscale) + r0;
+    /* the round-off of E: Ψ sums terms of size μ‖F‖², μ, λ that cancel to a much smaller Ψ near rest, so
+       E is known to ε times Σ V (μ + λ)(3 + ‖F‖²) (plus |E|), not to ε|E| */
+    double escale = 0.0;
+    for (long p = 0; p < m->n; p++) {
+        double f2 = 0.0;
+        for (int k = 0; k < 9; k++) f2 += m->Fu[9 * p + k] * m->Fu[9 * p + k];
+        escale += m->vol0[p] * (m->mu[p] + m->lam[p]) * (3.0 + f2);
+    }
+    DrPcgDesc pd;
+    dr_pcg_desc_default(&pd);
+    pd.rel_tol = m->d.cg_tolerance;
+    pd.max_iter = m->d.cg_max_iterations;
+    pd.dot = mdot;
+    pd.dot_ctx = m;
+    DrLinearOp op = {n3, apply_a2, s};
+    bool converged = r0 == 0.0 || r0 <= 64.0 * DBL_EPSILON * vscale;
+    int it = 0;
+    while (!converged && it < m->d.newton_max_iterations) {
+        it++;
+        /* 1. Newton direction: A₂ δ = −r in the mass inner product */
+        for (int k = 0; k < n3; k++) trial[k] = -r[k];
+        memset(del, 0, (size_t)n3 * sizeof(double));
+        /* inexact Newton: CG to η_k = 1e-2·‖r_k‖/‖r_0‖ (relative to ‖r_k‖), at most 1e-2 and at least
+           cg_tolerance. η_k ∝ ‖r_k‖ keeps Newton's quadratic convergence, while the early, far-off
+           iterations do not pay for digits the next linearisation discards. */
+        pd.rel_tol = fmax(m->d.cg_tolerance, 1e-2 * fmin(1.0, rn / r0));
+        DrPcgStats ps;
+        DrError cgerr;
+        DrStatus cs = dr_pcg_solve(&op, NULL, trial, del, &pd, m->cgw, &ps, &cgerr);
+        st->cg_iterations += ps.iterations;
+        if (cs < 0) {
+            /* an indefinite A₂ (a material past its stability, e.g. fixed corotated far inverted): fall back
+               to the steepest-descent direction −r, still velocity-like, and let the line search decide */
+            for (int k = 0; k < n3; k++) del[k] = -r[k];
+        }
+        double slope = s->c * mdot(r, del, n3, m); /* ∇E·δ = c ⟨r, δ⟩_M */
+        if (!(slope < 0.0)) {
+            for (int k = 0; k < n3; k++) del[k] = -r[k];
+            slope = -s->c * rn * rn;
+        }
+        /* 2. backtracking line search on E (Armijo), rejecting undefined energies. Near convergence the
+           decrease Newton predicts (−slope) falls to the round-off of E itself and Armijo's test turns
+           into noise; there the step is judged by the residual instead (it still must decrease). */
+        double t = 1.0, Et = INFINITY, rt = INFINITY;
+        double slack = 64.0 * DBL_EPSILON * (fabs(E) + escale);
+        bool accepted = false;
+        for (int ls = 0; ls < 40 && !accepted; ls++) {
+            for (int k = 0; k < n3; k++) trial[k] = dv[k] + t * del[k];
+            Et = evaluate(s, trial, true, &bad);
+            if (isfinite(Et)) {
+                if (Et <= E + 1e-4 * t * slope + slack) accepted = true;
+                if (!accepted && -slope <= 1e3 * slack) {
+                    residual(s, trial, r);
+                    rt = sqrt(mdot(r, r, n3, m));
+                    accepted = rt < rn;
+                }
+            }
+            if (!accepted) t *= 0.5;
+        }
+        if (!accepted) {
+            /* E is finite at Δv, so a short enough step is finite too: no step of 40 halvings being
+               accepted means no descent is left at round-off. Stop with the current iterate (the
+               convergence test below decides between DR_OK and the warning). */
+            evaluate(s, dv, true, NULL);
+            residual(s, dv, r);
+            break;
+        }
+        double step2 = 0.0;
+        for (int k = 0; k < n3; k++) step2 += m->mact[k] * (t * del[k]) * (t * del[k]);
+        memcpy(dv, trial, (size_t)n3 * sizeof(double));
+        E = Et;
+        residual(s, dv, r);
+        rn = sqrt(mdot(r, r, n3, m));
+        if (rn <= m->d.newton_tolerance * r0) converged = true;
+        /* a step below round-off of the velocities cannot improve the residual any further */
+        if (sqrt(step2) <= 16.0 * DBL_EPSILON * vscale) converged = true;
+    }
+    st->newton_iterations += it;
+    st->newton_residual = r0 > 0.0 ? rn / r0 : 0.0;
+    if (!converged) {
+        dr_error_set(s->err, DR_WARN_NOT_CONVERGED, NULL, 0, 0,
+                     "mpm: %s Newton stopped after %d iterations at relative residual %g (tolerance %g); the step "
+                     "is kept. Raise newton_max_iterations or reduce the time step",
+                     integrator_name(m->d.integrator), it, rn / (r0 > 0 ? r0 : 1), m->d.newton_tolerance);
+        return DR_WARN_NOT_CONVERGED;
+    }
+    return DR_OK;
+}
+
+/* ---- one step -------------------------------------------------------------------------------- */
+
+typedef struct FCtx { DrMpm *m; double dt; bool order2; } FCtx;
+static void fupdate_range(long b, long e, void *vctx)
+{
+    FCtx *c = vctx;
+    DrMpm *m = c->m;
+    for (long p = b; p < e; p++) {
+        double H[9], N[9], H2[9];
+        for (int k = 0; k < 9; k++) H[k] = c->dt * m->G[9 * p + k];
+        m3mul(H, H, H2);
+        for (int k = 0; k < 9; k++) N[k] = ((k % 4 == 0) ? 1.0 : 0.0) + H[k] + (c->order2 ? 0.5 * H2[k] : 0.0);
+        if (m->dim == 2) N[2] = N[5] = N[6] = N[7] = 0.0, N[8] = 1.0;
+        m3mul(N, m->F + 9 * p, m->F + 9 * p);
+    }
+}
+
+static long first_nonfinite_particle(const DrMpm *m)
+{
+    for (long p = 0; p < m->n; p++) {
+        bool ok = true;
+        for (int a = 0; a < 3; a++) ok = ok && isfinite(m->x[3 * p + a]) && isfinite(m->v[3 * p + a]);
+        for (int k = 0; k < 9; k++) ok = ok && isfinite(m->C[9 * p + k]) && isfinite(m->F[9 * p + k]);
+        if (!ok) return p;
+    }
+    return -1;
+}
+
+static void restore_backup(DrMpm *m)
+{
+    memcpy(m->x, m->bx, 3 * (size_t)m->n * sizeof(double));
+    memcpy(m->v, m->bv, 3 * (size_t)m->n * sizeof(double));
+    memcpy(m->C, m->bC, 9 * (size_t)m->n * sizeof(double));
+    memcpy(m->F, m->bF, 9 * (size_t)m->n * sizeof(double));
+}
+
+DrStatus dr_mpm_step(DrMpm *mpm, double dt, DrMpmStats *stats, DrError *err)
+{
+    assert(mpm);
+    DrMpm *m = mpm;
+    DrMpmStats local;
+    DrMpmStats *st = stats ? stats : &local;
+    memset(st, 0, sizeof *st);
+    st->substeps = 1;
+    if (!(dt > 0.0) || !isfinite(dt))
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "mpm: time step %g must be positive and finite", dt);
+    if (m->n == 0) return DR_OK;
+    DrNodeGrid *g = m->grid;
+    const long nn = g->nnodes;
+    double t0 = dr_time_now();
+
+    /* 1. bin and P2G (eqs. 24–26) */
+    DrError berr;
+    if (dr_node_bins_build(g, m->n, m->x, m->bins, &berr) != DR_OK)
+        return dr_error_set(err, DR_ERR_RUNTIME, NULL, 0, 0,
+                            "mpm: a particle left the grid (%s); keep bodies inside the box (walls) or enlarge it",
+                            berr.message);
+    dr_node_p2g(m->bins, m->x, m->v, affine_scheme(m) ? m->C : NULL, m->mass, g);
+    memcpy(m->vn, g->vel, 3 * (size_t)nn * sizeof(double));
+    memcpy(m->v0, g->vel, 3 * (size_t)nn * sizeof(double));
+    m->nact = 0;
+    for (long i = 0; i < nn; i++)
+        if (g->mass[i] > 0.0) {
+            long k = m->nact++;
+            m->act[k] = i;
+            for (int a = 0; a < 3; a++) m->mact[3 * k + a] = g->mass[i];
+        }
+    /* 2. boundary conditions on v (walls: projection Π; colliders: approaching part) */
+    bool projected = false;
+    for (long k = 0; k < m->nact; k++) {
+        long i = m->act[k];
+        double *u = m->v0 + 3 * i;
+        project_fixed(m, i, u);
+        if (m->ncol) collide_node(m, dr_node_position(g, i), u);
+        projected = projected || u[0] != m->vn[3 * i] || u[1] != m->vn[3 * i + 1] || u[2] != m->vn[3 * i + 2];
+    }
+    double t1 = dr_time_now();
+    st->seconds_transfer += t1 - t0;
+
+    /* 3. grid update */
+    Solve s = {m, dt, 0, 0, 0, 0, DR_OK, err};
+    DrStatus status = DR_OK;
+    memset(m->uf, 0, 3 * (size_t)nn * sizeof(double));
+    if (m->d.integrator == DR_MPM_SYMPLECTIC_EULER) {
+        /* forces at F^n (u = 0) and anchors at x^n */
+        memset(m->G, 0, 9 * (size_t)m->n * sizeof(double));
+        Eval ev = {m, 0.0, true, -1};
+        dr_parallel_for(m->n, GRAIN, eval_range, &ev);
+        if (!ev.ok) {
+            const double *x = m->x + 3 * ev.bad;
+            return dr_error_set(err, DR_ERR_RUNTIME, NULL, 0, 0,
+                                "mpm: particle %ld at (%g, %g, %g) has an undefined stress (Neo-Hookean J <= 0); the "
+                                "explicit step was too large for this material: reduce the time step", ev.bad, x[0],
+                                x[1], x[2]);
+        }
+        dr_node_scatter_gradient(m->bins, m->x, m->dM, g, m->ff);
+        if (m->anchors) {
+            memset(m->px, 0, 3 * (size_t)m->n * sizeof(double));
+            AnchorCtx ac = {m, false};
+            dr_parallel_for(m->n, GRAIN, anchor_range, &ac);
+            dr_node_scatter_vector(m->bins, m->x, m->pf, g, m->tf);
+        }
+        memset(m->vnew, 0, 3 * (size_t)nn * sizeof(double));
+        for (long k = 0; k < m->nact; k++) {
+            long i = m->act[k];
+            double mi = m->mact[3 * k];
+            for (int a = 0; a < 3; a++) {
+                double f = m->ff[3 * i + a] + (m->anchors ? m->tf[3 * i + a] : 0.0);
+                m->vnew[3 * i + a] = m->v0[3 * i + a] + dt * (f / mi + dr_v3_get(m->d.gravity, a));
+            }
+            project_fixed(m, i, m->vnew + 3 * i);
+        }
+    } else {
+        bool mid = m->d.integrator == DR_MPM_MIDPOINT;
+        s.alpha = mid ? 0.5 * dt : dt;
+        s.beta = mid ? 0.25 * dt : dt;
+        s.c = s.beta / dt;
+        s.q = m->d.f_update_order == 2 ? (mid ? 1.0 : 0.5) : 0.0;
+        status = newton(&s, st);
+        if (status < 0) return status;
+        memset(m->vnew, 0, 3 * (size_t)nn * sizeof(double));
+        for (long k = 0; k < m->nact; k++) {
+            long i = m->act[k];
+            for (int a = 0; a < 3; a++) m->vnew[3 * i + a] = m->v0[3 * i + a] + m->dv[3 * k + a];
+            project_fixed(m, i, m->vnew + 3 * i);
+        }
+    }
+    if (m->ncol)
+        for (long k = 0; k < m->nact; k++) collide_node(m, dr_node_position(g, m->act[k]), m->vnew + 3 * m->act[k]);
+    double t2 = dr_time_now();
+    st->seconds_solve += t2 - t1;
+
+    /* 4. G2P (eqs. 37–39) and the F update (eq. 40 or 109–111) */
+    memcpy(m->bx, m->x, 3 * (size_t)m->n * sizeof(double));
+    memcpy(m->bv, m->v, 3 * (size_t)m->n * sizeof(double));
+    memcpy(m->bC, m->C, 9 * (size_t)m->n * sizeof(double));
+    memcpy(m->bF, m->F, 9 * (size_t)m->n * sizeof(double));
+    bool flip_fix = m->d.scheme == DR_TRANSFER_FLIP && projected;
+    if (flip_fix) {
+        for (long i = 0; i < 3 * nn; i++) m->tf[i] = m->v0[i] - m->vn[i];
+        dr_node_gather_vector(g, m->tf, m->n, m->x, m->pf);
+    }
+    double lambda = m->d.integrator == DR_MPM_MIDPOINT ? 0.5 : 0.0;
+    dr_node_g2p(g, m->vnew, m->v0, lambda, dt, m->d.scheme, m->d.flip_blend, m->n, m->x, m->v, m->C, m->G);
+    if (flip_fix)
+        for (long i = 0; i < 3 * m->n; i++) m->v[i] += (1.0 - m->d.flip_blend) * m->pf[i];
+    if (m->dim == 2)
+        for (long p = 0; p < m->n; p++) m->v[3 * p + 2] = 0.0;
+    FCtx fc = {m, dt, m->d.f_update_order == 2};
+    dr_parallel_for(m->n, GRAIN, fupdate_range, &fc);
+    long bad = first_nonfinite_particle(m);
+    st->seconds_transfer += dr_time_now() - t2;
+    if (bad >= 0) {
+        restore_backup(m);
+        const double *x = m->x + 3 * bad;
+        return dr_error_set(err, DR_ERR_RUNTIME, NULL, 0, 0,
+                            "mpm: particle %ld (at (%g, %g, %g) before the step) became non-finite; the state is "
+                            "left as it was before the step: reduce the time step", bad, x[0], x[1], x[2]);
+    }
+    return status;
+}
+
+DrStatus dr_mpm_advance(DrMpm *mpm, double duration, int max_substeps, DrMpmStats *stats, DrError *err)
+{
+    assert(mpm);
+    DrMpmStats local, acc;
+    memset(&acc, 0, sizeof acc);
+    if (!(duration >= 0.0) || !isfinite(duration) || max_substeps < 1)
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                            "mpm: advance by %g s with at most %d substeps: need duration >= 0 and >= 1 substep",
+                            duration, max_substeps);
+    double left = duration;
+    DrStatus worst = DR_OK;
+    int done = 0;
+    while (left > 0.0 && done < max_substeps) {
+        /* §4.3 with the speed gravity adds over the step: Δt (S + |g| Δt) <= ν Δx, S the §4.3 speed bound
+           (a body at rest under gravity would otherwise be given the whole duration in one step) */
+        double nudx = mpm->d.cfl * mpm->d.dx, cfl = dr_mpm_cfl_dt(mpm);
+        double S = isfinite(cfl) ? nudx / cfl : 0.0, gn = dr_v3_norm(mpm->d.gravity);
+        double lim = (S > 0.0 || gn > 0.0) ? 2.0 * nudx / (S + sqrt(S * S + 4.0 * gn * nudx)) : INFINITY;
+        if (mpm->d.integrator == DR_MPM_SYMPLECTIC_EULER) lim = fmin(lim, explicit_dt(mpm));
+        double need = isfinite(lim) ? ceil(left / lim - 1e-9) : 1.0;
+        int budget = max_substeps - done;
+        double k = need < 1.0 ? 1.0 : (need > budget ? budget : need);
+        double dt = (k <= 1.0) ? left : left / k;
+        DrStatus s = dr_mpm_step(mpm, dt, &local, err);
+        acc.newton_iterations += local.newton_iterations;
+        acc.cg_iterations += local.cg_iterations;
+        acc.newton_residual = local.newton_residual;
+        acc.seconds_transfer += local.seconds_transfer;
+        acc.seconds_solve += local.seconds_solve;
+        acc.substeps++;
+        done++;
+        if (s < 0) {
+            if (stats) *stats = acc;
+            return s;
+        }
+        if (s > worst) worst = s;
+        left = (k <= 1.0) ? 0.0 : left - dt;
+    }
+    if (stats) *stats = acc;
+    return worst;
+}

@@ -1,0 +1,157 @@
+/* drench mpm: hyperelastic solids on the material point method with the transfers of src/transfer
+ * ([APIC] §3–4, PHYSICS §2).
+ *
+ * One DrMpm owns one collocated node grid (src/transfer DrNodeGrid) and every MPM particle of a shot,
+ * whatever body it belongs to: bodies on one grid collide with each other through the grid as MPM does.
+ * A step: bin particles, P2G (eqs. 24–26), grid update by the chosen integrator (eqs. 27–36; midpoint as
+ * the minimisation of §4.1 by Newton with a backtracking line search, each Newton system solved by CG
+ * on A₂ = I + ζ M⁻¹ ∂f/∂x with the mass inner product of §4.2, so momentum is conserved even when CG
+ * stops early), grid boundary conditions, G2P (eqs. 37–39) and the F update (eq. 40, or eqs. 109–111).
+ *
+ * Units SI. dim = 2 simulates in the xy plane (per-unit-depth masses and volumes: kg/m and m²).
+ * Ownership: the solver owns its particle arrays; pointers from dr_mpm_state stay valid until the next
+ * dr_mpm_add_* call. Thread safety: one solver per thread of control; the solver itself runs its loops
+ * in parallel through dr_parallel_for, bit-identically for any thread count. */
+#ifndef DR_MPM_H
+#define DR_MPM_H
+
+#include "core/core.h"
+#include "transfer/transfer.h"
+
+typedef enum DrMpmModel { DR_MPM_NEOHOOKEAN, DR_MPM_FIXED_COROTATED } DrMpmModel;
+typedef enum DrMpmIntegrator {
+    DR_MPM_SYMPLECTIC_EULER, /* λ = 0, explicit */
+    DR_MPM_MIDPOINT,         /* λ = ½, implicit (§4.1) */
+    DR_MPM_BACKWARD_EULER    /* for comparison; not momentum-conserving in angular momentum */
+} DrMpmIntegrator;
+typedef enum DrMpmWall { DR_MPM_WALL_NONE, DR_MPM_WALL_SLIP, DR_MPM_WALL_NO_SLIP } DrMpmWall;
+
+typedef struct DrMpmMaterial {
+    DrMpmModel model;
+    double density;       /* ρ, kg/m³ (kg/m² in 2-D) */
+    double youngs;        /* E, Pa */
+    double poisson;       /* ν, [0, 0.5) */
+} DrMpmMaterial;
+
+/* Lamé parameters μ = E/(2(1+ν)), λ = Eν/((1+ν)(1−2ν)). */
+void dr_mpm_lame(const DrMpmMaterial *m, double *mu, double *lambda);
+/* Energy density Ψ(F), first Piola–Kirchhoff stress P = ∂Ψ/∂F and its differential dP = ∂P/∂F : dF, all
+   3×3 row-major (2-D: the z row and column of F are those of the identity, and so are P's consistently).
+   Neo-Hookean Ψ = μ/2 (tr FᵀF − d) − μ ln J + λ/2 ln² J; fixed corotated Ψ = μ‖F − R‖² + λ/2 (J − 1)².
+   Neo-Hookean needs J > 0: returns false (and leaves the outputs unspecified) otherwise. */
+bool dr_mpm_energy_density(DrMpmModel model, int dim, double mu, double lambda, const double F[9], double *psi);
+bool dr_mpm_pk1(DrMpmModel model, int dim, double mu, double lambda, const double F[9], double P[9]);
+bool dr_mpm_dpk1(DrMpmModel model, int dim, double mu, double lambda, const double F[9], const double dF[9],
+                 double dP[9]);
+/* In 2-D (the note above): F's z row and column are the identity's, dF's z row and column are ignored,
+   and P, dP are returned with a zero z row and column (the out-of-plane stress of the 3-D formula is of
+   no use to a per-unit-depth model; the xy block is the 2-D model's exactly). Fixed corotated's dP
+   includes dR; where two singular values cancel (σ_i + σ_j = 0, an inverted element) dR is clamped.
+   Polar decomposition F = R S with R a rotation (det R = +1, also for det F < 0: the smallest singular
+   value carries the sign, as fixed corotated needs) and S = RᵀF (S may be NULL). 2-D: F's xy block. */
+void dr_mpm_polar(int dim, const double F[9], double R[9], double S[9]);
+
+typedef struct DrMpmDesc {
+    int dim;                    /* 2 or 3 */
+    DrVec3 lo, hi;              /* simulation box, m; the grid adds the kernel's padding around it */
+    double dx;                  /* Δx, m */
+    DrKernel kernel;            /* default quadratic */
+    DrTransferScheme scheme;    /* default APIC */
+    double flip_blend;          /* PIC fraction of FLIP, [0, 1]; default 0 (pure FLIP) */
+    DrMpmIntegrator integrator; /* default midpoint */
+    int f_update_order;         /* 1: eq. (40); 2: eqs. (109)–(111). Default 1 */
+    DrVec3 gravity;             /* m/s², default 0 */
+    DrMpmWall wall[6];          /* boundary condition on the box faces −x, +x, −y, +y, −z, +z; default slip */
+    double cfl;                 /* ν of §4.3, default 1 */
+    double newton_tolerance;    /* stop when ‖g‖_M⁻¹ / ‖initial g‖ below this; default 1e-10 */
+    int newton_max_iterations;  /* default 50 */
+    double cg_tolerance;        /* relative residual in the mass norm; default 1e-10. The floor of the
+                                   inexact-Newton forcing term: Newton iteration k asks CG for
+                                   max(cg_tolerance, 1e-2·min(1, ‖r_k‖/‖r_0‖)) */
+    int cg_max_iterations;      /* default 1000 */
+} DrMpmDesc;
+void dr_mpm_desc_default(DrMpmDesc *d);
+
+typedef struct DrMpm DrMpm;
+DR_NODISCARD DrStatus dr_mpm_create(const DrMpmDesc *desc, DrMpm **out, DrError *err);
+void dr_mpm_destroy(DrMpm **mpm);
+
+/* Adds n particles of one body: positions x (3n, inside the box), velocities v (3n), volumes vol (n, m³;
+   m² in 2-D), mass = ρ·vol. C starts at the rigid-motion affine matrix C0 (9 values, may be NULL = 0)
+   for APIC/RPIC and 0 otherwise; F = I. Returns the body id (0, 1, …) in *body. DR_ERR_INPUT for a
+   particle outside the box or a non-finite value. */
+DR_NODISCARD DrStatus dr_mpm_add_particles(DrMpm *mpm, long n, const double *x, const double *v, const double *vol,
+                                           const double *C0, const DrMpmMaterial *mat, int *body, DrError *err);
+/* Samples a body on a lattice of `per_cell` particles per axis per cell aligned with the grid (particle
+   spacing Δx/per_cell, first particle at half a spacing from a cell corner), keeping the points where
+   inside(x, ctx) is true; velocity v0 + ω × (x − centre) with the matching APIC C0 = [ω]× for rigid
+   rotation. vol = (Δx/per_cell)^dim. */
+typedef bool (*DrMpmInsideFn)(DrVec3 x, void *ctx);
+DR_NODISCARD DrStatus dr_mpm_sample_body(DrMpm *mpm, DrMpmInsideFn inside, void *ctx, DrVec3 box_lo, DrVec3 box_hi,
+                                         int per_cell, DrVec3 v0, DrVec3 omega, DrVec3 centre,
+                                         const DrMpmMaterial *mat, int *body, long *count, DrError *err);
+
+/* Zero-length springs pulling particles to fixed targets: energy ½ k ‖x_p^{n+1} − target‖² with x_p^{n+1}
+   = Σ w x̃_i, part of Φ (implicit with midpoint and backward Euler, explicit with symplectic Euler).
+   k per particle (N/m; N/m per metre depth in 2-D), 0 = none. Used for pinned particle sets. */
+DR_NODISCARD DrStatus dr_mpm_set_anchors(DrMpm *mpm, const double *k, const double *target, DrError *err);
+
+/* A collider for grid velocities: signed distance (negative inside the solid) and outward normal at x,
+   moving with velocity vel. After the grid update, node velocities inside or on the surface lose their
+   approaching normal component (slip) or all relative velocity (sticky), friction optional. */
+typedef double (*DrMpmSdfFn)(DrVec3 x, DrVec3 *normal, void *ctx);
+typedef struct DrMpmCollider { DrMpmSdfFn sdf; void *ctx; DrVec3 velocity; double friction; bool sticky; } DrMpmCollider;
+DR_NODISCARD DrStatus dr_mpm_add_collider(DrMpm *mpm, const DrMpmCollider *c, DrError *err);
+
+typedef struct DrMpmStats {
+    int newton_iterations, cg_iterations; /* summed over the step(s) */
+    double newton_residual;               /* last relative residual */
+    int substeps;
+    double seconds_transfer, seconds_solve;
+} DrMpmStats;
+/* The largest step §4.3 allows: ν Δx / max_p(‖v_p‖ + (6√d/Δx)·‖B_p‖_F), with B_p = C_p D. */
+double dr_mpm_cfl_dt(const DrMpm *mpm);
+/* One step of dt. Returns DR_OK, DR_WARN_NOT_CONVERGED (positive: Newton stopped at its iteration cap;
+   the step is kept) or a negative status (non-finite state: DR_ERR_RUNTIME, naming the particle). */
+DR_NODISCARD DrStatus dr_mpm_step(DrMpm *mpm, double dt, DrMpmStats *stats, DrError *err);
+/* Details of dr_mpm_step:
+   - Walls: a slip wall fixes the normal velocity component of the nodes on or beyond its plane, no-slip
+     all of it; the projection is applied to the P2G velocity and kept on ṽ inside the implicit solve
+     (residual and CG vectors projected), so walls are exact constraints of the λ-family update.
+     DR_MPM_WALL_NONE leaves a face open: the grid extends dr_kernel_reach + 2 nodes beyond the box, and
+     a particle whose stencil leaves the grid fails the step with DR_ERR_RUNTIME.
+   - Implicit solves start from Δv = 0; if that configuration inverts a Neo-Hookean particle they start
+     from the one of F^n instead (u = 0). Only a state whose F^n itself is outside Ψ's domain fails
+     (DR_ERR_RUNTIME naming the particle); symplectic Euler fails the same way.
+   - On a negative status the particle state (x, v, C, F) is the one before the step.
+   - f_update_order = 2 applies eqs. (109)–(111) both to the F update and, with F^{n+λ} built from the
+     same rule, to the implicit energy, forces and force differentials.
+   - 2-D: z velocities and the z row and column of C are kept at 0.
+   - FLIP: particles also receive the change the wall and collider projection made to the P2G velocity. */
+/* Advances by `duration` in CFL-limited substeps (at most max_substeps; fewer when the CFL allows). The
+   limit is §4.3's with the speed gravity adds within the step (Δt (S + |g| Δt) ≤ ν Δx, S the §4.3 speed),
+   and for symplectic Euler also the explicit stability limits ν Δx/c (c = √((λ+2μ)/ρ)) and 2ν/√(k/m)
+   for anchors. */
+DR_NODISCARD DrStatus dr_mpm_advance(DrMpm *mpm, double duration, int max_substeps, DrMpmStats *stats, DrError *err);
+
+/* Hot per-particle arrays (read-only view; n particles). */
+typedef struct DrMpmState {
+    long n;
+    const double *x, *v, *C, *F;  /* 3n, 3n, 9n, 9n */
+    const double *mass, *vol0;    /* n */
+    const int *body;              /* n */
+} DrMpmState;
+DrMpmState dr_mpm_state(const DrMpm *mpm);
+/* Replaces the dynamic state (x, v, C, F) from a checkpoint; n must match. */
+DR_NODISCARD DrStatus dr_mpm_restore(DrMpm *mpm, long n, const double *x, const double *v, const double *C,
+                                     const double *F, DrError *err);
+
+typedef struct DrMpmTotals {
+    DrVec3 momentum, angular;   /* particles, about the origin, angular including the affine part */
+    double kinetic, elastic;    /* ½Σ m v², Σ V₀ Ψ(F) */
+    double gravity_potential;   /* −Σ m g·x */
+} DrMpmTotals;
+/* Totals over all particles (body < 0) or one body. */
+DrMpmTotals dr_mpm_totals(const DrMpm *mpm, int body);
+
+#endif
