@@ -16,6 +16,10 @@ typedef struct Totals {
     int pressure_max, not_converged, substeps_max, frames;
     long particles_first, particles_last;
     double volume_drift_max;
+    bool mpm;
+    long mpm_particles, mpm_newton, mpm_cg;
+    int mpm_not_converged;
+    double mpm_transfer, mpm_solve;
 } Totals;
 
 /* Exit code of a bake stopped by SIGUSR1, SIGTERM or SIGINT after writing its checkpoint: the caller (a
@@ -93,12 +97,31 @@ static void append_progress(const char *path, const DrFrameStats *fs, double io_
     fprintf(f,
             "{\"frame\":%d,\"time\":%.9g,\"substeps\":%d,\"particles\":%ld,\"pressure_iterations_max\":%d,"
             "\"pressure_iterations_total\":%ld,\"pressure_not_converged\":%d,\"liquid_volume\":%.9g,"
-            "\"volume_drift\":%.6g,\"kinetic_energy\":%.9g,\"seconds\":{\"p2g\":%.6f,\"pressure\":%.6f,"
-            "\"g2p\":%.6f,\"advect\":%.6f,\"other\":%.6f,\"io\":%.6f,\"frame\":%.6f}}\n",
+            "\"volume_drift\":%.6g,\"kinetic_energy\":%.9g,",
             fs->frame, fs->time, fs->substeps, fs->particles, fs->pressure_iterations_max,
             fs->pressure_iterations_total, fs->pressure_not_converged, fs->liquid_volume, fs->volume_drift,
-            fs->kinetic_energy, fs->seconds_p2g, fs->seconds_pressure, fs->seconds_g2p, fs->seconds_advect,
-            fs->seconds_other, io_seconds, fs->seconds + io_seconds);
+            fs->kinetic_energy);
+    /* MPM solids, only in scenes that have them; the names follow render/plots.c's rules (…_iterations,
+       …_energy, momentum.*, seconds.*) so the plots pick them up */
+    if (fs->mpm) {
+        DrVec3 p = fs->mpm_momentum, l = fs->mpm_angular_momentum;
+        fprintf(f,
+                "\"mpm_particles\":%ld,\"mpm_substeps\":%d,\"mpm_newton_iterations\":%ld,\"mpm_cg_iterations\":%ld,"
+                "\"mpm_newton_residual\":%.6g,\"mpm_newton_not_converged\":%d,\"mpm_kinetic_energy\":%.9g,"
+                "\"mpm_elastic_energy\":%.9g,\"mpm_gravity_energy\":%.9g,\"mpm_total_energy\":%.9g,"
+                "\"momentum\":{\"mpm_linear\":{\"x\":%.9g,\"y\":%.9g,\"z\":%.9g},"
+                "\"mpm_angular\":{\"x\":%.9g,\"y\":%.9g,\"z\":%.9g}},",
+                fs->mpm_particles, fs->mpm_substeps, fs->mpm_newton_iterations, fs->mpm_cg_iterations,
+                fs->mpm_newton_residual, fs->mpm_not_converged, fs->mpm_kinetic_energy, fs->mpm_elastic_energy,
+                fs->mpm_gravity_energy, fs->mpm_kinetic_energy + fs->mpm_elastic_energy + fs->mpm_gravity_energy, p.x,
+                p.y, p.z, l.x, l.y, l.z);
+    }
+    fprintf(f,
+            "\"seconds\":{\"p2g\":%.6f,\"pressure\":%.6f,\"g2p\":%.6f,\"advect\":%.6f,\"other\":%.6f,",
+            fs->seconds_p2g, fs->seconds_pressure, fs->seconds_g2p, fs->seconds_advect, fs->seconds_other);
+    if (fs->mpm)
+        fprintf(f, "\"mpm_transfer\":%.6f,\"mpm_solve\":%.6f,", fs->seconds_mpm_transfer, fs->seconds_mpm_solve);
+    fprintf(f, "\"io\":%.6f,\"frame\":%.6f}}\n", io_seconds, fs->seconds + io_seconds);
     fclose(f);
 }
 
@@ -122,6 +145,12 @@ static DrStatus write_report(const char *dir, const char *status, const char *me
        partly); the mesh stage's level set measures the volume itself */
     json_object_set_new(r, "occupied_cell_volume", json_pack("{s:f}", "max_relative_drift", t->volume_drift_max));
     json_object_set_new(r, "substeps_max", json_integer(t->substeps_max));
+    if (t->mpm)
+        json_object_set_new(r, "mpm",
+                            json_pack("{s:I, s:I, s:I, s:i, s:f, s:f}", "particles", (json_int_t)t->mpm_particles,
+                                      "newton_iterations", (json_int_t)t->mpm_newton, "cg_iterations",
+                                      (json_int_t)t->mpm_cg, "newton_not_converged_frames", t->mpm_not_converged,
+                                      "seconds_transfer", t->mpm_transfer, "seconds_solve", t->mpm_solve));
     char *text = json_dumps(r, JSON_INDENT(2) | JSON_REAL_PRECISION(9));
     json_decref(r);
     char path[4096];
@@ -238,9 +267,19 @@ int main(int argc, char **argv)
         if (fs.substeps > tot.substeps_max) tot.substeps_max = fs.substeps;
         tot.not_converged += fs.pressure_not_converged;
         if (fabs(fs.volume_drift) > fabs(tot.volume_drift_max)) tot.volume_drift_max = fs.volume_drift;
-        char detail[256];
-        snprintf(detail, sizeof detail, "frame %d substeps %d iters %d particles %ld cells %+.1f%% %.2fs", fs.frame,
-                 fs.substeps, fs.pressure_iterations_max, fs.particles, 100.0 * fs.volume_drift, fs.seconds + io);
+        tot.mpm |= fs.mpm;
+        tot.mpm_particles = fs.mpm_particles;
+        tot.mpm_newton += fs.mpm_newton_iterations;
+        tot.mpm_cg += fs.mpm_cg_iterations;
+        tot.mpm_not_converged += fs.mpm_not_converged;
+        tot.mpm_transfer += fs.seconds_mpm_transfer;
+        tot.mpm_solve += fs.seconds_mpm_solve;
+        char detail[256], mpm[96] = "";
+        if (fs.mpm)
+            snprintf(mpm, sizeof mpm, " mpm %ld newton %ld cg %ld", fs.mpm_particles, fs.mpm_newton_iterations,
+                     fs.mpm_cg_iterations);
+        snprintf(detail, sizeof detail, "frame %d substeps %d iters %d particles %ld cells %+.1f%%%s %.2fs", fs.frame,
+                 fs.substeps, fs.pressure_iterations_max, fs.particles, 100.0 * fs.volume_drift, mpm, fs.seconds + io);
         dr_progress_step(&prog, detail);
         if (stop_signal && dr_world_frame(world) < last) break;
     }
@@ -279,8 +318,12 @@ int main(int argc, char **argv)
     dr_world_destroy(&world);
     dr_scene_destroy(&scene);
     if (s < 0) return fail(&err);
-    fprintf(stderr, "bake: %d frames in %.1fs (%.2fs/frame, %d threads), %ld particles, pressure iterations max %d%s\n",
+    char mpm[160] = "";
+    if (tot.mpm)
+        snprintf(mpm, sizeof mpm, ", %ld MPM particles (Newton iterations %ld, CG %ld%s)", tot.mpm_particles,
+                 tot.mpm_newton, tot.mpm_cg, tot.mpm_not_converged ? ", some Newton solves hit their cap" : "");
+    fprintf(stderr, "bake: %d frames in %.1fs (%.2fs/frame, %d threads), %ld particles, pressure iterations max %d%s%s\n",
             tot.frames, wall, tot.frames ? wall / tot.frames : 0.0, dr_threads(), tot.particles_last, tot.pressure_max,
-            tot.not_converged ? ", some pressure solves did not converge (see warnings)" : "");
+            tot.not_converged ? ", some pressure solves did not converge (see warnings)" : "", mpm);
     return 0;
 }

@@ -1,5 +1,5 @@
-/* mesh: turns each baked frame's liquid particles into an OpenVDB level set (.vdb) and a surface (.obj), and
- * exports colliders as OBJ, into out/<shot>/mesh/. */
+/* mesh: turns each baked frame's liquid particles and MPM solid particles into an OpenVDB level set (.vdb) and
+ * a surface (.obj) per element, and exports colliders as OBJ, into out/<shot>/mesh/. */
 #include <stdlib.h>
 #include <string.h>
 
@@ -25,7 +25,7 @@ static void apply_pose(const double *rest, int nv, const double R[9], const doub
 
 /* rest[i]: element i's collider mesh in its scene pose (loaded once; empty for other elements). */
 static DrStatus mesh_frame(const DrScene *scene, const DrTriMesh *rest, const char *bake_dir, const char *dir,
-                           int frame, const char *bake_key, double fps, long *triangles, DrError *err)
+                           int frame, int first_frame, const char *bake_key, double fps, long *triangles, DrError *err)
 {
     char path[4096], out[4096];
     dr_stage_frame_path(bake_dir, "frame", frame, "h5", path, sizeof path);
@@ -67,7 +67,8 @@ static DrStatus mesh_frame(const DrScene *scene, const DrTriMesh *rest, const ch
             free(t);
             continue;
         }
-        if (strcmp(e->type, "liquid") != 0) continue;
+        bool liquid = strcmp(e->type, "liquid") == 0;
+        if (!liquid && strcmp(e->type, "mpm_solid") != 0) continue;
         double *x = NULL, *v = NULL;
         int rank;
         uint64_t dx_[4], dv[4];
@@ -76,16 +77,27 @@ static DrStatus mesh_frame(const DrScene *scene, const DrTriMesh *rest, const ch
         snprintf(path, sizeof path, "/%s/velocity", e->name);
         if (s == DR_OK) s = dr_h5_read_f64(h, path, &rank, dv, &v, err);
         const DrComponent *dom = dr_element_component(e, "Domain");
-        const DrComponent *par = dr_element_component(e, "Particles");
         double cell = dr_component_num(dom, "voxel_size");
+        /* Liquid particles sit 1/cbrt(per_cell) of a cell apart. Jittered within their sub-cells, their union
+           of spheres has dips where an outer particle sits deep; a radius of 0.8 spacings (the default) gives
+           back the seeded volume of a box within 2 % (tests/validation/test_world.c). MPM particles start on a
+           lattice of cell/particles_per_axis and move with the material, so the same rule in their spacing
+           gives the body's surface (slightly outside the sampled one, as for the liquid). */
+        double spacing = liquid ? cell / cbrt((double)dr_component_int(dr_element_component(e, "Particles"), "per_cell"))
+                                : cell / dr_component_int(dr_element_component(e, "MpmShape"), "particles_per_axis");
+        double radius = dr_component_num(ms, "radius_scale") * spacing;
         double voxel = dr_component_num(ms, "voxel_size");
-        if (voxel <= 0.0) voxel = 0.5 * cell;
-        /* Particles sit 1/cbrt(per_cell) of a cell apart. Jittered within their sub-cells, their union of
-           spheres has dips where an outer particle sits deep; a radius of 0.8 spacings (the default) gives
-           back the seeded volume of a box within 2 % (tests/validation/test_world.c). */
-        double spacing = cell / cbrt((double)dr_component_int(par, "per_cell"));
-        DrVdbSurfaceDesc sd = {voxel, dr_component_num(ms, "radius_scale") * spacing, dr_component_int(ms, "smoothing"),
-                               dr_component_num(ms, "adaptivity")};
+        /* The level set is the union of the particles' spheres; spheres under 1.5 voxels are rasterised at
+           1.5 and the union eroded back, which needs voxel centres within a radius of the particles.
+           Jittered liquid particles have them at half a cell; MPM particles start on a lattice that puts
+           them half a voxel from every voxel centre, where the eroded union vanishes. So an MPM solid's
+           automatic voxel resolves its spheres (radius / 1.5, at most half a cell). */
+        if (voxel <= 0.0) voxel = liquid ? 0.5 * cell : fmin(0.5 * cell, radius / 1.5);
+        else if (!liquid && frame == first_frame && radius < 1.5 * voxel)
+            dr_log_warn("mesh.voxel_size = %g m is coarse for the particles of MPM solid '%s' (radius %g m, under 1.5 "
+                        "voxels): its surface may break up; use mesh.voxel_size 0 (automatic) or at most %g m",
+                        voxel, e->name, radius, radius / 1.5);
+        DrVdbSurfaceDesc sd = {voxel, radius, dr_component_int(ms, "smoothing"), dr_component_num(ms, "adaptivity")};
         DrVdbSurface *surf = NULL;
         if (s == DR_OK) s = dr_vdb_surface_from_particles(x, v, (long)dx_[0], &sd, &surf, err);
         if (s == DR_OK && dr_component_bool(ms, "write_vdb")) {
@@ -98,7 +110,8 @@ static DrStatus mesh_frame(const DrScene *scene, const DrTriMesh *rest, const ch
             s = dr_vdb_surface_to_mesh(surf, &m, err);
             if (s == DR_OK) {
                 char comment[256];
-                snprintf(comment, sizeof comment, "drench %s liquid '%s' frame %d (m, y up)", DR_VERSION, e->name, frame);
+                snprintf(comment, sizeof comment, "drench %s %s '%s' frame %d (m, y up)", DR_VERSION,
+                         liquid ? "liquid" : "MPM solid", e->name, frame);
                 dr_stage_frame_path(dir, e->name, frame, "obj", out, sizeof out);
                 s = dr_io_write_obj(out, &m, comment, err);
                 *triangles += m.nt;
@@ -121,7 +134,9 @@ static DrStatus check_outputs(const DrScene *scene, const char *dir, int first, 
     char path[4096];
     for (int i = 0; i < dr_scene_element_count(scene); i++) {
         const DrElement *e = dr_scene_element(scene, i);
-        bool liquid = strcmp(e->type, "liquid") == 0, collider = strcmp(e->type, "collider") == 0;
+        /* liquid and MPM solids are surfaced alike, one file per frame */
+        bool liquid = strcmp(e->type, "liquid") == 0 || strcmp(e->type, "mpm_solid") == 0;
+        bool collider = strcmp(e->type, "collider") == 0;
         bool moving = collider && dr_component_present(dr_element_component(e, "Motion"));
         if (collider) {
             snprintf(path, sizeof path, "%s/%s.obj", dir, e->name);
@@ -204,7 +219,7 @@ int main(int argc, char **argv)
     if (s == DR_OK) dr_progress_begin(&prog, "mesh", last - first + 1);
     for (int f = first; s == DR_OK && f <= last; f++) {
         double tf = dr_time_now();
-        s = mesh_frame(scene, rest, bake_dir, dir, f, keys.bake, fps, &triangles, &err);
+        s = mesh_frame(scene, rest, bake_dir, dir, f, first, keys.bake, fps, &triangles, &err);
         char detail[128];
         snprintf(detail, sizeof detail, "frame %d %.2fs", f, dr_time_now() - tf);
         if (s == DR_OK) dr_progress_step(&prog, detail);

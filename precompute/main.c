@@ -25,12 +25,12 @@ int main(int argc, char **argv)
         return fail(&err);
     if (done) return 0;
     DrStatus s = DR_OK;
-    /* Today's element types (liquid, collider) need no precomputed data; the cohesion tables (hair with
+    /* Today's element types (liquid, collider, mpm_solid) need no precomputed data; the cohesion tables (hair with
        Wetting) and BEM matrices (bem_solid) are computed here when those elements exist. */
     int needs = 0;
     if (s == DR_OK) {
         fprintf(stderr, "precompute: nothing to do: no element in '%s' needs precomputed data (%d elements: "
-                        "liquid and collider elements use none)\n",
+                        "liquid, mpm_solid and collider elements use none)\n",
                 dr_scene_path(scene), dr_scene_element_count(scene));
         s = dr_io_mkdirs(dir, &err);
     }

@@ -17,8 +17,8 @@ static int fail(const DrError *err)
     return dr_exit_code(err->status);
 }
 
-/* What the stage draws of one element: a file per frame (liquid surfaces, moving colliders) or one file
- * for the whole shot (static colliders, loaded once). */
+/* What the stage draws of one element: a file per frame (liquid surfaces, MPM solids, moving colliders) or
+ * one file for the whole shot (static colliders, loaded once). */
 typedef struct Drawable {
     const DrElement *element;
     DrRenderMaterial material;
@@ -130,13 +130,13 @@ static DrStatus write_contact_sheet(const char *dir, int first, int last, int ev
     return s;
 }
 
-/* The ground sits under everything the shot can hold: the lowest liquid domain floor or collider. */
+/* The ground sits under everything the shot can hold: the lowest liquid or MPM domain floor or collider. */
 static double ground_height(const DrScene *scene, const Drawable *draw, int ndraw)
 {
     double y = 1e300;
     for (int i = 0; i < dr_scene_element_count(scene); i++) {
         const DrElement *e = dr_scene_element(scene, i);
-        if (strcmp(e->type, "liquid") != 0) continue;
+        if (strcmp(e->type, "liquid") != 0 && strcmp(e->type, "mpm_solid") != 0) continue;
         DrVec3 lo, hi;
         dr_component_box(dr_element_component(e, "Domain"), "box", &lo, &hi);
         if (lo.y < y) y = lo.y;
@@ -212,15 +212,17 @@ int main(int argc, char **argv)
     for (int i = 0; s == DR_OK && i < nel; i++) {
         const DrElement *e = dr_scene_element(scene, i);
         Drawable d = {.element = e};
-        if (!strcmp(e->type, "liquid")) {
+        bool liquid = !strcmp(e->type, "liquid"), mpm = !strcmp(e->type, "mpm_solid");
+        if (liquid || mpm) {
             if (!dr_component_bool(dr_scene_section(scene, "mesh"), "write_obj")) {
                 s = dr_error_set(&err, DR_ERR_INPUT, dr_scene_path(scene), 0, 0,
-                                 "render draws the liquid '%s' from its OBJ surfaces, but mesh.write_obj is false; "
+                                 "render draws the %s '%s' from its OBJ surfaces, but mesh.write_obj is false; "
                                  "set mesh.write_obj to true",
-                                 e->name);
+                                 liquid ? "liquid" : "MPM solid", e->name);
                 break;
             }
-            d.material = DR_MATERIAL_LIQUID;
+            /* MPM solids are opaque deformable bodies: the warm matte solid material, not the liquid's */
+            d.material = liquid ? DR_MATERIAL_LIQUID : DR_MATERIAL_SOLID;
             d.per_frame = true;
         } else if (!strcmp(e->type, "collider")) {
             d.material = DR_MATERIAL_COLLIDER;

@@ -396,13 +396,36 @@ static DrStatus check_motion(Parser *p, const DrComponent *c, const char *where)
     return DR_OK;
 }
 
+static DrStatus check_mpm_shape(Parser *p, const DrComponent *c, const char *where)
+{
+    bool box = value_at(c, "box")->set, centre = value_at(c, "centre")->set, radius = value_at(c, "radius")->set;
+    bool mesh = value_at(c, "mesh")->set;
+    if (centre != radius) {
+        push_key(p, centre ? "centre" : "radius");
+        return fail_key(p, "%s: a sphere needs both \"centre\" and \"radius\"; add %s", where,
+                        centre ? "\"radius\": r (metres)" : "\"centre\": [x, y, z]");
+    }
+    int shapes = (int)box + (int)centre + (int)mesh;
+    if (shapes == 0)
+        return fail_key(p, "%s: no shape; add one of \"box\": [[x0, y0, z0], [x1, y1, z1]], \"centre\": [x, y, z] "
+                           "with \"radius\": r, or \"mesh\": \"path/to/closed.obj\"", where);
+    if (shapes > 1) {
+        const char *given = !box ? "a sphere and a mesh" : !centre ? "a box and a mesh" : !mesh ? "a box and a sphere"
+                                                                                              : "a box, a sphere and a mesh";
+        push_key(p, mesh ? "mesh" : "centre");
+        return fail_key(p, "%s: %s are given, but a body has exactly one shape: keep one of box, centre and radius, "
+                           "or mesh", where, given);
+    }
+    return DR_OK;
+}
+
 typedef DrStatus (*CheckFn)(Parser *p, const DrComponent *c, const char *where);
 static const struct {
     const char *spec;
     CheckFn fn;
 } checks[] = {
     {"shot", check_shot},       {"render.camera", check_camera}, {"Emitter", check_emitter},
-    {"LiquidSource", check_source}, {"Motion", check_motion},
+    {"LiquidSource", check_source}, {"Motion", check_motion}, {"MpmShape", check_mpm_shape},
 };
 
 /* ---- components and sections ------------------------------------------------------------------------- */
@@ -498,6 +521,72 @@ static DrStatus parse_component(Parser *p, const json_t *v, DrComponent *c, cons
 /* ---- elements ------------------------------------------------------------------------------------------ */
 
 static const DrFieldSpec element_name_spec = {.name = "name", .kind = DR_FIELD_NAME, .unit = "", .doc = "element name"};
+
+/* Transfer is shared with mpm_solid, whose collocated grid takes every scheme and kernel; the liquid's MAC
+   transfers are APIC, FLIP or PIC with the quadratic B-spline. */
+static DrStatus check_liquid_transfer(Parser *p, const DrElement *e)
+{
+    const DrComponent *tr = dr_element_component(e, "Transfer");
+    const char *scheme = value_at(tr, "scheme")->str, *kernel = value_at(tr, "kernel")->str;
+    bool bad_scheme = strcmp(scheme, "rpic") == 0, bad_kernel = strcmp(kernel, "quadratic") != 0;
+    if (!bad_scheme && !bad_kernel) return DR_OK;
+    push_key(p, "components");
+    push_key(p, "Transfer");
+    push_key(p, bad_scheme ? "scheme" : "kernel");
+    if (bad_scheme)
+        return fail(p, "%s.Transfer.scheme = 'rpic' is for mpm_solid elements; a liquid takes apic, flip or pic", e->name);
+    return fail(p, "%s.Transfer.kernel = '%s' is for mpm_solid elements; the liquid's MAC grid uses the quadratic "
+                   "B-spline: remove the field or write \"quadratic\"", e->name, kernel);
+}
+
+/* Every mpm_solid of a scene lives on one grid advanced by one step, so what defines the grid and the step
+   must agree between them: the cell size and wall condition (Domain) and every Transfer and Integrator
+   field. The grid box itself is the union of the Domain boxes (world.c). */
+static DrStatus check_mpm_shared(Parser *p)
+{
+    static const struct { const char *component, *field; } shared[] = {
+        {"Domain", "voxel_size"},       {"Domain", "wall_boundary"},
+        {"Transfer", NULL},             {"Integrator", NULL},
+    };
+    const DrScene *s = p->s;
+    const DrElement *first = NULL;
+    for (int i = 0; i < s->element_count; i++) {
+        const DrElement *e = &s->elements[i];
+        if (strcmp(e->type, "mpm_solid") != 0) continue;
+        if (!first) {
+            first = e;
+            continue;
+        }
+        for (size_t k = 0; k < sizeof shared / sizeof shared[0]; k++) {
+            const DrComponent *a = dr_element_component(first, shared[k].component);
+            const DrComponent *b = dr_element_component(e, shared[k].component);
+            for (int f = 0; f < a->spec->field_count; f++) {
+                const DrFieldSpec *fs = &a->spec->fields[f];
+                if (shared[k].field && strcmp(fs->name, shared[k].field) != 0) continue;
+                const DrValue *va = &a->values[f], *vb = &b->values[f];
+                bool same = va->has == vb->has && memcmp(va->num, vb->num, sizeof va->num) == 0 &&
+                            ((!va->str && !vb->str) || (va->str && vb->str && strcmp(va->str, vb->str) == 0));
+                if (same) continue;
+                char xa[64], xb[64];
+                if (fs->kind == DR_FIELD_ENUM) {
+                    snprintf(xa, sizeof xa, "'%s'", va->str);
+                    snprintf(xb, sizeof xb, "'%s'", vb->str);
+                } else {
+                    dr_scene_fmt_num_(va->num[0], xa, sizeof xa);
+                    dr_scene_fmt_num_(vb->num[0], xb, sizeof xb);
+                }
+                push_index(p, e->index);
+                push_key(p, "components");
+                push_key(p, a->spec->name);
+                push_key(p, fs->name);
+                return fail(p, "%s.%s.%s = %s differs from %s.%s.%s = %s; every mpm_solid of a scene shares one grid "
+                               "and one time step, so give both elements the same %s.%s", e->name, a->spec->name,
+                            fs->name, xb, first->name, a->spec->name, fs->name, xa, a->spec->name, fs->name);
+            }
+        }
+    }
+    return DR_OK;
+}
 
 static DrStatus parse_element(Parser *p, const json_t *v, int index)
 {
@@ -605,6 +694,7 @@ static DrStatus parse_element(Parser *p, const json_t *v, int index)
         return fail(p, "%s: missing component '%s' (%s); add \"%s\": {%s} to its components", where, c->spec->name,
                     c->spec->doc, c->spec->name, need);
     }
+    if (strcmp(t->type, "liquid") == 0) DR_TRY(check_liquid_transfer(p, e));
     return DR_OK;
 }
 
@@ -623,7 +713,7 @@ static DrStatus parse_elements(Parser *p, const json_t *v)
         pop(p);
         s->element_count = (int)i + 1;
     }
-    return DR_OK;
+    return check_mpm_shared(p);
 }
 
 /* Every distinct resolved PATH value, sections first, then elements in order. */

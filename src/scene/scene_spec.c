@@ -9,6 +9,7 @@
 #define RANGE(a, b) .ranged = true, .lo = (a), .hi = (b)
 #define RANGE_LO_OPEN(a, b) RANGE(a, b), .lo_open = true
 #define RANGE_OPEN(a, b) RANGE(a, b), .lo_open = true, .hi_open = true
+#define RANGE_HI_OPEN(a, b) RANGE(a, b), .hi_open = true
 #define COUNT(arr) ((int)(sizeof(arr) / sizeof((arr)[0])))
 #define INT_MAX_31 2147483647.0
 /* Generous bounds for positions: a typo like 1e9 is caught, any real set fits. */
@@ -44,7 +45,8 @@ static const DrFieldSpec solver_fields[] = {
 
 static const DrFieldSpec mesh_fields[] = {
     {.name = "voxel_size", .kind = DR_FIELD_NUMBER, .unit = "m", .def = {0}, RANGE(0, 10),
-     .doc = "voxel size of the liquid surface; 0 = automatic (half the liquid grid spacing)"},
+     .doc = "voxel size of liquid and MPM solid surfaces; 0 = automatic (liquid: half its grid spacing; MPM solid: "
+            "its particle radius / 1.5, at most half its grid spacing)"},
     {.name = "radius_scale", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {0.8}, RANGE(0.1, 10),
      .doc = "particle radius in particle spacings; 0.8 reproduces the seeded volume of jittered particles "
             "within 2 %"},
@@ -64,7 +66,7 @@ static const DrFieldSpec render_fields[] = {
     {.name = "samples", .kind = DR_FIELD_INT, .unit = "", .def = {3}, RANGE(1, 8),
      .doc = "antialiasing: supersamples per pixel side (3 = 9 per pixel)"},
     {.name = "ground", .kind = DR_FIELD_BOOL, .unit = "", .def = {1},
-     .doc = "draw a ground plane under the lowest liquid domain floor or collider"},
+     .doc = "draw a ground plane under the lowest liquid or MPM domain floor or collider"},
 };
 
 static const DrFieldSpec camera_fields[] = {
@@ -81,7 +83,7 @@ static const DrFieldSpec camera_fields[] = {
 const DrComponentSpec dr_scene_sections_[] = {
     {"shot", "name, frame range, frame rate, gravity and seed of the shot", shot_fields, COUNT(shot_fields)},
     {"solver", "time stepping and linear solver controls", solver_fields, COUNT(solver_fields)},
-    {"mesh", "liquid surface extraction (the mesh stage)", mesh_fields, COUNT(mesh_fields)},
+    {"mesh", "liquid and MPM solid surface extraction (the mesh stage)", mesh_fields, COUNT(mesh_fields)},
     {"render", "images and contact sheet (the render stage); holds \"camera\"", render_fields,
      COUNT(render_fields)},
     {"render.camera", "the render camera (a pinhole looking from eye to target)", camera_fields,
@@ -132,8 +134,12 @@ static const DrFieldSpec liquid_material_fields[] = {
 };
 
 static const DrFieldSpec transfer_fields[] = {
-    {.name = "scheme", .kind = DR_FIELD_ENUM, .unit = "", .def_str = "apic", .choices = "apic|flip|pic",
-     .doc = "particle-grid transfer"},
+    {.name = "scheme", .kind = DR_FIELD_ENUM, .unit = "", .def_str = "apic", .choices = "apic|flip|pic|rpic",
+     .doc = "particle-grid transfer; rpic (rotational: only the skew part of the affine matrix) is for "
+            "mpm_solid only"},
+    {.name = "kernel", .kind = DR_FIELD_ENUM, .unit = "", .def_str = "quadratic", .choices = "linear|quadratic|cubic",
+     .doc = "B-spline interpolation kernel of the transfers; linear and cubic are for mpm_solid only (the "
+            "liquid's MAC grid is quadratic)"},
     {.name = "flip_blend", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {0.97}, RANGE(0, 1),
      .doc = "fraction of FLIP in the FLIP/PIC blend (scheme flip only)"},
 };
@@ -156,6 +162,57 @@ static const DrFieldSpec particles_fields[] = {
      .doc = "random offset of seeded particles, as a fraction of the sub-cell size"},
     {.name = "seed", .kind = DR_FIELD_INT, .unit = "", .def = {1}, RANGE(0, INT_MAX_31),
      .doc = "seed of the particle jitter (combined with shot.seed)"},
+};
+
+static const DrFieldSpec mpm_material_fields[] = {
+    {.name = "model", .kind = DR_FIELD_ENUM, .unit = "", .def_str = "fixed_corotated",
+     .choices = "neo_hookean|fixed_corotated",
+     .doc = "hyperelastic energy: fixed_corotated stays defined when an element is inverted; neo_hookean "
+            "stiffens under compression and fails on inversion"},
+    {.name = "density", .kind = DR_FIELD_NUMBER, .unit = "kg/m^3", .def = {1000}, RANGE(1, 1e5),
+     .doc = "mass density", .hint = "use a positive density such as 1000 for a jelly"},
+    {.name = "youngs_modulus", .kind = DR_FIELD_NUMBER, .unit = "Pa", .def = {1e5}, RANGE_LO_OPEN(0, 1e12),
+     .doc = "Young's modulus E (stiffness)", .hint = "use a positive stiffness such as 1e5 for a jelly, 1e7 for rubber"},
+    {.name = "poisson", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {0.3}, RANGE_HI_OPEN(0, 0.5),
+     .doc = "Poisson's ratio nu (0.5 would be incompressible)",
+     .hint = "use a ratio below 0.5 such as 0.3 (0.45 for a nearly incompressible jelly)"},
+};
+
+static const DrFieldSpec mpm_shape_fields[] = {
+    {.name = "box", .kind = DR_FIELD_BOX, .unit = "m", .no_default = true, POS_RANGE,
+     .doc = "a box filled with particles"},
+    {.name = "centre", .kind = DR_FIELD_VEC3, .unit = "m", .no_default = true, POS_RANGE,
+     .doc = "centre of a sphere filled with particles (with radius)"},
+    {.name = "radius", .kind = DR_FIELD_NUMBER, .unit = "m", .no_default = true, RANGE_LO_OPEN(0, 1e6),
+     .doc = "radius of that sphere (with centre)", .hint = "use a positive radius"},
+    {.name = "mesh", .kind = DR_FIELD_PATH, .unit = "",
+     .doc = "closed triangle mesh whose volume is filled with particles"},
+    {.name = "particles_per_axis", .kind = DR_FIELD_INT, .unit = "", .def = {2}, RANGE(1, 8),
+     .doc = "particles per grid cell along each axis, on a lattice aligned with the grid (2 = 8 per cell)"},
+};
+
+static const DrFieldSpec initial_velocity_fields[] = {
+    {.name = "velocity", .kind = DR_FIELD_VEC3, .unit = "m/s", .def = {0, 0, 0}, RANGE(-1e4, 1e4),
+     .doc = "initial velocity of the body"},
+    {.name = "angular_velocity", .kind = DR_FIELD_VEC3, .unit = "deg/s", .def = {0, 0, 0}, RANGE(-1e6, 1e6),
+     .doc = "initial spin about the body's centre (box or sphere centre, a mesh's volume centroid), about x, y, z"},
+};
+
+static const DrFieldSpec integrator_fields[] = {
+    {.name = "type", .kind = DR_FIELD_ENUM, .unit = "", .def_str = "midpoint",
+     .choices = "midpoint|symplectic_euler|backward_euler",
+     .doc = "time integrator: midpoint (implicit, conserves momentum and angular momentum), symplectic_euler "
+            "(explicit: needs small steps on stiff materials), backward_euler (implicit, damped)"},
+    {.name = "newton_tolerance", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {1e-5}, RANGE(1e-14, 0.1),
+     .doc = "implicit integrators: relative residual at which the Newton iteration stops"},
+    {.name = "newton_max_iterations", .kind = DR_FIELD_INT, .unit = "", .def = {50}, RANGE(1, 10000),
+     .doc = "iteration limit of Newton (reaching it is a warning; the step is kept)"},
+    {.name = "cg_tolerance", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {1e-5}, RANGE(1e-14, 0.1),
+     .doc = "relative residual at which each Newton step's conjugate-gradient solve stops"},
+    {.name = "cg_max_iterations", .kind = DR_FIELD_INT, .unit = "", .def = {1000}, RANGE(1, 1000000),
+     .doc = "iteration limit of each conjugate-gradient solve"},
+    {.name = "f_update_order", .kind = DR_FIELD_INT, .unit = "", .def = {1}, RANGE(1, 2),
+     .doc = "deformation gradient update: 1 first order (F <- (I + dt grad v) F), 2 second order"},
 };
 
 static const DrFieldSpec mesh_file_fields[] = {
@@ -194,14 +251,20 @@ const DrComponentSpec dr_scene_components_[] = {
     {"Emitter", "a box that keeps emitting liquid between start and end", emitter_fields, COUNT(emitter_fields)},
     {"KillBox", "a box that removes liquid", kill_box_fields, COUNT(kill_box_fields)},
     {"LiquidMaterial", "material of the liquid", liquid_material_fields, COUNT(liquid_material_fields)},
-    {"Transfer", "particle-grid transfer scheme", transfer_fields, COUNT(transfer_fields)},
+    {"Transfer", "particle-grid transfer scheme and kernel", transfer_fields, COUNT(transfer_fields)},
     {"Particles", "particle seeding", particles_fields, COUNT(particles_fields)},
     {"Pressure", "pressure projection", pressure_fields, COUNT(pressure_fields)},
     {"Mesh", "the element's surface mesh", mesh_file_fields, COUNT(mesh_file_fields)},
     {"Collider", "how liquid and solids interact with the surface", collider_fields, COUNT(collider_fields)},
-    {"Transform", "rest placement of the mesh: scale, then rotate, then translate", transform_fields,
-     COUNT(transform_fields)},
+    {"Transform", "rest placement of the mesh (of an mpm_solid: of its MpmShape): scale, then rotate, then translate",
+     transform_fields, COUNT(transform_fields)},
     {"Motion", "keyframed rigid motion", motion_fields, COUNT(motion_fields)},
+    {"MpmMaterial", "hyperelastic material of an MPM solid", mpm_material_fields, COUNT(mpm_material_fields)},
+    {"MpmShape", "the body's shape at t=0, filled with particles: exactly one of box, centre and radius (a sphere), "
+                 "or mesh", mpm_shape_fields, COUNT(mpm_shape_fields)},
+    {"InitialVelocity", "rigid motion of the body at t=0", initial_velocity_fields, COUNT(initial_velocity_fields)},
+    {"Integrator", "MPM time integration and its Newton and conjugate-gradient solves", integrator_fields,
+     COUNT(integrator_fields)},
 };
 const int dr_scene_component_count_ = COUNT(dr_scene_components_);
 
@@ -212,12 +275,19 @@ static const char *const liquid_components[] = {"Domain",         "LiquidSource"
 static const char *const liquid_required[] = {"Domain"};
 static const char *const collider_components[] = {"Mesh", "Collider", "Transform", "Motion"};
 static const char *const collider_required[] = {"Mesh"};
+static const char *const mpm_solid_components[] = {"Domain",     "MpmShape", "MpmMaterial", "InitialVelocity",
+                                                   "Transform", "Transfer", "Integrator"};
+static const char *const mpm_solid_required[] = {"Domain", "MpmShape"};
 
 const DrElementSpec dr_scene_types_[] = {
     {"liquid", "a body of incompressible liquid (APIC/FLIP/PIC particles on a MAC grid inside its Domain)",
      liquid_components, COUNT(liquid_components), liquid_required, COUNT(liquid_required), false},
     {"collider", "a rigid obstacle given by a closed triangle mesh, optionally moving", collider_components,
      COUNT(collider_components), collider_required, COUNT(collider_required), false},
+    {"mpm_solid",
+     "an elastic solid on the material point method; every mpm_solid of a scene shares one grid (the bounding box "
+     "of their Domain boxes, one voxel_size), so the bodies collide with each other",
+     mpm_solid_components, COUNT(mpm_solid_components), mpm_solid_required, COUNT(mpm_solid_required), false},
 };
 const int dr_scene_type_count_ = COUNT(dr_scene_types_);
 

@@ -1,48 +1,12 @@
 /* DrWorld: scene → solvers, one frame at a time; frame caches and checkpoints. */
-#include "world/world.h"
+#include "world_internal.h"
 
 #include <stdlib.h>
 #include <string.h>
 
-#include "grid/grid.h"
 #include "io/io.h"
 #include "liquid/liquid.h"
 #include "vdb/vdb.h"
-
-/* snprintf into an array that must hold the result: element names are at most 128 characters, so the
- * HDF5 paths built here always fit; a truncation would be a programming error. */
-#define PATHF(buf, ...)                                                                                     \
-    do {                                                                                                    \
-        int n_ = snprintf(buf, sizeof buf, __VA_ARGS__);                                                    \
-        assert(n_ >= 0 && (size_t)n_ < sizeof buf);                                                         \
-    } while (0)
-
-typedef struct WorldCollider {
-    const DrElement *element;
-    DrCollider *collider;    /* NULL when no solver needs an SDF (a scene without liquid) */
-} WorldCollider;
-
-typedef struct WorldLiquid {
-    const DrElement *element;
-    DrLiquid *liquid;
-    DrCollider **shapes;     /* LiquidSource mesh volumes, needed at creation only */
-    int nshapes;
-    double volume0;          /* first frame's liquid-cell volume, for the drift diagnostic */
-    DrLiquidStats last;
-} WorldLiquid;
-
-struct DrWorld {
-    const DrScene *scene;
-    int first_frame, last_frame, frame;
-    double fps;
-    DrVec3 gravity;
-    WorldCollider *colliders;
-    int ncolliders;
-    const DrCollider **collider_ptrs; /* the live colliders, in element order, as the solvers take them */
-    int nlive;
-    WorldLiquid *liquids;
-    int nliquids;
-};
 
 int dr_world_first_frame(const DrWorld *w) { return w->first_frame; }
 int dr_world_last_frame(const DrWorld *w) { return w->last_frame; }
@@ -51,11 +15,11 @@ int dr_world_liquid_count(const DrWorld *w) { return w->nliquids; }
 const DrLiquid *dr_world_liquid(const DrWorld *w, int i) { return w->liquids[i].liquid; }
 const DrElement *dr_world_liquid_element(const DrWorld *w, int i) { return w->liquids[i].element; }
 int dr_world_live_collider_count(const DrWorld *w) { return w->nlive; }
+long dr_world_mpm_particle_count(const DrWorld *w) { return w->mpm ? dr_mpm_state(w->mpm->mpm).n : 0; }
 
 double dr_world_frame_time(const DrWorld *w, int frame) { return (double)(frame - w->first_frame + 1) / w->fps; }
 
-/* Prefixes an asset error with the element and field it came from, keeping the file name. */
-static DrStatus asset_context(DrStatus s, const char *element, const char *field, DrError *err)
+DrStatus dr_world_asset_context_(DrStatus s, const char *element, const char *field, DrError *err)
 {
     if (s >= 0 || !err) return s;
     char msg[sizeof err->message];
@@ -67,8 +31,14 @@ static DrStatus asset_context(DrStatus s, const char *element, const char *field
 
 DrStatus dr_world_load_collider_mesh(const DrElement *e, DrTriMesh *mesh, DrError *err)
 {
-    const char *path = dr_component_str(dr_element_component(e, "Mesh"), "file");
-    DR_TRY(asset_context(dr_io_load_mesh(path, mesh, err), e->name, "Mesh.file", err));
+    return dr_world_load_posed_mesh_(e, dr_component_str(dr_element_component(e, "Mesh"), "file"), "Mesh.file", mesh,
+                                     err);
+}
+
+DrStatus dr_world_load_posed_mesh_(const DrElement *e, const char *path, const char *field, DrTriMesh *mesh,
+                                   DrError *err)
+{
+    DR_TRY(dr_world_asset_context_(dr_io_load_mesh(path, mesh, err), e->name, field, err));
     free(mesh->n); /* file normals would not follow the transform; consumers recompute what they need */
     mesh->n = NULL;
     const DrComponent *tr = dr_element_component(e, "Transform");
@@ -87,9 +57,8 @@ DrStatus dr_world_load_collider_mesh(const DrElement *e, DrTriMesh *mesh, DrErro
     return DR_OK;
 }
 
-/* SDF of a mesh as a collider (or a source shape) with optional motion keys. */
-static DrStatus make_collider(const DrTriMesh *mesh, double dx, double friction, bool no_slip, double thickness,
-                              int nkeys, const double *keys, DrCollider **out, DrError *err)
+DrStatus dr_world_make_collider_(const DrTriMesh *mesh, double dx, double friction, bool no_slip, double thickness,
+                                 int nkeys, const double *keys, DrCollider **out, DrError *err)
 {
     DrDenseSdf sdf = {0};
     DR_TRY(dr_vdb_mesh_to_sdf(mesh, dx, 4, &sdf, err));
@@ -110,12 +79,13 @@ static DrStatus make_collider(const DrTriMesh *mesh, double dx, double friction,
     return s;
 }
 
-static double smallest_liquid_dx(const DrScene *scene)
+/* The smallest cell of any grid that samples colliders (liquid and MPM), 0 when there is none. */
+static double smallest_grid_dx(const DrScene *scene)
 {
     double dx = 0.0;
     for (int i = 0; i < dr_scene_element_count(scene); i++) {
         const DrElement *e = dr_scene_element(scene, i);
-        if (strcmp(e->type, "liquid") != 0) continue;
+        if (strcmp(e->type, "liquid") != 0 && strcmp(e->type, "mpm_solid") != 0) continue;
         double d = dr_component_num(dr_element_component(e, "Domain"), "voxel_size");
         if (dx == 0.0 || d < dx) dx = d;
     }
@@ -129,7 +99,7 @@ static DrStatus build_colliders(DrWorld *w, DrError *err)
     DR_TRY(dr_calloc((size_t)n + 1, sizeof(WorldCollider), &w->colliders, err));
     DR_TRY(dr_calloc((size_t)n + 1, sizeof(DrCollider *), &w->collider_ptrs, err));
     /* The SDF resolves the smallest grid cell twice so face fractions see the collider's shape. */
-    double dx = smallest_liquid_dx(scene) * 0.5;
+    double dx = smallest_grid_dx(scene) * 0.5;
     for (int i = 0; i < dr_scene_element_count(scene); i++) {
         const DrElement *e = dr_scene_element(scene, i);
         if (strcmp(e->type, "collider") != 0) continue;
@@ -154,12 +124,12 @@ static DrStatus build_colliders(DrWorld *w, DrError *err)
             for (int j = 4; j < 7; j++) keys[7 * k + j] = rows[7 * k + j] * DR_PI / 180.0;
         }
         if (s == DR_OK)
-            s = make_collider(&mesh, dx, dr_component_num(c, "friction"),
-                              strcmp(dr_component_str(c, "boundary"), "no_slip") == 0, dr_component_num(c, "thickness"),
-                              nrows, keys, &wc->collider, err);
+            s = dr_world_make_collider_(&mesh, dx, dr_component_num(c, "friction"),
+                                        strcmp(dr_component_str(c, "boundary"), "no_slip") == 0,
+                                        dr_component_num(c, "thickness"), nrows, keys, &wc->collider, err);
         free(keys);
         dr_trimesh_free(&mesh);
-        DR_TRY(asset_context(s, e->name, "Mesh.file", err));
+        DR_TRY(dr_world_asset_context_(s, e->name, "Mesh.file", err));
         w->collider_ptrs[w->nlive++] = wc->collider;
     }
     return DR_OK;
@@ -218,11 +188,12 @@ static DrStatus build_liquid(DrWorld *w, const DrElement *e, WorldLiquid *wl, Dr
         }
         if (dr_component_is_set(src, "mesh")) {
             DrTriMesh mesh = {0};
-            DR_TRY(asset_context(dr_io_load_mesh(dr_component_str(src, "mesh"), &mesh, err), e->name, "LiquidSource.mesh", err));
+            DR_TRY(dr_world_asset_context_(dr_io_load_mesh(dr_component_str(src, "mesh"), &mesh, err), e->name,
+                                           "LiquidSource.mesh", err));
             DR_TRY(dr_calloc(1, sizeof(DrCollider *), &wl->shapes, err));
-            DrStatus s = make_collider(&mesh, d.dx * 0.5, 0, false, 0, 0, NULL, &wl->shapes[0], err);
+            DrStatus s = dr_world_make_collider_(&mesh, d.dx * 0.5, 0, false, 0, 0, NULL, &wl->shapes[0], err);
             dr_trimesh_free(&mesh);
-            DR_TRY(asset_context(s, e->name, "LiquidSource.mesh", err));
+            DR_TRY(dr_world_asset_context_(s, e->name, "LiquidSource.mesh", err));
             wl->nshapes = 1;
             d.nsource_shapes = 1;
             d.source_shapes = (const DrCollider *const *)wl->shapes;
@@ -267,10 +238,17 @@ DrStatus dr_world_create(const DrScene *scene, DrWorld **out, DrError *err)
         const DrElement *e = dr_scene_element(scene, i);
         if (strcmp(e->type, "liquid") == 0) s = build_liquid(w, e, &w->liquids[w->nliquids++], err);
     }
+    if (s == DR_OK) s = dr_world_mpm_create_(w, err);
     if (s < 0) {
         dr_world_destroy(&w);
         return s;
     }
+    long mpm_particles = dr_world_mpm_particle_count(w);
+    if (w->mpm)
+        dr_log_info("world: %d liquid grid(s), one MPM grid with %ld particles in %d bod%s, %d collider SDF(s)",
+                    w->nliquids, mpm_particles, w->mpm->nbodies, w->mpm->nbodies == 1 ? "y" : "ies", w->nlive);
+    else
+        dr_log_info("world: %d liquid grid(s), no MPM solver, %d collider SDF(s)", w->nliquids, w->nlive);
     *out = w;
     return DR_OK;
 }
@@ -284,6 +262,7 @@ void dr_world_destroy(DrWorld **world)
         for (int k = 0; k < w->liquids[i].nshapes; k++) dr_collider_destroy(&w->liquids[i].shapes[k]);
         free(w->liquids[i].shapes);
     }
+    dr_world_mpm_destroy_(&w->mpm);
     for (int i = 0; i < w->ncolliders; i++) dr_collider_destroy(&w->colliders[i].collider);
     free(w->liquids);
     free(w->colliders);
@@ -342,6 +321,7 @@ DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrError *err)
     }
     stats->liquid_volume = volume;
     stats->volume_drift = volume0 > 0 ? volume / volume0 - 1.0 : 0.0;
+    DR_TRY(dr_world_mpm_step_(w, t0, t1, stats, err));
     w->frame = frame;
     stats->seconds = dr_time_now() - t_start;
     return DR_OK;
@@ -430,6 +410,7 @@ static DrStatus write_frame_body(const DrWorld *w, const DrFrameStats *stats, Dr
         PATHF(path, "/%s", wc->element->name);
         DR_TRY(dr_h5_attr_str(h, path, "type", "collider", err));
     }
+    DR_TRY(dr_world_mpm_write_(w, h, true, err));
     const char *g = "/diagnostics";
     DR_TRY(write_scalar(h, g, "substeps", stats->substeps, "1", err));
     DR_TRY(write_scalar(h, g, "liquid_volume_cells", stats->liquid_volume, "m^3", err));
@@ -471,6 +452,7 @@ DrStatus dr_world_write_checkpoint(const DrWorld *w, const char *path, const cha
         uint64_t d1[1] = {1};
         if (s == DR_OK) s = dr_h5_write_f64(h, p, 1, d1, &wl->volume0, "m^3", false, err);
     }
+    if (s == DR_OK) s = dr_world_mpm_write_(w, h, false, err);
     if (s < 0) {
         dr_h5_close(&h);
         return s;
@@ -526,6 +508,7 @@ DrStatus dr_world_read_checkpoint(DrWorld *w, const char *path, const char *bake
         s = dr_error_set(err, DR_ERR_INPUT, path, 0, 0, "checkpoint frame %lld is outside the shot's frames %d-%d",
                          (long long)frame, w->first_frame, w->last_frame);
     for (int i = 0; s == DR_OK && i < w->nliquids; i++) s = read_liquid(h, path, &w->liquids[i], err);
+    if (s == DR_OK) s = dr_world_mpm_read_(w, h, path, err);
     if (s == DR_OK) w->frame = (int)frame;
     free(key);
     dr_h5_close(&h);
@@ -547,5 +530,6 @@ DrHash dr_world_state_hash(const DrWorld *w)
         dr_liquid_rng_state(w->liquids[i].liquid, rng);
         dr_hasher_update(&h, rng, sizeof rng);
     }
+    dr_world_mpm_hash_(w, &h);
     return dr_hasher_final(&h);
 }

@@ -24,14 +24,26 @@ typedef struct DrFrameStats {
     int pressure_not_converged;
     double liquid_volume;    /* m³: liquid cells × dx³ (a cheap frame-to-frame estimate) */
     double volume_drift;     /* relative to the first frame's estimate */
-    double kinetic_energy;   /* J */
+    double kinetic_energy;   /* J, every solver (liquid and MPM) */
     double seconds_p2g, seconds_pressure, seconds_g2p, seconds_advect, seconds_other, seconds_io;
+    /* MPM solids (all zero in a scene without mpm_solid elements) */
+    bool mpm;                         /* the scene has MPM solids */
+    long mpm_particles;
+    int mpm_substeps;
+    long mpm_newton_iterations, mpm_cg_iterations; /* summed over the frame's substeps */
+    double mpm_newton_residual;       /* last relative Newton residual */
+    int mpm_not_converged;            /* 1 when a Newton iteration of the frame stopped at its cap (a warning) */
+    double mpm_kinetic_energy, mpm_elastic_energy, mpm_gravity_energy; /* J: ½Σmv², ΣV₀Ψ(F), −Σm g·x */
+    DrVec3 mpm_momentum, mpm_angular_momentum; /* kg·m/s, kg·m²/s about the origin (with the affine part) */
+    double seconds_mpm_transfer, seconds_mpm_solve;
     double seconds;          /* wall time of the frame */
 } DrFrameStats;
 
 /* Loads every asset the scene references (meshes through assimp, collider SDFs through OpenVDB) and builds
- * the solvers. All bad input (broken asset, empty mesh, NaN) is reported here, before anything is written.
- * A scene without liquid creates no grid. */
+ * the solvers. All bad input (broken asset, empty or open mesh, NaN, a body outside its domain) is reported
+ * here, before anything is written. A scene without liquid creates no liquid grid; a scene without
+ * mpm_solid elements creates no MPM solver. Every mpm_solid shares one DrMpm: its grid spans the bounding
+ * box of their Domain boxes at their (equal) voxel_size; the scene colliders act on its grid velocities. */
 DR_NODISCARD DrStatus dr_world_create(const DrScene *scene, DrWorld **out, DrError *err);
 void dr_world_destroy(DrWorld **world);
 
@@ -40,6 +52,7 @@ int dr_world_last_frame(const DrWorld *w);
 int dr_world_frame(const DrWorld *w);      /* last completed frame; first_frame − 1 before any step */
 double dr_world_frame_time(const DrWorld *w, int frame);
 int dr_world_liquid_count(const DrWorld *w);
+long dr_world_mpm_particle_count(const DrWorld *w); /* 0 when the scene has no MPM solver */
 /* The i-th liquid solver (element order) and its element, for diagnostics and tests. */
 typedef struct DrLiquid DrLiquid;
 const DrLiquid *dr_world_liquid(const DrWorld *w, int i);
@@ -55,11 +68,15 @@ int dr_world_live_collider_count(const DrWorld *w);
 DR_NODISCARD DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrError *err);
 
 /* Frame cache (DESIGN §4), written atomically: root attributes drench_version, frame, time, substeps,
- * scene_key; one group per element; /diagnostics. */
+ * scene_key; one group per element; /diagnostics. An mpm_solid element's group holds its particles:
+ * position (N×3, m), velocity (N×3, m/s), affine (N×3×3, 1/s: the APIC matrix C, zero for PIC/FLIP),
+ * deformation_gradient (N×3×3, 1), volume (N, m³: rest volume V₀; the current one is det(F)·V₀), with
+ * attributes type "mpm_solid" and particle_spacing (m); /diagnostics/<element> its totals and
+ * /diagnostics/mpm_* those of the solver. */
 DR_NODISCARD DrStatus dr_world_write_frame(const DrWorld *w, const DrFrameStats *stats, const char *path,
                                            const char *bake_key, DrError *err);
 /* Checkpoint: everything a bit-identical continuation needs (particles in their current order, rng states,
- * frame). Read refuses a checkpoint whose bake key differs (DR_ERR_INPUT, with what to do). */
+ * MPM positions, velocities, affine matrices and deformation gradients, frame). Read refuses a checkpoint whose bake key differs (DR_ERR_INPUT, with what to do). */
 DR_NODISCARD DrStatus dr_world_write_checkpoint(const DrWorld *w, const char *path, const char *bake_key,
                                                 DrError *err);
 DR_NODISCARD DrStatus dr_world_read_checkpoint(DrWorld *w, const char *path, const char *bake_key,

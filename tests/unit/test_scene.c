@@ -430,7 +430,7 @@ static void test_bad_input_messages(void **state)
         {",\"Emitter\":{\"box\":[[0,0,0],[1,1,1]],\"start\":2,\"end\":1}", "", NULL,
          {"water.Emitter: start = 2 s is after end = 1 s"}},
         {",\"Transfer\":{\"scheme\":\"apci\"}", "", NULL,
-         {"water.Transfer.scheme: 'apci' is not a valid choice; did you mean 'apic'? Choose one of apic, flip, pic"}},
+         {"water.Transfer.scheme: 'apci' is not a valid choice; did you mean 'apic'? Choose one of apic, flip, pic, rpic"}},
         {",\"Particles\":{\"per_cell\":2.5}", "", NULL, {"water.Particles.per_cell: expected an integer, got 2.5"}},
         {",\"Particles\":{\"per_cell\":65}", "", NULL, {"water.Particles.per_cell = 65 is out of range [1, 64]; "}},
         {",\"Mesh\":{\"file\":\"x.obj\"}", "", NULL,
@@ -459,7 +459,7 @@ static void test_bad_input_messages(void **state)
         {NULL, NULL, motion, {"cup.Motion.keys[2]: frames out of order (frame 3 after frame 5)"}},
         {NULL, NULL,
          "{\"elements\":[{\"name\":\"water\",\"type\":\"liquidd\"}]}",
-         {"element 'water': unknown type 'liquidd'; did you mean 'liquid'? Types: liquid, collider"}},
+         {"element 'water': unknown type 'liquidd'; did you mean 'liquid'? Types: liquid, collider, mpm_solid"}},
         {NULL, NULL,
          "{\"elements\":[{\"name\":\"w\",\"type\":\"liquid\",\"components\":{\"Domain\":{\"box\":[[0,0,0],[1,1,1]]}}},"
          "{\"name\":\"x\",\"type\":\"liquid\",\"components\":{\"Domain\":{\"box\":[[0,0,0],[1,1,1]]}}},"
@@ -474,7 +474,7 @@ static void test_bad_input_messages(void **state)
          "\"LiquidSource\":{\"velocity\":[0,0,0]}}}]}",
          {"w.LiquidSource: needs \"box\" or \"mesh\""}},
         {NULL, NULL, "{\"elements\":[{\"type\":\"liquid\"}]}", {"elements[0]: missing \"name\""}},
-        {NULL, NULL, "{\"elements\":[{\"name\":\"w\"}]}", {"element 'w': missing \"type\"; add \"type\": one of liquid, collider"}},
+        {NULL, NULL, "{\"elements\":[{\"name\":\"w\"}]}", {"element 'w': missing \"type\"; add \"type\": one of liquid, collider, mpm_solid"}},
         {NULL, NULL, "{\"elements\":[{\"name\":\"w\",\"type\":\"liquid\",\"component\":{}}]}",
          {"elements[0]: unknown key 'component'; did you mean 'components'?"}},
         {NULL, NULL, "{\"elements\":[{\"name\":\"w\",\"type\":\"liquid\",\"components\":[]}]}",
@@ -790,7 +790,7 @@ static void test_reference_lists_everything(void **state)
                           "(1, 170)             vertical field of view");
     assert_contains(md, "| `density` | number | kg/m^3 | `1000` | [1, 100000] | mass density |");
     assert_contains(md, "| `box` | box [lo, hi] | m | **required** |");
-    assert_contains(md, "| `scheme` | one of apic, flip, pic | - | `\"apic\"` | - |");
+    assert_contains(md, "| `scheme` | one of apic, flip, pic, rpic | - | `\"apic\"` | - |");
     assert_contains(md, "out/&lt;name&gt;/"); /* no raw HTML in the Markdown */
     free(text);
     free(md);

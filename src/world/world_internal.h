@@ -1,0 +1,103 @@
+/* Private to src/world: the world's layout and the helpers that world.c (liquid, colliders, files) and
+ * world_mpm.c (MPM solids) share. */
+#ifndef DR_WORLD_INTERNAL_H
+#define DR_WORLD_INTERNAL_H
+
+#include "world/world.h"
+
+#include "grid/grid.h"
+#include "io/io.h"
+#include "liquid/liquid.h"
+#include "mpm/mpm.h"
+
+/* snprintf into an array that must hold the result: element names are at most 128 characters, so the
+ * HDF5 paths built here always fit; a truncation would be a programming error. */
+#define PATHF(buf, ...)                                                                                     \
+    do {                                                                                                    \
+        int n_ = snprintf(buf, sizeof buf, __VA_ARGS__);                                                    \
+        assert(n_ >= 0 && (size_t)n_ < sizeof buf);                                                         \
+    } while (0)
+
+typedef struct WorldCollider {
+    const DrElement *element;
+    DrCollider *collider;    /* NULL when no solver needs an SDF (a scene with neither liquid nor MPM) */
+} WorldCollider;
+
+typedef struct WorldLiquid {
+    const DrElement *element;
+    DrLiquid *liquid;
+    DrCollider **shapes;     /* LiquidSource mesh volumes, needed at creation only */
+    int nshapes;
+    double volume0;          /* first frame's liquid-cell volume, for the drift diagnostic */
+    DrLiquidStats last;
+} WorldLiquid;
+
+/* One mpm_solid element: a body of the shared DrMpm. */
+typedef struct WorldMpmBody {
+    const DrElement *element;
+    int body;                /* DrMpm body id */
+    long count;              /* its particles */
+} WorldMpmBody;
+
+/* A scene collider as the MPM grid sees it: the context of its SDF callback, posed at the time of the
+   substep being taken (world_mpm.c moves it between substeps). */
+typedef struct WorldMpmCollider {
+    const DrCollider *collider;
+    DrColliderFrame frame;
+    bool moving;
+} WorldMpmCollider;
+
+/* Everything MPM; NULL in a world whose scene has no mpm_solid (nothing of it is allocated then). */
+typedef struct WorldMpm {
+    DrMpm *mpm;
+    WorldMpmBody *bodies;
+    int nbodies;
+    WorldMpmCollider *colliders;
+    int ncolliders;
+    bool any_moving;
+    int max_substeps;
+    double cfl;
+    double time;             /* s, start of the frame being advanced (poses moving colliders) */
+    DrMpmStats last;         /* the last frame's stats, summed over its substeps */
+    int not_converged;       /* 1 when a Newton iteration of the last frame stopped at its cap */
+} WorldMpm;
+
+struct DrWorld {
+    const DrScene *scene;
+    int first_frame, last_frame, frame;
+    double fps;
+    DrVec3 gravity;
+    WorldCollider *colliders;
+    int ncolliders;
+    const DrCollider **collider_ptrs; /* the live colliders, in element order, as the solvers take them */
+    int nlive;
+    WorldLiquid *liquids;
+    int nliquids;
+    WorldMpm *mpm;
+};
+
+/* Prefixes an asset error with the element and field it came from ("jelly.MpmShape.mesh: ..."), keeping the
+   file name. Returns s. */
+DrStatus dr_world_asset_context_(DrStatus s, const char *element, const char *field, DrError *err);
+/* SDF of a mesh as a collider (or a shape to fill) with optional motion keys (rows of 7, times in s). */
+DR_NODISCARD DrStatus dr_world_make_collider_(const DrTriMesh *mesh, double dx, double friction, bool no_slip,
+                                              double thickness, int nkeys, const double *keys, DrCollider **out,
+                                              DrError *err);
+/* Loads the mesh file `path` (referenced by element e's `field`) and applies e's Transform component. */
+DR_NODISCARD DrStatus dr_world_load_posed_mesh_(const DrElement *e, const char *path, const char *field,
+                                                DrTriMesh *mesh, DrError *err);
+
+/* ---- world_mpm.c: the MPM solids (each a no-op when w->mpm is NULL) ---- */
+
+/* Builds the one DrMpm of the scene's mpm_solid elements after the colliders exist; leaves w->mpm NULL
+   when there are none. */
+DR_NODISCARD DrStatus dr_world_mpm_create_(DrWorld *w, DrError *err);
+void dr_world_mpm_destroy_(WorldMpm **m);
+/* Advances the bodies from t0 to t1 and adds the frame's MPM figures to stats. */
+DR_NODISCARD DrStatus dr_world_mpm_step_(DrWorld *w, double t0, double t1, DrFrameStats *stats, DrError *err);
+/* Per element: position, velocity, affine, deformation_gradient, volume (+ diagnostics when `frame_cache`). */
+DR_NODISCARD DrStatus dr_world_mpm_write_(const DrWorld *w, DrH5 *h, bool frame_cache, DrError *err);
+DR_NODISCARD DrStatus dr_world_mpm_read_(DrWorld *w, DrH5 *h, const char *path, DrError *err);
+void dr_world_mpm_hash_(const DrWorld *w, DrHasher *h);
+
+#endif
