@@ -35,9 +35,16 @@ stop_cluster() {
   done
   for p in "${pids[@]}"; do kill "$p" 2>/dev/null; done
   sleep 1
+  # on a failure, what Slurm and the jobs said goes into the test log before the folder goes
+  if [ -n "${farm_failed:-}" ]; then
+    echo "---- slurmctld.log (tail)"; tail -40 "$S/log/slurmctld.log" 2>/dev/null
+    echo "---- slurmd.log (tail)"; tail -20 "$S/log/slurmd.log" 2>/dev/null
+    for f in "${farm_out:-/nonexistent}"/*/farm/logs/*; do [ -f "$f" ] && { echo "---- $f"; tail -15 "$f"; }; done
+  fi
   rm -rf "$WORK"
 }
 trap stop_cluster EXIT
+fail() { farm_failed=1; echo "FAIL $1: $2"; }
 
 node=$(hostname -s)
 port=$((20000 + RANDOM % 20000))
@@ -139,7 +146,15 @@ if [ -n "$bake_job" ] && scancel --signal=USR1 --batch "$bake_job" 2>/dev/null; 
     sleep 0.1
   done
   check "bake job requeued itself after the warning signal" test "$requeued" -eq 1
-  # Slurm holds a requeued job for about two minutes before it may start again; release it now.
+  # Slurm holds a requeued job for about two minutes before it may start again; release it sooner, but only
+  # once it is pending again and a few seconds after the old run's end: slurmd refuses to launch a job
+  # whose new credential dates from the same second as the revocation of the old one ("Job credential
+  # revoked"), which fails the job and cancels its dependents.
+  for _ in $(seq 300); do
+    scontrol show job "$bake_job" 2>/dev/null | grep -q 'JobState=PENDING' && break
+    sleep 0.1
+  done
+  sleep 3
   scontrol update JobId="$bake_job" StartTime=now >/dev/null 2>&1
 else
   fail "bake job requeued itself after the warning signal" "no running bake job to signal (job '$bake_job')"
