@@ -75,6 +75,9 @@ struct DrMpm {
     /* grid scratch (3·nnodes) */
     double *vn, *v0, *vnew, *uf, *ff, *tf;
     unsigned char *fix; /* per node: bit a set = component a fixed by a wall */
+    unsigned char *con; /* per node, this step: CON_NONE, CON_NORMAL (cnrm) or CON_FULL, from colliders */
+    double *cnrm;       /* per node (3): contact normal, orthogonal to the wall-fixed axes, unit length */
+    double *cinfo;      /* per node (4): friction coefficient and velocity of the collider in contact */
     /* compact solve vectors, 3 per active node */
     long *act;
     long nact;
@@ -175,6 +178,9 @@ DrStatus dr_mpm_create(const DrMpmDesc *desc, DrMpm **out, DrError *err)
         s = dr_calloc(3 * (size_t)nn, sizeof(double), grid_arrays[k], err);
     if (s == DR_OK) s = dr_calloc(12 * (size_t)nn, sizeof(double), &m->cgw, err);
     if (s == DR_OK) s = dr_calloc((size_t)nn, sizeof(unsigned char), &m->fix, err);
+    if (s == DR_OK) s = dr_calloc((size_t)nn, sizeof(unsigned char), &m->con, err);
+    if (s == DR_OK) s = dr_calloc(3 * (size_t)nn, sizeof(double), &m->cnrm, err);
+    if (s == DR_OK) s = dr_calloc(4 * (size_t)nn, sizeof(double), &m->cinfo, err);
     if (s == DR_OK) s = dr_calloc((size_t)nn, sizeof(long), &m->act, err);
     if (s != DR_OK) {
         dr_mpm_destroy(&m);
@@ -207,7 +213,7 @@ void dr_mpm_destroy(DrMpm **mpm)
     void *arrays[] = {m->x, m->v, m->C, m->F, m->mass, m->vol0, m->mu, m->lam, m->ak, m->at, m->model, m->body,
                       m->G, m->Fu, m->Q, m->dG, m->dM, m->px, m->pf, m->bx, m->bv, m->bC, m->bF, m->psi,
                       m->body_start, m->mats, m->cols, m->vn, m->v0, m->vnew, m->uf, m->ff, m->tf, m->fix,
-                      m->act, m->mact, m->dv, m->res, m->del, m->tmp, m->cgw};
+                      m->con, m->cnrm, m->cinfo, m->act, m->mact, m->dv, m->res, m->del, m->tmp, m->cgw};
     for (size_t k = 0; k < sizeof arrays / sizeof *arrays; k++) free(arrays[k]);
     free(m);
     *mpm = NULL;
@@ -634,11 +640,23 @@ static void anchor_range(long b, long e, void *vctx)
 
 /* ---- grid helpers ---------------------------------------------------------------------------- */
 
+enum { CON_NONE = 0, CON_NORMAL = 1, CON_FULL = 2 };
+
+/* Π of one node: wall-fixed components to 0, then the collider contact (the normal component, or all of
+   it). cnrm is orthogonal to the wall-fixed axes, so the two projections commute and Π is the orthogonal
+   projection onto what both allow (self-adjoint in the mass inner product: one mass per node). */
 static void project_fixed(const DrMpm *m, long i, double *u)
 {
     unsigned char f = m->fix[i];
     for (int a = 0; a < 3; a++)
         if (f & (1u << a)) u[a] = 0.0;
+    if (m->con[i] == CON_FULL) {
+        u[0] = u[1] = u[2] = 0.0;
+    } else if (m->con[i] == CON_NORMAL) {
+        const double *n = m->cnrm + 3 * i;
+        double d = u[0] * n[0] + u[1] * n[1] + u[2] * n[2];
+        for (int a = 0; a < 3; a++) u[a] -= d * n[a];
+    }
 }
 
 /* mass inner product over the active nodes (sequential: bit-identical for any thread count) */
@@ -650,9 +668,45 @@ static double mdot(const double *a, const double *b, int n, void *ctx)
     return s;
 }
 
+/* A node inside a collider at the start of the step keeps its normal velocity (relative to the collider,
+   after the approaching part was removed) through the solve: a constraint of Π like the walls', so the
+   elastic solve sees the contact instead of having it imposed on its result afterwards, which strains
+   the layer next to the contact by the whole step's approach and injects energy (a box resting on a
+   plane collider gained 200 % energy in 2 s that way, 0.45 % with contacts in Π). Every node inside
+   starts constrained, separating or not (leaving separating nodes free and projecting them after the
+   solve injected 28 %); contact_release then lets go of those the solution pulls away. A sticky collider,
+   or a second collider with another normal, fixes the node. The normal is made orthogonal to the node's
+   wall-fixed axes; nothing is left of it when the walls already hold that direction. */
+static void record_contact(DrMpm *m, long i, const DrMpmCollider *col, const DrVec3 *normal)
+{
+    double *info = m->cinfo + 4 * i;
+    info[0] = col->friction, info[1] = col->velocity.x, info[2] = col->velocity.y, info[3] = col->velocity.z;
+    if (!normal) {
+        m->con[i] = CON_FULL;
+        return;
+    }
+    if (m->con[i] == CON_FULL) return;
+    double n[3] = {normal->x, normal->y, normal->z}, len = 0.0;
+    for (int a = 0; a < 3; a++) {
+        if (m->fix[i] & (1u << a)) n[a] = 0.0;
+        len += n[a] * n[a];
+    }
+    len = sqrt(len);
+    if (len < 1e-6) return;
+    for (int a = 0; a < 3; a++) n[a] /= len;
+    if (m->con[i] == CON_NORMAL) {
+        const double *o = m->cnrm + 3 * i;
+        if (fabs(o[0] * n[0] + o[1] * n[1] + o[2] * n[2]) < 1.0 - 1e-9) m->con[i] = CON_FULL;
+        return;
+    }
+    m->con[i] = CON_NORMAL;
+    memcpy(m->cnrm + 3 * i, n, sizeof n);
+}
+
 /* Collider projection of one node velocity (relative to the collider): remove the approaching normal
-   component, then Coulomb friction on the tangential part, or zero it all for sticky colliders. */
-static bool collide_node(const DrMpm *m, DrVec3 xi, double *vel)
+   component, then Coulomb friction on the tangential part, or zero it all for sticky colliders. With
+   `record`, contacts become constraints of the step (record_contact). */
+static bool collide_node(DrMpm *m, long node, DrVec3 xi, double *vel, bool record)
 {
     bool hit = false;
     for (int c = 0; c < m->ncol; c++) {
@@ -661,7 +715,9 @@ static bool collide_node(const DrMpm *m, DrVec3 xi, double *vel)
         double phi = col->sdf(xi, &n, col->ctx);
         if (!(phi <= 0.0)) continue;
         n = dr_v3_normalize(n);
+        if (m->dim == 2) n = dr_v3_normalize(dr_v3(n.x, n.y, 0.0));
         DrVec3 vr = dr_v3_sub(dr_v3(vel[0], vel[1], vel[2]), col->velocity);
+        if (record) record_contact(m, node, col, col->sticky ? NULL : &n);
         if (col->sticky) {
             vr = dr_v3(0, 0, 0);
         } else {
@@ -907,6 +963,64 @@ static DrStatus newton(Solve *s, DrMpmStats *st)
     return DR_OK;
 }
 
+/* ---- contacts after the solve ------------------------------------------------------------------ */
+
+/* u = v0 + Δt(M⁻¹ f + g) on the active nodes, f the force (with anchors) of the last evaluation, which
+   Newton leaves at its solution. */
+static void unconstrained_update(const Solve *s, double *u)
+{
+    const DrMpm *m = s->m;
+    for (long k = 0; k < m->nact; k++) {
+        long i = m->act[k];
+        for (int a = 0; a < 3; a++)
+            u[3 * i + a] = m->v0[3 * i + a] + s->dt * (m->ff[3 * i + a] / m->mact[3 * k] + dr_v3_get(m->d.gravity, a));
+    }
+}
+
+/* n·(u − v0): the normal velocity change a normal contact absorbs from the unconstrained update u
+   (negative: the node is pushed into the collider). */
+static double contact_push(const DrMpm *m, long i, const double *u)
+{
+    const double *n = m->cnrm + 3 * i, *v0 = m->v0 + 3 * i, *ui = u + 3 * i;
+    return n[0] * (ui[0] - v0[0]) + n[1] * (ui[1] - v0[1]) + n[2] * (ui[2] - v0[2]);
+}
+
+/* Lets go of the normal contacts the update u pulls away from the collider; true if any. */
+static bool contact_release(DrMpm *m, const double *u)
+{
+    bool any = false;
+    for (long k = 0; k < m->nact; k++) {
+        long i = m->act[k];
+        if (m->con[i] == CON_NORMAL && contact_push(m, i, u) > 0.0) {
+            m->con[i] = CON_NONE;
+            any = true;
+        }
+    }
+    return any;
+}
+
+/* Coulomb friction on the normal contacts: the tangential velocity relative to the collider loses up to
+   μ times the normal velocity change the contact absorbed (the normal impulse per unit mass). */
+static void contact_friction(const DrMpm *m, const double *u, double *vnew)
+{
+    for (long k = 0; k < m->nact; k++) {
+        long i = m->act[k];
+        const double *info = m->cinfo + 4 * i;
+        if (m->con[i] != CON_NORMAL || !(info[0] > 0.0)) continue;
+        double push = contact_push(m, i, u);
+        if (!(push < 0.0)) continue;
+        const double *n = m->cnrm + 3 * i;
+        double vr[3], vn = 0.0, vt[3], vtn = 0.0;
+        for (int a = 0; a < 3; a++) vr[a] = vnew[3 * i + a] - info[1 + a], vn += vr[a] * n[a];
+        for (int a = 0; a < 3; a++) vt[a] = vr[a] - vn * n[a], vtn += vt[a] * vt[a];
+        vtn = sqrt(vtn);
+        if (vtn == 0.0) continue;
+        double keep = fmax(0.0, 1.0 + info[0] * push / vtn);
+        for (int a = 0; a < 3; a++) vnew[3 * i + a] = info[1 + a] + vn * n[a] + keep * vt[a];
+        if (m->dim == 2) vnew[3 * i + 2] = 0.0;
+    }
+}
+
 /* ---- one step -------------------------------------------------------------------------------- */
 
 typedef struct FCtx { DrMpm *m; double dt; bool order2; } FCtx;
@@ -976,11 +1090,12 @@ DrStatus dr_mpm_step(DrMpm *mpm, double dt, DrMpmStats *stats, DrError *err)
         }
     /* 2. boundary conditions on v (walls: projection Π; colliders: approaching part) */
     bool projected = false;
+    memset(m->con, CON_NONE, (size_t)nn);
     for (long k = 0; k < m->nact; k++) {
         long i = m->act[k];
         double *u = m->v0 + 3 * i;
         project_fixed(m, i, u);
-        if (m->ncol) collide_node(m, dr_node_position(g, i), u);
+        if (m->ncol) collide_node(m, i, dr_node_position(g, i), u, true);
         projected = projected || u[0] != m->vn[3 * i] || u[1] != m->vn[3 * i + 1] || u[2] != m->vn[3 * i + 2];
     }
     double t1 = dr_time_now();
@@ -1017,8 +1132,14 @@ DrStatus dr_mpm_step(DrMpm *mpm, double dt, DrMpmStats *stats, DrError *err)
                 double f = m->ff[3 * i + a] + (m->anchors ? m->tf[3 * i + a] : 0.0);
                 m->vnew[3 * i + a] = m->v0[3 * i + a] + dt * (f / mi + dr_v3_get(m->d.gravity, a));
             }
-            project_fixed(m, i, m->vnew + 3 * i);
         }
+        /* contacts: those the step pushes into the collider hold (Π) with friction; the others let go */
+        if (m->ncol) {
+            memcpy(m->uf, m->vnew, 3 * (size_t)nn * sizeof(double));
+            contact_release(m, m->uf);
+        }
+        for (long k = 0; k < m->nact; k++) project_fixed(m, m->act[k], m->vnew + 3 * m->act[k]);
+        if (m->ncol) contact_friction(m, m->uf, m->vnew);
     } else {
         bool mid = m->d.integrator == DR_MPM_MIDPOINT;
         s.alpha = mid ? 0.5 * dt : dt;
@@ -1027,15 +1148,28 @@ DrStatus dr_mpm_step(DrMpm *mpm, double dt, DrMpmStats *stats, DrError *err)
         s.q = m->d.f_update_order == 2 ? (mid ? 1.0 : 0.5) : 0.0;
         status = newton(&s, st);
         if (status < 0) return status;
+        if (m->ncol) {
+            /* one active-set pass: contacts that would hold the body back from leaving the collider (the
+               unconstrained update v0 + Δt(M⁻¹f + g) of the solution moves away from it) are let go and the
+               step is solved again without them */
+            unconstrained_update(&s, m->uf);
+            if (contact_release(m, m->uf)) {
+                status = newton(&s, st);
+                if (status < 0) return status;
+                unconstrained_update(&s, m->uf);
+            }
+        }
         memset(m->vnew, 0, 3 * (size_t)nn * sizeof(double));
         for (long k = 0; k < m->nact; k++) {
             long i = m->act[k];
             for (int a = 0; a < 3; a++) m->vnew[3 * i + a] = m->v0[3 * i + a] + m->dv[3 * k + a];
             project_fixed(m, i, m->vnew + 3 * i);
         }
+        if (m->ncol) contact_friction(m, m->uf, m->vnew);
     }
     if (m->ncol)
-        for (long k = 0; k < m->nact; k++) collide_node(m, dr_node_position(g, m->act[k]), m->vnew + 3 * m->act[k]);
+        for (long k = 0; k < m->nact; k++)
+            collide_node(m, m->act[k], dr_node_position(g, m->act[k]), m->vnew + 3 * m->act[k], false);
     double t2 = dr_time_now();
     st->seconds_solve += t2 - t1;
 
