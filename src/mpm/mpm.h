@@ -97,8 +97,13 @@ DR_NODISCARD DrStatus dr_mpm_sample_body(DrMpm *mpm, DrMpmInsideFn inside, void 
 DR_NODISCARD DrStatus dr_mpm_set_anchors(DrMpm *mpm, const double *k, const double *target, DrError *err);
 
 /* A collider for grid velocities: signed distance (negative inside the solid) and outward normal at x,
-   moving with velocity vel. After the grid update, node velocities inside or on the surface lose their
-   approaching normal component (slip) or all relative velocity (sticky), friction optional. */
+   moving with velocity vel. Nodes inside or on the surface after P2G lose their approaching normal
+   velocity (relative to the collider) and keep the rest of their normal velocity through the step's
+   solve, as a constraint of it like the walls (sticky: all of the relative velocity); a contact the
+   solution pulls away from is released and the step solved again, so bodies bounce and lift off. Coulomb
+   friction takes up to `friction` times the normal velocity change the contact absorbed from the
+   tangential velocity. Nodes that were outside and end the step moving into the collider lose their
+   approaching normal component afterwards. */
 typedef double (*DrMpmSdfFn)(DrVec3 x, DrVec3 *normal, void *ctx);
 typedef struct DrMpmCollider { DrMpmSdfFn sdf; void *ctx; DrVec3 velocity; double friction; bool sticky; } DrMpmCollider;
 DR_NODISCARD DrStatus dr_mpm_add_collider(DrMpm *mpm, const DrMpmCollider *c, DrError *err);
