@@ -329,7 +329,7 @@ DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrError *err)
 
 /* ---- frame caches and checkpoints --------------------------------------------------------------- */
 
-static DrStatus write_scalar(DrH5 *h, const char *group, const char *name, double v, const char *units, DrError *err)
+DrStatus dr_world_write_scalar_(DrH5 *h, const char *group, const char *name, double v, const char *units, DrError *err)
 {
     char path[512];
     PATHF(path, "%s/%s", group, name);
@@ -337,7 +337,7 @@ static DrStatus write_scalar(DrH5 *h, const char *group, const char *name, doubl
     return dr_h5_write_f64(h, path, 1, dims, &v, units, false, err);
 }
 
-static DrStatus write_vec(DrH5 *h, const char *group, const char *name, DrVec3 v, const char *units, DrError *err)
+DrStatus dr_world_write_vec_(DrH5 *h, const char *group, const char *name, DrVec3 v, const char *units, DrError *err)
 {
     char path[512];
     PATHF(path, "%s/%s", group, name);
@@ -382,19 +382,19 @@ static DrStatus write_frame_body(const DrWorld *w, const DrFrameStats *stats, Dr
         const DrLiquidStats *ls = &wl->last;
         double dx = dr_liquid_grid(wl->liquid)->dx;
         PATHF(g, "/diagnostics/%s", wl->element->name);
-        DR_TRY(write_scalar(h, g, "particles", (double)ls->particles, "1", err));
-        DR_TRY(write_scalar(h, g, "mass", mass, "kg", err));
-        DR_TRY(write_scalar(h, g, "kinetic_energy", ke, "J", err));
-        DR_TRY(write_vec(h, g, "linear_momentum", p, "kg*m/s", err));
-        DR_TRY(write_vec(h, g, "angular_momentum", l, "kg*m^2/s", err));
-        DR_TRY(write_scalar(h, g, "volume_cells", (double)ls->liquid_cells * dx * dx * dx, "m^3", err));
-        DR_TRY(write_scalar(h, g, "max_speed", ls->max_speed, "m/s", err));
-        DR_TRY(write_scalar(h, g, "divergence_mean", ls->divergence_mean, "1", err));
-        DR_TRY(write_scalar(h, g, "pressure_iterations_max", ls->pressure_iterations_max, "1", err));
-        DR_TRY(write_scalar(h, g, "pressure_iterations_total", (double)ls->pressure_iterations_total, "1", err));
-        DR_TRY(write_scalar(h, g, "pressure_residual_max", ls->pressure_residual_max, "1", err));
-        DR_TRY(write_scalar(h, g, "emitted", (double)ls->emitted, "1", err));
-        DR_TRY(write_scalar(h, g, "killed", (double)ls->killed, "1", err));
+        DR_TRY(dr_world_write_scalar_(h, g, "particles", (double)ls->particles, "1", err));
+        DR_TRY(dr_world_write_scalar_(h, g, "mass", mass, "kg", err));
+        DR_TRY(dr_world_write_scalar_(h, g, "kinetic_energy", ke, "J", err));
+        DR_TRY(dr_world_write_vec_(h, g, "linear_momentum", p, "kg*m/s", err));
+        DR_TRY(dr_world_write_vec_(h, g, "angular_momentum", l, "kg*m^2/s", err));
+        DR_TRY(dr_world_write_scalar_(h, g, "volume_cells", (double)ls->liquid_cells * dx * dx * dx, "m^3", err));
+        DR_TRY(dr_world_write_scalar_(h, g, "max_speed", ls->max_speed, "m/s", err));
+        DR_TRY(dr_world_write_scalar_(h, g, "divergence_mean", ls->divergence_mean, "1", err));
+        DR_TRY(dr_world_write_scalar_(h, g, "pressure_iterations_max", ls->pressure_iterations_max, "1", err));
+        DR_TRY(dr_world_write_scalar_(h, g, "pressure_iterations_total", (double)ls->pressure_iterations_total, "1", err));
+        DR_TRY(dr_world_write_scalar_(h, g, "pressure_residual_max", ls->pressure_residual_max, "1", err));
+        DR_TRY(dr_world_write_scalar_(h, g, "emitted", (double)ls->emitted, "1", err));
+        DR_TRY(dr_world_write_scalar_(h, g, "killed", (double)ls->killed, "1", err));
     }
     for (int i = 0; i < w->ncolliders; i++) {
         const WorldCollider *wc = &w->colliders[i];
@@ -412,8 +412,8 @@ static DrStatus write_frame_body(const DrWorld *w, const DrFrameStats *stats, Dr
     }
     DR_TRY(dr_world_mpm_write_(w, h, true, err));
     const char *g = "/diagnostics";
-    DR_TRY(write_scalar(h, g, "substeps", stats->substeps, "1", err));
-    DR_TRY(write_scalar(h, g, "liquid_volume_cells", stats->liquid_volume, "m^3", err));
+    DR_TRY(dr_world_write_scalar_(h, g, "substeps", stats->substeps, "1", err));
+    DR_TRY(dr_world_write_scalar_(h, g, "liquid_volume_cells", stats->liquid_volume, "m^3", err));
     /* Wall-clock seconds per phase are not written here: frame caches are bit-identical between runs
        (a determinism test compares them); timings go to progress.jsonl and report.json. */
     return DR_OK;

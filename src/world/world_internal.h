@@ -80,6 +80,11 @@ struct DrWorld {
    file name. Returns s. */
 DrStatus dr_world_asset_context_(DrStatus s, const char *element, const char *field, DrError *err);
 /* SDF of a mesh as a collider (or a shape to fill) with optional motion keys (rows of 7, times in s). */
+/* One diagnostic value (dims {1}) or vector (dims {3}) at <group>/<name> of a frame cache, with its units. */
+DR_NODISCARD DrStatus dr_world_write_scalar_(DrH5 *h, const char *group, const char *name, double v, const char *units,
+                                             DrError *err);
+DR_NODISCARD DrStatus dr_world_write_vec_(DrH5 *h, const char *group, const char *name, DrVec3 v, const char *units,
+                                          DrError *err);
 DR_NODISCARD DrStatus dr_world_make_collider_(const DrTriMesh *mesh, double dx, double friction, bool no_slip,
                                               double thickness, int nkeys, const double *keys, DrCollider **out,
                                               DrError *err);

@@ -440,23 +440,6 @@ static DrStatus write_body(DrH5 *h, const WorldMpmBody *wb, const BodyArrays *a,
     return DR_OK;
 }
 
-static DrStatus write_scalar(DrH5 *h, const char *group, const char *name, double v, const char *units, DrError *err)
-{
-    char path[512];
-    PATHF(path, "%s/%s", group, name);
-    uint64_t dims[1] = {1};
-    return dr_h5_write_f64(h, path, 1, dims, &v, units, false, err);
-}
-
-static DrStatus write_vec(DrH5 *h, const char *group, const char *name, DrVec3 v, const char *units, DrError *err)
-{
-    char path[512];
-    PATHF(path, "%s/%s", group, name);
-    uint64_t dims[1] = {3};
-    double a[3] = {v.x, v.y, v.z};
-    return dr_h5_write_f64(h, path, 1, dims, a, units, false, err);
-}
-
 static DrStatus write_body_diagnostics(const DrWorld *w, DrH5 *h, const DrMpmState *st, const WorldMpmBody *wb,
                                        DrError *err)
 {
@@ -470,14 +453,14 @@ static DrStatus write_body_diagnostics(const DrWorld *w, DrH5 *h, const DrMpmSta
         mass += st->mass[p];
         mx = dr_v3_add(mx, dr_v3_scale(dr_v3(st->x[3 * p], st->x[3 * p + 1], st->x[3 * p + 2]), st->mass[p]));
     }
-    DR_TRY(write_scalar(h, g, "particles", (double)wb->count, "1", err));
-    DR_TRY(write_scalar(h, g, "mass", mass, "kg", err));
-    DR_TRY(write_vec(h, g, "centre_of_mass", dr_v3_scale(mx, mass > 0 ? 1.0 / mass : 0.0), "m", err));
-    DR_TRY(write_scalar(h, g, "kinetic_energy", t.kinetic, "J", err));
-    DR_TRY(write_scalar(h, g, "elastic_energy", t.elastic, "J", err));
-    DR_TRY(write_scalar(h, g, "gravity_energy", t.gravity_potential, "J", err));
-    DR_TRY(write_vec(h, g, "linear_momentum", t.momentum, "kg*m/s", err));
-    DR_TRY(write_vec(h, g, "angular_momentum", t.angular, "kg*m^2/s", err));
+    DR_TRY(dr_world_write_scalar_(h, g, "particles", (double)wb->count, "1", err));
+    DR_TRY(dr_world_write_scalar_(h, g, "mass", mass, "kg", err));
+    DR_TRY(dr_world_write_vec_(h, g, "centre_of_mass", dr_v3_scale(mx, mass > 0 ? 1.0 / mass : 0.0), "m", err));
+    DR_TRY(dr_world_write_scalar_(h, g, "kinetic_energy", t.kinetic, "J", err));
+    DR_TRY(dr_world_write_scalar_(h, g, "elastic_energy", t.elastic, "J", err));
+    DR_TRY(dr_world_write_scalar_(h, g, "gravity_energy", t.gravity_potential, "J", err));
+    DR_TRY(dr_world_write_vec_(h, g, "linear_momentum", t.momentum, "kg*m/s", err));
+    DR_TRY(dr_world_write_vec_(h, g, "angular_momentum", t.angular, "kg*m^2/s", err));
     return DR_OK;
 }
 
@@ -485,17 +468,17 @@ static DrStatus write_solver_diagnostics(const WorldMpm *m, DrH5 *h, DrError *er
 {
     const char *g = "/diagnostics";
     DrMpmTotals t = dr_mpm_totals(m->mpm, -1);
-    DR_TRY(write_scalar(h, g, "mpm_substeps", m->last.substeps, "1", err));
-    DR_TRY(write_scalar(h, g, "mpm_newton_iterations", m->last.newton_iterations, "1", err));
-    DR_TRY(write_scalar(h, g, "mpm_cg_iterations", m->last.cg_iterations, "1", err));
-    DR_TRY(write_scalar(h, g, "mpm_newton_residual", m->last.newton_residual, "1", err));
-    DR_TRY(write_scalar(h, g, "mpm_newton_not_converged", m->not_converged, "1", err));
-    DR_TRY(write_scalar(h, g, "mpm_kinetic_energy", t.kinetic, "J", err));
-    DR_TRY(write_scalar(h, g, "mpm_elastic_energy", t.elastic, "J", err));
-    DR_TRY(write_scalar(h, g, "mpm_gravity_energy", t.gravity_potential, "J", err));
-    DR_TRY(write_scalar(h, g, "mpm_total_energy", t.kinetic + t.elastic + t.gravity_potential, "J", err));
-    DR_TRY(write_vec(h, g, "mpm_linear_momentum", t.momentum, "kg*m/s", err));
-    DR_TRY(write_vec(h, g, "mpm_angular_momentum", t.angular, "kg*m^2/s", err));
+    DR_TRY(dr_world_write_scalar_(h, g, "mpm_substeps", m->last.substeps, "1", err));
+    DR_TRY(dr_world_write_scalar_(h, g, "mpm_newton_iterations", m->last.newton_iterations, "1", err));
+    DR_TRY(dr_world_write_scalar_(h, g, "mpm_cg_iterations", m->last.cg_iterations, "1", err));
+    DR_TRY(dr_world_write_scalar_(h, g, "mpm_newton_residual", m->last.newton_residual, "1", err));
+    DR_TRY(dr_world_write_scalar_(h, g, "mpm_newton_not_converged", m->not_converged, "1", err));
+    DR_TRY(dr_world_write_scalar_(h, g, "mpm_kinetic_energy", t.kinetic, "J", err));
+    DR_TRY(dr_world_write_scalar_(h, g, "mpm_elastic_energy", t.elastic, "J", err));
+    DR_TRY(dr_world_write_scalar_(h, g, "mpm_gravity_energy", t.gravity_potential, "J", err));
+    DR_TRY(dr_world_write_scalar_(h, g, "mpm_total_energy", t.kinetic + t.elastic + t.gravity_potential, "J", err));
+    DR_TRY(dr_world_write_vec_(h, g, "mpm_linear_momentum", t.momentum, "kg*m/s", err));
+    DR_TRY(dr_world_write_vec_(h, g, "mpm_angular_momentum", t.angular, "kg*m^2/s", err));
     return DR_OK;
 }
 
