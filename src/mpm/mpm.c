@@ -677,10 +677,10 @@ static double mdot(const double *a, const double *b, int n, void *ctx)
    solve injected 28 %); contact_release then lets go of those the solution pulls away. A sticky collider,
    or a second collider with another normal, fixes the node. The normal is made orthogonal to the node's
    wall-fixed axes; nothing is left of it when the walls already hold that direction. */
-static void record_contact(DrMpm *m, long i, const DrMpmCollider *col, const DrVec3 *normal)
+static void record_contact(DrMpm *m, long i, const DrMpmCollider *col, DrVec3 cv, const DrVec3 *normal)
 {
     double *info = m->cinfo + 4 * i;
-    info[0] = col->friction, info[1] = col->velocity.x, info[2] = col->velocity.y, info[3] = col->velocity.z;
+    info[0] = col->friction, info[1] = cv.x, info[2] = cv.y, info[3] = cv.z;
     if (!normal) {
         m->con[i] = CON_FULL;
         return;
@@ -716,8 +716,10 @@ static bool collide_node(DrMpm *m, long node, DrVec3 xi, double *vel, bool recor
         if (!(phi <= 0.0)) continue;
         n = dr_v3_normalize(n);
         if (m->dim == 2) n = dr_v3_normalize(dr_v3(n.x, n.y, 0.0));
-        DrVec3 vr = dr_v3_sub(dr_v3(vel[0], vel[1], vel[2]), col->velocity);
-        if (record) record_contact(m, node, col, col->sticky ? NULL : &n);
+        DrVec3 cv = col->velocity_at ? col->velocity_at(xi, col->ctx) : col->velocity;
+        if (m->dim == 2) cv.z = 0.0;
+        DrVec3 vr = dr_v3_sub(dr_v3(vel[0], vel[1], vel[2]), cv);
+        if (record) record_contact(m, node, col, cv, col->sticky ? NULL : &n);
         if (col->sticky) {
             vr = dr_v3(0, 0, 0);
         } else {
@@ -731,7 +733,7 @@ static bool collide_node(DrMpm *m, long node, DrVec3 xi, double *vel, bool recor
             }
             vr = vt;
         }
-        DrVec3 out = dr_v3_add(vr, col->velocity);
+        DrVec3 out = dr_v3_add(vr, cv);
         vel[0] = out.x, vel[1] = out.y, vel[2] = m->dim == 2 ? 0.0 : out.z;
         hit = true;
     }

@@ -105,7 +105,16 @@ DR_NODISCARD DrStatus dr_mpm_set_anchors(DrMpm *mpm, const double *k, const doub
    tangential velocity. Nodes that were outside and end the step moving into the collider lose their
    approaching normal component afterwards. */
 typedef double (*DrMpmSdfFn)(DrVec3 x, DrVec3 *normal, void *ctx);
-typedef struct DrMpmCollider { DrMpmSdfFn sdf; void *ctx; DrVec3 velocity; double friction; bool sticky; } DrMpmCollider;
+/* Velocity of a collider's surface at x (a moving or spinning collider); NULL means the constant velocity. */
+typedef DrVec3 (*DrMpmVelocityFn)(DrVec3 x, void *ctx);
+typedef struct DrMpmCollider {
+    DrMpmSdfFn sdf;
+    void *ctx;                   /* passed to sdf and velocity_at */
+    DrVec3 velocity;             /* m/s, used when velocity_at is NULL */
+    double friction;             /* Coulomb coefficient */
+    bool sticky;
+    DrMpmVelocityFn velocity_at; /* optional, per point */
+} DrMpmCollider;
 DR_NODISCARD DrStatus dr_mpm_add_collider(DrMpm *mpm, const DrMpmCollider *c, DrError *err);
 
 typedef struct DrMpmStats {

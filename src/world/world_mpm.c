@@ -164,6 +164,13 @@ static double collider_sdf(DrVec3 x, DrVec3 *normal, void *ctx)
     return dr_collider_frame_phi(&c->frame, x, normal);
 }
 
+/* Velocity of that collider's surface at x (its keyframed rigid motion at the substep). */
+static DrVec3 collider_velocity(DrVec3 x, void *ctx)
+{
+    const WorldMpmCollider *c = ctx;
+    return dr_collider_frame_velocity(&c->frame, x);
+}
+
 static DrMpmIntegrator integrator_of(const char *s)
 {
     if (strcmp(s, "symplectic_euler") == 0) return DR_MPM_SYMPLECTIC_EULER;
@@ -247,15 +254,11 @@ DrStatus dr_world_mpm_create_(DrWorld *w, DrError *err)
         mc->frame = dr_collider_frame(c->collider, 0.0);
         mc->moving = dr_component_table(dr_element_component(c->element, "Motion"), "keys", &rows) > 0;
         m->any_moving |= mc->moving;
-        /* The grid condition takes the collider's velocity as one constant: a moving collider is posed at every
-           substep but meets the bodies with velocity 0 (inelastic, it does not throw them). */
+        /* posed at every substep; its surface velocity (keyframed motion) goes into the contacts */
         DrMpmCollider desc = {collider_sdf, mc, dr_v3(0, 0, 0), dr_collider_friction(c->collider),
-                              dr_collider_no_slip(c->collider)};
+                              dr_collider_no_slip(c->collider), collider_velocity};
         DR_TRY(dr_mpm_add_collider(m->mpm, &desc, err));
     }
-    if (m->any_moving)
-        dr_log_warn("moving colliders act on the MPM solids by their position only (posed every substep, met with "
-                    "zero velocity): they block the bodies but do not throw them");
 
     for (int i = 0; i < dr_scene_element_count(scene); i++) {
         const DrElement *e = dr_scene_element(scene, i);

@@ -70,11 +70,12 @@ check "the mesh shape is filled" awk -v n="$(count ball)" 'BEGIN{exit !(n > 241 
 check "the rotated box is filled" awk -v n="$(count brick)" 'BEGIN{exit !(n > 230 && n < 282)}'
 check "the ball keeps moving right (InitialVelocity 0.5 m/s)" awk -v p="$(h5dump -y -d /diagnostics/ball/linear_momentum "$pf" | awk '/DATA \{/{getline; sub(/,.*/, ""); print; exit}')" 'BEGIN{exit !(p > 0)}'
 
-# a moving collider is posed every substep (the MPM grid meets it with zero velocity, which the bake says)
+# a moving collider is posed every substep and meets the bodies with its surface velocity (the solver's
+# contacts are tested in tests/stress/test_mpm_stress.c)
 moving="$WORK/mpm_moving.json"
 sed 's#"Transform": { "translate": \[0.25, 0.03, 0.15\], "scale": 0.06 } }#"Transform": { "translate": [0.25, 0.03, 0.15], "scale": 0.06 },\n                      "Motion": { "keys": [[0, 0, 0, 0, 0, 0, 0], [2, 0, 0.02, 0, 0, 0, 0]] } }#; s#"name": "mpm_pair"#"name": "mpm_moving"#; s#"\.\./\.\./assets/#"'"$ROOT"'/assets/#g' "$pair" > "$moving"
 out=$("$BIN/bake" "$moving" --frames 1-1 -j 2 2>&1); rc=$?
-check "a moving collider bakes with the MPM solids" bash -c "[ $rc -eq 0 ] && grep -q 'moving colliders act on the MPM solids by their position only' <<<'$out' && [ -f '$DRENCH_OUT/mpm_moving/bake/frame.0001.h5' ]"
+check "a moving collider bakes with the MPM solids" bash -c "[ $rc -eq 0 ] && [ -f '$DRENCH_OUT/mpm_moving/bake/frame.0001.h5' ]"
 
 # skip what a scene doesn't need: a liquid scene allocates nothing MPM and writes no MPM data
 out=$("$BIN/bake" "$ROOT/assets/scenes/small_dam.json" --frames 1-1 -j 2 2>&1)

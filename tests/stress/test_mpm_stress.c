@@ -226,7 +226,7 @@ static DrMpm *make_on_plane(DrMpmInsideFn inside, double vy, double friction)
     assert_int_equal(dr_mpm_sample_body(m, inside, NULL, dr_v3(0.3, 0.2, 0), dr_v3(0.7, 0.46, 0), 2, dr_v3(0, vy, 0),
                                         dr_v3(0, 0, 0), dr_v3(0.5, 0.3, 0), &mat, NULL, NULL, &err),
                      DR_OK);
-    DrMpmCollider c = {plane_sdf, NULL, dr_v3(0, 0, 0), friction, false};
+    DrMpmCollider c = {plane_sdf, NULL, dr_v3(0, 0, 0), friction, false, NULL};
     assert_int_equal(dr_mpm_add_collider(m, &c, &err), DR_OK);
     return m;
 }
@@ -284,6 +284,56 @@ static void test_bounce_off_collider(void **state)
     dr_mpm_destroy(&m);
 }
 
+/* A collider surface moving tangentially (velocity_at: +x at 0.5 m/s) carries a slab resting on it by
+   friction: between 0.5 s and 1 s the slab moves along with it (friction 0.5 accelerates it at up to
+   μg ≈ 4.9 m/s², so it reaches the belt speed within ~0.1 s; the elastic slab rocks about it as its base
+   sticks and slips, hence the band); without friction it stays put. */
+static DrVec3 belt_velocity(DrVec3 x, void *ctx)
+{
+    (void)x, (void)ctx;
+    return dr_v3(0.5, 0, 0);
+}
+
+static void test_moving_collider_carries(void **state)
+{
+    (void)state;
+    for (int k = 0; k < 2; k++) {
+        DrMpmDesc d;
+        dr_mpm_desc_default(&d);
+        d.dim = 2;
+        d.hi = dr_v3(2, 1, 0); /* room to travel ~0.5 m without meeting the +x wall */
+        d.dx = 0.02;
+        d.gravity = dr_v3(0, -9.81, 0);
+        d.newton_tolerance = 1e-6;
+        d.cg_tolerance = 1e-6;
+        DrMpm *m = NULL;
+        DrError err;
+        assert_int_equal(dr_mpm_create(&d, &m, &err), DR_OK);
+        DrMpmMaterial mat = {DR_MPM_FIXED_COROTATED, 1000.0, 3e5, 0.3};
+        assert_int_equal(dr_mpm_sample_body(m, in_slab, NULL, dr_v3(0.3, 0.2, 0), dr_v3(0.7, 0.46, 0), 2,
+                                            dr_v3(0, 0, 0), dr_v3(0, 0, 0), dr_v3(0.5, 0.3, 0), &mat, NULL, NULL, &err),
+                         DR_OK);
+        DrMpmCollider c = {plane_sdf, NULL, dr_v3(0, 0, 0), k ? 0.5 : 0.0, false, belt_velocity};
+        assert_int_equal(dr_mpm_add_collider(m, &c, &err), DR_OK);
+        double vmin = INFINITY, vmax = -INFINITY;
+        for (int f = 0; f < 24; f++) {
+            assert_true(dr_mpm_advance(m, 1.0 / 24.0, 32, NULL, &err) >= 0);
+            assert_true(state_finite(m));
+            DrMpmTotals t = dr_mpm_totals(m, -1);
+            DrMpmState st = dr_mpm_state(m);
+            double mass = 0.0;
+            for (long p = 0; p < st.n; p++) mass += st.mass[p];
+            double vx = t.momentum.x / mass;
+            if (f >= 12) vmin = fmin(vmin, vx), vmax = fmax(vmax, vx);
+        }
+        printf("slab on a belt moving at 0.5 m/s (friction %.1f): centre-of-mass speed %.3f..%.3f m/s over 0.5-1 s\n",
+               k ? 0.5 : 0.0, vmin, vmax);
+        if (k) assert_true(vmin > 0.3 && vmax < 0.7);
+        else assert_true(fabs(vmin) < 0.05 && fabs(vmax) < 0.05);
+        dr_mpm_destroy(&m);
+    }
+}
+
 int main(void)
 {
     setvbuf(stdout, NULL, _IOLBF, 0);
@@ -293,6 +343,7 @@ int main(void)
         cmocka_unit_test(test_neohookean_inversion),
         cmocka_unit_test(test_rest_on_collider),
         cmocka_unit_test(test_bounce_off_collider),
+        cmocka_unit_test(test_moving_collider_carries),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -594,7 +594,7 @@ static void test_collider(void **state)
         DrMpm *m = NULL;
         DrError err;
         assert_int_equal(dr_mpm_create(&d, &m, &err), DR_OK);
-        DrMpmCollider c = {ground_sdf, NULL, dr_v3(sticky ? 0.3 : 0.0, 0, 0), 0.0, sticky == 1};
+        DrMpmCollider c = {ground_sdf, NULL, dr_v3(sticky ? 0.3 : 0.0, 0, 0), 0.0, sticky == 1, NULL};
         assert_int_equal(dr_mpm_add_collider(m, &c, &err), DR_OK);
         Disk a = {0.5, 0.5, 0, 0.1};
         assert_int_equal(dr_mpm_sample_body(m, in_disk, &a, dr_v3(0.3, 0.3, 0), dr_v3(0.7, 0.7, 0), 2, dr_v3(0, 0, 0),

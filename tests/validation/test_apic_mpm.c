@@ -409,7 +409,8 @@ static Ring run_ringing(DrTransferScheme scheme)
     DrMpm *m = NULL;
     DrError err;
     assert_int_equal(dr_mpm_create(&d, &m, &err), DR_OK);
-    DrMpmCollider ground = {ground_sdf, NULL, dr_v3(0, 0, 0), 0.0, false}, left = {left_sdf, NULL, dr_v3(0, 0, 0), 0.0, false};
+    DrMpmCollider ground = {ground_sdf, NULL, dr_v3(0, 0, 0), 0.0, false, NULL},
+                  left = {left_sdf, NULL, dr_v3(0, 0, 0), 0.0, false, NULL};
     assert_int_equal(dr_mpm_add_collider(m, &ground, &err), DR_OK);
     assert_int_equal(dr_mpm_add_collider(m, &left, &err), DR_OK);
     DrMpmMaterial mat = {DR_MPM_FIXED_COROTATED, 4.0, 10.0, 0.3};
