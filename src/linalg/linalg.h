@@ -139,6 +139,32 @@ DR_NODISCARD DrStatus dr_jacobi_update(DrJacobi *M, const DrCsr *A, DrError *err
 void dr_jacobi_destroy(DrJacobi **M);
 DrLinearOp dr_jacobi_op(const DrJacobi *M);
 
+/* ---- banded symmetric positive definite systems ------------------------------------------------ */
+
+/* A symmetric positive definite n×n matrix with bandwidth kd (A(i,j) = 0 for |i − j| > kd), such as the
+ * block of one hair in the Lagrangian solve: factored by banded Cholesky (LAPACK dpbtrf through OpenBLAS,
+ * O(n kd²)) and solved (dpbtrs, O(n kd)). Storage is LAPACK's lower band, column-major:
+ * ab[(i − j) + (kd + 1) j] = A(i, j) for j <= i <= min(n − 1, j + kd). One object per block; objects may
+ * be used from different threads at once. */
+typedef struct DrBanded {
+    int n, kd;
+    double *ab;    /* (kd + 1) × n */
+    bool factored; /* ab holds the Cholesky factor L (A = L Lᵀ) */
+} DrBanded;
+/* n >= 1, 0 <= kd < n; DR_ERR_INPUT otherwise, DR_ERR_NOMEM. The matrix starts at zero. */
+DR_NODISCARD DrStatus dr_banded_create(int n, int kd, DrBanded **out, DrError *err);
+void dr_banded_destroy(DrBanded **b);
+/* Sets the matrix back to zero (unfactored). */
+void dr_banded_zero(DrBanded *b);
+/* A(i, j) += v and, by symmetry, A(j, i); |i − j| <= kd (asserted). Only before dr_banded_factor. */
+void dr_banded_add(DrBanded *b, int i, int j, double v);
+/* Cholesky factorisation in place. A matrix that is not positive definite is DR_ERR_RUNTIME naming the
+ * leading minor that fails; the contents are then unspecified until dr_banded_zero. */
+DR_NODISCARD DrStatus dr_banded_factor(DrBanded *b, DrError *err);
+/* Solves A X = B in place for nrhs right-hand sides stored one after another (x[n·r + i]); needs the
+ * factor. */
+void dr_banded_solve(const DrBanded *b, double *x, int nrhs);
+
 /* ---- BLAS-1 (parallel, bit-identical for any thread count) ------------------------------------ */
 
 double dr_dot(const double *a, const double *b, int n);  /* Σ a_i b_i in fixed block order */
