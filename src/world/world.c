@@ -349,15 +349,20 @@ DrStatus dr_world_write_vec_(DrH5 *h, const char *group, const char *name, DrVec
 static DrStatus write_liquid_arrays(DrH5 *h, const WorldLiquid *wl, bool compress, DrError *err)
 {
     const DrLiquidState *st = dr_liquid_state(wl->liquid);
+    return dr_world_write_particles_(h, wl->element->name, st->n, st->x, st->v, st->c, compress, err);
+}
+
+DrStatus dr_world_write_particles_(DrH5 *h, const char *name, long n, const double *x, const double *v,
+                                   const double *affine, bool compress, DrError *err)
+{
     char path[512];
-    const char *name = wl->element->name;
-    uint64_t d2[2] = {(uint64_t)st->n, 3}, d3[3] = {(uint64_t)st->n, 3, 3};
+    uint64_t d2[2] = {(uint64_t)n, 3}, d3[3] = {(uint64_t)n, 3, 3};
     PATHF(path, "/%s/position", name);
-    DR_TRY(dr_h5_write_f64(h, path, 2, d2, st->x, "m", compress, err));
+    DR_TRY(dr_h5_write_f64(h, path, 2, d2, x, "m", compress, err));
     PATHF(path, "/%s/velocity", name);
-    DR_TRY(dr_h5_write_f64(h, path, 2, d2, st->v, "m/s", compress, err));
+    DR_TRY(dr_h5_write_f64(h, path, 2, d2, v, "m/s", compress, err));
     PATHF(path, "/%s/affine", name);
-    DR_TRY(dr_h5_write_f64(h, path, 3, d3, st->c, "1/s", compress, err));
+    DR_TRY(dr_h5_write_f64(h, path, 3, d3, affine, "1/s", compress, err));
     return DR_OK;
 }
 

@@ -80,6 +80,9 @@ struct DrWorld {
    file name. Returns s. */
 DrStatus dr_world_asset_context_(DrStatus s, const char *element, const char *field, DrError *err);
 /* SDF of a mesh as a collider (or a shape to fill) with optional motion keys (rows of 7, times in s). */
+/* /<name>/position (n×3, m), velocity (m/s) and affine (n×3×3, 1/s) of a particle set (DESIGN §4). */
+DR_NODISCARD DrStatus dr_world_write_particles_(DrH5 *h, const char *name, long n, const double *x, const double *v,
+                                                const double *affine, bool compress, DrError *err);
 /* One diagnostic value (dims {1}) or vector (dims {3}) at <group>/<name> of a frame cache, with its units. */
 DR_NODISCARD DrStatus dr_world_write_scalar_(DrH5 *h, const char *group, const char *name, double v, const char *units,
                                              DrError *err);

@@ -428,13 +428,8 @@ static DrStatus write_body(DrH5 *h, const WorldMpmBody *wb, const BodyArrays *a,
 {
     char path[512];
     const char *name = wb->element->name;
-    uint64_t n = (uint64_t)wb->count, d1[1] = {n}, d2[2] = {n, 3}, d3[3] = {n, 3, 3};
-    PATHF(path, "/%s/position", name);
-    DR_TRY(dr_h5_write_f64(h, path, 2, d2, a->x, "m", frame_cache, err));
-    PATHF(path, "/%s/velocity", name);
-    DR_TRY(dr_h5_write_f64(h, path, 2, d2, a->v, "m/s", frame_cache, err));
-    PATHF(path, "/%s/affine", name);
-    DR_TRY(dr_h5_write_f64(h, path, 3, d3, a->C, "1/s", frame_cache, err));
+    uint64_t n = (uint64_t)wb->count, d1[1] = {n}, d3[3] = {n, 3, 3};
+    DR_TRY(dr_world_write_particles_(h, name, wb->count, a->x, a->v, a->C, frame_cache, err));
     PATHF(path, "/%s/deformation_gradient", name);
     DR_TRY(dr_h5_write_f64(h, path, 3, d3, a->F, "1", frame_cache, err));
     if (!frame_cache) return DR_OK; /* rest volumes come from the scene again on resume */
