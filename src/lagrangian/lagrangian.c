@@ -1,0 +1,665 @@
+/* The Lagrangian constrained-dynamics solver (fei2017 §S4, Pseudocode S1; see lagrangian.h).
+ *
+ * Storage. Each object keeps two lower bands of its block, LAPACK layout ab[(i − j) + (kd + 1) j]: the
+ * material part (mass, h s JᵀC⁻¹J) and the geometric part (−h² G), so a block that turns indefinite can
+ * drop the geometric part alone, and a DrBanded for the factor. Groups are recorded per object (J, c, C⁻¹,
+ * λ pointer) for the multiplier update after the solve. Inter-object groups become triplets of K_G,
+ * compressed to CSR once per step.
+ *
+ * Pseudocode S1 as printed solves A_i z_i = S_i b in line 6 and forms w from q̇₊ in line 11; read as
+ * standard PCG (z from the residual r, w = A p), which is what the text around it describes. */
+#include "lagrangian/lagrangian.h"
+
+#include <stdlib.h>
+#include <string.h>
+
+#include "linalg/linalg.h"
+
+typedef struct LagRecords {
+    int *ints;        /* per group: nrows, ndof, dof[ndof] */
+    size_t nints, cap_ints;
+    double *reals;    /* per group: s, c[nrows], cinv[nrows], J[nrows·ndof] */
+    size_t nreals, cap_reals;
+    double **lambda;  /* per group */
+    size_t ngroups, cap_groups;
+} LagRecords;
+
+typedef struct LagObject {
+    int dof0, ndof, kd;
+    double *mat;      /* (kd + 1) × ndof lower band: mass + material stiffness */
+    double *geo;      /* (kd + 1) × ndof lower band: −h² G */
+    double *pre;      /* (kd + 1) × ndof lower band: the in-band part of K_G on this object's DOFs, for the
+                         preconditioner only (the operator takes K_G whole) */
+    DrBanded *factor;
+    bool dropped;     /* geometric part dropped this step */
+    LagRecords rec;
+} LagObject;
+
+typedef struct LagTriplet { int i, j; double v; } LagTriplet;
+
+struct DrLag {
+    DrLagDesc desc;
+    LagObject *obj;
+    int nobj, cap_obj;
+    int ndof;
+    int *dof_object;          /* object of each DOF */
+
+    /* per step */
+    double h;
+    bool begun;
+    const double *mass, *qdot;
+    const unsigned char *prescribed;
+    const double *qdot_prescribed;
+    double *b, *b_local;      /* right-hand side; the part of it from intra-object terms only */
+    double *diag;             /* diag(A) for Jacobi */
+    double *inv_mass;
+    LagTriplet *trip;
+    size_t ntrip, cap_trip;
+    LagRecords grec;          /* records of the K_G groups */
+    DrCsr *kg;
+    int groups_block, groups_global;
+    double t_assemble0;
+    double *work;             /* 5 n: r, z, p, w, tmp */
+    size_t cap_work;
+    size_t cap_dof;
+};
+
+void dr_lag_desc_default(DrLagDesc *d)
+{
+    d->precond = DR_LAG_PRECOND_BLOCK;
+    d->tol = 1e-8;
+    d->max_iter = 1000;
+    d->local_guess = true;
+}
+
+DrStatus dr_lag_create(const DrLagDesc *desc, DrLag **out, DrError *err)
+{
+    *out = NULL;
+    DrLag *s = NULL;
+    DR_TRY(dr_calloc(1, sizeof *s, &s, err));
+    if (desc) s->desc = *desc;
+    else dr_lag_desc_default(&s->desc);
+    *out = s;
+    return DR_OK;
+}
+
+static void records_free(LagRecords *r)
+{
+    free(r->ints);
+    free(r->reals);
+    free(r->lambda);
+    memset(r, 0, sizeof *r);
+}
+
+void dr_lag_destroy(DrLag **sp)
+{
+    if (!sp || !*sp) return;
+    DrLag *s = *sp;
+    for (int i = 0; i < s->nobj; i++) {
+        free(s->obj[i].mat);
+        free(s->obj[i].geo);
+        free(s->obj[i].pre);
+        dr_banded_destroy(&s->obj[i].factor);
+        records_free(&s->obj[i].rec);
+    }
+    free(s->obj);
+    free(s->dof_object);
+    free(s->b);
+    free(s->b_local);
+    free(s->diag);
+    free(s->inv_mass);
+    free(s->trip);
+    records_free(&s->grec);
+    dr_csr_destroy(&s->kg);
+    free(s->work);
+    free(s);
+    *sp = NULL;
+}
+
+void dr_lag_set_desc(DrLag *s, const DrLagDesc *desc) { s->desc = *desc; }
+int dr_lag_object_count(const DrLag *s) { return s->nobj; }
+int dr_lag_dof_count(const DrLag *s) { return s->ndof; }
+
+/* Grows *p (elements of size `size`) to hold at least `need`, by half again when it must grow. */
+static DrStatus grow(void **p, size_t *cap, size_t need, size_t size, DrError *err)
+{
+    if (need <= *cap) return DR_OK;
+    size_t n = *cap + *cap / 2;
+    if (n < need) n = need;
+    if (n < 16) n = 16;
+    void *q = realloc(*p, n * size);
+    if (!q) return dr_error_set(err, DR_ERR_NOMEM, NULL, 0, 0, "out of memory growing a solver buffer to %zu items", n);
+    *p = q;
+    *cap = n;
+    return DR_OK;
+}
+
+DrStatus dr_lag_add_object(DrLag *s, int ndof, int kd, int *id, int *dof_begin, DrError *err)
+{
+    if (ndof < 1 || kd < 0 || (kd >= ndof && !(ndof == 1 && kd == 0)))
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                            "Lagrangian object with %d DOFs and half-bandwidth %d: need ndof >= 1 and 0 <= kd < ndof",
+                            ndof, kd);
+    if (s->ndof > 2147483647 - ndof)
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "too many DOFs in one Lagrangian system (over 2^31)");
+    size_t cap = (size_t)s->cap_obj;
+    DR_TRY(grow((void **)&s->obj, &cap, (size_t)s->nobj + 1, sizeof *s->obj, err));
+    s->cap_obj = (int)cap;
+    LagObject *o = &s->obj[s->nobj];
+    memset(o, 0, sizeof *o);
+    o->dof0 = s->ndof;
+    o->ndof = ndof;
+    o->kd = kd;
+    size_t band = (size_t)(kd + 1) * (size_t)ndof;
+    DrStatus st = dr_calloc(band, sizeof(double), &o->mat, err);
+    if (st == DR_OK) st = dr_calloc(band, sizeof(double), &o->geo, err);
+    if (st == DR_OK) st = dr_calloc(band, sizeof(double), &o->pre, err);
+    if (st == DR_OK) st = dr_banded_create(ndof, kd, &o->factor, err);
+    if (st == DR_OK) {
+        size_t c = s->cap_dof;
+        st = grow((void **)&s->dof_object, &c, (size_t)s->ndof + (size_t)ndof, sizeof(int), err);
+        s->cap_dof = c;
+    }
+    if (st != DR_OK) {
+        free(o->mat);
+        free(o->geo);
+        free(o->pre);
+        dr_banded_destroy(&o->factor);
+        return st;
+    }
+    for (int k = 0; k < ndof; k++) s->dof_object[s->ndof + k] = s->nobj;
+    if (id) *id = s->nobj;
+    if (dof_begin) *dof_begin = s->ndof;
+    s->nobj++;
+    s->ndof += ndof;
+    return DR_OK;
+}
+
+DrStatus dr_lag_begin(DrLag *s, double h, const double *mass, const double *qdot, const double *f_ext,
+                      const unsigned char *prescribed, const double *qdot_prescribed, DrError *err)
+{
+    assert(h > 0 && mass && qdot && (!prescribed || qdot_prescribed));
+    int n = s->ndof;
+    size_t cap = (size_t)n > s->cap_work ? (size_t)n : s->cap_work;
+    if ((size_t)n > s->cap_work || !s->b) {
+        free(s->b);
+        free(s->b_local);
+        free(s->diag);
+        free(s->inv_mass);
+        free(s->work);
+        s->b = s->b_local = s->diag = s->inv_mass = s->work = NULL;
+        s->cap_work = 0;
+        size_t m = cap ? cap : 1;
+        DR_TRY(dr_calloc(m, sizeof(double), &s->b, err));
+        DR_TRY(dr_calloc(m, sizeof(double), &s->b_local, err));
+        DR_TRY(dr_calloc(m, sizeof(double), &s->diag, err));
+        DR_TRY(dr_calloc(m, sizeof(double), &s->inv_mass, err));
+        DR_TRY(dr_calloc(5 * m, sizeof(double), &s->work, err));
+        s->cap_work = m;
+    }
+    for (int k = 0; k < n; k++) {
+        if (!(mass[k] > 0) || !isfinite(mass[k]))
+            return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "DOF %d has mass %g; every DOF needs a positive mass", k,
+                                mass[k]);
+        bool p = prescribed && prescribed[k];
+        double v = p ? qdot_prescribed[k] : qdot[k];
+        double f = (!p && f_ext) ? f_ext[k] : 0.0;
+        s->b[k] = s->b_local[k] = mass[k] * v + h * f;
+        s->inv_mass[k] = 1.0 / mass[k];
+    }
+    for (int i = 0; i < s->nobj; i++) {
+        LagObject *o = &s->obj[i];
+        size_t band = (size_t)(o->kd + 1) * (size_t)o->ndof;
+        memset(o->mat, 0, band * sizeof(double));
+        memset(o->geo, 0, band * sizeof(double));
+        memset(o->pre, 0, band * sizeof(double));
+        for (int k = 0; k < o->ndof; k++) o->mat[(size_t)(o->kd + 1) * (size_t)k] = mass[o->dof0 + k];
+        o->dropped = false;
+        o->rec.nints = o->rec.nreals = o->rec.ngroups = 0;
+    }
+    s->grec.nints = s->grec.nreals = s->grec.ngroups = 0;
+    s->ntrip = 0;
+    s->h = h;
+    s->mass = mass;
+    s->qdot = qdot;
+    s->prescribed = prescribed;
+    s->qdot_prescribed = qdot_prescribed;
+    s->groups_block = s->groups_global = 0;
+    s->begun = true;
+    s->t_assemble0 = dr_time_now();
+    return DR_OK;
+}
+
+static bool is_prescribed(const DrLag *s, int dof) { return s->prescribed && s->prescribed[dof]; }
+
+static DrStatus check_group(const DrLag *s, const DrLagGroup *g, DrError *err)
+{
+    assert(g->nrows >= 1 && g->nrows <= DR_LAG_MAX_ROWS && g->ndof >= 1 && g->ndof <= DR_LAG_MAX_DOFS);
+    for (int a = 0; a < g->ndof; a++) assert(g->dof[a] >= 0 && g->dof[a] < s->ndof);
+    bool ok = true;
+    for (int r = 0; r < g->nrows; r++) {
+        ok = ok && isfinite(g->phi[r]) && isfinite(g->cinv[r]) && g->cinv[r] >= 0;
+        for (int a = 0; a < g->ndof; a++) ok = ok && isfinite(g->J[r * g->ndof + a]);
+    }
+    if (g->G)
+        for (int a = 0; a < g->ndof * g->ndof; a++) ok = ok && isfinite(g->G[a]);
+    if (!ok)
+        return dr_error_set(err, DR_ERR_RUNTIME, NULL, 0, 0,
+                            "a constraint over DOFs %d..%d has a non-finite value, compliance or Jacobian (the "
+                            "configuration has blown up or is degenerate: a zero-length edge?)",
+                            g->dof[0], g->dof[g->ndof - 1]);
+    return DR_OK;
+}
+
+static DrStatus record(LagRecords *r, const DrLagGroup *g, double sc, DrError *err)
+{
+    DR_TRY(grow((void **)&r->ints, &r->cap_ints, r->nints + 2 + (size_t)g->ndof, sizeof(int), err));
+    DR_TRY(grow((void **)&r->reals, &r->cap_reals, r->nreals + 1 + 2 * (size_t)g->nrows + (size_t)(g->nrows * g->ndof),
+                sizeof(double), err));
+    DR_TRY(grow((void **)&r->lambda, &r->cap_groups, r->ngroups + 1, sizeof(double *), err));
+    int *pi = r->ints + r->nints;
+    pi[0] = g->nrows;
+    pi[1] = g->ndof;
+    memcpy(pi + 2, g->dof, (size_t)g->ndof * sizeof(int));
+    r->nints += 2 + (size_t)g->ndof;
+    double *pd = r->reals + r->nreals;
+    pd[0] = sc;
+    memcpy(pd + 1, g->phi, (size_t)g->nrows * sizeof(double));
+    memcpy(pd + 1 + g->nrows, g->cinv, (size_t)g->nrows * sizeof(double));
+    memcpy(pd + 1 + 2 * g->nrows, g->J, (size_t)(g->nrows * g->ndof) * sizeof(double));
+    r->nreals += 1 + 2 * (size_t)g->nrows + (size_t)(g->nrows * g->ndof);
+    r->lambda[r->ngroups++] = g->lambda;
+    return DR_OK;
+}
+
+/* The group's local matrix h s JᵀC⁻¹J (material, into mat) and −h² G (geometric, into geo), both ndof×ndof,
+   and its right-hand side −h JᵀC⁻¹c (rhs). s = h for positional rows, 1 for viscous rows. */
+static void local_terms(const DrLag *s, const DrLagGroup *g, double *mat, double *geo, double *rhs)
+{
+    int nd = g->ndof;
+    double h = s->h, sc = g->kind == DR_LAG_POSITIONAL ? h : 1.0;
+    for (int a = 0; a < nd; a++) {
+        double acc = 0;
+        for (int r = 0; r < g->nrows; r++) acc += g->J[r * nd + a] * g->cinv[r] * g->phi[r];
+        rhs[a] = -h * acc;
+        for (int b = 0; b <= a; b++) {
+            double m = 0;
+            for (int r = 0; r < g->nrows; r++) m += g->J[r * nd + a] * g->cinv[r] * g->J[r * nd + b];
+            mat[a * nd + b] = mat[b * nd + a] = h * sc * m;
+            double gg = (g->G && g->kind == DR_LAG_POSITIONAL) ? -h * h * 0.5 * (g->G[a * nd + b] + g->G[b * nd + a]) : 0;
+            geo[a * nd + b] = geo[b * nd + a] = gg;
+        }
+    }
+}
+
+DrStatus dr_lag_add(DrLag *s, const DrLagGroup *g, DrError *err)
+{
+    assert(s->begun);
+    DR_TRY(check_group(s, g, err));
+    int obj = s->dof_object[g->dof[0]];
+    LagObject *o = &s->obj[obj];
+    int lo = g->dof[0], hi = g->dof[0];
+    for (int a = 0; a < g->ndof; a++) {
+        if (s->dof_object[g->dof[a]] != obj)
+            return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                                "constraint over DOFs of objects %d and %d added as a block group; use dr_lag_add_global",
+                                obj, s->dof_object[g->dof[a]]);
+        if (g->dof[a] < lo) lo = g->dof[a];
+        if (g->dof[a] > hi) hi = g->dof[a];
+    }
+    if (hi - lo > o->kd)
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                            "constraint spans DOFs %d..%d, wider than object %d's band (%d); use dr_lag_add_global", lo,
+                            hi, obj, o->kd);
+    double mat[DR_LAG_MAX_DOFS * DR_LAG_MAX_DOFS], geo[DR_LAG_MAX_DOFS * DR_LAG_MAX_DOFS], rhs[DR_LAG_MAX_DOFS];
+    local_terms(s, g, mat, geo, rhs);
+    int nd = g->ndof, ld = o->kd + 1;
+    for (int a = 0; a < nd; a++) {
+        int da = g->dof[a];
+        if (is_prescribed(s, da)) continue;
+        s->b[da] += rhs[a];
+        s->b_local[da] += rhs[a];
+        for (int b = 0; b < nd; b++) {
+            int db = g->dof[b];
+            if (is_prescribed(s, db)) {
+                /* symmetric elimination: the known velocity moves to the right-hand side */
+                double v = s->qdot_prescribed[db];
+                s->b[da] -= (mat[a * nd + b] + geo[a * nd + b]) * v;
+                s->b_local[da] -= (mat[a * nd + b] + geo[a * nd + b]) * v;
+                continue;
+            }
+            if (db > da) continue; /* lower triangle (and diagonal) only */
+            size_t at = (size_t)(da - db) + (size_t)ld * (size_t)(db - o->dof0);
+            o->mat[at] += mat[a * nd + b];
+            o->geo[at] += geo[a * nd + b];
+        }
+    }
+    return record(&o->rec, g, g->kind == DR_LAG_POSITIONAL ? s->h : 1.0, err);
+}
+
+DrStatus dr_lag_add_global(DrLag *s, const DrLagGroup *g, DrError *err)
+{
+    assert(s->begun);
+    DR_TRY(check_group(s, g, err));
+    double mat[DR_LAG_MAX_DOFS * DR_LAG_MAX_DOFS], geo[DR_LAG_MAX_DOFS * DR_LAG_MAX_DOFS], rhs[DR_LAG_MAX_DOFS];
+    local_terms(s, g, mat, geo, rhs);
+    int nd = g->ndof;
+    DR_TRY(grow((void **)&s->trip, &s->cap_trip, s->ntrip + (size_t)(nd * nd), sizeof(LagTriplet), err));
+    for (int a = 0; a < nd; a++) {
+        int da = g->dof[a];
+        if (is_prescribed(s, da)) continue;
+        s->b[da] += rhs[a];
+        for (int b = 0; b < nd; b++) {
+            int db = g->dof[b];
+            double v = mat[a * nd + b] + geo[a * nd + b];
+            if (is_prescribed(s, db)) {
+                s->b[da] -= v * s->qdot_prescribed[db];
+                continue;
+            }
+            if (v == 0) continue;
+            s->trip[s->ntrip++] = (LagTriplet){da, db, v};
+            /* the part on one object's DOFs within its band also goes into that block of the preconditioner */
+            const LagObject *oa = &s->obj[s->dof_object[da]];
+            if (db <= da && s->dof_object[db] == s->dof_object[da] && da - db <= oa->kd)
+                oa->pre[(size_t)(da - db) + (size_t)(oa->kd + 1) * (size_t)(db - oa->dof0)] += v;
+        }
+    }
+    s->groups_global++;
+    return record(&s->grec, g, g->kind == DR_LAG_POSITIONAL ? s->h : 1.0, err);
+}
+
+static int trip_cmp(const void *pa, const void *pb)
+{
+    const LagTriplet *a = pa, *b = pb;
+    if (a->i != b->i) return a->i < b->i ? -1 : 1;
+    if (a->j != b->j) return a->j < b->j ? -1 : 1;
+    return 0;
+}
+
+/* K_G triplets → CSR (sorted, duplicates summed in their sorted order: qsort is not stable, but equal (i, j)
+   keys are summed in an order fixed by the input order only when the sort is deterministic, which glibc's
+   qsort on the same input is; the triplets are generated in a fixed order for any thread count). */
+static DrStatus build_kg(DrLag *s, DrError *err)
+{
+    int n = s->ndof;
+    if (!s->kg) DR_TRY(dr_csr_create(n, (int)(s->ntrip > 0 ? s->ntrip : 1), &s->kg, err));
+    qsort(s->trip, s->ntrip, sizeof *s->trip, trip_cmp);
+    DR_TRY(dr_csr_reserve(s->kg, n, (int)(s->ntrip > 0 ? s->ntrip : 1), err));
+    DrCsr *A = s->kg;
+    int nnz = 0;
+    for (size_t t = 0; t < s->ntrip;) {
+        size_t u = t;
+        double v = 0;
+        while (u < s->ntrip && s->trip[u].i == s->trip[t].i && s->trip[u].j == s->trip[t].j) v += s->trip[u++].v;
+        A->col[nnz] = s->trip[t].j;
+        A->val[nnz] = v;
+        A->rowptr[s->trip[t].i + 1]++;
+        nnz++;
+        t = u;
+    }
+    for (int i = 0; i < n; i++) A->rowptr[i + 1] += A->rowptr[i];
+    A->nnz = nnz;
+    return DR_OK;
+}
+
+/* ---- the operator, the preconditioners ------------------------------------------------------------------ */
+
+typedef struct ApplyCtx {
+    const DrLag *s;
+    const double *x;
+    double *y;
+} ApplyCtx;
+
+/* y_i = A_i x_i for objects [begin, end): symmetric band product from the lower band. */
+static void apply_blocks(long begin, long end, void *vctx)
+{
+    ApplyCtx *c = vctx;
+    for (long oi = begin; oi < end; oi++) {
+        const LagObject *o = &c->s->obj[oi];
+        const double *x = c->x + o->dof0;
+        double *y = c->y + o->dof0;
+        int n = o->ndof, ld = o->kd + 1;
+        bool geo = !o->dropped;
+        for (int i = 0; i < n; i++) y[i] = 0;
+        for (int j = 0; j < n; j++) {
+            const double *cm = o->mat + (size_t)ld * (size_t)j, *cg = o->geo + (size_t)ld * (size_t)j;
+            double d = cm[0] + (geo ? cg[0] : 0);
+            double acc = d * x[j];
+            int top = j + o->kd < n - 1 ? j + o->kd : n - 1;
+            for (int i = j + 1; i <= top; i++) {
+                double a = cm[i - j] + (geo ? cg[i - j] : 0);
+                y[i] += a * x[j];
+                acc += a * x[i];
+            }
+            y[j] += acc;
+        }
+    }
+}
+
+void dr_lag_apply(const DrLag *s, const double *x, double *y)
+{
+    ApplyCtx c = {s, x, y};
+    dr_parallel_for(s->nobj, 64, apply_blocks, &c);
+    if (s->kg && s->ntrip > 0) {
+        const DrCsr *A = s->kg;
+        for (int i = 0; i < A->n; i++) {
+            double acc = 0;
+            for (int k = A->rowptr[i]; k < A->rowptr[i + 1]; k++) acc += A->val[k] * x[A->col[k]];
+            y[i] += acc;
+        }
+    }
+}
+
+typedef struct FactorCtx {
+    DrLag *s;
+    int failed;   /* objects that could not be factored even without geometric stiffness (first one) */
+    int *status;  /* per object: 0 ok, 1 dropped geometric part, 2 failed */
+} FactorCtx;
+
+static void factor_blocks(long begin, long end, void *vctx)
+{
+    FactorCtx *c = vctx;
+    for (long oi = begin; oi < end; oi++) {
+        LagObject *o = &c->s->obj[oi];
+        size_t band = (size_t)(o->kd + 1) * (size_t)o->ndof;
+        DrError e;
+        for (size_t k = 0; k < band; k++) o->factor->ab[k] = o->mat[k] + o->geo[k] + o->pre[k];
+        o->factor->factored = false;
+        if (dr_banded_factor(o->factor, &e) == DR_OK) {
+            c->status[oi] = 0;
+            continue;
+        }
+        for (size_t k = 0; k < band; k++) o->factor->ab[k] = o->mat[k] + o->pre[k];
+        o->factor->factored = false;
+        o->dropped = true;
+        c->status[oi] = dr_banded_factor(o->factor, &e) == DR_OK ? 1 : 2;
+    }
+}
+
+typedef struct SolveCtx {
+    const DrLag *s;
+    const double *r;
+    double *z;
+} SolveCtx;
+
+static void solve_blocks(long begin, long end, void *vctx)
+{
+    SolveCtx *c = vctx;
+    for (long oi = begin; oi < end; oi++) {
+        const LagObject *o = &c->s->obj[oi];
+        memcpy(c->z + o->dof0, c->r + o->dof0, (size_t)o->ndof * sizeof(double));
+        dr_banded_solve(o->factor, c->z + o->dof0, 1);
+    }
+}
+
+static void precondition(const DrLag *s, const double *r, double *z)
+{
+    int n = s->ndof;
+    switch (s->desc.precond) {
+    case DR_LAG_PRECOND_BLOCK: {
+        SolveCtx c = {s, r, z};
+        dr_parallel_for(s->nobj, 16, solve_blocks, &c);
+        break;
+    }
+    case DR_LAG_PRECOND_JACOBI:
+        for (int k = 0; k < n; k++) z[k] = r[k] / s->diag[k];
+        break;
+    case DR_LAG_PRECOND_NONE:
+        memcpy(z, r, (size_t)n * sizeof(double));
+        break;
+    }
+}
+
+/* Σ a_k b_k w_k, sequential in DOF order (bit-identical for any thread count). */
+static double wdot(const double *a, const double *b, const double *w, int n)
+{
+    double acc = 0;
+    for (int k = 0; k < n; k++) acc += a[k] * b[k] * w[k];
+    return acc;
+}
+
+/* ---- the solve -------------------------------------------------------------------------------------------- */
+
+static void update_lambdas(const LagRecords *r, const double *v)
+{
+    size_t pi = 0, pd = 0;
+    for (size_t g = 0; g < r->ngroups; g++) {
+        int nrows = r->ints[pi], ndof = r->ints[pi + 1];
+        const int *dof = r->ints + pi + 2;
+        const double *d = r->reals + pd;
+        double sc = d[0];
+        const double *c = d + 1, *cinv = d + 1 + nrows, *J = d + 1 + 2 * nrows;
+        if (r->lambda[g])
+            for (int k = 0; k < nrows; k++) {
+                double jv = 0;
+                for (int a = 0; a < ndof; a++) jv += J[k * ndof + a] * v[dof[a]];
+                r->lambda[g][k] = -cinv[k] * (c[k] + sc * jv); /* eqs. (S24), (S25) */
+            }
+        pi += 2 + (size_t)ndof;
+        pd += 1 + 2 * (size_t)nrows + (size_t)(nrows * ndof);
+    }
+}
+
+typedef struct LambdaCtx {
+    const DrLag *s;
+    const double *v;
+} LambdaCtx;
+
+static void lambda_blocks(long begin, long end, void *vctx)
+{
+    LambdaCtx *c = vctx;
+    for (long oi = begin; oi < end; oi++) update_lambdas(&c->s->obj[oi].rec, c->v);
+}
+
+DrStatus dr_lag_solve(DrLag *s, double *x, DrLagStats *stats, DrError *err)
+{
+    assert(s->begun);
+    DrLagStats st = {0};
+    int n = s->ndof;
+    for (int i = 0; i < s->nobj; i++) st.groups_block += (int)s->obj[i].rec.ngroups;
+    st.groups_global = s->groups_global;
+    DR_TRY(build_kg(s, err));
+    double t1 = dr_time_now();
+    st.seconds_assemble = t1 - s->t_assemble0;
+
+    /* 1. factor every block: the block preconditioner and the local guess need the factors, and every
+       preconditioner needs the same decision on which blocks keep their geometric stiffness (Cholesky is
+       the test of positive definiteness), so that all three solve one and the same system. */
+    bool need_factor = s->desc.precond == DR_LAG_PRECOND_BLOCK;
+    int *status = NULL;
+    DR_TRY(dr_calloc((size_t)(s->nobj > 0 ? s->nobj : 1), sizeof(int), &status, err));
+    FactorCtx fc = {s, 0, status};
+    dr_parallel_for(s->nobj, 16, factor_blocks, &fc);
+    for (int i = 0; i < s->nobj; i++) {
+        if (status[i] == 1) st.indefinite_blocks++;
+        if (status[i] == 2) {
+            free(status);
+            s->begun = false;
+            return dr_error_set(err, DR_ERR_RUNTIME, NULL, 0, 0,
+                                "object %d's block is not positive definite even without geometric stiffness "
+                                "(non-positive compliance, or a degenerate configuration)",
+                                i);
+        }
+    }
+    free(status);
+    /* diag(A) for Jacobi */
+    for (int oi = 0; oi < s->nobj; oi++) {
+        const LagObject *o = &s->obj[oi];
+        int ld = o->kd + 1;
+        for (int k = 0; k < o->ndof; k++)
+            s->diag[o->dof0 + k] = o->mat[(size_t)ld * k] + (o->dropped ? 0 : o->geo[(size_t)ld * k]);
+    }
+    if (s->kg)
+        for (int i = 0; i < n; i++)
+            for (int k = s->kg->rowptr[i]; k < s->kg->rowptr[i + 1]; k++)
+                if (s->kg->col[k] == i) s->diag[i] += s->kg->val[k];
+    double t2 = dr_time_now();
+    st.seconds_factor = t2 - t1;
+
+    /* 2. initial guess: the local solves A_i* q̇_i = b_i* (S1 lines 1–3), or the current velocity */
+    double *r = s->work, *z = r + n, *p = z + n, *w = p + n;
+    if (need_factor && s->desc.local_guess) {
+        SolveCtx c = {s, s->b_local, x};
+        dr_parallel_for(s->nobj, 16, solve_blocks, &c);
+    } else {
+        for (int k = 0; k < n; k++) x[k] = is_prescribed(s, k) ? s->qdot_prescribed[k] : s->qdot[k];
+    }
+    for (int k = 0; k < n; k++)
+        if (is_prescribed(s, k)) x[k] = s->qdot_prescribed[k];
+
+    /* 3. PCG on the whole system (S1 lines 4–22) */
+    dr_lag_apply(s, x, w);
+    for (int k = 0; k < n; k++) r[k] = s->b[k] - w[k];
+    double bnorm = sqrt(wdot(s->b, s->b, s->inv_mass, n));
+    double target = s->desc.tol * (bnorm > 0 ? bnorm : 1.0);
+    double rnorm = sqrt(wdot(r, r, s->inv_mass, n));
+    precondition(s, r, z);
+    memcpy(p, z, (size_t)n * sizeof(double));
+    double gamma = dr_dot(r, z, n);
+    int it = 0;
+    DrStatus result = DR_OK;
+    while (rnorm > target) {
+        if (it >= s->desc.max_iter) {
+            result = DR_WARN_NOT_CONVERGED;
+            break;
+        }
+        dr_lag_apply(s, p, w);
+        double pw = dr_dot(p, w, n);
+        if (!(pw > 0) || !(gamma > 0)) {
+            s->begun = false;
+            return dr_error_set(err, DR_ERR_RUNTIME, NULL, 0, 0,
+                                "conjugate gradients broke down after %d iterations (pᵀAp = %g, rᵀz = %g): the "
+                                "system is not positive definite or holds non-finite values",
+                                it, pw, gamma);
+        }
+        double alpha = gamma / pw;
+        for (int k = 0; k < n; k++) {
+            x[k] += alpha * p[k];
+            r[k] -= alpha * w[k];
+        }
+        precondition(s, r, z);
+        double gamma1 = dr_dot(r, z, n);
+        double beta = gamma1 / gamma;
+        gamma = gamma1;
+        for (int k = 0; k < n; k++) p[k] = z[k] + beta * p[k];
+        rnorm = sqrt(wdot(r, r, s->inv_mass, n));
+        it++;
+        if (!isfinite(rnorm)) {
+            s->begun = false;
+            return dr_error_set(err, DR_ERR_RUNTIME, NULL, 0, 0,
+                                "conjugate gradients produced a non-finite residual after %d iterations", it);
+        }
+    }
+    st.iterations = it;
+    st.residual = bnorm > 0 ? rnorm / bnorm : rnorm;
+    st.converged = result == DR_OK;
+
+    /* 4. multipliers from the new velocity (S24, S25) */
+    LambdaCtx lc = {s, x};
+    dr_parallel_for(s->nobj, 64, lambda_blocks, &lc);
+    update_lambdas(&s->grec, x);
+    st.seconds_solve = dr_time_now() - t2;
+    s->begun = false;
+    if (stats) *stats = st;
+    return result;
+}

@@ -1,0 +1,454 @@
+/* Unit tests for src/lagrangian: the linearised implicit Euler step against hand and dense solutions (assembly
+ * checked independently of the solver), the λ updates of eqs. (S24)–(S25), prescribed DOFs, the three
+ * preconditioners agreeing, indefinite blocks, bad groups, the iteration cap, and thread-count determinism. */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <omp.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "core/core.h"
+#include "lagrangian/lagrangian.h"
+
+static void near_or_fail(double a, double b, double tol, const char *file, int line)
+{
+    if (fabs(a - b) <= tol) return;
+    print_error("%.17g != %.17g (|diff| %.3g > tol %.3g)\n", a, b, fabs(a - b), tol);
+    _fail(file, line);
+}
+#define assert_near(a, b, tol) near_or_fail((a), (b), (tol), __FILE__, __LINE__)
+
+extern void dposv_(const char *uplo, const int *n, const int *nrhs, double *a, const int *lda, double *b,
+                   const int *ldb, int *info, size_t);
+
+/* ---- a random test system, with its dense matrix and right-hand side assembled here ---------------------- */
+
+typedef struct TestSystem {
+    int nobj, per, kd, n;
+    double h;
+    double *mass, *v, *f;
+    unsigned char *pres;
+    double *vp;
+    DrLagGroup *groups;
+    bool *global;
+    int ngroups;
+    double *lambda; /* DR_LAG_MAX_ROWS per group */
+} TestSystem;
+
+static void sys_free(TestSystem *t)
+{
+    free(t->mass);
+    free(t->v);
+    free(t->f);
+    free(t->pres);
+    free(t->vp);
+    free(t->groups);
+    free(t->global);
+    free(t->lambda);
+}
+
+/* nobj objects of `per` DOFs, half-bandwidth kd; per object `per` random banded groups (1–3 rows, SPD
+   material terms), plus `nglobal` groups joining random DOFs of different objects. */
+static void sys_make(TestSystem *t, int nobj, int per, int kd, int nglobal, uint64_t seed)
+{
+    memset(t, 0, sizeof *t);
+    DrRng rng;
+    dr_rng_seed(&rng, seed);
+    t->nobj = nobj;
+    t->per = per;
+    t->kd = kd;
+    t->n = nobj * per;
+    t->h = 0.01;
+    t->mass = calloc((size_t)t->n, sizeof(double));
+    t->v = calloc((size_t)t->n, sizeof(double));
+    t->f = calloc((size_t)t->n, sizeof(double));
+    t->pres = calloc((size_t)t->n, 1);
+    t->vp = calloc((size_t)t->n, sizeof(double));
+    for (int i = 0; i < t->n; i++) {
+        t->mass[i] = 0.5 + dr_rng_uniform(&rng);
+        t->v[i] = dr_rng_uniform(&rng) - 0.5;
+        t->f[i] = 2 * dr_rng_uniform(&rng) - 1;
+    }
+    int cap = nobj * per + nglobal;
+    t->groups = calloc((size_t)cap, sizeof(DrLagGroup));
+    t->global = calloc((size_t)cap, sizeof(bool));
+    t->lambda = calloc((size_t)cap * DR_LAG_MAX_ROWS, sizeof(double));
+    for (int o = 0; o < nobj; o++)
+        for (int k = 0; k < per; k++) {
+            DrLagGroup *g = &t->groups[t->ngroups];
+            g->kind = (k % 5 == 4) ? DR_LAG_VISCOUS : DR_LAG_POSITIONAL;
+            g->nrows = 1 + (int)(dr_rng_next(&rng) % 3);
+            int first = o * per + (int)(dr_rng_next(&rng) % (uint64_t)(per - kd));
+            g->ndof = 2 + (int)(dr_rng_next(&rng) % (uint64_t)kd);
+            for (int a = 0; a < g->ndof; a++) g->dof[a] = first + a;
+            for (int r = 0; r < g->nrows; r++) {
+                g->phi[r] = dr_rng_uniform(&rng) - 0.5;
+                g->cinv[r] = 10 + 1000 * dr_rng_uniform(&rng);
+                for (int a = 0; a < g->ndof; a++) g->J[r * g->ndof + a] = dr_rng_uniform(&rng) - 0.5;
+            }
+            g->lambda = t->lambda + DR_LAG_MAX_ROWS * t->ngroups;
+            t->ngroups++;
+        }
+    for (int k = 0; k < nglobal; k++) {
+        DrLagGroup *g = &t->groups[t->ngroups];
+        g->kind = DR_LAG_POSITIONAL;
+        g->nrows = 1;
+        g->ndof = 2;
+        int a = (int)(dr_rng_next(&rng) % (uint64_t)t->n), b;
+        do b = (int)(dr_rng_next(&rng) % (uint64_t)t->n);
+        while (b / per == a / per);
+        g->dof[0] = a;
+        g->dof[1] = b;
+        g->phi[0] = dr_rng_uniform(&rng) - 0.5;
+        g->cinv[0] = 100;
+        g->J[0] = 1;
+        g->J[1] = -1;
+        g->lambda = t->lambda + DR_LAG_MAX_ROWS * t->ngroups;
+        t->global[t->ngroups] = true;
+        t->ngroups++;
+    }
+}
+
+/* Dense A (n×n, column-major = row-major: symmetric) and b of eq. (S26) with prescribed DOFs eliminated. */
+static void sys_dense(const TestSystem *t, double *A, double *b)
+{
+    int n = t->n;
+    double h = t->h;
+    memset(A, 0, (size_t)n * n * sizeof(double));
+    for (int i = 0; i < n; i++) {
+        A[i * n + i] = t->mass[i];
+        b[i] = t->mass[i] * (t->pres[i] ? t->vp[i] : t->v[i]) + (t->pres[i] ? 0 : h * t->f[i]);
+    }
+    for (int k = 0; k < t->ngroups; k++) {
+        const DrLagGroup *g = &t->groups[k];
+        double sc = g->kind == DR_LAG_POSITIONAL ? h : 1.0;
+        for (int a = 0; a < g->ndof; a++) {
+            int da = g->dof[a];
+            if (t->pres[da]) continue;
+            double rhs = 0;
+            for (int r = 0; r < g->nrows; r++) rhs -= h * g->J[r * g->ndof + a] * g->cinv[r] * g->phi[r];
+            b[da] += rhs;
+            for (int c = 0; c < g->ndof; c++) {
+                int dc = g->dof[c];
+                double m = 0;
+                for (int r = 0; r < g->nrows; r++) m += h * sc * g->J[r * g->ndof + a] * g->cinv[r] * g->J[r * g->ndof + c];
+                if (g->G && g->kind == DR_LAG_POSITIONAL) m -= h * h * g->G[a * g->ndof + c];
+                if (t->pres[dc]) b[da] -= m * t->vp[dc];
+                else A[da * n + dc] += m;
+            }
+        }
+    }
+}
+
+static DrLag *sys_solver(const TestSystem *t, DrLagPrecond pc, double tol)
+{
+    DrLagDesc d;
+    dr_lag_desc_default(&d);
+    d.precond = pc;
+    d.tol = tol;
+    d.max_iter = 5000;
+    DrLag *s = NULL;
+    DrError err;
+    assert_int_equal(dr_lag_create(&d, &s, &err), DR_OK);
+    for (int o = 0; o < t->nobj; o++) {
+        int id, d0;
+        assert_int_equal(dr_lag_add_object(s, t->per, t->kd, &id, &d0, &err), DR_OK);
+        assert_int_equal(id, o);
+        assert_int_equal(d0, o * t->per);
+    }
+    return s;
+}
+
+static DrStatus sys_step(const TestSystem *t, DrLag *s, double *x, DrLagStats *st)
+{
+    DrError err;
+    bool any = false;
+    for (int i = 0; i < t->n; i++) any = any || t->pres[i];
+    assert_int_equal(dr_lag_begin(s, t->h, t->mass, t->v, t->f, any ? t->pres : NULL, t->vp, &err), DR_OK);
+    for (int k = 0; k < t->ngroups; k++) {
+        DrStatus r = t->global[k] ? dr_lag_add_global(s, &t->groups[k], &err) : dr_lag_add(s, &t->groups[k], &err);
+        assert_int_equal(r, DR_OK);
+    }
+    return dr_lag_solve(s, x, st, &err);
+}
+
+/* max_i |(A x − b)_i| / max_i |b_i| with the dense A, b assembled above */
+static double dense_residual(const TestSystem *t, const double *x)
+{
+    int n = t->n;
+    double *A = malloc((size_t)n * n * sizeof(double)), *b = malloc((size_t)n * sizeof(double));
+    sys_dense(t, A, b);
+    double worst = 0, scale = 0;
+    for (int i = 0; i < n; i++) {
+        double r = -b[i];
+        for (int j = 0; j < n; j++) r += A[i * n + j] * x[j];
+        worst = fmax(worst, fabs(r));
+        scale = fmax(scale, fabs(b[i]));
+    }
+    free(A);
+    free(b);
+    return worst / scale;
+}
+
+/* ---- tests ------------------------------------------------------------------------------------------------- */
+
+/* One DOF on a linear spring φ = q − 1 (C⁻¹ = k): (m + h²k) v₊ = m v + h (f − k φ), λ₊ = −k (φ + h v₊). */
+static void test_spring_by_hand(void **state)
+{
+    (void)state;
+    DrLag *s = NULL;
+    DrError err;
+    assert_int_equal(dr_lag_create(NULL, &s, &err), DR_OK);
+    int id, d0;
+    assert_int_equal(dr_lag_add_object(s, 1, 0, &id, &d0, &err), DR_OK);
+    double m = 2, v = 0.3, f = -1.5, h = 0.1, k = 50, q = 1.2, lambda = 0;
+    assert_int_equal(dr_lag_begin(s, h, &m, &v, &f, NULL, NULL, &err), DR_OK);
+    DrLagGroup g = {.kind = DR_LAG_POSITIONAL, .nrows = 1, .ndof = 1, .dof = {0}, .phi = {q - 1}, .cinv = {k},
+                    .J = {1}, .lambda = &lambda};
+    assert_int_equal(dr_lag_add(s, &g, &err), DR_OK);
+    double x = 0;
+    DrLagStats st;
+    assert_int_equal(dr_lag_solve(s, &x, &st, &err), DR_OK);
+    double expect = (m * v + h * (f - k * (q - 1))) / (m + h * h * k);
+    assert_near(x, expect, 1e-14);
+    assert_near(lambda, -k * ((q - 1) + h * expect), 1e-12);
+    assert_int_equal(st.groups_block, 1);
+    dr_lag_destroy(&s);
+    assert_null(s);
+}
+
+/* A drag φ_v = q̇ − u (J_v = 1, c = −u, C_v⁻¹ = c_d): (m + h c_d) v₊ = m v + h (f + c_d u), λ_v₊ = −c_d (v₊ − u). */
+static void test_viscous_by_hand(void **state)
+{
+    (void)state;
+    DrLag *s = NULL;
+    DrError err;
+    assert_int_equal(dr_lag_create(NULL, &s, &err), DR_OK);
+    int id, d0;
+    assert_int_equal(dr_lag_add_object(s, 1, 0, &id, &d0, &err), DR_OK);
+    double m = 0.5, v = 2, f = 0.25, h = 0.05, cd = 3, u = -1, lambda = 0;
+    assert_int_equal(dr_lag_begin(s, h, &m, &v, &f, NULL, NULL, &err), DR_OK);
+    DrLagGroup g = {.kind = DR_LAG_VISCOUS, .nrows = 1, .ndof = 1, .dof = {0}, .phi = {-u}, .cinv = {cd},
+                    .J = {1}, .lambda = &lambda};
+    assert_int_equal(dr_lag_add(s, &g, &err), DR_OK);
+    double x = 0;
+    assert_int_equal(dr_lag_solve(s, &x, NULL, &err), DR_OK);
+    double expect = (m * v + h * (f + cd * u)) / (m + h * cd);
+    assert_near(x, expect, 1e-14);
+    assert_near(lambda, -cd * (expect - u), 1e-12);
+    dr_lag_destroy(&s);
+}
+
+/* All three preconditioners solve the same system (checked against the dense assembly) and agree. */
+static void test_preconditioners_agree(void **state)
+{
+    (void)state;
+    TestSystem t;
+    sys_make(&t, 12, 20, 5, 30, 7);
+    double *x[3];
+    int iters[3];
+    DrLagPrecond pcs[3] = {DR_LAG_PRECOND_BLOCK, DR_LAG_PRECOND_JACOBI, DR_LAG_PRECOND_NONE};
+    for (int p = 0; p < 3; p++) {
+        x[p] = calloc((size_t)t.n, sizeof(double));
+        DrLag *s = sys_solver(&t, pcs[p], 1e-12);
+        DrLagStats st;
+        assert_int_equal(sys_step(&t, s, x[p], &st), DR_OK);
+        assert_true(st.converged);
+        assert_int_equal(st.groups_global, 30);
+        iters[p] = st.iterations;
+        /* ‖r‖_{M⁻¹} ≤ 1e-12 ‖b‖_{M⁻¹} bounds the dense residual to ~1e-11 of b's largest entry here
+           (masses within [0.5, 1.5]) */
+        assert_true(dense_residual(&t, x[p]) < 1e-10);
+        dr_lag_destroy(&s);
+    }
+    for (int i = 0; i < t.n; i++) {
+        assert_near(x[1][i], x[0][i], 1e-9 * (1 + fabs(x[0][i])));
+        assert_near(x[2][i], x[0][i], 1e-9 * (1 + fabs(x[0][i])));
+    }
+    /* the block preconditioner captures everything but the 30 inter-object springs */
+    assert_true(iters[0] < iters[1]);
+    print_message("iterations: block %d, jacobi %d, none %d\n", iters[0], iters[1], iters[2]);
+    for (int p = 0; p < 3; p++) free(x[p]);
+    sys_free(&t);
+}
+
+/* Without inter-object terms the local block solves are the solution: 0 CG iterations. */
+static void test_local_solve_exact(void **state)
+{
+    (void)state;
+    TestSystem t;
+    sys_make(&t, 6, 16, 4, 0, 11);
+    double *x = calloc((size_t)t.n, sizeof(double));
+    DrLag *s = sys_solver(&t, DR_LAG_PRECOND_BLOCK, 1e-10);
+    DrLagStats st;
+    assert_int_equal(sys_step(&t, s, x, &st), DR_OK);
+    assert_int_equal(st.iterations, 0);
+    assert_true(dense_residual(&t, x) < 1e-12);
+    /* λ₊ = −C⁻¹(c + s J q̇₊) for every group */
+    for (int k = 0; k < t.ngroups; k++) {
+        const DrLagGroup *g = &t.groups[k];
+        double sc = g->kind == DR_LAG_POSITIONAL ? t.h : 1.0;
+        for (int r = 0; r < g->nrows; r++) {
+            double jv = 0;
+            for (int a = 0; a < g->ndof; a++) jv += g->J[r * g->ndof + a] * x[g->dof[a]];
+            double expect = -g->cinv[r] * (g->phi[r] + sc * jv);
+            assert_near(g->lambda[r], expect, 1e-12 * (1 + fabs(expect)));
+        }
+    }
+    dr_lag_destroy(&s);
+    free(x);
+    sys_free(&t);
+}
+
+/* Prescribed DOFs get their velocity exactly and the rest solve the reduced system. */
+static void test_prescribed(void **state)
+{
+    (void)state;
+    TestSystem t;
+    sys_make(&t, 5, 12, 4, 8, 3);
+    for (int o = 0; o < t.nobj; o++) {
+        t.pres[o * t.per] = t.pres[o * t.per + 1] = 1;
+        t.vp[o * t.per] = 0.7;
+        t.vp[o * t.per + 1] = -0.2;
+    }
+    DrLagPrecond pcs[3] = {DR_LAG_PRECOND_BLOCK, DR_LAG_PRECOND_JACOBI, DR_LAG_PRECOND_NONE};
+    for (int p = 0; p < 3; p++) {
+        double *x = calloc((size_t)t.n, sizeof(double));
+        DrLag *s = sys_solver(&t, pcs[p], 1e-12);
+        assert_int_equal(sys_step(&t, s, x, NULL), DR_OK);
+        for (int o = 0; o < t.nobj; o++) {
+            assert_true(x[o * t.per] == 0.7);
+            assert_true(x[o * t.per + 1] == -0.2);
+        }
+        assert_true(dense_residual(&t, x) < 1e-10);
+        dr_lag_destroy(&s);
+        free(x);
+    }
+    sys_free(&t);
+}
+
+/* A block made indefinite by its geometric stiffness drops it, for every preconditioner alike. */
+static void test_indefinite_block(void **state)
+{
+    (void)state;
+    TestSystem t;
+    sys_make(&t, 3, 10, 3, 2, 5);
+    double G[4] = {-1e9, 0, 0, -1e9}; /* −h² G = +1e5 on the diagonal: fine; make it the other sign */
+    G[0] = G[3] = 1e9;                /* −h² G = −1e5: the block turns indefinite */
+    DrLagGroup *g = &t.groups[0];
+    g->kind = DR_LAG_POSITIONAL;
+    g->ndof = 2;
+    g->G = G;
+    double *x[2];
+    DrLagPrecond pcs[2] = {DR_LAG_PRECOND_BLOCK, DR_LAG_PRECOND_JACOBI};
+    for (int p = 0; p < 2; p++) {
+        x[p] = calloc((size_t)t.n, sizeof(double));
+        DrLag *s = sys_solver(&t, pcs[p], 1e-12);
+        DrLagStats st;
+        assert_int_equal(sys_step(&t, s, x[p], &st), DR_OK);
+        assert_int_equal(st.indefinite_blocks, 1);
+        dr_lag_destroy(&s);
+    }
+    g->G = NULL; /* the dense reference without it */
+    assert_true(dense_residual(&t, x[0]) < 1e-10);
+    for (int i = 0; i < t.n; i++) assert_near(x[1][i], x[0][i], 1e-9 * (1 + fabs(x[0][i])));
+    free(x[0]);
+    free(x[1]);
+    sys_free(&t);
+}
+
+static void test_bad_groups(void **state)
+{
+    (void)state;
+    DrLag *s = NULL;
+    DrError err;
+    assert_int_equal(dr_lag_create(NULL, &s, &err), DR_OK);
+    int id, d0;
+    assert_int_equal(dr_lag_add_object(s, 0, 0, &id, &d0, &err), DR_ERR_INPUT);
+    assert_int_equal(dr_lag_add_object(s, 4, 4, &id, &d0, &err), DR_ERR_INPUT);
+    assert_int_equal(dr_lag_add_object(s, 6, 2, &id, &d0, &err), DR_OK);
+    assert_int_equal(dr_lag_add_object(s, 6, 2, &id, &d0, &err), DR_OK);
+    double m[12], v[12] = {0};
+    for (int i = 0; i < 12; i++) m[i] = 1;
+    assert_int_equal(dr_lag_begin(s, 0.01, m, v, NULL, NULL, NULL, &err), DR_OK);
+    DrLagGroup g = {.kind = DR_LAG_POSITIONAL, .nrows = 1, .ndof = 2, .dof = {0, 3}, .phi = {0}, .cinv = {1},
+                    .J = {1, -1}};
+    assert_int_equal(dr_lag_add(s, &g, &err), DR_ERR_INPUT); /* wider than the band */
+    assert_non_null(strstr(err.message, "band"));
+    g.dof[1] = 7;
+    assert_int_equal(dr_lag_add(s, &g, &err), DR_ERR_INPUT); /* two objects */
+    assert_non_null(strstr(err.message, "dr_lag_add_global"));
+    assert_int_equal(dr_lag_add_global(s, &g, &err), DR_OK);
+    g.dof[1] = 1;
+    g.phi[0] = NAN;
+    assert_int_equal(dr_lag_add(s, &g, &err), DR_ERR_RUNTIME);
+    assert_non_null(strstr(err.message, "non-finite"));
+    m[3] = 0;
+    assert_int_equal(dr_lag_begin(s, 0.01, m, v, NULL, NULL, NULL, &err), DR_ERR_INPUT);
+    assert_non_null(strstr(err.message, "DOF 3"));
+    dr_lag_destroy(&s);
+}
+
+static void test_iteration_cap(void **state)
+{
+    (void)state;
+    TestSystem t;
+    sys_make(&t, 8, 12, 4, 20, 9);
+    DrLag *s = sys_solver(&t, DR_LAG_PRECOND_NONE, 1e-14);
+    DrLagDesc d;
+    dr_lag_desc_default(&d);
+    d.precond = DR_LAG_PRECOND_NONE;
+    d.tol = 1e-14;
+    d.max_iter = 2;
+    dr_lag_set_desc(s, &d);
+    double *x = calloc((size_t)t.n, sizeof(double));
+    DrLagStats st;
+    assert_int_equal(sys_step(&t, s, x, &st), DR_WARN_NOT_CONVERGED);
+    assert_false(st.converged);
+    assert_int_equal(st.iterations, 2);
+    for (int i = 0; i < t.n; i++) assert_true(isfinite(x[i]));
+    dr_lag_destroy(&s);
+    free(x);
+    sys_free(&t);
+}
+
+static void test_threads_bit_identical(void **state)
+{
+    (void)state;
+    TestSystem t;
+    sys_make(&t, 40, 30, 6, 60, 21);
+    double *x[2], *lam[2];
+    for (int p = 0; p < 2; p++) {
+        omp_set_num_threads(p + 1);
+        x[p] = calloc((size_t)t.n, sizeof(double));
+        DrLag *s = sys_solver(&t, DR_LAG_PRECOND_BLOCK, 1e-12);
+        assert_int_equal(sys_step(&t, s, x[p], NULL), DR_OK);
+        lam[p] = malloc((size_t)t.ngroups * DR_LAG_MAX_ROWS * sizeof(double));
+        memcpy(lam[p], t.lambda, (size_t)t.ngroups * DR_LAG_MAX_ROWS * sizeof(double));
+        dr_lag_destroy(&s);
+    }
+    omp_set_num_threads(2);
+    assert_memory_equal(x[0], x[1], (size_t)t.n * sizeof(double));
+    assert_memory_equal(lam[0], lam[1], (size_t)t.ngroups * DR_LAG_MAX_ROWS * sizeof(double));
+    for (int p = 0; p < 2; p++) {
+        free(x[p]);
+        free(lam[p]);
+    }
+    sys_free(&t);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_spring_by_hand),       cmocka_unit_test(test_viscous_by_hand),
+        cmocka_unit_test(test_preconditioners_agree), cmocka_unit_test(test_local_solve_exact),
+        cmocka_unit_test(test_prescribed),           cmocka_unit_test(test_indefinite_block),
+        cmocka_unit_test(test_bad_groups),           cmocka_unit_test(test_iteration_cap),
+        cmocka_unit_test(test_threads_bit_identical),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
