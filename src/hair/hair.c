@@ -1,0 +1,906 @@
+/* Rod sets: discrete elastic rods stepped by the Lagrangian solver (see hair.h; fei2017 §S4, PHYSICS §4).
+ *
+ * One step:
+ *   1. the reference state is the current one (tangents, time-transported directors a1, reference twists);
+ *   2. root DOFs get the velocity that lands them on the scalp pose at the end of the step;
+ *   3. per strand (in parallel, one Lagrangian object each): stretching, bending and twisting groups with
+ *      last step's λ for the geometric stiffness, their viscous copies for internal damping, and vertex–
+ *      collider contacts; then hair–hair contacts (inter-object, K_G) from a spatial hash;
+ *   4. the solve (block-preconditioned PCG), then Coulomb friction at collider contacts;
+ *   5. positions and twists advance, directors are transported in time, reference twists follow.
+ * The DOF vector of a strand interleaves x_j and θ^j (src/hair/rod.h), so its block has half-bandwidth 10. */
+#include "hair/hair.h"
+
+#include <stdlib.h>
+#include <string.h>
+
+#include "hair/rod.h"
+
+#define ROD_KD 10
+
+void dr_rod_set_desc_default(DrRodSetDesc *d)
+{
+    memset(d, 0, sizeof *d);
+    d->roots = DR_ROD_ROOTS_CLAMPED;
+    d->tips = DR_ROD_ROOTS_FREE;
+    d->gravity = dr_v3(0, -9.81, 0);
+    d->geometric_stiffness = true;
+    dr_lag_desc_default(&d->solver);
+    d->hair_contact = false;
+    d->collider_stiffness = 1e4;
+}
+
+typedef struct HashEntry { int cx, cy, cz, edge; } HashEntry;
+
+typedef struct HairContact {
+    int e0, e1;      /* global edges */
+    double s, t;     /* closest-point parameters on each */
+    double dist;     /* distance of the closest points */
+    DrVec3 n;        /* unit, from edge e1's point towards e0's */
+    double rr;       /* contact distance r_a + t_a + r_b + t_b */
+    double k, mu;    /* stiffness, friction */
+} HairContact;
+
+struct DrRodSet {
+    DrRodSetDesc desc;
+    int S, V, E, I;            /* strands, vertices, edges, interior vertices */
+    int *offsets;              /* S + 1 */
+    int nbatches;
+    int *batch_offsets;        /* nbatches + 1 (strands) */
+    unsigned *batch_group, *batch_mask;
+    int *strand_batch;         /* S */
+    DrRodMaterial *materials;  /* per batch */
+    DrRodBatch *batch;         /* per batch (the groom pointers are not kept past create) */
+
+    /* rest */
+    double *lbar;              /* E */
+    double *kbar;              /* 4 I */
+    double *tbar;              /* I */
+    double *lv;                /* I, Voronoi lengths */
+    double *vmass;             /* V */
+    double *tinertia;          /* E, ρ (πr⁴/2) l̄ */
+    double *radius;            /* S */
+    DrRodStiffness *stiff;     /* S */
+    double *root_rest;         /* S × 2 × 3: rest positions of the first two vertices */
+    double *m1_rest;           /* S × 3: rest material director of edge 0 */
+    double *tip_rest;          /* S × 2 × 3: starting positions of the last two vertices (desc.tips) */
+
+    /* state */
+    double *x, *v, *theta, *theta_dot, *a1, *m, *t, *len;
+    double *lambda;            /* E + 4 I + I: stretch, bend, twist */
+    long nlambda;
+
+    /* solver */
+    DrLag *lag;
+    int *dof0;                 /* S */
+    int ndof;
+    double *dmass, *qdot, *fext, *qdot_p, *qdot_out;
+    unsigned char *pres;
+    /* collider contacts (per vertex) */
+    unsigned char *cflag;
+    double *cnormal, *cvel, *clambda, *cfric;
+    /* hair contacts */
+    HairContact *hc;
+    size_t nhc, cap_hc;
+    struct HashEntry *hash_entries; /* scratch for the broad phase */
+    size_t cap_hash;
+    /* step scratch to restore on failure */
+    double *save;
+    double *t_old;             /* 3 E: tangents at the start of the step */
+    double h_step;             /* the step being taken */
+};
+
+static inline int edge_index(const DrRodSet *r, int s, int local) { return r->offsets[s] - s + local; }
+static inline int interior_index(const DrRodSet *r, int s, int i) { return r->offsets[s] - 2 * s + (i - 1); }
+
+/* ---- creation ------------------------------------------------------------------------------------------ */
+
+static DrStatus check_material(const DrRodMaterial *m, int batch, DrError *err)
+{
+    if (!(m->radius > 0) || !(m->density > 0) || !(m->youngs > 0) || !(m->shear > 0) || !(m->damping >= 0) ||
+        !isfinite(m->radius + m->density + m->youngs + m->shear + m->damping))
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                            "rod material of groom %d: radius %g m, density %g kg/m³, Young's modulus %g Pa, shear "
+                            "modulus %g Pa must be positive and damping %g s non-negative",
+                            batch, m->radius, m->density, m->youngs, m->shear, m->damping);
+    return DR_OK;
+}
+
+void dr_rod_set_destroy(DrRodSet **rp)
+{
+    if (!rp || !*rp) return;
+    DrRodSet *r = *rp;
+    void *arrays[] = {r->offsets, r->batch_offsets, r->batch_group, r->batch_mask, r->strand_batch, r->materials, r->batch,
+                      r->lbar, r->kbar, r->tbar, r->lv, r->vmass, r->tinertia, r->radius, r->stiff, r->root_rest,
+                      r->m1_rest, r->tip_rest, r->t_old, r->x, r->v, r->theta, r->theta_dot, r->a1, r->m, r->t, r->len, r->lambda,
+                      r->dof0, r->dmass, r->qdot, r->fext, r->qdot_p, r->qdot_out, r->pres, r->cflag, r->cnormal,
+                      r->cvel, r->clambda, r->cfric, r->hc, r->hash_entries, r->save};
+    for (size_t k = 0; k < sizeof arrays / sizeof arrays[0]; k++) free(arrays[k]);
+    dr_lag_destroy(&r->lag);
+    free(r);
+    *rp = NULL;
+}
+
+#define ALLOC(ptr, count)                                                                                           \
+    do {                                                                                                            \
+        s = dr_calloc((size_t)(count) > 0 ? (size_t)(count) : 1, sizeof *(ptr), &(ptr), err);                       \
+        if (s != DR_OK) goto fail;                                                                                  \
+    } while (0)
+
+DrStatus dr_rod_set_create(const DrRodSetDesc *desc, const DrRodBatch *batches, int nbatches, DrRodSet **out,
+                           DrError *err)
+{
+    *out = NULL;
+    DrStatus s = DR_OK;
+    if (nbatches < 1) return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "a rod set needs at least one groom");
+    long S = 0, V = 0;
+    for (int b = 0; b < nbatches; b++) {
+        DR_TRY(check_material(&batches[b].material, b, err));
+        const DrGroom *g = batches[b].groom;
+        if (g->nstrands < 1) return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "groom %d has no strands", b);
+        for (int k = 0; k < g->nstrands; k++) {
+            int nv = g->offsets[k + 1] - g->offsets[k];
+            if (nv < 2)
+                return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "groom %d strand %d has %d vertices; a strand needs 2",
+                                    b, k, nv);
+            for (int j = g->offsets[k]; j + 1 < g->offsets[k + 1]; j++) {
+                const double *p = g->x + 3 * j, *q = p + 3;
+                double d = sqrt((q[0] - p[0]) * (q[0] - p[0]) + (q[1] - p[1]) * (q[1] - p[1]) + (q[2] - p[2]) * (q[2] - p[2]));
+                if (!(d > 1e-12) || !isfinite(d))
+                    return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                                        "groom %d strand %d has a zero-length or non-finite edge at vertex %d", b, k,
+                                        j - g->offsets[k]);
+            }
+        }
+        S += g->nstrands;
+        V += g->offsets[g->nstrands];
+    }
+    if (4 * V > 2000000000L) return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "too many hair vertices (%ld)", V);
+    DrRodSet *r = NULL;
+    DR_TRY(dr_calloc(1, sizeof *r, &r, err));
+    r->desc = *desc;
+    r->S = (int)S;
+    r->V = (int)V;
+    r->E = (int)(V - S);
+    r->I = (int)(V - 2 * S);
+    r->nbatches = nbatches;
+    ALLOC(r->offsets, S + 1);
+    ALLOC(r->batch_offsets, nbatches + 1);
+    ALLOC(r->batch_group, nbatches);
+    ALLOC(r->batch_mask, nbatches);
+    ALLOC(r->strand_batch, S);
+    ALLOC(r->materials, nbatches);
+    ALLOC(r->batch, nbatches);
+    ALLOC(r->lbar, r->E);
+    ALLOC(r->kbar, 4 * r->I);
+    ALLOC(r->tbar, r->I);
+    ALLOC(r->lv, r->I);
+    ALLOC(r->vmass, V);
+    ALLOC(r->tinertia, r->E);
+    ALLOC(r->radius, S);
+    ALLOC(r->stiff, S);
+    ALLOC(r->root_rest, 6 * S);
+    ALLOC(r->m1_rest, 3 * S);
+    ALLOC(r->tip_rest, 6 * S);
+    ALLOC(r->x, 3 * V);
+    ALLOC(r->v, 3 * V);
+    ALLOC(r->theta, r->E);
+    ALLOC(r->theta_dot, r->E);
+    ALLOC(r->a1, 3 * r->E);
+    ALLOC(r->m, r->I);
+    ALLOC(r->t, 3 * r->E);
+    ALLOC(r->len, r->E);
+    r->nlambda = (long)r->E + 5L * r->I;
+    ALLOC(r->lambda, r->nlambda);
+    ALLOC(r->dof0, S);
+    ALLOC(r->cflag, V);
+    ALLOC(r->cnormal, 3 * V);
+    ALLOC(r->cvel, 3 * V);
+    ALLOC(r->clambda, V);
+    ALLOC(r->cfric, V);
+    ALLOC(r->save, 6 * V + 2 * r->E + 3 * r->E + r->I);
+    ALLOC(r->t_old, 3 * r->E);
+
+    /* strands, in batch order */
+    int si = 0, vi = 0;
+    for (int b = 0; b < nbatches; b++) {
+        const DrGroom *g = batches[b].groom;
+        r->batch_offsets[b] = si;
+        r->batch_group[b] = batches[b].group;
+        r->batch_mask[b] = batches[b].mask;
+        r->materials[b] = batches[b].material;
+        r->batch[b] = batches[b];
+        r->batch[b].groom = NULL;
+        const DrRodMaterial *mt = &batches[b].material;
+        double rad = mt->radius, A = M_PI * rad * rad;
+        for (int k = 0; k < g->nstrands; k++, si++) {
+            int nv = g->offsets[k + 1] - g->offsets[k];
+            r->offsets[si] = vi;
+            r->strand_batch[si] = b;
+            r->radius[si] = rad;
+            r->stiff[si] = (DrRodStiffness){mt->youngs * A, mt->youngs * M_PI * pow(rad, 4) / 4.0,
+                                            mt->shear * M_PI * pow(rad, 4) / 2.0};
+            memcpy(r->x + 3 * vi, g->x + 3 * g->offsets[k], (size_t)nv * 3 * sizeof(double));
+            vi += nv;
+        }
+    }
+    r->offsets[S] = vi;
+    r->batch_offsets[nbatches] = si;
+
+    /* rest state: tangents, space-parallel frames from each root normal, curvatures, masses */
+    si = 0;
+    for (int b = 0; b < nbatches; b++) {
+        const DrGroom *g = batches[b].groom;
+        const DrRodMaterial *mt = &batches[b].material;
+        double A = M_PI * mt->radius * mt->radius, J = M_PI * pow(mt->radius, 4) / 2.0;
+        for (int k = 0; k < g->nstrands; k++, si++) {
+            int o = r->offsets[si], nv = r->offsets[si + 1] - o, e0 = edge_index(r, si, 0);
+            double *t = r->t + 3 * e0, *len = r->len + e0, *a1 = r->a1 + 3 * e0;
+            dr_rod_tangents(nv, r->x + 3 * o, t, len);
+            const double *rn = g->root_normal ? g->root_normal + 3 * k : NULL;
+            dr_rod_space_frames(nv - 1, t, rn, a1);
+            for (int j = 0; j < nv - 1; j++) {
+                r->lbar[e0 + j] = len[j];
+                r->tinertia[e0 + j] = mt->density * J * len[j];
+                r->vmass[o + j] += 0.5 * mt->density * A * len[j];
+                r->vmass[o + j + 1] += 0.5 * mt->density * A * len[j];
+            }
+            if (nv > 2) {
+                int i0 = interior_index(r, si, 1);
+                memset(r->m + i0, 0, (size_t)(nv - 2) * sizeof(double));
+                dr_rod_reference_twist(nv, t, a1, r->m + i0);
+                dr_rod_curvatures(nv, t, a1, r->theta + e0, r->m + i0, r->kbar + 4 * i0, r->tbar + i0);
+                for (int i = 1; i < nv - 1; i++) r->lv[i0 + i - 1] = 0.5 * (len[i - 1] + len[i]);
+            }
+            for (int a = 0; a < 3; a++) {
+                r->tip_rest[6 * si + a] = r->x[3 * (o + nv - 1) + a];
+                r->tip_rest[6 * si + 3 + a] = r->x[3 * (o + nv - 2) + a];
+                r->root_rest[6 * si + a] = r->x[3 * o + a];
+                r->root_rest[6 * si + 3 + a] = r->x[3 * (o + 1) + a];
+                r->m1_rest[3 * si + a] = a1[a]; /* θ = 0 at rest: m1 = a1 */
+            }
+        }
+    }
+
+    /* the Lagrangian system: one object per strand */
+    DrLagDesc ld = desc->solver;
+    s = dr_lag_create(&ld, &r->lag, err);
+    if (s != DR_OK) goto fail;
+    for (int k = 0; k < r->S; k++) {
+        int nv = r->offsets[k + 1] - r->offsets[k], nd = 4 * nv - 1;
+        s = dr_lag_add_object(r->lag, nd, nd - 1 < ROD_KD ? nd - 1 : ROD_KD, NULL, &r->dof0[k], err);
+        if (s != DR_OK) goto fail;
+    }
+    r->ndof = dr_lag_dof_count(r->lag);
+    ALLOC(r->dmass, r->ndof);
+    ALLOC(r->qdot, r->ndof);
+    ALLOC(r->fext, r->ndof);
+    ALLOC(r->qdot_p, r->ndof);
+    ALLOC(r->qdot_out, r->ndof);
+    ALLOC(r->pres, r->ndof);
+    *out = r;
+    return DR_OK;
+fail:
+    dr_rod_set_destroy(&r);
+    return s;
+}
+
+DrRodState dr_rod_set_state(DrRodSet *r)
+{
+    DrRodState st = {r->S, r->V, r->E, r->offsets, r->x, r->v, r->theta, r->theta_dot, r->a1, r->m, r->lambda,
+                     r->nlambda, r->vmass, r->radius, r->batch_offsets, r->nbatches};
+    return st;
+}
+
+void dr_rod_set_solver(DrRodSet *r, const DrLagDesc *solver)
+{
+    r->desc.solver = *solver;
+    dr_lag_set_desc(r->lag, solver);
+}
+
+void dr_rod_set_refresh(DrRodSet *r)
+{
+    for (int k = 0; k < r->S; k++) {
+        int o = r->offsets[k], nv = r->offsets[k + 1] - o, e0 = edge_index(r, k, 0);
+        dr_rod_tangents(nv, r->x + 3 * o, r->t + 3 * e0, r->len + e0);
+    }
+}
+
+/* ---- measurement ----------------------------------------------------------------------------------------- */
+
+void dr_rod_set_measure(const DrRodSet *r, DrRodStats *st)
+{
+    double ke = 0, el = 0, pe = 0;
+    DrVec3 p = {0, 0, 0}, L = {0, 0, 0};
+    DrVec3 g = r->desc.gravity;
+    for (int k = 0; k < r->S; k++) {
+        int o = r->offsets[k], nv = r->offsets[k + 1] - o, e0 = edge_index(r, k, 0);
+        for (int j = o; j < o + nv; j++) {
+            DrVec3 x = dr_v3(r->x[3 * j], r->x[3 * j + 1], r->x[3 * j + 2]);
+            DrVec3 v = dr_v3(r->v[3 * j], r->v[3 * j + 1], r->v[3 * j + 2]);
+            double mm = r->vmass[j];
+            ke += 0.5 * mm * dr_v3_dot(v, v);
+            pe -= mm * dr_v3_dot(g, x);
+            p = dr_v3_add(p, dr_v3_scale(v, mm));
+            L = dr_v3_add(L, dr_v3_scale(dr_v3_cross(x, v), mm));
+        }
+        for (int e = e0; e < e0 + nv - 1; e++) ke += 0.5 * r->tinertia[e] * r->theta_dot[e] * r->theta_dot[e];
+        int i0 = nv > 2 ? interior_index(r, k, 1) : 0;
+        DrRodRef ref = {r->t + 3 * e0, r->a1 + 3 * e0, r->m + i0};
+        el += dr_rod_energy(nv, r->x + 3 * o, r->theta + e0, &ref, r->lbar + e0, nv > 2 ? r->kbar + 4 * i0 : NULL,
+                            nv > 2 ? r->tbar + i0 : NULL, r->stiff[k]);
+    }
+    st->kinetic = ke;
+    st->elastic = el;
+    st->gravity_potential = pe;
+    st->momentum = p;
+    st->angular_momentum = L;
+}
+
+/* ---- one step -------------------------------------------------------------------------------------------- */
+
+/* Angle of unit vector u in the frame (a1, a2 = t × a1), continued to the representative nearest `near`. */
+static double frame_angle(const double t[3], const double a1[3], const double u[3], double near)
+{
+    double a2[3] = {t[1] * a1[2] - t[2] * a1[1], t[2] * a1[0] - t[0] * a1[2], t[0] * a1[1] - t[1] * a1[0]};
+    double ang = atan2(u[0] * a2[0] + u[1] * a2[1] + u[2] * a2[2], u[0] * a1[0] + u[1] * a1[1] + u[2] * a1[2]);
+    return ang + 2 * M_PI * round((near - ang) / (2 * M_PI));
+}
+
+/* Velocities that hold the tip DOFs of strand k where they started (desc.tips). */
+static void tip_velocities(DrRodSet *r, int k, double h)
+{
+    int o = r->offsets[k], nv = r->offsets[k + 1] - o, d0 = r->dof0[k], e0 = edge_index(r, k, 0);
+    int nfix = r->desc.tips == DR_ROD_ROOTS_CLAMPED ? 2 : (r->desc.tips == DR_ROD_ROOTS_PINNED ? 1 : 0);
+    for (int j = 0; j < nfix && j < nv; j++)
+        for (int a = 0; a < 3; a++) {
+            int vid = nv - 1 - j, dof = d0 + 4 * vid + a;
+            r->pres[dof] = 1;
+            r->qdot_p[dof] = (r->tip_rest[6 * k + 3 * j + a] - r->x[3 * (o + vid) + a]) / h;
+        }
+    if (nfix == 2) {
+        int dof = d0 + 4 * (nv - 2) + 3;
+        r->pres[dof] = 1;
+        r->qdot_p[dof] = -r->theta[e0 + nv - 2] / h;
+    }
+}
+
+/* Velocities that take the root DOFs of strand k to the scalp pose at the end of the step. */
+static void root_velocities(DrRodSet *r, int k, double h, const DrXform *pose)
+{
+    int o = r->offsets[k], d0 = r->dof0[k], e0 = edge_index(r, k, 0);
+    int nfix = r->desc.roots == DR_ROD_ROOTS_CLAMPED ? 2 : (r->desc.roots == DR_ROD_ROOTS_PINNED ? 1 : 0);
+    for (int j = 0; j < nfix; j++)
+        for (int a = 0; a < 3; a++) {
+            int dof = d0 + 4 * j + a;
+            r->pres[dof] = 1;
+            if (!pose) {
+                r->qdot_p[dof] = 0;
+                continue;
+            }
+            const double *p = r->root_rest + 6 * k + 3 * j;
+            DrVec3 target = dr_xform_apply(*pose, dr_v3(p[0], p[1], p[2]));
+            r->qdot_p[dof] = (dr_v3_get(target, a) - r->x[3 * (o + j) + a]) / h;
+        }
+    if (nfix == 2) {
+        int dof = d0 + 3;
+        r->pres[dof] = 1;
+        if (!pose) {
+            r->qdot_p[dof] = 0;
+            return;
+        }
+        /* the first edge's material frame turns with the scalp: its angle in the reference frame that edge 0
+           will have at the end of the step (a1 transported to the new tangent) */
+        double x0[3], x1[3], tn[3], a1n[3];
+        for (int a = 0; a < 3; a++) {
+            x0[a] = r->x[3 * o + a] + h * r->qdot_p[d0 + a];
+            x1[a] = r->x[3 * (o + 1) + a] + h * r->qdot_p[d0 + 4 + a];
+        }
+        double l = sqrt((x1[0] - x0[0]) * (x1[0] - x0[0]) + (x1[1] - x0[1]) * (x1[1] - x0[1]) + (x1[2] - x0[2]) * (x1[2] - x0[2]));
+        for (int a = 0; a < 3; a++) tn[a] = (x1[a] - x0[a]) / l;
+        dr_rod_transport(r->t + 3 * e0, tn, r->a1 + 3 * e0, a1n);
+        DrVec3 m1 = dr_m3_apply(pose->R, dr_v3(r->m1_rest[3 * k], r->m1_rest[3 * k + 1], r->m1_rest[3 * k + 2]));
+        double u[3] = {m1.x, m1.y, m1.z};
+        /* remove the tangential part that rounding leaves */
+        double ut = u[0] * tn[0] + u[1] * tn[1] + u[2] * tn[2];
+        for (int a = 0; a < 3; a++) u[a] -= ut * tn[a];
+        double th = frame_angle(tn, a1n, u, r->theta[e0]);
+        r->qdot_p[dof] = (th - r->theta[e0]) / h;
+    }
+}
+
+typedef struct BuildCtx {
+    DrRodSet *r;
+    double h;
+    const DrRodCollider *col;
+    int ncol;
+    DrStatus *status;  /* per strand */
+    DrError *errs;     /* per strand */
+    int *ncontacts;    /* per strand */
+} BuildCtx;
+
+/* Adds a group and, with internal damping, its viscous copy (J_v = J, c = 0, C_v⁻¹ = damping · C⁻¹). */
+static DrStatus add_with_damping(DrLag *lag, DrLagGroup *g, double damping, DrError *err)
+{
+    DR_TRY(dr_lag_add(lag, g, err));
+    if (damping > 0) {
+        DrLagGroup gv = *g;
+        gv.kind = DR_LAG_VISCOUS;
+        gv.G = NULL;
+        gv.lambda = NULL;
+        for (int k = 0; k < g->nrows; k++) {
+            gv.phi[k] = 0;
+            gv.cinv[k] = damping * g->cinv[k];
+        }
+        DR_TRY(dr_lag_add(lag, &gv, err));
+    }
+    return DR_OK;
+}
+
+static DrStatus build_strand(DrRodSet *r, int k, double h, const DrRodCollider *col, int ncol, int *ncontacts,
+                             DrError *err)
+{
+    int o = r->offsets[k], nv = r->offsets[k + 1] - o, e0 = edge_index(r, k, 0), d0 = r->dof0[k];
+    const DrRodMaterial *mt = &r->materials[r->strand_batch[k]];
+    bool geo = r->desc.geometric_stiffness;
+    const double *x = r->x + 3 * o, *th = r->theta + e0;
+    int i0 = nv > 2 ? interior_index(r, k, 1) : 0;
+    DrRodRef ref = {r->t + 3 * e0, r->a1 + 3 * e0, r->m + i0};
+    DrLagGroup g;
+    double G[DR_LAG_MAX_DOFS * DR_LAG_MAX_DOFS];
+    for (int j = 0; j < nv - 1; j++) {
+        double *lam = r->lambda + e0 + j;
+        dr_rod_stretch_group(x, j, r->lbar[e0 + j], r->stiff[k].ks, d0, geo ? lam : NULL, geo ? G : NULL, &g);
+        g.lambda = lam;
+        DR_TRY(add_with_damping(r->lag, &g, mt->damping, err));
+    }
+    for (int i = 1; i < nv - 1; i++) {
+        int ii = i0 + i - 1;
+        double *lb = r->lambda + r->E + 4 * ii, *lt = r->lambda + r->E + 4 * r->I + ii;
+        dr_rod_bend_group(x, th, &ref, i, r->kbar + 4 * ii, r->lv[ii], r->stiff[k].bend, d0, geo ? lb : NULL,
+                          geo ? G : NULL, &g);
+        g.lambda = lb;
+        DR_TRY(add_with_damping(r->lag, &g, mt->damping, err));
+        dr_rod_twist_group(x, th, &ref, i, r->tbar[ii], r->lv[ii], r->stiff[k].twist, d0, geo ? lt : NULL,
+                           geo ? G : NULL, &g);
+        g.lambda = lt;
+        DR_TRY(add_with_damping(r->lag, &g, mt->damping, err));
+    }
+    /* vertex–collider contacts: a vertex that is inside, or would be within this step at its current velocity,
+       gets the constraint φ = d − (r + thickness) ≥ 0 linearised along the collider's normal, relative to the
+       collider's own motion: φ₊ = φ + h n·(v₊ − v_c), so c = φ − h n·v_c. */
+    int nc = 0;
+    for (int j = 0; j < nv; j++) {
+        int vid = o + j;
+        r->cflag[vid] = 0;
+        int dof = d0 + 4 * j;
+        if (r->pres[dof]) continue;
+        DrVec3 p = dr_v3(x[3 * j], x[3 * j + 1], x[3 * j + 2]);
+        DrVec3 v = dr_v3(r->v[3 * vid], r->v[3 * vid + 1], r->v[3 * vid + 2]);
+        double best = INFINITY;
+        for (int c = 0; c < ncol; c++) {
+            DrVec3 n;
+            double d = col[c].sdf(p, &n, col[c].ctx) - (r->radius[k] + col[c].thickness);
+            DrVec3 vc = col[c].velocity_at ? col[c].velocity_at(p, col[c].ctx) : dr_v3(0, 0, 0);
+            double approach = h * dr_v3_dot(dr_v3_sub(v, vc), n);
+            if (d + fmin(approach, 0) >= 0 || d >= best) continue;
+            best = d;
+            r->cflag[vid] = 1;
+            double nn = dr_v3_norm(n);
+            if (nn > 0) n = dr_v3_scale(n, 1.0 / nn);
+            r->cnormal[3 * vid] = n.x;
+            r->cnormal[3 * vid + 1] = n.y;
+            r->cnormal[3 * vid + 2] = n.z;
+            r->cvel[3 * vid] = vc.x;
+            r->cvel[3 * vid + 1] = vc.y;
+            r->cvel[3 * vid + 2] = vc.z;
+            r->cfric[vid] = col[c].friction;
+        }
+        if (!r->cflag[vid]) continue;
+        memset(&g, 0, sizeof g);
+        g.kind = DR_LAG_POSITIONAL;
+        g.nrows = 1;
+        g.ndof = 3;
+        for (int a = 0; a < 3; a++) {
+            g.dof[a] = dof + a;
+            g.J[a] = r->cnormal[3 * vid + a];
+        }
+        double vn = r->cnormal[3 * vid] * r->cvel[3 * vid] + r->cnormal[3 * vid + 1] * r->cvel[3 * vid + 1] +
+                    r->cnormal[3 * vid + 2] * r->cvel[3 * vid + 2];
+        g.phi[0] = best - h * vn;
+        g.cinv[0] = r->desc.collider_stiffness;
+        r->clambda[vid] = 0;
+        g.lambda = &r->clambda[vid];
+        DR_TRY(dr_lag_add(r->lag, &g, err));
+        nc++;
+    }
+    *ncontacts = nc;
+    return DR_OK;
+}
+
+static void build_range(long begin, long end, void *vctx)
+{
+    BuildCtx *c = vctx;
+    for (long k = begin; k < end; k++)
+        c->status[k] = build_strand(c->r, (int)k, c->h, c->col, c->ncol, &c->ncontacts[k], &c->errs[k]);
+}
+
+/* ---- hair–hair contact ------------------------------------------------------------------------------------ */
+
+/* Closest points of segments p0p1 and q0q1 (Ericson, Real-Time Collision Detection §5.1.9). */
+static double segment_closest(const double *p0, const double *p1, const double *q0, const double *q1, double *s,
+                              double *t, double n[3])
+{
+    double d1[3], d2[3], rr[3];
+    for (int a = 0; a < 3; a++) {
+        d1[a] = p1[a] - p0[a];
+        d2[a] = q1[a] - q0[a];
+        rr[a] = p0[a] - q0[a];
+    }
+    double A = d1[0] * d1[0] + d1[1] * d1[1] + d1[2] * d1[2], Ee = d2[0] * d2[0] + d2[1] * d2[1] + d2[2] * d2[2];
+    double F = d2[0] * rr[0] + d2[1] * rr[1] + d2[2] * rr[2], C = d1[0] * rr[0] + d1[1] * rr[1] + d1[2] * rr[2];
+    double B = d1[0] * d2[0] + d1[1] * d2[1] + d1[2] * d2[2], den = A * Ee - B * B;
+    double ss = den > 1e-14 * A * Ee ? fmin(fmax((B * F - C * Ee) / den, 0), 1) : 0;
+    double tt = (B * ss + F) / Ee;
+    if (tt < 0) {
+        tt = 0;
+        ss = fmin(fmax(-C / A, 0), 1);
+    } else if (tt > 1) {
+        tt = 1;
+        ss = fmin(fmax((B - C) / A, 0), 1);
+    }
+    double dd = 0;
+    for (int a = 0; a < 3; a++) {
+        n[a] = (p0[a] + ss * d1[a]) - (q0[a] + tt * d2[a]);
+        dd += n[a] * n[a];
+    }
+    *s = ss;
+    *t = tt;
+    return sqrt(dd);
+}
+
+
+static int hash_cmp(const void *pa, const void *pb)
+{
+    const HashEntry *a = pa, *b = pb;
+    if (a->cx != b->cx) return a->cx < b->cx ? -1 : 1;
+    if (a->cy != b->cy) return a->cy < b->cy ? -1 : 1;
+    if (a->cz != b->cz) return a->cz < b->cz ? -1 : 1;
+    return a->edge < b->edge ? -1 : (a->edge > b->edge);
+}
+
+static bool may_touch(const DrRodSet *r, int sa, int sb)
+{
+    int ba = r->strand_batch[sa], bb = r->strand_batch[sb];
+    if (ba == bb) return r->batch[ba].self_contact;
+    return (r->batch_group[ba] & r->batch_mask[bb]) != 0 && (r->batch_group[bb] & r->batch_mask[ba]) != 0;
+}
+
+/* Finds edge pairs closer than their contact distance: edges binned by the cells their inflated bounding box
+   overlaps (cell ≥ the longest edge plus the contact distance, so at most 2 cells per axis), candidate pairs
+   tested in the one cell holding the low corner of their boxes' overlap (each pair once), in sorted order
+   (deterministic). Adjacent edges of a strand never count. */
+static DrStatus find_hair_contacts(DrRodSet *r, DrError *err)
+{
+    r->nhc = 0;
+    if (!r->desc.hair_contact || r->E == 0) return DR_OK;
+    double maxlen = 0, maxr = 0;
+    for (int e = 0; e < r->E; e++) maxlen = fmax(maxlen, r->len[e]);
+    for (int k = 0; k < r->S; k++) maxr = fmax(maxr, r->radius[k] + r->batch[r->strand_batch[k]].contact_thickness);
+    double reach = 2 * maxr;
+    double cell = maxlen + reach;
+    size_t need = 8 * (size_t)r->E;
+    if (need > r->cap_hash) {
+        free(r->hash_entries);
+        r->hash_entries = NULL;
+        r->cap_hash = 0;
+        DR_TRY(dr_calloc(need, sizeof(HashEntry), &r->hash_entries, err));
+        r->cap_hash = need;
+    }
+    HashEntry *he = r->hash_entries;
+    size_t n = 0;
+    int *edge_strand = NULL, *edge_local = NULL;
+    DR_TRY(dr_calloc((size_t)r->E, sizeof(int), &edge_strand, err));
+    DrStatus st = dr_calloc((size_t)r->E, sizeof(int), &edge_local, err);
+    if (st != DR_OK) {
+        free(edge_strand);
+        return st;
+    }
+    for (int k = 0; k < r->S; k++) {
+        int o = r->offsets[k], nv = r->offsets[k + 1] - o, e0 = edge_index(r, k, 0);
+        for (int j = 0; j < nv - 1; j++) {
+            int e = e0 + j;
+            edge_strand[e] = k;
+            edge_local[e] = j;
+            const double *p = r->x + 3 * (o + j), *q = p + 3;
+            int lo[3], hi[3];
+            for (int a = 0; a < 3; a++) {
+                lo[a] = (int)floor((fmin(p[a], q[a]) - 0.5 * reach) / cell);
+                hi[a] = (int)floor((fmax(p[a], q[a]) + 0.5 * reach) / cell);
+            }
+            for (int cx = lo[0]; cx <= hi[0]; cx++)
+                for (int cy = lo[1]; cy <= hi[1]; cy++)
+                    for (int cz = lo[2]; cz <= hi[2]; cz++) he[n++] = (HashEntry){cx, cy, cz, e};
+        }
+    }
+    qsort(he, n, sizeof *he, hash_cmp);
+    for (size_t a = 0; a < n;) {
+        size_t b = a;
+        while (b < n && he[b].cx == he[a].cx && he[b].cy == he[a].cy && he[b].cz == he[a].cz) b++;
+        for (size_t i = a; i < b; i++)
+            for (size_t j = i + 1; j < b; j++) {
+                int ea = he[i].edge, eb = he[j].edge, sa = edge_strand[ea], sb = edge_strand[eb];
+                if (sa == sb && abs(edge_local[ea] - edge_local[eb]) < 2) continue;
+                if (!may_touch(r, sa, sb)) continue;
+                const double *p0 = r->x + 3 * (r->offsets[sa] + edge_local[ea]), *p1 = p0 + 3;
+                const double *q0 = r->x + 3 * (r->offsets[sb] + edge_local[eb]), *q1 = q0 + 3;
+                /* the low corner of the overlap of the inflated boxes decides which cell owns the pair */
+                int own[3];
+                bool overlap = true;
+                for (int c = 0; c < 3; c++) {
+                    double loa = fmin(p0[c], p1[c]) - 0.5 * reach, hia = fmax(p0[c], p1[c]) + 0.5 * reach;
+                    double lob = fmin(q0[c], q1[c]) - 0.5 * reach, hib = fmax(q0[c], q1[c]) + 0.5 * reach;
+                    if (loa > hib || lob > hia) overlap = false;
+                    own[c] = (int)floor(fmax(loa, lob) / cell);
+                }
+                if (!overlap || own[0] != he[a].cx || own[1] != he[a].cy || own[2] != he[a].cz) continue;
+                double s, t, nv[3];
+                double d = segment_closest(p0, p1, q0, q1, &s, &t, nv);
+                double rr = r->radius[sa] + r->radius[sb] + r->batch[r->strand_batch[sa]].contact_thickness +
+                            r->batch[r->strand_batch[sb]].contact_thickness;
+                if (d >= rr || d < 1e-12 * rr) continue;
+                if (r->nhc == r->cap_hc) {
+                    size_t cap = r->cap_hc ? 2 * r->cap_hc : 256;
+                    HairContact *q = realloc(r->hc, cap * sizeof *q);
+                    if (!q) {
+                        free(edge_strand);
+                        free(edge_local);
+                        return dr_error_set(err, DR_ERR_NOMEM, NULL, 0, 0, "out of memory for %zu hair contacts", cap);
+                    }
+                    r->hc = q;
+                    r->cap_hc = cap;
+                }
+                const DrRodBatch *pa = &r->batch[r->strand_batch[sa]], *pb = &r->batch[r->strand_batch[sb]];
+                r->hc[r->nhc++] = (HairContact){ea,
+                                                eb,
+                                                s,
+                                                t,
+                                                d,
+                                                dr_v3(nv[0] / d, nv[1] / d, nv[2] / d),
+                                                rr,
+                                                fmin(pa->contact_stiffness, pb->contact_stiffness),
+                                                fmax(pa->contact_friction, pb->contact_friction)};
+            }
+        a = b;
+    }
+    free(edge_strand);
+    free(edge_local);
+    return DR_OK;
+}
+
+/* The DOF of vertex-local index j of the strand owning global edge e (j = 0, 1: the edge's two ends). */
+static int edge_vertex_dof(const DrRodSet *r, int e, int end)
+{
+    /* strand of edge e: offsets[s] − s ≤ e < offsets[s+1] − (s+1) */
+    int lo = 0, hi = r->S - 1;
+    while (lo < hi) {
+        int mid = (lo + hi + 1) / 2;
+        if (r->offsets[mid] - mid <= e) lo = mid;
+        else hi = mid - 1;
+    }
+    int local = e - (r->offsets[lo] - lo);
+    return r->dof0[lo] + 4 * (local + end);
+}
+
+/* Each contact is a positional row φ = d − (r_a + t_a + r_b + t_b) on the 12 DOFs of the two edges' ends,
+   weighted by the closest points' parameters, with C⁻¹ = k. Friction is a viscous group on the two tangential
+   components of the contact points' relative velocity (φ_v = T (v_a − v_b), c = 0): its coefficient
+   μ F_n / max(|v_t|, v_ε), F_n = k |φ| the contact's force at the start of the step, resists sliding with
+   μ F_n (Coulomb, the coefficient lagged by a step) and grips viscously below v_ε = μ|φ|/h. That floor caps
+   the coefficient at h k, so the grip is never stiffer than the contact itself: an uncapped grip (h·coef ≫
+   the strands' masses) leaves the solve ill-conditioned, thousands of CG iterations for a few contacts. */
+static DrStatus add_hair_contacts(DrRodSet *r, DrError *err)
+{
+    for (size_t c = 0; c < r->nhc; c++) {
+        const HairContact *hc = &r->hc[c];
+        DrLagGroup g;
+        memset(&g, 0, sizeof g);
+        g.kind = DR_LAG_POSITIONAL;
+        g.nrows = 1;
+        g.ndof = 12;
+        double w[4] = {1 - hc->s, hc->s, -(1 - hc->t), -hc->t};
+        int base[4] = {edge_vertex_dof(r, hc->e0, 0), edge_vertex_dof(r, hc->e0, 1), edge_vertex_dof(r, hc->e1, 0),
+                       edge_vertex_dof(r, hc->e1, 1)};
+        double n[3] = {hc->n.x, hc->n.y, hc->n.z};
+        for (int v = 0; v < 4; v++)
+            for (int a = 0; a < 3; a++) {
+                g.dof[3 * v + a] = base[v] + a;
+                g.J[3 * v + a] = w[v] * n[a];
+            }
+        g.phi[0] = hc->dist - hc->rr; /* < 0 while they overlap */
+        g.cinv[0] = hc->k;
+        DR_TRY(dr_lag_add_global(r->lag, &g, err));
+        if (hc->mu <= 0) continue;
+        /* relative velocity of the contact points, and a tangent basis */
+        double vr[3] = {0, 0, 0};
+        for (int v = 0; v < 4; v++)
+            for (int a = 0; a < 3; a++) vr[a] += w[v] * r->qdot[base[v] + a];
+        double vn = vr[0] * n[0] + vr[1] * n[1] + vr[2] * n[2];
+        double vt[3] = {vr[0] - vn * n[0], vr[1] - vn * n[1], vr[2] - vn * n[2]};
+        double vtn = sqrt(vt[0] * vt[0] + vt[1] * vt[1] + vt[2] * vt[2]);
+        double t1[3], t2[3];
+        {
+            double ax[3] = {fabs(n[0]) < 0.6 ? 1 : 0, fabs(n[0]) < 0.6 ? 0 : 1, 0};
+            double d = ax[0] * n[0] + ax[1] * n[1];
+            for (int a = 0; a < 3; a++) t1[a] = ax[a] - d * n[a];
+            double l = sqrt(t1[0] * t1[0] + t1[1] * t1[1] + t1[2] * t1[2]);
+            for (int a = 0; a < 3; a++) t1[a] /= l;
+            t2[0] = n[1] * t1[2] - n[2] * t1[1];
+            t2[1] = n[2] * t1[0] - n[0] * t1[2];
+            t2[2] = n[0] * t1[1] - n[1] * t1[0];
+        }
+        DrLagGroup f = g;
+        f.kind = DR_LAG_VISCOUS;
+        f.nrows = 2;
+        double h = r->h_step;
+        double coef = hc->mu * hc->k * fabs(g.phi[0]) / fmax(vtn, fmax(hc->mu * fabs(g.phi[0]) / h, 1e-12));
+        for (int v = 0; v < 4; v++)
+            for (int a = 0; a < 3; a++) {
+                f.J[3 * v + a] = w[v] * t1[a];
+                f.J[12 + 3 * v + a] = w[v] * t2[a];
+            }
+        f.phi[0] = f.phi[1] = 0;
+        f.cinv[0] = f.cinv[1] = coef;
+        f.lambda = NULL;
+        DR_TRY(dr_lag_add_global(r->lag, &f, err));
+    }
+    return DR_OK;
+}
+
+/* ---- the step ------------------------------------------------------------------------------------------------ */
+
+DrStatus dr_rod_set_step(DrRodSet *r, double h, const DrXform *scalp_end, const DrRodCollider *col, int ncol,
+                         DrRodStats *stats, DrError *err)
+{
+    assert(h > 0);
+    r->h_step = h;
+    double t0 = dr_time_now();
+    /* 1–2. DOF vectors, masses, gravity, roots */
+    for (int k = 0; k < r->S; k++) {
+        int o = r->offsets[k], nv = r->offsets[k + 1] - o, e0 = edge_index(r, k, 0), d0 = r->dof0[k];
+        for (int j = 0; j < nv; j++) {
+            for (int a = 0; a < 3; a++) {
+                int dof = d0 + 4 * j + a;
+                r->dmass[dof] = r->vmass[o + j];
+                r->qdot[dof] = r->v[3 * (o + j) + a];
+                r->fext[dof] = r->vmass[o + j] * dr_v3_get(r->desc.gravity, a);
+                r->pres[dof] = 0;
+            }
+            if (j < nv - 1) {
+                int dof = d0 + 4 * j + 3;
+                r->dmass[dof] = r->tinertia[e0 + j];
+                r->qdot[dof] = r->theta_dot[e0 + j];
+                r->fext[dof] = 0;
+                r->pres[dof] = 0;
+            }
+        }
+        const DrXform *pose = scalp_end ? &scalp_end[r->strand_batch[k]] : NULL;
+        tip_velocities(r, k, h);
+        root_velocities(r, k, h, pose);
+    }
+    DR_TRY(dr_lag_begin(r->lag, h, r->dmass, r->qdot, r->fext, r->pres, r->qdot_p, err));
+
+    /* 3. groups, per strand in parallel */
+    DrStatus *status = NULL;
+    DrError *errs = NULL;
+    int *ncont = NULL;
+    DrStatus s = dr_calloc((size_t)r->S, sizeof *status, &status, err);
+    if (s == DR_OK) s = dr_calloc((size_t)r->S, sizeof *errs, &errs, err);
+    if (s == DR_OK) s = dr_calloc((size_t)r->S, sizeof *ncont, &ncont, err);
+    if (s == DR_OK) {
+        BuildCtx bc = {r, h, col, ncol, status, errs, ncont};
+        dr_parallel_for(r->S, 8, build_range, &bc);
+        int total = 0;
+        for (int k = 0; k < r->S && s == DR_OK; k++) {
+            if (status[k] != DR_OK) {
+                *err = errs[k];
+                s = status[k];
+            }
+            total += ncont[k];
+        }
+        if (stats) stats->collider_contacts = total;
+    }
+    free(status);
+    free(errs);
+    free(ncont);
+    if (s != DR_OK) return s;
+    double t1 = dr_time_now();
+    DR_TRY(find_hair_contacts(r, err));
+    DR_TRY(add_hair_contacts(r, err));
+    double t2 = dr_time_now();
+
+    /* 4. solve, then Coulomb friction at the collider contacts: the tangential velocity relative to the
+       collider loses up to μ times the normal velocity change the contact force λ gave (h λ / m) */
+    DrLagStats ls;
+    DrStatus solved = dr_lag_solve(r->lag, r->qdot_out, &ls, err);
+    if (solved < 0) return solved;
+    double t3 = dr_time_now();
+
+    /* 5. advance (keeping the old state to restore if it turns non-finite) */
+    double *save = r->save;
+    memcpy(save, r->x, 3 * (size_t)r->V * sizeof(double));
+    memcpy(save + 3 * r->V, r->v, 3 * (size_t)r->V * sizeof(double));
+    memcpy(save + 6 * r->V, r->theta, (size_t)r->E * sizeof(double));
+    memcpy(save + 6 * r->V + r->E, r->theta_dot, (size_t)r->E * sizeof(double));
+    memcpy(save + 6 * r->V + 2 * r->E, r->a1, 3 * (size_t)r->E * sizeof(double));
+    memcpy(save + 6 * r->V + 5 * r->E, r->m, (size_t)r->I * sizeof(double));
+    bool finite = true;
+    for (int k = 0; k < r->S; k++) {
+        int o = r->offsets[k], nv = r->offsets[k + 1] - o, e0 = edge_index(r, k, 0), d0 = r->dof0[k];
+        for (int j = 0; j < nv; j++) {
+            int vid = o + j;
+            double v[3];
+            for (int a = 0; a < 3; a++) v[a] = r->qdot_out[d0 + 4 * j + a];
+            if (r->cflag[vid]) {
+                const double *n = r->cnormal + 3 * vid, *vc = r->cvel + 3 * vid;
+                double rel[3] = {v[0] - vc[0], v[1] - vc[1], v[2] - vc[2]};
+                double vn = rel[0] * n[0] + rel[1] * n[1] + rel[2] * n[2];
+                double vt[3] = {rel[0] - vn * n[0], rel[1] - vn * n[1], rel[2] - vn * n[2]};
+                double vtn = sqrt(vt[0] * vt[0] + vt[1] * vt[1] + vt[2] * vt[2]);
+                double dvn = fmax(r->clambda[vid], 0) * h / r->vmass[vid];
+                double keep = vtn > 0 ? fmax(0, 1 - r->cfric[vid] * dvn / vtn) : 0;
+                for (int a = 0; a < 3; a++) v[a] = vc[a] + vn * n[a] + keep * vt[a];
+            }
+            for (int a = 0; a < 3; a++) {
+                r->v[3 * vid + a] = v[a];
+                r->x[3 * vid + a] += h * v[a];
+                finite = finite && isfinite(r->x[3 * vid + a]);
+            }
+        }
+        for (int j = 0; j < nv - 1; j++) {
+            r->theta_dot[e0 + j] = r->qdot_out[d0 + 4 * j + 3];
+            r->theta[e0 + j] += h * r->theta_dot[e0 + j];
+            finite = finite && isfinite(r->theta[e0 + j]);
+        }
+    }
+    if (finite) {
+        memcpy(r->t_old, r->t, 3 * (size_t)r->E * sizeof(double));
+        for (int k = 0; k < r->S; k++) {
+            int o = r->offsets[k], nv = r->offsets[k + 1] - o, e0 = edge_index(r, k, 0);
+            dr_rod_tangents(nv, r->x + 3 * o, r->t + 3 * e0, r->len + e0);
+            dr_rod_time_transport(nv - 1, r->t_old + 3 * e0, r->t + 3 * e0, r->a1 + 3 * e0);
+            if (nv > 2) dr_rod_reference_twist(nv, r->t + 3 * e0, r->a1 + 3 * e0, r->m + interior_index(r, k, 1));
+            for (int j = 0; j < nv - 1; j++) finite = finite && r->len[e0 + j] > 0 && isfinite(r->len[e0 + j]);
+        }
+    }
+    if (!finite) {
+        memcpy(r->x, save, 3 * (size_t)r->V * sizeof(double));
+        memcpy(r->v, save + 3 * r->V, 3 * (size_t)r->V * sizeof(double));
+        memcpy(r->theta, save + 6 * r->V, (size_t)r->E * sizeof(double));
+        memcpy(r->theta_dot, save + 6 * r->V + r->E, (size_t)r->E * sizeof(double));
+        memcpy(r->a1, save + 6 * r->V + 2 * r->E, 3 * (size_t)r->E * sizeof(double));
+        memcpy(r->m, save + 6 * r->V + 5 * r->E, (size_t)r->I * sizeof(double));
+        dr_rod_set_refresh(r);
+        return dr_error_set(err, DR_ERR_RUNTIME, NULL, 0, 0,
+                            "hair state became non-finite (time step %g s too large for the stiffness, or a collider "
+                            "pushed a vertex through a strand); the state before the step is kept",
+                            h);
+    }
+    if (stats) {
+        stats->steps++;
+        stats->iterations += ls.iterations;
+        stats->residual = ls.residual;
+        stats->not_converged += ls.converged ? 0 : 1;
+        stats->hair_contacts = (int)r->nhc;
+        stats->indefinite_blocks += ls.indefinite_blocks;
+        stats->seconds_build += t1 - t0;
+        stats->seconds_contact += t2 - t1;
+        stats->seconds_solve += t3 - t2;
+        dr_rod_set_measure(r, stats);
+    }
+    if (solved == DR_WARN_NOT_CONVERGED)
+        return dr_error_set(err, DR_WARN_NOT_CONVERGED, NULL, 0, 0,
+                            "hair solve stopped at its iteration cap (%d) with relative residual %.2e",
+                            r->desc.solver.max_iter, ls.residual);
+    return DR_OK;
+}

@@ -1,0 +1,178 @@
+/* drench hair: elastic rods (discrete elastic rods: stretching, bending with rest curvature, twisting on
+ * parallel-transported reference frames) as constraint groups of the src/lagrangian solver, grooms grown
+ * from a scalp mesh or read from OBJ polylines, roots attached to a moving scalp, collisions with collider
+ * SDFs and between hairs (fei2017 §S4, PHYSICS §4).
+ *
+ * Layout. A rod set holds S strands; strand s has vertices offsets[s] .. offsets[s+1]−1 (≥ 2 each) and one
+ * edge fewer. Arrays are flat: positions V×3 (m), velocities V×3 (m/s), twists θ per edge (rad, the
+ * material frame's angle from the reference frame), twist rates per edge (rad/s). Edge e of strand s is
+ * numbered offsets[s] − s + local edge index (E = V − S edges in all).
+ *
+ * Units SI. Thread safety: one rod set per thread of control; it runs its loops through dr_parallel_for,
+ * bit-identically for any thread count. */
+#ifndef DR_HAIR_H
+#define DR_HAIR_H
+
+#include "core/core.h"
+#include "lagrangian/lagrangian.h"
+
+/* ---- grooms ---------------------------------------------------------------------------------------- */
+
+/* Strands as polylines in the scene's rest pose. Owned arrays; dr_groom_free releases them. */
+typedef struct DrGroom {
+    int nstrands;
+    int *offsets;       /* nstrands + 1 */
+    double *x;          /* offsets[nstrands] × 3, m; vertex offsets[s] is strand s's root */
+    double *root_normal;/* nstrands × 3: scalp normal at the root (the root frame's first director is
+                           made perpendicular to the first edge from it) */
+} DrGroom;
+void dr_groom_free(DrGroom *g);
+
+typedef struct DrGroomDesc {
+    int count;          /* strands, ≥ 1 */
+    double length;      /* m, > 0 */
+    int segments;       /* edges per strand, ≥ 1 */
+    double curl_radius; /* m; 0 = straight strands along the scalp normal */
+    double curl_pitch;  /* m per turn of the helix (along the normal) */
+    double length_jitter; /* relative, [0, 1): each strand's length is length·(1 ± jitter) */
+    uint64_t seed;      /* root placement, curl phase and length jitter */
+} DrGroomDesc;
+void dr_groom_desc_default(DrGroomDesc *d);
+
+/* Grows strands from a closed or open triangle mesh (the scalp, already posed): roots sampled uniformly by
+ * area with the seeded rng, each strand along the area-weighted vertex normal interpolated at its root, or
+ * a helix about it when curl_radius > 0. DR_ERR_INPUT for a mesh without area or a desc out of range.
+ * Details: the normals are computed from the triangles (scalp->n is not used); where the interpolated field
+ * vanishes (opposed vertex normals) the triangle's own normal is taken. Strand s is vertices s·(segments+1)
+ * … with equal steps of arc length; `length` is the arc length (for a helix: of the helix, whose chords the
+ * edges are). A curled strand is a right-handed helix starting at the root, its axis parallel to the normal
+ * at distance curl_radius, its phase random per strand; it rises curl_pitch along the normal per turn.
+ * Every strand draws the same random numbers whatever curl and jitter are, so the roots depend on the mesh,
+ * count and seed only; the same inputs give bit-identical output. On failure *out is left empty. */
+DR_NODISCARD DrStatus dr_groom_grow(const DrTriMesh *scalp, const DrGroomDesc *desc, DrGroom *out, DrError *err);
+
+/* Reads polylines ("v" and "l" records) from an OBJ file: each "l" record is one strand, its first vertex
+ * the root; the root normal is the direction of the first edge. DR_ERR_INPUT (file:line) for a line with
+ * fewer than 2 vertices, an index out of range, repeated consecutive vertices (a zero-length edge) or a file
+ * without "l" records; DR_ERR_IO when unreadable. Other records are skipped. Indices are 1-based (negative:
+ * back from the last "v" before the record; "i/t" takes i; forward references are allowed). Also DR_ERR_INPUT
+ * at file:line:col: a "v" without three finite numbers, a token that is not a number or index, index 0, a
+ * control byte (not a text file), a record continued with '\'. On failure *out is left empty. */
+DR_NODISCARD DrStatus dr_groom_read_obj(const char *path, DrGroom *out, DrError *err);
+
+/* ---- rod material ------------------------------------------------------------------------------------ */
+
+typedef struct DrRodMaterial {
+    double radius;      /* r, m */
+    double density;     /* ρ, kg/m³ */
+    double youngs;      /* E, Pa */
+    double shear;       /* G, Pa */
+    double damping;     /* internal viscosity as a Kelvin–Voigt time, s (viscous groups with C_v⁻¹ = damping·C⁻¹);
+                           0 = none */
+} DrRodMaterial;
+void dr_rod_material_default(DrRodMaterial *m); /* human hair: r = 50 µm, ρ = 1300, E = 3.9 GPa, G = 1.3 GPa */
+
+/* ---- rod sets: the dynamics ------------------------------------------------------------------------------- */
+
+/* A collider as the hair sees it: signed distance (negative inside) and outward unit normal at x, and the
+ * surface velocity there (NULL: at rest). Evaluated at the start of each step. */
+typedef double (*DrRodSdfFn)(DrVec3 x, DrVec3 *normal, void *ctx);
+typedef DrVec3 (*DrRodVelocityFn)(DrVec3 x, void *ctx);
+typedef struct DrRodCollider {
+    DrRodSdfFn sdf;
+    DrRodVelocityFn velocity_at;
+    void *ctx;
+    double friction;  /* Coulomb coefficient */
+    double thickness; /* m, added to the hair radius */
+} DrRodCollider;
+
+typedef enum DrRodRoots {
+    DR_ROD_ROOTS_FREE,    /* no vertex attached (a free rod) */
+    DR_ROD_ROOTS_PINNED,  /* the root vertex follows the scalp */
+    DR_ROD_ROOTS_CLAMPED  /* the root vertex, the next one and the first edge's twist follow the scalp */
+} DrRodRoots;
+
+typedef struct DrRodSetDesc {
+    DrRodRoots roots;           /* default CLAMPED */
+    DrRodRoots tips;            /* the other end, held where it starts (tests, tethered strands); default FREE */
+    DrVec3 gravity;             /* m/s², default (0, −9.81, 0) */
+    bool geometric_stiffness;   /* eq. (S27)'s λ-weighted Hessians; default true */
+    DrLagDesc solver;           /* preconditioner, tolerance, iteration cap */
+    bool hair_contact;          /* search strand–strand contacts (spatial hash); default false */
+    double collider_stiffness;  /* N/m of a vertex–collider contact; default 1e4 */
+} DrRodSetDesc;
+void dr_rod_set_desc_default(DrRodSetDesc *d);
+
+/* One groom of the set (a hair element) with its material and contact settings. When desc.hair_contact is on,
+ * strands of one batch touch each other when self_contact; strands of batches a and b when
+ * (group_a & mask_b) != 0 and (group_b & mask_a) != 0. Two strands touch at r_a + t_a + r_b + t_b (t the
+ * batches' contact_thickness); a contact has the smaller stiffness and the larger friction of the two. */
+typedef struct DrRodBatch {
+    const DrGroom *groom;
+    DrRodMaterial material;
+    unsigned group, mask;       /* collision group bits and the groups it collides with */
+    bool self_contact;
+    double contact_stiffness;   /* N/m per contact, > 0 */
+    double contact_friction;    /* Coulomb coefficient of strand–strand contact */
+    double contact_thickness;   /* m */
+} DrRodBatch;
+
+typedef struct DrRodSet DrRodSet;
+
+/* The rods start at rest in the groom's shape, which is their rest shape (rest lengths, curvatures,
+ * twist zero on frames space-transported from each root normal). DR_ERR_INPUT for a strand of fewer than
+ * 2 vertices, a zero-length edge, or material values out of range (radius, density, moduli > 0). */
+DR_NODISCARD DrStatus dr_rod_set_create(const DrRodSetDesc *desc, const DrRodBatch *batches, int nbatches,
+                                        DrRodSet **out, DrError *err);
+void dr_rod_set_destroy(DrRodSet **rods);
+
+/* The hot arrays (the set owns them; valid until destroy). Tests and the world read and may overwrite
+ * x, v, theta, theta_dot between steps (then call dr_rod_set_refresh). */
+typedef struct DrRodState {
+    int nstrands, nverts, nedges;
+    const int *offsets;     /* nstrands + 1 */
+    double *x, *v;          /* nverts × 3 */
+    double *theta, *theta_dot; /* nedges */
+    double *a1;             /* nedges × 3 reference directors (time-parallel transported) */
+    double *ref_twist;      /* interior vertices (nverts − 2 nstrands), rad */
+    double *lambda;         /* multipliers of the elastic groups (checkpoint) */
+    long nlambda;
+    const double *mass;     /* per vertex, kg */
+    const double *radius;   /* per strand, m */
+    const int *batch_offsets; /* nbatches + 1: the strands of batch b are batch_offsets[b] .. [b+1] − 1 */
+    int nbatches;
+} DrRodState;
+DrRodState dr_rod_set_state(DrRodSet *rods);
+/* Recomputes the tangents and reference twists after the caller changed x or a1 (a resumed checkpoint). */
+void dr_rod_set_refresh(DrRodSet *rods);
+
+
+typedef struct DrRodStats {
+    int steps;
+    int iterations;          /* CG iterations, summed */
+    double residual;         /* last relative residual */
+    int not_converged;       /* solves that hit the iteration cap */
+    int collider_contacts;   /* vertex–collider contacts of the last step */
+    int hair_contacts;       /* edge–edge contacts of the last step */
+    int indefinite_blocks;   /* summed */
+    double kinetic, elastic, gravity_potential; /* J, after the last step */
+    DrVec3 momentum;         /* kg m/s */
+    DrVec3 angular_momentum; /* kg m²/s about the origin (positions only) */
+    double seconds_build, seconds_solve, seconds_contact;
+} DrRodStats;
+
+/* Advances by h: the roots of batch b move to scalp_end[b] (a rigid transform of the rest groom; NULL: they
+ * stay), colliders act through constraints in the
+ * solve and Coulomb friction after it, hair–hair contacts when desc.hair_contact. stats accumulates (zero
+ * it first). DR_WARN_NOT_CONVERGED when the solve hit its cap (the step is kept); DR_ERR_RUNTIME when the
+ * state becomes non-finite (the state is then left as it was before the step). */
+DR_NODISCARD DrStatus dr_rod_set_step(DrRodSet *rods, double h, const DrXform *scalp_end,
+                                      const DrRodCollider *colliders, int ncolliders, DrRodStats *stats,
+                                      DrError *err);
+
+/* Energies and momenta of the current state (what stats reports after a step). */
+void dr_rod_set_measure(const DrRodSet *rods, DrRodStats *stats);
+/* Sets the solver options (preconditioner, tolerance) for the following steps. */
+void dr_rod_set_solver(DrRodSet *rods, const DrLagDesc *solver);
+
+#endif

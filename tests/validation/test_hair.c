@@ -1,0 +1,483 @@
+/* Validation of the rod solver (src/hair on src/lagrangian) against analytic solutions:
+ *   1. cantilever: static tip deflection against Euler–Bernoulli wL⁴/(8EI), converging under refinement;
+ *   2. torsion: a rod twisted at its root and held at its tip reaches the linear twist distribution;
+ *   3. a pendulum chain without damping never gains energy (implicit Euler's loss quantified, shrinking with
+ *      the step); a free rod in zero gravity keeps its momentum to round-off;
+ *   4. the block preconditioner against Jacobi and plain CG on a 1,000-hair groom with hair–hair contact;
+ *   5. stress: stiff hair at frame-rate steps, and a scalp shaking at 10 Hz. */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "core/core.h"
+#include "hair/hair.h"
+
+/* ---- helpers ---------------------------------------------------------------------------------------------- */
+
+/* nstrands straight strands of `segments` edges of length L along dir from the given roots. */
+static DrGroom straight_groom(int nstrands, int segments, double L, const double *roots, const double *dirs)
+{
+    DrGroom g = {0};
+    g.nstrands = nstrands;
+    g.offsets = calloc((size_t)nstrands + 1, sizeof(int));
+    g.x = calloc((size_t)nstrands * (size_t)(segments + 1) * 3, sizeof(double));
+    g.root_normal = calloc((size_t)nstrands * 3, sizeof(double));
+    for (int s = 0; s < nstrands; s++) {
+        g.offsets[s] = s * (segments + 1);
+        for (int j = 0; j <= segments; j++)
+            for (int a = 0; a < 3; a++)
+                g.x[3 * (g.offsets[s] + j) + a] = roots[3 * s + a] + dirs[3 * s + a] * L * j / segments;
+        /* the first director: perpendicular to the strand, in the vertical plane when the strand is horizontal */
+        g.root_normal[3 * s + 1] = 1;
+        if (fabs(dirs[3 * s + 1]) > 0.9) {
+            g.root_normal[3 * s + 1] = 0;
+            g.root_normal[3 * s + 2] = 1;
+        }
+    }
+    g.offsets[nstrands] = nstrands * (segments + 1);
+    return g;
+}
+
+static DrRodSet *make_set_thick(const DrRodSetDesc *d, const DrGroom *g, const DrRodMaterial *m, double thickness)
+{
+    DrRodBatch b = {g, *m, 1, 1, true, 10, 0.2, thickness};
+    DrRodSet *r = NULL;
+    DrError err;
+    DrStatus s = dr_rod_set_create(d, &b, 1, &r, &err);
+    if (s != DR_OK) print_error("%s\n", err.message);
+    assert_int_equal(s, DR_OK);
+    return r;
+}
+
+static DrStatus step(DrRodSet *r, double h, const DrXform *pose, const DrRodCollider *c, int nc, DrRodStats *st)
+{
+    DrError err;
+    DrStatus s = dr_rod_set_step(r, h, pose, c, nc, st, &err);
+    if (s != DR_OK) print_error("step: %s\n", err.message);
+    return s;
+}
+
+static DrRodSet *make_set(const DrRodSetDesc *d, const DrGroom *g, const DrRodMaterial *m)
+{
+    return make_set_thick(d, g, m, 0);
+}
+
+/* ---- 1. cantilever ------------------------------------------------------------------------------------------ */
+
+/* Static tip deflection of a horizontal rod whose first edge is held (the clamp) and whose remaining N edges
+   hang free under gravity, against Euler–Bernoulli δ = wL⁴/(8EI), w = ρπr²g. Tangents live on edges, so
+   holding the first edge fixes the tangent at that edge's midpoint: the beam's clamped end is there, and its
+   length is L = N l + l/2 (measuring from the held vertex instead gives a first-order error 2/N). Run to rest
+   with large
+   implicit steps (implicit Euler at h ≫ the rod's periods converges to the static equilibrium of the full
+   nonlinear forces: at rest v₊ = v = 0 makes eq. S26 the equilibrium equation). */
+static double cantilever_error(int N, double *deflection, double *analytic)
+{
+    DrRodMaterial m;
+    dr_rod_material_default(&m);
+    m.radius = 2e-4;
+    m.youngs = 1e9;
+    double Lfree = 0.05, l = Lfree / N, L = Lfree + 0.5 * l;
+    double root[3] = {-l, 0, 0}, dir[3] = {1, 0, 0};
+    DrGroom g = straight_groom(1, N + 1, Lfree + l, root, dir);
+    DrRodSetDesc d;
+    dr_rod_set_desc_default(&d);
+    d.solver.tol = 1e-12;
+    DrRodSet *r = make_set(&d, &g, &m);
+    DrRodStats st = {0};
+    double tip_prev = 0;
+    for (int k = 0; k < 400; k++) {
+        assert_int_equal(step(r, 0.05, NULL, NULL, 0, &st), DR_OK);
+        DrRodState s = dr_rod_set_state(r);
+        double tip = s.x[3 * (s.nverts - 1) + 1];
+        if (k > 20 && fabs(tip - tip_prev) < 1e-13) break;
+        tip_prev = tip;
+    }
+    DrRodState s = dr_rod_set_state(r);
+    double w = m.density * M_PI * m.radius * m.radius * 9.81;
+    double EI = m.youngs * M_PI * pow(m.radius, 4) / 4;
+    *analytic = w * pow(L, 4) / (8 * EI);
+    *deflection = -s.x[3 * (s.nverts - 1) + 1];
+    dr_rod_set_destroy(&r);
+    dr_groom_free(&g);
+    return fabs(*deflection - *analytic) / *analytic;
+}
+
+static void test_cantilever(void **state)
+{
+    (void)state;
+    int Ns[] = {8, 16, 32, 64};
+    double err[4];
+    for (int k = 0; k < 4; k++) {
+        double dfl, an;
+        err[k] = cantilever_error(Ns[k], &dfl, &an);
+        print_message("cantilever N=%d: tip deflection %.6e m, Euler-Bernoulli %.6e m (deflection/L %.2e), "
+                      "relative error %.3e\n",
+                      Ns[k], dfl, an, an / 0.05, err[k]);
+    }
+    assert_true(err[2] < 0.01); /* ≥ 30 segments: within 1 % */
+    assert_true(err[3] < 0.01);
+    assert_true(err[1] < err[0] && err[2] < err[1] && err[3] < err[2]); /* shrinks with refinement */
+}
+
+/* ---- 2. torsion ---------------------------------------------------------------------------------------------- */
+
+/* A straight rod along x, its root turned by Φ about the axis, its tip held: the twist of a uniform rod at rest
+   is uniform, so the material angle falls linearly from Φ at the root edge to 0 at the tip edge. */
+static void test_torsion(void **state)
+{
+    (void)state;
+    DrRodMaterial m;
+    dr_rod_material_default(&m);
+    m.radius = 1e-4;
+    int N = 20;
+    double root[3] = {0, 0, 0}, dir[3] = {1, 0, 0};
+    DrGroom g = straight_groom(1, N, 0.04, root, dir);
+    DrRodSetDesc d;
+    dr_rod_set_desc_default(&d);
+    d.gravity = dr_v3(0, 0, 0);
+    d.tips = DR_ROD_ROOTS_CLAMPED;
+    d.solver.tol = 1e-12;
+    DrRodSet *r = make_set(&d, &g, &m);
+    double Phi = 1.0; /* rad */
+    DrRodStats st = {0};
+    for (int k = 0; k < 300; k++) {
+        double a = Phi * fmin(1.0, (k + 1) / 20.0); /* turned over 20 steps, then held */
+        DrXform pose = {dr_m3_from_euler_xyz(dr_v3(a, 0, 0)), dr_v3(0, 0, 0)};
+        assert_int_equal(step(r, 0.01, &pose, NULL, 0, &st), DR_OK);
+    }
+    DrRodState s = dr_rod_set_state(r);
+    double worst = 0;
+    for (int j = 0; j < s.nedges; j++) {
+        /* the material angle about x: the reference frames stay those of the straight rod */
+        double expect = Phi * (1.0 - (double)j / (s.nedges - 1));
+        worst = fmax(worst, fabs(s.theta[j] - expect));
+    }
+    print_message("torsion: worst material angle error %.3e rad of %.1f rad\n", worst, Phi);
+    assert_true(worst < 1e-6 * Phi);
+    /* the axis stays straight */
+    for (int v = 0; v < s.nverts; v++) assert_true(fabs(s.x[3 * v + 1]) < 1e-9 && fabs(s.x[3 * v + 2]) < 1e-9);
+    dr_rod_set_destroy(&r);
+    dr_groom_free(&g);
+}
+
+/* ---- 3. energy and momentum --------------------------------------------------------------------------------- */
+
+/* A chain pinned at its root, released horizontally: a soft-bending rod swinging as a pendulum chain. Returns
+   the largest relative gain of total energy over the run (must be ≤ 0 up to the solve's tolerance) and the
+   relative loss at the end. */
+static void pendulum_run(double h, double T, double *max_gain, double *loss)
+{
+    DrRodMaterial m;
+    dr_rod_material_default(&m);
+    m.radius = 1e-3;
+    m.youngs = 1e6; /* soft: the chain swings, bending stores little */
+    double root[3] = {0, 0, 0}, dir[3] = {1, 0, 0};
+    DrGroom g = straight_groom(1, 10, 0.1, root, dir);
+    DrRodSetDesc d;
+    dr_rod_set_desc_default(&d);
+    d.roots = DR_ROD_ROOTS_PINNED;
+    d.solver.tol = 1e-12;
+    DrRodSet *r = make_set(&d, &g, &m);
+    DrRodStats st = {0};
+    dr_rod_set_measure(r, &st);
+    double E0 = st.kinetic + st.elastic + st.gravity_potential, scale = 0;
+    {
+        /* the energy scale: the potential the chain can release (its centre of mass falls up to 0.05 m) */
+        DrRodState s = dr_rod_set_state(r);
+        double M = 0;
+        for (int v = 0; v < s.nverts; v++) M += s.mass[v];
+        scale = M * 9.81 * 0.05;
+    }
+    *max_gain = -INFINITY;
+    int n = (int)lround(T / h);
+    for (int k = 0; k < n; k++) {
+        assert_int_equal(step(r, h, NULL, NULL, 0, &st), DR_OK);
+        double E = st.kinetic + st.elastic + st.gravity_potential;
+        *max_gain = fmax(*max_gain, (E - E0) / scale);
+    }
+    *loss = (E0 - (st.kinetic + st.elastic + st.gravity_potential)) / scale;
+    dr_rod_set_destroy(&r);
+    dr_groom_free(&g);
+}
+
+static void test_pendulum_energy(void **state)
+{
+    (void)state;
+    double hs[] = {2e-3, 1e-3, 5e-4};
+    double loss[3];
+    for (int k = 0; k < 3; k++) {
+        double gain;
+        pendulum_run(hs[k], 0.5, &gain, &loss[k]);
+        print_message("pendulum chain h=%.0e s: largest energy gain %.2e, loss after 0.5 s %.3f of the released "
+                      "potential\n",
+                      hs[k], gain, loss[k]);
+        /* implicit Euler dissipates: the energy never grows beyond the solve's tolerance */
+        assert_true(gain < 1e-6);
+    }
+    /* the numerical damping is first order in h: halving h roughly halves the loss */
+    assert_true(loss[1] < loss[0] && loss[2] < loss[1]);
+    assert_true(loss[2] < 0.75 * loss[1]);
+}
+
+static void test_free_rod_momentum(void **state)
+{
+    (void)state;
+    DrRodMaterial m;
+    dr_rod_material_default(&m);
+    m.radius = 2e-4;
+    m.damping = 1e-3;
+    double root[3] = {0, 0, 0}, dir[3] = {0.6, 0.8, 0};
+    DrGroom g = straight_groom(1, 15, 0.03, root, dir);
+    /* a curved rest shape: bend the groom into an arc */
+    for (int j = 0; j <= 15; j++) g.x[3 * j + 2] = 0.002 * sin(0.4 * j);
+    DrRodSetDesc d;
+    dr_rod_set_desc_default(&d);
+    d.roots = DR_ROD_ROOTS_FREE;
+    d.gravity = dr_v3(0, 0, 0);
+    DrRodSet *r = make_set(&d, &g, &m);
+    DrRodState s = dr_rod_set_state(r);
+    DrRng rng;
+    dr_rng_seed(&rng, 5);
+    for (int v = 0; v < s.nverts; v++)
+        for (int a = 0; a < 3; a++) {
+            s.x[3 * v + a] += 5e-4 * (dr_rng_uniform(&rng) - 0.5); /* start deformed */
+            s.v[3 * v + a] = 0.2 * (dr_rng_uniform(&rng) - 0.5) + (a == 0 ? 0.3 : 0);
+        }
+    for (int e = 0; e < s.nedges; e++) s.theta_dot[e] = 10 * (dr_rng_uniform(&rng) - 0.5);
+    dr_rod_set_refresh(r);
+    DrRodStats st = {0};
+    dr_rod_set_measure(r, &st);
+    DrVec3 p0 = st.momentum;
+    double pscale = 0;
+    for (int v = 0; v < s.nverts; v++)
+        pscale += s.mass[v] * sqrt(s.v[3 * v] * s.v[3 * v] + s.v[3 * v + 1] * s.v[3 * v + 1] + s.v[3 * v + 2] * s.v[3 * v + 2]);
+    double worst = 0;
+    for (int k = 0; k < 200; k++) {
+        assert_int_equal(step(r, 1e-3, NULL, NULL, 0, &st), DR_OK);
+        worst = fmax(worst, dr_v3_norm(dr_v3_sub(st.momentum, p0)) / pscale);
+    }
+    print_message("free rod: linear momentum drift %.2e of Σ m|v| over 200 steps, %d CG iterations\n", worst,
+                  st.iterations);
+    /* One strand: the block solve is the direct solve (0 CG iterations) and every internal force sums to zero,
+       so only round-off remains, amplified by the system's conditioning: h²k_s/(l m) ≈ 7e5 here, so each step
+       loses ~1e-16 × 7e5 ≈ 1e-10 of the momentum scale, ~1e-9 after 200 steps of random-walk accumulation. */
+    assert_int_equal(st.iterations, 0);
+    assert_true(worst < 1e-8);
+    dr_rod_set_destroy(&r);
+    dr_groom_free(&g);
+}
+
+/* ---- 4. preconditioners on a contact-rich groom --------------------------------------------------------------- */
+
+/* n×n strands rooted on a square patch of side `patch`, tilted at random by up to `tilt` rad, so neighbours
+   cross. */
+static DrGroom crossing_groom(int n, int segments, double L, double patch, double tilt, uint64_t seed)
+{
+    int S = n * n;
+    double *roots = calloc((size_t)S * 3, sizeof(double)), *dirs = calloc((size_t)S * 3, sizeof(double));
+    DrRng rng;
+    dr_rng_seed(&rng, seed);
+    for (int i = 0; i < n; i++)
+        for (int j = 0; j < n; j++) {
+            int s = i * n + j;
+            roots[3 * s] = patch * i / (n - 1);
+            roots[3 * s + 2] = patch * j / (n - 1);
+            double a = tilt * dr_rng_uniform(&rng), ph = 2 * M_PI * dr_rng_uniform(&rng);
+            dirs[3 * s] = sin(a) * cos(ph);
+            dirs[3 * s + 1] = -cos(a);
+            dirs[3 * s + 2] = sin(a) * sin(ph);
+        }
+    DrGroom g = straight_groom(S, segments, L, roots, dirs);
+    free(roots);
+    free(dirs);
+    return g;
+}
+
+static void test_block_preconditioner(void **state)
+{
+    (void)state;
+    /* 1,024 hairs × 30 vertices, 3 cm long on a 3 cm patch, tilted by up to 14°: ~4,600 contacts */
+    DrGroom g = crossing_groom(32, 29, 0.03, 0.03, 0.25, 3);
+    DrRodMaterial m;
+    dr_rod_material_default(&m);
+    DrRodSetDesc d;
+    dr_rod_set_desc_default(&d);
+    d.hair_contact = true;
+    d.solver.tol = 1e-8;
+    d.solver.max_iter = 20000;
+    DrLagPrecond pcs[3] = {DR_LAG_PRECOND_BLOCK, DR_LAG_PRECOND_JACOBI, DR_LAG_PRECOND_NONE};
+    const char *names[3] = {"block", "jacobi", "none"};
+    int iters[3];
+    double *v[3];
+    for (int p = 0; p < 3; p++) {
+        d.solver.precond = pcs[p];
+        DrRodSet *r = make_set_thick(&d, &g, &m, 5e-5);
+        DrRodStats st = {0};
+        /* one step from the same state with each solver (1e-4 s: a step at which Jacobi and plain CG still
+           converge within 20,000 iterations; bench_hair sweeps the step) */
+        assert_int_equal(step(r, 1e-4, NULL, NULL, 0, &st), DR_OK);
+        iters[p] = st.iterations;
+        DrRodState s = dr_rod_set_state(r);
+        v[p] = malloc(3 * (size_t)s.nverts * sizeof(double));
+        memcpy(v[p], s.v, 3 * (size_t)s.nverts * sizeof(double));
+        print_message("%s: %d iterations, %d hair contacts, residual %.2e\n", names[p], st.iterations,
+                      st.hair_contacts, st.residual);
+        assert_true(st.hair_contacts > 100);
+        if (p == 0) {
+            /* agreement test below: scale of the velocities */
+        }
+        dr_rod_set_destroy(&r);
+    }
+    assert_true(3 * iters[0] <= iters[1]);
+    /* all three agree to the tolerance: relative differences of the velocity field in the mass-free max norm,
+       bounded by the relative residual 1e-8 times the conditioning (≤ 1e-4 observed margin) */
+    double vmax = 0, d1 = 0, d2 = 0;
+    long n3 = 3L * g.offsets[g.nstrands];
+    for (long i = 0; i < n3; i++) {
+        vmax = fmax(vmax, fabs(v[0][i]));
+        d1 = fmax(d1, fabs(v[1][i] - v[0][i]));
+        d2 = fmax(d2, fabs(v[2][i] - v[0][i]));
+    }
+    print_message("max |v| %.3e m/s; jacobi−block %.2e, none−block %.2e\n", vmax, d1, d2);
+    assert_true(d1 < 1e-4 * vmax && d2 < 1e-4 * vmax);
+    for (int p = 0; p < 3; p++) free(v[p]);
+    dr_groom_free(&g);
+}
+
+/* ---- 5. stress ------------------------------------------------------------------------------------------------ */
+
+static void test_stiff_frame_rate(void **state)
+{
+    (void)state;
+    DrGroom g = crossing_groom(10, 20, 0.05, 0.01, 0.44, 9);
+    DrRodMaterial m;
+    dr_rod_material_default(&m);
+    m.youngs = 1e10;
+    m.shear = 4e9;
+    m.radius = 5e-5;
+    DrRodSetDesc d;
+    dr_rod_set_desc_default(&d);
+    d.solver.tol = 1e-6;
+    DrRodSet *r = make_set(&d, &g, &m);
+    DrRodStats st = {0};
+    dr_rod_set_measure(r, &st);
+    double E0 = st.kinetic + st.elastic + st.gravity_potential;
+    double drop = 0;
+    {
+        DrRodState s = dr_rod_set_state(r);
+        for (int v = 0; v < s.nverts; v++) drop += s.mass[v] * 9.81 * 0.05; /* nothing can fall further */
+    }
+    /* The first step starts with λ = 0 (no tension yet, so no geometric stiffness): its linearisation turns
+       part of the fall into stretch energy, measured at 1.2 % of the potential scale. From then on the
+       multipliers carry the tension and the energy only falls as the hair settles. */
+    double Eprev = INFINITY;
+    for (int k = 0; k < 48; k++) {
+        DrStatus s = step(r, 1.0 / 24, NULL, NULL, 0, &st);
+        assert_true(s == DR_OK || s == DR_WARN_NOT_CONVERGED);
+        double E = st.kinetic + st.elastic + st.gravity_potential;
+        assert_true(isfinite(E));
+        if (k == 0) print_message("first step: E - E0 = %.3e J of a potential scale %.3e J\n", E - E0, drop);
+        assert_true(E <= E0 + 0.05 * drop);          /* bounded */
+        if (k >= 1) assert_true(E <= Eprev + 1e-9 * drop); /* and falling once λ carries the tension */
+        Eprev = E;
+    }
+    assert_true(st.kinetic < 1e-12 * drop); /* settled at rest under gravity */
+    print_message("stiff hair at 1/24 s: %d CG iterations over 48 steps, %d blocks dropped geometric stiffness\n",
+                  st.iterations, st.indefinite_blocks);
+    DrRodState s = dr_rod_set_state(r);
+    for (int v = 0; v < 3 * s.nverts; v++) assert_true(isfinite(s.x[v]) && isfinite(s.v[v]));
+    dr_rod_set_destroy(&r);
+    dr_groom_free(&g);
+}
+
+static void test_shaking_scalp(void **state)
+{
+    (void)state;
+    DrGroom g = crossing_groom(8, 15, 0.04, 0.01, 0.44, 4);
+    DrRodMaterial m;
+    dr_rod_material_default(&m);
+    m.damping = 1e-3;
+    DrRodSetDesc d;
+    dr_rod_set_desc_default(&d);
+    d.solver.tol = 1e-6;
+    DrRodSet *r = make_set(&d, &g, &m);
+    DrRodStats st = {0};
+    double h = 1.0 / 480, f = 10; /* 10 Hz: 48 steps per period */
+    double worst_root = 0, vmax = 0;
+    for (int k = 1; k <= 480; k++) {
+        double t = k * h, w = 2 * M_PI * f;
+        /* ±2 cm side to side and ±20° about the vertical axis */
+        DrXform pose = {dr_m3_from_euler_xyz(dr_v3(0, 0.35 * sin(w * t), 0)), dr_v3(0.02 * sin(w * t), 0, 0)};
+        DrStatus s = step(r, h, &pose, NULL, 0, &st);
+        assert_true(s == DR_OK || s == DR_WARN_NOT_CONVERGED);
+        DrRodState rs = dr_rod_set_state(r);
+        for (int v = 0; v < 3 * rs.nverts; v++) {
+            assert_true(isfinite(rs.x[v]) && isfinite(rs.v[v]));
+            vmax = fmax(vmax, fabs(rs.v[v]));
+        }
+        for (int sidx = 0; sidx < rs.nstrands; sidx++)
+            for (int j = 0; j < 2; j++) {
+                int vid = rs.offsets[sidx] + j;
+                DrVec3 rest = dr_v3(g.x[3 * vid], g.x[3 * vid + 1], g.x[3 * vid + 2]);
+                DrVec3 want = dr_xform_apply(pose, rest);
+                DrVec3 got = dr_v3(rs.x[3 * vid], rs.x[3 * vid + 1], rs.x[3 * vid + 2]);
+                worst_root = fmax(worst_root, dr_v3_norm(dr_v3_sub(got, want)));
+            }
+    }
+    print_message("shaking scalp 10 Hz: roots within %.2e m of the scalp, max |v| %.2f m/s\n", worst_root, vmax);
+    assert_true(worst_root < 1e-12);
+    assert_true(vmax < 50); /* the scalp moves at ≤ 1.3 m/s plus rotation: nothing flies off */
+    dr_rod_set_destroy(&r);
+    dr_groom_free(&g);
+}
+
+/* A strand resting on a floor collider with friction stays on it and does not sink. */
+static double floor_sdf(DrVec3 x, DrVec3 *n, void *ctx)
+{
+    (void)ctx;
+    *n = dr_v3(0, 1, 0);
+    return x.y;
+}
+
+static void test_floor_contact(void **state)
+{
+    (void)state;
+    /* a horizontal strand clamped 5 mm above the floor droops onto it */
+    double root[3] = {0, 0.005, 0}, dir[3] = {1, 0, 0};
+    DrGroom g = straight_groom(1, 20, 0.06, root, dir);
+    DrRodMaterial m;
+    dr_rod_material_default(&m);
+    DrRodSetDesc d;
+    dr_rod_set_desc_default(&d);
+    DrRodSet *r = make_set(&d, &g, &m);
+    DrRodCollider c = {floor_sdf, NULL, NULL, 0.5, 0};
+    DrRodStats st = {0};
+    for (int k = 0; k < 240; k++) assert_int_equal(step(r, 1.0 / 240, NULL, &c, 1, &st), DR_OK);
+    DrRodState s = dr_rod_set_state(r);
+    double lowest = INFINITY;
+    for (int v = 0; v < s.nverts; v++) lowest = fmin(lowest, s.x[3 * v + 1]);
+    print_message("floor: lowest vertex at %.3e m (radius %.0e m), %d contacts\n", lowest, m.radius,
+                  st.collider_contacts);
+    assert_true(st.collider_contacts > 0);
+    assert_true(lowest > -0.5 * m.radius - 1e-4); /* a soft contact (1e4 N/m) sinks by at most weight / k */
+    dr_rod_set_destroy(&r);
+    dr_groom_free(&g);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_cantilever),        cmocka_unit_test(test_torsion),
+        cmocka_unit_test(test_pendulum_energy),   cmocka_unit_test(test_free_rod_momentum),
+        cmocka_unit_test(test_block_preconditioner), cmocka_unit_test(test_stiff_frame_rate),
+        cmocka_unit_test(test_shaking_scalp),     cmocka_unit_test(test_floor_contact),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
