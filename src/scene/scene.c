@@ -419,6 +419,31 @@ static DrStatus check_mpm_shape(Parser *p, const DrComponent *c, const char *whe
     return DR_OK;
 }
 
+/* A groom is grown from a scalp or read from curves, never both; the growth parameters mean nothing for
+   curves, so writing one there is a mistake worth naming rather than a value silently ignored. */
+static DrStatus check_groom(Parser *p, const DrComponent *c, const char *where)
+{
+    bool scalp = value_at(c, "scalp")->set, curves = value_at(c, "curves")->set;
+    if (!scalp && !curves)
+        return fail_key(p, "%s: no strands; add \"scalp\": \"path/to/scalp.obj\" to grow them from a mesh, or "
+                           "\"curves\": \"path/to/curves.obj\" to read OBJ polylines", where);
+    if (scalp && curves) {
+        push_key(p, "curves");
+        return fail_key(p, "%s: both scalp and curves are given, but a groom comes from exactly one: keep scalp (grow "
+                           "strands from the mesh) or curves (read its polylines)", where);
+    }
+    if (curves) {
+        for (int i = 0; i < c->spec->field_count; i++) {
+            const char *name = c->spec->fields[i].name;
+            if (!c->values[i].set || strcmp(name, "curves") == 0) continue;
+            push_key(p, name);
+            return fail_key(p, "%s.%s applies to strands grown from a scalp; with curves the strands are the file's "
+                               "polylines: remove %s", where, name, name);
+        }
+    }
+    return DR_OK;
+}
+
 typedef DrStatus (*CheckFn)(Parser *p, const DrComponent *c, const char *where);
 static const struct {
     const char *spec;
@@ -426,6 +451,7 @@ static const struct {
 } checks[] = {
     {"shot", check_shot},       {"render.camera", check_camera}, {"Emitter", check_emitter},
     {"LiquidSource", check_source}, {"Motion", check_motion}, {"MpmShape", check_mpm_shape},
+    {"Groom", check_groom},
 };
 
 /* ---- components and sections ------------------------------------------------------------------------- */
@@ -539,25 +565,45 @@ static DrStatus check_liquid_transfer(Parser *p, const DrElement *e)
                    "B-spline: remove the field or write \"quadratic\"", e->name, kernel);
 }
 
-/* Every mpm_solid of a scene lives on one grid advanced by one step, so what defines the grid and the step
-   must agree between them: the cell size and wall condition (Domain) and every Transfer and Integrator
-   field. The grid box itself is the union of the Domain boxes (world.c). */
-static DrStatus check_mpm_shared(Parser *p)
+/* Every hair element's Collider is its strands' contact with colliders; the liquid's velocity condition at
+   a collider surface is not one of its parameters. */
+static DrStatus check_hair_collider(Parser *p, const DrElement *e)
 {
-    static const struct { const char *component, *field; } shared[] = {
-        {"Domain", "voxel_size"},       {"Domain", "wall_boundary"},
-        {"Transfer", NULL},             {"Integrator", NULL},
-    };
+    const DrComponent *col = dr_element_component(e, "Collider");
+    if (!value_at(col, "boundary")->set) return DR_OK;
+    push_key(p, "components");
+    push_key(p, "Collider");
+    push_key(p, "boundary");
+    return fail_key(p, "%s.Collider.boundary is the velocity condition of liquid at a collider surface and does not "
+                       "apply to hair; remove it (a hair element's Collider takes friction and thickness)", e->name);
+}
+
+/* Fields that every element of one type must agree on, because those elements are advanced together. */
+typedef struct Shared {
+    const char *component, *field; /* field NULL: every field of the component */
+} Shared;
+
+static void shared_value_text(const DrFieldSpec *fs, const DrValue *v, char *buf, size_t size)
+{
+    if (fs->kind == DR_FIELD_ENUM) snprintf(buf, size, "'%s'", v->str);
+    else if (fs->kind == DR_FIELD_BOOL) snprintf(buf, size, "%s", v->num[0] != 0.0 ? "true" : "false");
+    else dr_scene_fmt_num_(v->num[0], buf, size);
+}
+
+/* The first element of `type` whose shared fields differ from the first one's is an error naming both and
+   ending with `why`. */
+static DrStatus check_shared(Parser *p, const char *type, const Shared *shared, int nshared, const char *why)
+{
     const DrScene *s = p->s;
     const DrElement *first = NULL;
     for (int i = 0; i < s->element_count; i++) {
         const DrElement *e = &s->elements[i];
-        if (strcmp(e->type, "mpm_solid") != 0) continue;
+        if (strcmp(e->type, type) != 0) continue;
         if (!first) {
             first = e;
             continue;
         }
-        for (size_t k = 0; k < sizeof shared / sizeof shared[0]; k++) {
+        for (int k = 0; k < nshared; k++) {
             const DrComponent *a = dr_element_component(first, shared[k].component);
             const DrComponent *b = dr_element_component(e, shared[k].component);
             for (int f = 0; f < a->spec->field_count; f++) {
@@ -568,25 +614,42 @@ static DrStatus check_mpm_shared(Parser *p)
                             ((!va->str && !vb->str) || (va->str && vb->str && strcmp(va->str, vb->str) == 0));
                 if (same) continue;
                 char xa[64], xb[64];
-                if (fs->kind == DR_FIELD_ENUM) {
-                    snprintf(xa, sizeof xa, "'%s'", va->str);
-                    snprintf(xb, sizeof xb, "'%s'", vb->str);
-                } else {
-                    dr_scene_fmt_num_(va->num[0], xa, sizeof xa);
-                    dr_scene_fmt_num_(vb->num[0], xb, sizeof xb);
-                }
+                shared_value_text(fs, va, xa, sizeof xa);
+                shared_value_text(fs, vb, xb, sizeof xb);
                 push_index(p, e->index);
                 push_key(p, "components");
                 push_key(p, a->spec->name);
                 push_key(p, fs->name);
-                return fail(p, "%s.%s.%s = %s differs from %s.%s.%s = %s; every mpm_solid of a scene shares one grid "
-                               "and one time step, so give both elements the same %s.%s", e->name, a->spec->name,
-                            fs->name, xb, first->name, a->spec->name, fs->name, xa, a->spec->name, fs->name);
+                return fail(p, "%s.%s.%s = %s differs from %s.%s.%s = %s; %s, so give both elements the same %s.%s",
+                            e->name, a->spec->name, fs->name, xb, first->name, a->spec->name, fs->name, xa, why,
+                            a->spec->name, fs->name);
             }
         }
     }
     return DR_OK;
 }
+
+/* Every mpm_solid of a scene lives on one grid advanced by one step, so what defines the grid and the step
+   must agree between them: the cell size and wall condition (Domain) and every Transfer and Integrator
+   field. The grid box itself is the union of the Domain boxes (world.c). Every hair element is one object
+   of one Lagrangian system (contact couples them), solved by one solve: HairSolver must agree. */
+static DrStatus check_cross_element(Parser *p)
+{
+    static const Shared mpm[] = {
+        {"Domain", "voxel_size"}, {"Domain", "wall_boundary"}, {"Transfer", NULL}, {"Integrator", NULL}};
+    static const Shared hair[] = {{"HairSolver", NULL}};
+    DR_TRY(check_shared(p, "mpm_solid", mpm, (int)(sizeof mpm / sizeof mpm[0]),
+                        "every mpm_solid of a scene shares one grid and one time step"));
+    return check_shared(p, "hair", hair, 1, "every hair element of a scene is solved in one system");
+}
+
+/* Required components that need one of several optional fields: what to write when one is missing. */
+static const struct {
+    const char *component, *example;
+} one_of_examples[] = {
+    {"MpmShape", "\"box\": [[x0, y0, z0], [x1, y1, z1]]"},
+    {"Groom", "\"scalp\": \"path/to/scalp.obj\""},
+};
 
 static DrStatus parse_element(Parser *p, const json_t *v, int index)
 {
@@ -687,7 +750,13 @@ static DrStatus parse_element(Parser *p, const json_t *v, int index)
         if (c->present) continue;
         char need[512] = "";
         size_t used = 0;
-        for (int f = 0; f < c->spec->field_count; f++)
+        bool example = false;
+        for (size_t k = 0; k < sizeof one_of_examples / sizeof one_of_examples[0]; k++)
+            if (strcmp(one_of_examples[k].component, c->spec->name) == 0) {
+                snprintf(need, sizeof need, "%s", one_of_examples[k].example);
+                example = true;
+            }
+        for (int f = 0; !example && f < c->spec->field_count; f++)
             if (c->spec->fields[f].required)
                 used += (size_t)snprintf(need + used, sizeof need - used, "%s\"%s\": %s", used ? ", " : "",
                                          c->spec->fields[f].name, example_of(&c->spec->fields[f]));
@@ -695,6 +764,7 @@ static DrStatus parse_element(Parser *p, const json_t *v, int index)
                     c->spec->doc, c->spec->name, need);
     }
     if (strcmp(t->type, "liquid") == 0) DR_TRY(check_liquid_transfer(p, e));
+    if (strcmp(t->type, "hair") == 0) DR_TRY(check_hair_collider(p, e));
     return DR_OK;
 }
 
@@ -713,7 +783,7 @@ static DrStatus parse_elements(Parser *p, const json_t *v)
         pop(p);
         s->element_count = (int)i + 1;
     }
-    return check_mpm_shared(p);
+    return check_cross_element(p);
 }
 
 /* Every distinct resolved PATH value, sections first, then elements in order. */

@@ -56,6 +56,9 @@ static const DrFieldSpec mesh_fields[] = {
      .doc = "mesh adaptivity: 0 uniform triangles, 1 fewest triangles"},
     {.name = "write_vdb", .kind = DR_FIELD_BOOL, .unit = "", .def = {1}, .doc = "write <element>.NNNN.vdb"},
     {.name = "write_obj", .kind = DR_FIELD_BOOL, .unit = "", .def = {1}, .doc = "write <element>.NNNN.obj"},
+    {.name = "hair_ribbons", .kind = DR_FIELD_BOOL, .unit = "", .def = {0},
+     .doc = "also write each hair element's strands as triangle strips 2 radii wide, <element>_ribbons.NNNN.obj "
+            "(for tools that do not draw OBJ polylines); its <element>.NNNN.obj polylines are always written"},
 };
 
 static const DrFieldSpec render_fields[] = {
@@ -222,11 +225,11 @@ static const DrFieldSpec mesh_file_fields[] = {
 
 static const DrFieldSpec collider_fields[] = {
     {.name = "friction", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {0}, RANGE(0, 10),
-     .doc = "Coulomb friction coefficient"},
+     .doc = "Coulomb friction coefficient (hair against a collider: the larger of the two elements' values)"},
     {.name = "boundary", .kind = DR_FIELD_ENUM, .unit = "", .def_str = "slip", .choices = "slip|no_slip",
-     .doc = "velocity condition of liquid at the surface"},
+     .doc = "velocity condition of liquid at the surface (collider elements only)"},
     {.name = "thickness", .kind = DR_FIELD_NUMBER, .unit = "m", .def = {0}, RANGE(0, 1),
-     .doc = "extra thickness added around the surface"},
+     .doc = "extra thickness added around the surface (on hair: around each strand, beyond its radius)"},
 };
 
 static const DrFieldSpec transform_fields[] = {
@@ -236,6 +239,91 @@ static const DrFieldSpec transform_fields[] = {
      .doc = "XYZ Euler angles (x applied first), applied after scale"},
     {.name = "scale", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {1}, RANGE_LO_OPEN(0, 1e6),
      .doc = "uniform scale, applied first"},
+};
+
+static const DrFieldSpec groom_fields[] = {
+    {.name = "scalp", .kind = DR_FIELD_PATH, .unit = "",
+     .doc = "triangle mesh the strands grow from: roots uniform by area, each strand along the interpolated "
+            "area-weighted vertex normal (exactly one of scalp and curves)"},
+    {.name = "curves", .kind = DR_FIELD_PATH, .unit = "",
+     .doc = "OBJ file of polylines: each 'l' record is one strand, root first (exactly one of scalp and curves; "
+            "the fields below are for scalp only)"},
+    {.name = "count", .kind = DR_FIELD_INT, .unit = "", .def = {100}, RANGE(1, 1000000),
+     .doc = "strands grown from the scalp"},
+    {.name = "length", .kind = DR_FIELD_NUMBER, .unit = "m", .def = {0.05}, RANGE_LO_OPEN(0, 100),
+     .doc = "strand length (for a curled strand: along the helix)", .hint = "use a positive length such as 0.05"},
+    {.name = "segments", .kind = DR_FIELD_INT, .unit = "", .def = {12}, RANGE(1, 1000),
+     .doc = "edges per strand, equal in arc length (segments + 1 vertices)"},
+    {.name = "curl_radius", .kind = DR_FIELD_NUMBER, .unit = "m", .def = {0}, RANGE(0, 1),
+     .doc = "radius of the right-handed helix each strand winds along, its axis parallel to the scalp normal; "
+            "0 = straight along the normal"},
+    {.name = "curl_pitch", .kind = DR_FIELD_NUMBER, .unit = "m", .def = {0.01}, RANGE_LO_OPEN(0, 10),
+     .doc = "rise of the helix along the normal per turn (curl_radius > 0 only)",
+     .hint = "use a positive rise per turn such as 0.01"},
+    {.name = "length_jitter", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {0}, RANGE_HI_OPEN(0, 1),
+     .doc = "random spread of strand lengths: each is length * (1 + length_jitter * u), u uniform in [-1, 1)"},
+    {.name = "seed", .kind = DR_FIELD_INT, .unit = "", .def = {1}, RANGE(0, INT_MAX_31),
+     .doc = "seed of the root placement, curl phases and length jitter (roots depend on scalp, count and seed only)"},
+};
+
+/* Human hair by default (r = 50 um, keratin): dr_rod_material_default in src/hair. */
+static const DrFieldSpec rod_material_fields[] = {
+    {.name = "radius", .kind = DR_FIELD_NUMBER, .unit = "m", .def = {5e-5}, RANGE_LO_OPEN(0, 0.1),
+     .doc = "strand radius r", .hint = "use a positive radius such as 5e-5 (human hair)"},
+    {.name = "density", .kind = DR_FIELD_NUMBER, .unit = "kg/m^3", .def = {1300}, RANGE(1, 1e5),
+     .doc = "mass density of the strand", .hint = "use a positive density such as 1300 for hair"},
+    {.name = "youngs_modulus", .kind = DR_FIELD_NUMBER, .unit = "Pa", .def = {3.9e9}, RANGE_LO_OPEN(0, 1e12),
+     .doc = "Young's modulus E: stretching E pi r^2, bending E pi r^4 / 4",
+     .hint = "use a positive stiffness such as 3.9e9 for hair"},
+    {.name = "shear_modulus", .kind = DR_FIELD_NUMBER, .unit = "Pa", .def = {1.3e9}, RANGE_LO_OPEN(0, 1e12),
+     .doc = "shear modulus G: twisting G pi r^4 / 2 (default E / (2 (1 + 0.5)))",
+     .hint = "use a positive stiffness such as 1.3e9 for hair"},
+    {.name = "damping", .kind = DR_FIELD_NUMBER, .unit = "s", .def = {0}, RANGE(0, 10),
+     .doc = "internal viscosity as a Kelvin-Voigt time constant: viscous force = damping * stiffness * strain "
+            "rate on stretching, bending and twisting; 0 = none"},
+};
+
+/* Box2D's collision filter (category and mask bits), with the category written as a group index. */
+static const DrFieldSpec collision_group_fields[] = {
+    {.name = "group", .kind = DR_FIELD_INT, .unit = "", .def = {0}, RANGE(0, 30),
+     .doc = "collision group of this hair element, 0 to 30"},
+    {.name = "collides_with", .kind = DR_FIELD_INT, .unit = "", .def = {INT_MAX_31}, RANGE(0, INT_MAX_31),
+     .doc = "bitmask of the groups it collides with: bit k (value 2^k) for group k, default all (2^31 - 1). Two "
+            "hair elements collide when each one's mask has the other's group; 0 = no contact with other hair"},
+    {.name = "self_collision", .kind = DR_FIELD_BOOL, .unit = "", .def = {1},
+     .doc = "contact between strands of this element (the masks do not apply to it)"},
+};
+
+/* 10 N/m: 30 times a default segment's bending stiffness (~0.3 N/m), so strands bend round each other
+   instead of passing through, and the weight of ten default strands (5e-5 N) on one contact sinks it by 5 um,
+   a tenth of a strand radius. Stiffer contacts cost solver iterations: each couples two strands as h²k/m, and
+   the block preconditioner only sees the strands (1e3 N/m needs 4-10x the iterations of 10 N/m at 1e-3 s,
+   tests/bench/bench_hair). */
+static const DrFieldSpec collision_response_fields[] = {
+    {.name = "stiffness", .kind = DR_FIELD_NUMBER, .unit = "N/m", .def = {10}, RANGE_LO_OPEN(0, 1e9),
+     .doc = "stiffness of a strand-strand contact (between two elements: the smaller of their values)",
+     .hint = "use a positive stiffness such as 10"},
+    {.name = "friction", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {0.2}, RANGE(0, 10),
+     .doc = "Coulomb friction of strand-strand contact, 0.2 for dry hair (between two elements: the larger of "
+            "their values)"},
+    {.name = "thickness", .kind = DR_FIELD_NUMBER, .unit = "m", .def = {0}, RANGE(0, 1),
+     .doc = "extra thickness around each strand for strand-strand contact: two strands touch at r_a + t_a + r_b "
+            "+ t_b"},
+};
+
+static const DrFieldSpec hair_solver_fields[] = {
+    {.name = "preconditioner", .kind = DR_FIELD_ENUM, .unit = "", .def_str = "block", .choices = "block|jacobi|none",
+     .doc = "preconditioner of the conjugate-gradient solve: block (each strand's banded Cholesky factor), jacobi "
+            "(the diagonal) or none"},
+    {.name = "tolerance", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {1e-6}, RANGE(1e-14, 0.1),
+     .doc = "relative mass-weighted residual at which the solve stops"},
+    {.name = "max_iterations", .kind = DR_FIELD_INT, .unit = "", .def = {500}, RANGE(1, 1000000),
+     .doc = "iteration limit of the solve (reaching it is a warning; the step is kept)"},
+    {.name = "substeps", .kind = DR_FIELD_INT, .unit = "", .def = {1}, RANGE(1, 100000),
+     .doc = "hair steps per frame at least (the world may take more)"},
+    {.name = "geometric_stiffness", .kind = DR_FIELD_BOOL, .unit = "", .def = {1},
+     .doc = "include the geometric stiffness (the previous multipliers times the constraint Hessians) in the "
+            "system matrix"},
 };
 
 static const DrFieldSpec motion_fields[] = {
@@ -255,16 +343,30 @@ const DrComponentSpec dr_scene_components_[] = {
     {"Particles", "particle seeding", particles_fields, COUNT(particles_fields)},
     {"Pressure", "pressure projection", pressure_fields, COUNT(pressure_fields)},
     {"Mesh", "the element's surface mesh", mesh_file_fields, COUNT(mesh_file_fields)},
-    {"Collider", "how liquid and solids interact with the surface", collider_fields, COUNT(collider_fields)},
-    {"Transform", "rest placement of the mesh (of an mpm_solid: of its MpmShape): scale, then rotate, then translate",
+    {"Collider", "contact with collider surfaces: on a collider, how liquid, solids and hair meet its surface; on "
+                 "hair, how its strands meet every collider", collider_fields, COUNT(collider_fields)},
+    {"Transform", "rest placement of the mesh (of an mpm_solid: of its MpmShape; of hair: of its scalp or curves): "
+                  "scale, then rotate, then translate",
      transform_fields, COUNT(transform_fields)},
-    {"Motion", "keyframed rigid motion", motion_fields, COUNT(motion_fields)},
+    {"Motion", "keyframed rigid motion (of hair: of its scalp, which the roots follow)", motion_fields,
+     COUNT(motion_fields)},
     {"MpmMaterial", "hyperelastic material of an MPM solid", mpm_material_fields, COUNT(mpm_material_fields)},
     {"MpmShape", "the body's shape at t=0, filled with particles: exactly one of box, centre and radius (a sphere), "
                  "or mesh", mpm_shape_fields, COUNT(mpm_shape_fields)},
     {"InitialVelocity", "rigid motion of the body at t=0", initial_velocity_fields, COUNT(initial_velocity_fields)},
     {"Integrator", "MPM time integration and its Newton and conjugate-gradient solves", integrator_fields,
      COUNT(integrator_fields)},
+    {"Groom", "the strands: grown from a scalp mesh or read from OBJ polylines (exactly one of scalp and curves)",
+     groom_fields, COUNT(groom_fields)},
+    {"RodMaterial", "elastic rod material of the strands (human hair by default)", rod_material_fields,
+     COUNT(rod_material_fields)},
+    {"CollisionGroup", "which hair elements this one's strands collide with, and whether they collide with each "
+                       "other; colliders meet every hair element",
+     collision_group_fields, COUNT(collision_group_fields)},
+    {"CollisionResponse", "strand-strand contact: stiffness, friction and thickness", collision_response_fields,
+     COUNT(collision_response_fields)},
+    {"HairSolver", "the linear solve of a hair step (the same for every hair element: they are solved together)",
+     hair_solver_fields, COUNT(hair_solver_fields)},
 };
 const int dr_scene_component_count_ = COUNT(dr_scene_components_);
 
@@ -278,6 +380,9 @@ static const char *const collider_required[] = {"Mesh"};
 static const char *const mpm_solid_components[] = {"Domain",     "MpmShape", "MpmMaterial", "InitialVelocity",
                                                    "Transform", "Transfer", "Integrator"};
 static const char *const mpm_solid_required[] = {"Domain", "MpmShape"};
+static const char *const hair_components[] = {"Groom",     "RodMaterial", "Collider",          "Transform",
+                                              "Motion",    "CollisionGroup", "CollisionResponse", "HairSolver"};
+static const char *const hair_required[] = {"Groom"};
 
 const DrElementSpec dr_scene_types_[] = {
     {"liquid", "a body of incompressible liquid (APIC/FLIP/PIC particles on a MAC grid inside its Domain)",
@@ -288,6 +393,10 @@ const DrElementSpec dr_scene_types_[] = {
      "an elastic solid on the material point method; every mpm_solid of a scene shares one grid (the bounding box "
      "of their Domain boxes, one voxel_size), so the bodies collide with each other",
      mpm_solid_components, COUNT(mpm_solid_components), mpm_solid_required, COUNT(mpm_solid_required), false},
+    {"hair",
+     "strands of hair or fur as discrete elastic rods, grown from a scalp mesh or read from OBJ polylines; the roots "
+     "are fixed to the scalp and follow its Transform and Motion",
+     hair_components, COUNT(hair_components), hair_required, COUNT(hair_required), false},
 };
 const int dr_scene_type_count_ = COUNT(dr_scene_types_);
 

@@ -459,7 +459,7 @@ static void test_bad_input_messages(void **state)
         {NULL, NULL, motion, {"cup.Motion.keys[2]: frames out of order (frame 3 after frame 5)"}},
         {NULL, NULL,
          "{\"elements\":[{\"name\":\"water\",\"type\":\"liquidd\"}]}",
-         {"element 'water': unknown type 'liquidd'; did you mean 'liquid'? Types: liquid, collider, mpm_solid"}},
+         {"element 'water': unknown type 'liquidd'; did you mean 'liquid'? Types: liquid, collider, mpm_solid, hair"}},
         {NULL, NULL,
          "{\"elements\":[{\"name\":\"w\",\"type\":\"liquid\",\"components\":{\"Domain\":{\"box\":[[0,0,0],[1,1,1]]}}},"
          "{\"name\":\"x\",\"type\":\"liquid\",\"components\":{\"Domain\":{\"box\":[[0,0,0],[1,1,1]]}}},"
@@ -470,11 +470,15 @@ static void test_bad_input_messages(void **state)
         {NULL, NULL, "{\"elements\":[{\"name\":\"rock\",\"type\":\"collider\",\"components\":{}}]}",
          {"element 'rock' (collider): missing component 'Mesh'", "add \"Mesh\": {\"file\": \"path/to/mesh.obj\"}"}},
         {NULL, NULL,
+         "{\"elements\":[{\"name\":\"j\",\"type\":\"mpm_solid\",\"components\":{\"Domain\":{\"box\":[[0,0,0],[1,1,1]]}}}]}",
+         {"element 'j' (mpm_solid): missing component 'MpmShape'",
+          "add \"MpmShape\": {\"box\": [[x0, y0, z0], [x1, y1, z1]]} to its components"}},
+        {NULL, NULL,
          "{\"elements\":[{\"name\":\"w\",\"type\":\"liquid\",\"components\":{\"Domain\":{\"box\":[[0,0,0],[1,1,1]]},"
          "\"LiquidSource\":{\"velocity\":[0,0,0]}}}]}",
          {"w.LiquidSource: needs \"box\" or \"mesh\""}},
         {NULL, NULL, "{\"elements\":[{\"type\":\"liquid\"}]}", {"elements[0]: missing \"name\""}},
-        {NULL, NULL, "{\"elements\":[{\"name\":\"w\"}]}", {"element 'w': missing \"type\"; add \"type\": one of liquid, collider, mpm_solid"}},
+        {NULL, NULL, "{\"elements\":[{\"name\":\"w\"}]}", {"element 'w': missing \"type\"; add \"type\": one of liquid, collider, mpm_solid, hair"}},
         {NULL, NULL, "{\"elements\":[{\"name\":\"w\",\"type\":\"liquid\",\"component\":{}}]}",
          {"elements[0]: unknown key 'component'; did you mean 'components'?"}},
         {NULL, NULL, "{\"elements\":[{\"name\":\"w\",\"type\":\"liquid\",\"components\":[]}]}",
@@ -585,6 +589,234 @@ static void test_error_positions(void **state)
     assert_error_at(text, "-1", "cup.Collider.friction = -1 is out of range [0, 10]");
 }
 
+/* ---- hair ------------------------------------------------------------------------------------------------ */
+
+/* A scene of one hair element "fur" with the given components (the text inside "components": {...}). */
+static void hair_scene(const char *components, char *buf, size_t size)
+{
+    snprintf(buf, size, "{\"elements\":[{\"name\":\"fur\",\"type\":\"hair\",\"components\":{%s}}]}", components);
+}
+
+static void write_curves(void)
+{
+    char path[512];
+    tmp_path("meshes/curves.obj", path, sizeof path);
+    write_file(path, "v 0 0 0\nv 0 1 0\nl 1 2\n");
+}
+
+static void test_hair_defaults(void **state)
+{
+    (void)state;
+    write_tri();
+    char text[4096];
+    hair_scene("\"Groom\":{\"scalp\":\"meshes/tri.obj\"}", text, sizeof text);
+    DrScene *s = load_text(text);
+    assert_int_equal(dr_scene_count_type(s, "hair"), 1);
+    const DrElement *fur = dr_scene_find(s, "fur");
+    assert_string_equal(fur->type, "hair");
+    char tri[512];
+    tmp_path("meshes/tri.obj", tri, sizeof tri);
+    const DrComponent *groom = dr_element_component(fur, "Groom");
+    assert_true(dr_component_present(groom));
+    assert_string_equal(dr_component_str(groom, "scalp"), tri);
+    assert_false(dr_component_is_set(groom, "curves"));
+    assert_null(dr_component_str(groom, "curves"));
+    assert_int_equal(dr_component_int(groom, "count"), 100);
+    assert_true(dr_component_num(groom, "length") == 0.05);
+    assert_int_equal(dr_component_int(groom, "segments"), 12);
+    assert_true(dr_component_num(groom, "curl_radius") == 0.0);
+    assert_true(dr_component_num(groom, "curl_pitch") == 0.01);
+    assert_true(dr_component_num(groom, "length_jitter") == 0.0);
+    assert_int_equal(dr_component_int(groom, "seed"), 1);
+    const DrComponent *mat = dr_element_component(fur, "RodMaterial");
+    assert_false(dr_component_present(mat));
+    assert_true(dr_component_num(mat, "radius") == 5e-5);
+    assert_true(dr_component_num(mat, "density") == 1300.0);
+    assert_true(dr_component_num(mat, "youngs_modulus") == 3.9e9);
+    assert_true(dr_component_num(mat, "shear_modulus") == 1.3e9);
+    assert_true(dr_component_num(mat, "damping") == 0.0);
+    const DrComponent *col = dr_element_component(fur, "Collider");
+    assert_true(dr_component_num(col, "friction") == 0.0 && dr_component_num(col, "thickness") == 0.0);
+    assert_true(dr_component_num(dr_element_component(fur, "Transform"), "scale") == 1.0);
+    const double *rows;
+    assert_int_equal(dr_component_table(dr_element_component(fur, "Motion"), "keys", &rows), 0);
+    const DrComponent *grp = dr_element_component(fur, "CollisionGroup");
+    assert_int_equal(dr_component_int(grp, "group"), 0);
+    assert_int_equal(dr_component_int(grp, "collides_with"), 2147483647);
+    assert_true(dr_component_bool(grp, "self_collision"));
+    const DrComponent *resp = dr_element_component(fur, "CollisionResponse");
+    assert_true(dr_component_num(resp, "stiffness") == 10);
+    assert_true(dr_component_num(resp, "friction") == 0.2);
+    assert_true(dr_component_num(resp, "thickness") == 0.0);
+    const DrComponent *sol = dr_element_component(fur, "HairSolver");
+    assert_string_equal(dr_component_str(sol, "preconditioner"), "block");
+    assert_true(dr_component_num(sol, "tolerance") == 1e-6);
+    assert_int_equal(dr_component_int(sol, "max_iterations"), 500);
+    assert_int_equal(dr_component_int(sol, "substeps"), 1);
+    assert_true(dr_component_bool(sol, "geometric_stiffness"));
+    assert_int_equal(dr_scene_asset_count(s), 1);
+    assert_string_equal(dr_scene_asset(s, 0), tri);
+    dr_scene_destroy(&s);
+
+    /* every component written, curves instead of a scalp; two hair elements with one HairSolver */
+    write_curves();
+    const char *full = "\"Groom\":{\"curves\":\"meshes/curves.obj\"},"
+                       "\"RodMaterial\":{\"radius\":4e-5,\"density\":1100,\"youngs_modulus\":2e9,"
+                       "\"shear_modulus\":7e8,\"damping\":0.01},"
+                       "\"Collider\":{\"friction\":0.3,\"thickness\":1e-4},"
+                       "\"Transform\":{\"translate\":[0,1,0]},\"Motion\":{\"keys\":[[1,0,0,0,0,0,0],[5,0,0.1,0,0,0,0]]},"
+                       "\"CollisionGroup\":{\"group\":3,\"collides_with\":9,\"self_collision\":false},"
+                       "\"CollisionResponse\":{\"stiffness\":500,\"friction\":0.4,\"thickness\":2e-5},"
+                       "\"HairSolver\":{\"preconditioner\":\"jacobi\",\"tolerance\":1e-8,\"max_iterations\":50,"
+                       "\"substeps\":4,\"geometric_stiffness\":false}";
+    snprintf(text, sizeof text,
+             "{\"elements\":[{\"name\":\"fur\",\"type\":\"hair\",\"components\":{%s}},"
+             "{\"name\":\"mane\",\"type\":\"hair\",\"components\":{\"Groom\":{\"scalp\":\"meshes/tri.obj\","
+             "\"count\":7,\"curl_radius\":0.002},\"HairSolver\":{\"preconditioner\":\"jacobi\",\"tolerance\":1e-8,"
+             "\"max_iterations\":50,\"substeps\":4,\"geometric_stiffness\":false}}}]}",
+             full);
+    s = load_text(text);
+    fur = dr_scene_find(s, "fur");
+    groom = dr_element_component(fur, "Groom");
+    char curves[512];
+    tmp_path("meshes/curves.obj", curves, sizeof curves);
+    assert_string_equal(dr_component_str(groom, "curves"), curves);
+    assert_null(dr_component_str(groom, "scalp"));
+    mat = dr_element_component(fur, "RodMaterial");
+    assert_true(dr_component_num(mat, "radius") == 4e-5 && dr_component_num(mat, "damping") == 0.01);
+    assert_true(dr_component_num(dr_element_component(fur, "Collider"), "friction") == 0.3);
+    grp = dr_element_component(fur, "CollisionGroup");
+    assert_int_equal(dr_component_int(grp, "group"), 3);
+    assert_int_equal(dr_component_int(grp, "collides_with"), 9);
+    assert_false(dr_component_bool(grp, "self_collision"));
+    assert_true(dr_component_num(dr_element_component(fur, "CollisionResponse"), "stiffness") == 500.0);
+    sol = dr_element_component(fur, "HairSolver");
+    assert_string_equal(dr_component_str(sol, "preconditioner"), "jacobi");
+    assert_int_equal(dr_component_int(sol, "substeps"), 4);
+    assert_false(dr_component_bool(sol, "geometric_stiffness"));
+    const DrElement *mane = dr_scene_find(s, "mane");
+    assert_int_equal(dr_component_int(dr_element_component(mane, "Groom"), "count"), 7);
+    assert_true(dr_component_num(dr_element_component(mane, "Groom"), "curl_radius") == 0.002);
+    assert_int_equal(dr_scene_asset_count(s), 2);
+    char *c = dr_scene_canonical(s, "elements");
+    assert_non_null(strstr(c, "\"CollisionGroup\":{\"collides_with\":9,\"group\":3,\"self_collision\":false}"));
+    assert_non_null(strstr(c, "\"Groom\":{\"count\":100,\"curl_pitch\":0.01,\"curl_radius\":0,"
+                              "\"curves\":\"meshes/curves.obj\",\"length\":0.050000000000000003,"));
+    free(c);
+    dr_scene_destroy(&s);
+}
+
+static void test_hair_bad_input(void **state)
+{
+    (void)state;
+    write_tri();
+    write_curves();
+    struct {
+        const char *components; /* of the element "fur"; or the whole file */
+        const char *whole;
+        const char *expect[2];
+    } cases[] = {
+        {"\"Groom\":{\"scalp\":\"meshes/tri.obj\"},\"RodMaterial\":{\"radius\":-1}", NULL,
+         {"fur.RodMaterial.radius = -1 is out of range (0, 0.1] m; use a positive radius such as 5e-5 (human hair)"}},
+        {"\"Groom\":{\"scalp\":\"meshes/tri.obj\",\"count\":0}", NULL,
+         {"fur.Groom.count = 0 is out of range [1, 1000000]"}},
+        {"\"Groom\":{\"scalp\":\"meshes/tri.obj\",\"segments\":1001}", NULL,
+         {"fur.Groom.segments = 1001 is out of range [1, 1000]"}},
+        {"\"Groom\":{\"scalp\":\"meshes/tri.obj\",\"length\":0}", NULL,
+         {"fur.Groom.length = 0 is out of range (0, 100] m; use a positive length such as 0.05"}},
+        {"\"Groom\":{\"scalp\":\"meshes/tri.obj\",\"length_jitter\":1}", NULL,
+         {"fur.Groom.length_jitter = 1 is out of range [0, 1)"}},
+        {"\"Groom\":{\"scalp\":\"meshes/tri.obj\",\"curl_pitch\":0}", NULL,
+         {"fur.Groom.curl_pitch = 0 is out of range (0, 10] m"}},
+        {"\"Groom\":{\"scalp\":\"meshes/tri.obj\",\"curl_radus\":0.01}", NULL,
+         {"fur.Groom: unknown field 'curl_radus'; did you mean 'curl_radius'? Fields of Groom: scalp, curves, count"}},
+        {"\"Groom\":{}", NULL,
+         {"fur.Groom: no strands; add \"scalp\": \"path/to/scalp.obj\" to grow them from a mesh, or \"curves\": "
+          "\"path/to/curves.obj\" to read OBJ polylines"}},
+        {"\"Groom\":{\"scalp\":\"meshes/tri.obj\",\"curves\":\"meshes/curves.obj\"}", NULL,
+         {"fur.Groom: both scalp and curves are given, but a groom comes from exactly one: keep scalp"}},
+        {"\"Groom\":{\"curves\":\"meshes/curves.obj\",\"count\":10}", NULL,
+         {"fur.Groom.count applies to strands grown from a scalp; with curves the strands are the file's polylines: "
+          "remove count"}},
+        {"\"Groom\":{\"scalp\":\"meshes/no_scalp.obj\"}", NULL,
+         {"fur.Groom.scalp: asset 'meshes/no_scalp.obj' not found"}},
+        {"\"RodMaterial\":{}", NULL,
+         {"element 'fur' (hair): missing component 'Groom'", "add \"Groom\": {\"scalp\": \"path/to/scalp.obj\"}"}},
+        {"\"Groom\":{\"scalp\":\"meshes/tri.obj\"},\"RodMaterail\":{}", NULL,
+         {"element 'fur' (hair): unknown component 'RodMaterail'; did you mean 'RodMaterial'?",
+          "Components of hair: Groom, RodMaterial, Collider"}},
+        {"\"Groom\":{\"scalp\":\"meshes/tri.obj\"},\"Collider\":{\"boundary\":\"no_slip\"}", NULL,
+         {"fur.Collider.boundary is the velocity condition of liquid at a collider surface and does not apply to "
+          "hair; remove it"}},
+        {"\"Groom\":{\"scalp\":\"meshes/tri.obj\"},\"CollisionGroup\":{\"group\":31}", NULL,
+         {"fur.CollisionGroup.group = 31 is out of range [0, 30]"}},
+        {"\"Groom\":{\"scalp\":\"meshes/tri.obj\"},\"CollisionGroup\":{\"collides_with\":-1}", NULL,
+         {"fur.CollisionGroup.collides_with = -1 is out of range [0, 2147483647]"}},
+        {"\"Groom\":{\"scalp\":\"meshes/tri.obj\"},\"CollisionResponse\":{\"stiffness\":0}", NULL,
+         {"fur.CollisionResponse.stiffness = 0 is out of range (0, 1000000000] N/m"}},
+        {"\"Groom\":{\"scalp\":\"meshes/tri.obj\"},\"HairSolver\":{\"preconditioner\":\"jacoby\"}", NULL,
+         {"fur.HairSolver.preconditioner: 'jacoby' is not a valid choice; did you mean 'jacobi'? Choose one of "
+          "block, jacobi, none"}},
+        {"\"Groom\":{\"scalp\":\"meshes/tri.obj\"},\"HairSolver\":{\"substeps\":0}", NULL,
+         {"fur.HairSolver.substeps = 0 is out of range [1, 100000]"}},
+        {"\"Groom\":{\"scalp\":\"meshes/tri.obj\"},\"Domain\":{}", NULL,
+         {"unknown component 'Domain' ('Domain' is a component of liquid elements)"}},
+        {NULL,
+         "{\"elements\":[{\"name\":\"a\",\"type\":\"hair\",\"components\":{\"Groom\":{\"scalp\":\"meshes/tri.obj\"}}},"
+         "{\"name\":\"b\",\"type\":\"hair\",\"components\":{\"Groom\":{\"scalp\":\"meshes/tri.obj\"},"
+         "\"HairSolver\":{\"tolerance\":0.001}}}]}",
+         {"b.HairSolver.tolerance = 0.001 differs from a.HairSolver.tolerance = 1e-06; every hair element of a scene "
+          "is solved in one system, so give both elements the same HairSolver.tolerance"}},
+        {NULL,
+         "{\"elements\":[{\"name\":\"a\",\"type\":\"hair\",\"components\":{\"Groom\":{\"scalp\":\"meshes/tri.obj\"}}},"
+         "{\"name\":\"b\",\"type\":\"hair\",\"components\":{\"Groom\":{\"scalp\":\"meshes/tri.obj\"},"
+         "\"HairSolver\":{\"geometric_stiffness\":false}}}]}",
+         {"b.HairSolver.geometric_stiffness = false differs from a.HairSolver.geometric_stiffness = true"}},
+    };
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+        char text[4096];
+        if (cases[i].whole) snprintf(text, sizeof text, "%s", cases[i].whole);
+        else hair_scene(cases[i].components, text, sizeof text);
+        /* the scene sits in g_dir, where meshes/ is */
+        char path[512];
+        tmp_path("hair.json", path, sizeof path);
+        write_file(path, text);
+        DrScene *s = (DrScene *)(uintptr_t)1;
+        DrError err;
+        DrStatus st = dr_scene_load(path, &s, &err);
+        assert_null(s);
+        if (st != DR_ERR_INPUT) fail_msg("case %zu: status %d for %s", i, (int)st, text);
+        for (int k = 0; k < 2 && cases[i].expect[k]; k++)
+            if (!strstr(err.message, cases[i].expect[k]))
+                fail_msg("case %zu: expected \"%s\" in \"%s\"", i, cases[i].expect[k], err.message);
+        if (err.line < 1 || err.col < 1) fail_msg("case %zu: no position for %s", i, err.message);
+    }
+
+    /* positions: the Groom key, the second source, the stray field, Collider.boundary, the differing field */
+    const char *text = "{\"elements\": [\n"
+                       "  { \"name\": \"fur\", \"type\": \"hair\", \"components\": {\n"
+                       "      \"Groom\": { \"count\": 3 } } } ]\n}\n";
+    assert_error_at(text, "\"Groom\"", "fur.Groom: no strands");
+    text = "{\"elements\": [\n"
+           "  { \"name\": \"fur\", \"type\": \"hair\", \"components\": {\n"
+           "      \"Groom\": { \"scalp\": \"meshes/tri.obj\",\n"
+           "                 \"curves\": \"meshes/curves.obj\" } } } ]\n}\n";
+    assert_error_at(text, "\"curves\"", "fur.Groom: both scalp and curves");
+    text = "{\"elements\": [\n"
+           "  { \"name\": \"fur\", \"type\": \"hair\", \"components\": {\n"
+           "      \"Groom\": { \"curves\": \"meshes/curves.obj\", \"seed\": 4 } } } ]\n}\n";
+    assert_error_at(text, "\"seed\"", "fur.Groom.seed applies to strands grown from a scalp");
+    text = "{\"elements\": [\n"
+           "  { \"name\": \"fur\", \"type\": \"hair\", \"components\": { \"Groom\": { \"scalp\": \"meshes/tri.obj\" },\n"
+           "      \"Collider\": { \"friction\": 0.1, \"boundary\": \"slip\" } } } ]\n}\n";
+    assert_error_at(text, "\"boundary\"", "fur.Collider.boundary is the velocity condition");
+    text = "{\"elements\": [\n"
+           "  { \"name\": \"a\", \"type\": \"hair\", \"components\": { \"Groom\": { \"scalp\": \"meshes/tri.obj\" } } },\n"
+           "  { \"name\": \"b\", \"type\": \"hair\", \"components\": { \"Groom\": { \"scalp\": \"meshes/tri.obj\" },\n"
+           "      \"HairSolver\": { \"preconditioner\": \"none\" } } } ]\n}\n";
+    assert_error_at(text, "\"none\"", "b.HairSolver.preconditioner = 'none' differs from a.HairSolver.preconditioner = 'block'");
+}
+
 /* ---- canonical JSON and keys ---------------------------------------------------------------------------- */
 
 static void test_canonical_json(void **state)
@@ -611,7 +843,7 @@ static void test_canonical_json(void **state)
     assert_non_null(strstr(c, "\"fov_deg\":30"));
     free(c);
     c = dr_scene_canonical(s, "mesh");
-    assert_string_equal(c, "{\"adaptivity\":0,\"radius_scale\":0.80000000000000004,\"smoothing\":1,\"voxel_size\":0,\"write_obj\":true,"
+    assert_string_equal(c, "{\"adaptivity\":0,\"hair_ribbons\":false,\"radius_scale\":0.80000000000000004,\"smoothing\":1,\"voxel_size\":0,\"write_obj\":true,"
                            "\"write_vdb\":true}");
     free(c);
     dr_scene_destroy(&s);
@@ -764,8 +996,8 @@ static void test_reference_lists_everything(void **state)
             assert_contains(md, row);
         }
     }
-    const char *types[] = {"liquid", "collider"};
-    for (int i = 0; i < 2; i++) {
+    const char *types[] = {"liquid", "collider", "mpm_solid", "hair"};
+    for (int i = 0; i < 4; i++) {
         const DrElementSpec *t = dr_scene_element_spec(types[i]);
         assert_non_null(t);
         char head[128];
@@ -792,6 +1024,10 @@ static void test_reference_lists_everything(void **state)
     assert_contains(md, "| `box` | box [lo, hi] | m | **required** |");
     assert_contains(md, "| `scheme` | one of apic, flip, pic, rpic | - | `\"apic\"` | - |");
     assert_contains(md, "out/&lt;name&gt;/"); /* no raw HTML in the Markdown */
+    assert_contains(text, "components: Groom (required), RodMaterial, Collider, Transform, Motion, CollisionGroup, "
+                          "CollisionResponse, HairSolver");
+    assert_contains(md, "| `preconditioner` | one of block, jacobi, none | - | `\"block\"` | - |");
+    assert_contains(md, "| `collides_with` | integer | - | `2147483647` | [0, 2147483647] |");
     free(text);
     free(md);
 }
@@ -805,7 +1041,13 @@ static void test_spec_lookups(void **state)
     assert_int_equal(liquid->required_count, 1);
     assert_string_equal(liquid->required_components[0], "Domain");
     assert_false(liquid->needs_precompute);
-    assert_null(dr_scene_element_spec("hair"));
+    assert_null(dr_scene_element_spec("fur"));
+    const DrElementSpec *hair = dr_scene_element_spec("hair");
+    assert_non_null(hair);
+    assert_int_equal(hair->component_count, 8);
+    assert_int_equal(hair->required_count, 1);
+    assert_string_equal(hair->required_components[0], "Groom");
+    assert_false(hair->needs_precompute);
     assert_null(dr_scene_component_spec("Nope"));
     assert_null(dr_scene_section_spec("elements"));
     const DrComponentSpec *mat = dr_scene_component_spec("LiquidMaterial");
@@ -825,6 +1067,8 @@ int main(void)
         cmocka_unit_test(test_bad_input_messages),
         cmocka_unit_test(test_missing_scene_file),
         cmocka_unit_test(test_error_positions),
+        cmocka_unit_test(test_hair_defaults),
+        cmocka_unit_test(test_hair_bad_input),
         cmocka_unit_test(test_canonical_json),
         cmocka_unit_test(test_keys_survive_reformatting),
         cmocka_unit_test(test_keys_invalidate_what_changed),
