@@ -1,5 +1,7 @@
 /* mesh: turns each baked frame's liquid particles and MPM solid particles into an OpenVDB level set (.vdb) and
- * a surface (.obj) per element, and exports colliders as OBJ, into out/<shot>/mesh/. */
+ * a surface (.obj) per element, writes hair strands as OBJ polylines (and, with mesh.hair_ribbons, as
+ * triangle-strip ribbons), and exports colliders as OBJ, into out/<shot>/mesh/. */
+#include <limits.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -23,9 +25,253 @@ static void apply_pose(const double *rest, int nv, const double R[9], const doub
     }
 }
 
+/* ---- hair ------------------------------------------------------------------------------------------------ */
+
+static bool is_hair(const DrElement *e) { return strcmp(e->type, "hair") == 0; }
+
+/* "3×4" for a dataset's shape. */
+static void shape_str(int rank, const uint64_t *dims, char *buf, size_t size)
+{
+    size_t n = 0;
+    buf[0] = '\0';
+    for (int i = 0; i < rank && n < size; i++)
+        n += (size_t)snprintf(buf + n, size - n, "%s%llu", i ? "×" : "", (unsigned long long)dims[i]);
+}
+
+/* The frame cache's strands of hair element `name` (DESIGN §4): position V×3, strand_offsets S+1 (int64,
+ * strand s = vertices offsets[s] .. offsets[s+1]-1, root first) and radius S. Velocity and twist are not read:
+ * the OBJ carries neither. Anything missing or inconsistent is DR_ERR_INPUT naming the file and the dataset. */
+static DrStatus read_strands(DrH5 *h, const char *name, DrPolylines *out, DrError *err)
+{
+    *out = (DrPolylines){0};
+    const char *file = dr_h5_path(h);
+    char px[1024], po[1024], pr[1024];
+    snprintf(px, sizeof px, "/%s/position", name);
+    snprintf(po, sizeof po, "/%s/strand_offsets", name);
+    snprintf(pr, sizeof pr, "/%s/radius", name);
+    double *x = NULL, *radius = NULL;
+    int64_t *off = NULL;
+    int rx, ro, rr;
+    uint64_t dx[4], dof[4], dr[4];
+    DrStatus s = dr_h5_read_f64(h, px, &rx, dx, &x, err);
+    if (s == DR_OK) s = dr_h5_read_i64(h, po, &ro, dof, &off, err);
+    if (s == DR_OK) s = dr_h5_read_f64(h, pr, &rr, dr, &radius, err);
+    /* shapes: V×3, S+1 and S, with V small enough for int indices of coordinates */
+    char shape[96];
+    if (s == DR_OK && (rx != 2 || dx[1] != 3 || dx[0] > (uint64_t)(INT_MAX / 3))) {
+        shape_str(rx, dx, shape, sizeof shape);
+        s = dr_error_set(err, DR_ERR_INPUT, file, 0, 0,
+                         "dataset %s has shape %s; expected V×3 vertex positions (V < %d); rerun bake (or pipeline.sh)",
+                         px, shape, INT_MAX / 3);
+    }
+    if (s == DR_OK && (ro != 1 || dof[0] < 1 || dof[0] - 1 > dx[0] / 2)) {
+        shape_str(ro, dof, shape, sizeof shape);
+        s = dr_error_set(err, DR_ERR_INPUT, file, 0, 0,
+                         "dataset %s has shape %s; expected S+1 entries for S strands of at least 2 of the %llu "
+                         "vertices of %s; rerun bake (or pipeline.sh)",
+                         po, shape, (unsigned long long)dx[0], px);
+    }
+    long S = s == DR_OK ? (long)dof[0] - 1 : 0;
+    if (s == DR_OK && (rr != 1 || dr[0] != (uint64_t)S)) {
+        shape_str(rr, dr, shape, sizeof shape);
+        s = dr_error_set(err, DR_ERR_INPUT, file, 0, 0,
+                         "dataset %s has shape %s; expected one radius per strand (%ld, from %s); rerun bake (or "
+                         "pipeline.sh)",
+                         pr, shape, S, po);
+    }
+    /* offsets: from 0 to V, at least 2 vertices per strand (a rod has at least one edge) */
+    long V = s == DR_OK ? (long)dx[0] : 0;
+    if (s == DR_OK && off[0] != 0)
+        s = dr_error_set(err, DR_ERR_INPUT, file, 0, 0,
+                         "dataset %s is malformed: entry 0 is %lld, it must be 0; rerun bake (or pipeline.sh)", po,
+                         (long long)off[0]);
+    for (long k = 0; s == DR_OK && k < S; k++)
+        if (off[k + 1] < off[k] + 2 || off[k + 1] > V) /* off[k] is in [0, V] here: no overflow */
+            s = dr_error_set(err, DR_ERR_INPUT, file, 0, 0,
+                             "dataset %s is malformed: strand %ld runs from vertex %lld to %lld (of %ld in %s); "
+                             "offsets must increase by at least 2 (a strand has at least 2 vertices) up to V; rerun "
+                             "bake (or pipeline.sh)",
+                             po, k, (long long)off[k], (long long)off[k + 1] - 1, V, px);
+    if (s == DR_OK && off[S] != V)
+        s = dr_error_set(err, DR_ERR_INPUT, file, 0, 0,
+                         "dataset %s is malformed: its last entry is %lld but %s holds %ld vertices; rerun bake (or "
+                         "pipeline.sh)",
+                         po, (long long)off[S], px, V);
+    for (long i = 0; s == DR_OK && i < 3 * V; i++)
+        if (!isfinite(x[i]))
+            s = dr_error_set(err, DR_ERR_INPUT, file, 0, 0,
+                             "dataset %s holds a non-finite coordinate at vertex %ld; the bake produced invalid data "
+                             "(lower the time step or check the scene, then rerun bake)",
+                             px, i / 3);
+    for (long k = 0; s == DR_OK && k < S; k++)
+        if (!isfinite(radius[k]) || radius[k] < 0.0)
+            s = dr_error_set(err, DR_ERR_INPUT, file, 0, 0,
+                             "dataset %s holds radius %g for strand %ld; a radius is a finite number >= 0; rerun "
+                             "bake (or pipeline.sh)",
+                             pr, radius[k], k);
+    DrPolylines p = {.count = (int)S, .x = x, .radius = radius};
+    if (s == DR_OK) s = dr_calloc((size_t)S + 1, sizeof *p.offsets, &p.offsets, err);
+    if (s == DR_OK) {
+        for (long k = 0; k <= S; k++) p.offsets[k] = (int)off[k];
+        *out = p;
+    } else {
+        free(x);
+        free(radius);
+    }
+    free(off);
+    return s;
+}
+
+/* Unit tangent of edge e (vertices e, e+1) of a strand's x, or `fallback` when the edge has no length. */
+static DrVec3 edge_tangent(const double *x, int e, DrVec3 fallback)
+{
+    DrVec3 d = dr_v3(x[3 * e + 3] - x[3 * e], x[3 * e + 4] - x[3 * e + 1], x[3 * e + 5] - x[3 * e + 2]);
+    double n = dr_v3_norm(d);
+    return n > 0.0 ? dr_v3_scale(d, 1.0 / n) : fallback;
+}
+
+/* d carried from unit tangent a to unit tangent b by the rotation about a×b that takes a to b (parallel
+ * transport, Rodrigues' formula written without the angle: d' = (a·b) d + (a×b)×d + (a×b)(a×b·d)/(1 + a·b)).
+ * Where b turns back onto −a the rotation is undefined and d, perpendicular to both, is kept. */
+static DrVec3 transport(DrVec3 d, DrVec3 a, DrVec3 b)
+{
+    double c = dr_v3_dot(a, b);
+    if (c <= -1.0 + 1e-12) return d;
+    DrVec3 v = dr_v3_cross(a, b);
+    DrVec3 r = dr_v3_add(dr_v3_add(dr_v3_scale(d, c), dr_v3_cross(v, d)), dr_v3_scale(v, dr_v3_dot(v, d) / (1.0 + c)));
+    /* rounding drift: back onto the plane perpendicular to b, at unit length */
+    return dr_v3_normalize(dr_v3_sub(r, dr_v3_scale(b, dr_v3_dot(r, b))));
+}
+
+/* mesh.hair_ribbons: each strand as a triangle strip 2·radius wide, for tools that do not draw OBJ polylines.
+ * The strip's width direction at vertex i is a unit director d_i perpendicular to the vertex tangent T_i (the
+ * first edge's direction at the root, the last edge's at the tip, the normalised sum of the two adjacent edge
+ * directions between). It starts at the root as ŷ×T_0 normalised, horizontal so that hanging and
+ * horizontal strands alike show their width to a level camera (x̂×T_0 where the first edge is within about
+ * 0.06 degrees of vertical), and is parallel-transported from each vertex tangent to the next, so the strip
+ * does not twist about the strand: it depends on the strand's shape only, not on any camera. Vertex i gives
+ * the strip's corners x_i ∓ radius·d_i with normal T_i × d_i; the triangles wind counter-clockwise about it.
+ * Edges of no length take the previous edge's direction. */
+static DrStatus build_ribbons(const DrPolylines *p, DrTriMesh *out, DrError *err)
+{
+    *out = (DrTriMesh){0};
+    int V = p->offsets[p->count];
+    if (V > INT_MAX / 6)
+        return dr_error_set(err, DR_ERR_NOMEM, NULL, 0, 0, "%d strand vertices are too many for one ribbon mesh", V);
+    DrTriMesh m = {.nv = 2 * V, .nt = 2 * (V - p->count)};
+    DrStatus s = dr_calloc(3 * (size_t)m.nv, sizeof *m.v, &m.v, err);
+    if (s == DR_OK) s = dr_calloc(3 * (size_t)m.nv, sizeof *m.n, &m.n, err);
+    if (s == DR_OK) s = dr_calloc(3 * (size_t)m.nt + 1, sizeof *m.tri, &m.tri, err);
+    if (s != DR_OK) {
+        dr_trimesh_free(&m);
+        return s;
+    }
+    int t = 0;
+    for (int k = 0; k < p->count; k++) {
+        int o = p->offsets[k], n = p->offsets[k + 1] - o;
+        const double *x = p->x + 3 * (size_t)o;
+        /* the first edge with a length sets the direction of any before it; a strand of coincident vertices
+           points up */
+        DrVec3 first = dr_v3(0, 1, 0);
+        for (int e = n - 2; e >= 0; e--) first = edge_tangent(x, e, first);
+        DrVec3 prev_edge = first, T_prev = first, d = dr_v3(0, 0, 0);
+        for (int i = 0; i < n; i++) {
+            DrVec3 in = prev_edge, outd = i + 1 < n ? edge_tangent(x, i, prev_edge) : prev_edge;
+            DrVec3 T = i == 0 ? outd : (i + 1 == n ? in : dr_v3_normalize(dr_v3_add(in, outd)));
+            if (dr_v3_dot(T, T) == 0.0) T = outd; /* a hairpin: the two edges cancel */
+            if (i == 0) {
+                d = dr_v3_cross(dr_v3(0, 1, 0), T);
+                if (dr_v3_norm(d) < 1e-3) d = dr_v3_cross(dr_v3(1, 0, 0), T);
+                d = dr_v3_normalize(d);
+            } else {
+                d = transport(d, T_prev, T);
+            }
+            DrVec3 nrm = dr_v3_normalize(dr_v3_cross(T, d));
+            DrVec3 c = dr_v3(x[3 * i], x[3 * i + 1], x[3 * i + 2]);
+            DrVec3 w = dr_v3_scale(d, p->radius[k]);
+            DrVec3 corner[2] = {dr_v3_sub(c, w), dr_v3_add(c, w)};
+            for (int side = 0; side < 2; side++) {
+                double *v = m.v + 3 * (2 * (size_t)(o + i) + side), *nn = m.n + 3 * (2 * (size_t)(o + i) + side);
+                v[0] = corner[side].x, v[1] = corner[side].y, v[2] = corner[side].z;
+                nn[0] = nrm.x, nn[1] = nrm.y, nn[2] = nrm.z;
+            }
+            if (i + 1 < n) {
+                /* left L = x − r·d, right R = x + r·d: (L_i, L_i+1, R_i) and (R_i, L_i+1, R_i+1) turn
+                   counter-clockwise about T × d */
+                int L0 = 2 * (o + i), R0 = L0 + 1, L1 = L0 + 2, R1 = L0 + 3;
+                int q[6] = {L0, L1, R0, R0, L1, R1};
+                memcpy(m.tri + 3 * t, q, sizeof q);
+                t += 2;
+            }
+            prev_edge = outd;
+            T_prev = T;
+        }
+    }
+    assert(t == m.nt);
+    *out = m;
+    return DR_OK;
+}
+
+/* Hair element e of this frame: <e>.NNNN.obj polylines, and <e>_ribbons.NNNN.obj with mesh.hair_ribbons. */
+static DrStatus mesh_hair(const DrElement *e, DrH5 *h, const char *dir, int frame, bool ribbons, long *strands,
+                          long *triangles, DrError *err)
+{
+    DrPolylines p;
+    DR_TRY(read_strands(h, e->name, &p, err));
+    char comment[512], out[4096];
+    snprintf(comment, sizeof comment,
+             "drench %s hair '%s' frame %d (m, y up): one polyline per strand, root first; each \"# radius\" line\n"
+             "sets the strand radius in metres of the polylines after it",
+             DR_VERSION, e->name, frame);
+    dr_stage_frame_path(dir, e->name, frame, "obj", out, sizeof out);
+    DrStatus s = dr_io_write_polylines_obj(out, &p, comment, err);
+    if (s == DR_OK) *strands += p.count;
+    if (s == DR_OK && ribbons) {
+        DrTriMesh m;
+        s = build_ribbons(&p, &m, err);
+        if (s == DR_OK) {
+            char prefix[1024];
+            snprintf(prefix, sizeof prefix, "%s_ribbons", e->name);
+            snprintf(comment, sizeof comment,
+                     "drench %s hair '%s' frame %d (m, y up): each strand as a ribbon 2 radii wide, its width\n"
+                     "direction parallel-transported from the root (independent of any camera)",
+                     DR_VERSION, e->name, frame);
+            dr_stage_frame_path(dir, prefix, frame, "obj", out, sizeof out);
+            s = dr_io_write_obj(out, &m, comment, err);
+            if (s == DR_OK) *triangles += m.nt;
+        }
+        dr_trimesh_free(&m);
+    }
+    dr_io_polylines_free(&p);
+    return s;
+}
+
+/* With mesh.hair_ribbons, hair element H writes H_ribbons.NNNN.obj: an element named H_ribbons would share
+ * those files. Checked before anything is written. */
+static DrStatus check_ribbon_names(const DrScene *scene, DrError *err)
+{
+    if (!dr_component_bool(dr_scene_section(scene, "mesh"), "hair_ribbons")) return DR_OK;
+    int n = dr_scene_element_count(scene);
+    for (int i = 0; i < n; i++) {
+        const DrElement *e = dr_scene_element(scene, i);
+        if (!is_hair(e)) continue;
+        size_t len = strlen(e->name);
+        for (int j = 0; j < n; j++) {
+            const char *other = dr_scene_element(scene, j)->name;
+            if (strncmp(other, e->name, len) == 0 && strcmp(other + len, "_ribbons") == 0)
+                return dr_error_set(err, DR_ERR_INPUT, dr_scene_path(scene), 0, 0,
+                                    "mesh.hair_ribbons writes the ribbons of hair '%s' as %s.NNNN.obj, the files of "
+                                    "element '%s'; rename one of the two elements or set mesh.hair_ribbons to false",
+                                    e->name, other, other);
+        }
+    }
+    return DR_OK;
+}
+
 /* rest[i]: element i's collider mesh in its scene pose (loaded once; empty for other elements). */
 static DrStatus mesh_frame(const DrScene *scene, const DrTriMesh *rest, const char *bake_dir, const char *dir,
-                           int frame, int first_frame, const char *bake_key, double fps, long *triangles, DrError *err)
+                           int frame, int first_frame, const char *bake_key, double fps, long *triangles,
+                           long *strands, DrError *err)
 {
     char path[4096], out[4096];
     dr_stage_frame_path(bake_dir, "frame", frame, "h5", path, sizeof path);
@@ -65,6 +311,10 @@ static DrStatus mesh_frame(const DrScene *scene, const DrTriMesh *rest, const ch
             free(posed.v);
             free(R);
             free(t);
+            continue;
+        }
+        if (is_hair(e)) {
+            s = mesh_hair(e, h, dir, frame, dr_component_bool(ms, "hair_ribbons"), strands, triangles, err);
             continue;
         }
         bool liquid = strcmp(e->type, "liquid") == 0;
@@ -142,14 +392,18 @@ static DrStatus check_outputs(const DrScene *scene, const char *dir, int first, 
             snprintf(path, sizeof path, "%s/%s.obj", dir, e->name);
             if (!dr_io_exists(path)) goto missing;
         }
+        char ribbons[1024];
+        snprintf(ribbons, sizeof ribbons, "%s_ribbons", e->name);
         for (int f = first; f <= last; f++) {
-            const char *ext[2] = {NULL, NULL};
-            if (liquid && dr_component_bool(ms, "write_obj")) ext[0] = "obj";
-            if (liquid && dr_component_bool(ms, "write_vdb")) ext[1] = "vdb";
-            if (moving) ext[0] = "obj";
-            for (int k = 0; k < 2; k++) {
-                if (!ext[k]) continue;
-                dr_stage_frame_path(dir, e->name, f, ext[k], path, sizeof path);
+            /* (prefix, extension) of each file this element writes per frame */
+            const char *file[3][2] = {{NULL, NULL}, {NULL, NULL}, {NULL, NULL}};
+            if (liquid && dr_component_bool(ms, "write_obj")) file[0][0] = e->name, file[0][1] = "obj";
+            if (liquid && dr_component_bool(ms, "write_vdb")) file[1][0] = e->name, file[1][1] = "vdb";
+            if (moving || is_hair(e)) file[0][0] = e->name, file[0][1] = "obj";
+            if (is_hair(e) && dr_component_bool(ms, "hair_ribbons")) file[2][0] = ribbons, file[2][1] = "obj";
+            for (int k = 0; k < 3; k++) {
+                if (!file[k][0]) continue;
+                dr_stage_frame_path(dir, file[k][0], f, file[k][1], path, sizeof path);
                 if (!dr_io_exists(path))
                     return dr_error_set(err, DR_ERR_INPUT, path, 0, 0,
                                         "mesh --finish: frame %d of element '%s' is missing; run mesh --frames %d-%d "
@@ -191,7 +445,8 @@ int main(int argc, char **argv)
         fprintf(stderr, "mesh: frames %d-%d complete in %s; MANIFEST written\n", first, last, dir);
         return 0;
     }
-    /* Every collider asset is loaded (and so validated) once, before anything is written. */
+    /* The output names, and every collider asset (loaded once), are checked before anything is written. */
+    if (s == DR_OK) s = check_ribbon_names(scene, &err);
     int nel = dr_scene_element_count(scene);
     DrTriMesh *rest = NULL;
     if (s == DR_OK) s = dr_calloc((size_t)nel + 1, sizeof(DrTriMesh), &rest, &err);
@@ -214,12 +469,12 @@ int main(int argc, char **argv)
         s = dr_io_write_obj(out, &rest[i], "drench collider (scene pose)", &err);
     }
     double fps = dr_component_num(dr_scene_section(scene, "shot"), "fps");
-    long triangles = 0;
+    long triangles = 0, strands = 0;
     DrProgress prog;
     if (s == DR_OK) dr_progress_begin(&prog, "mesh", last - first + 1);
     for (int f = first; s == DR_OK && f <= last; f++) {
         double tf = dr_time_now();
-        s = mesh_frame(scene, rest, bake_dir, dir, f, first, keys.bake, fps, &triangles, &err);
+        s = mesh_frame(scene, rest, bake_dir, dir, f, first, keys.bake, fps, &triangles, &strands, &err);
         char detail[128];
         snprintf(detail, sizeof detail, "frame %d %.2fs", f, dr_time_now() - tf);
         if (s == DR_OK) dr_progress_step(&prog, detail);
@@ -232,11 +487,13 @@ int main(int argc, char **argv)
         const char *inputs[2] = {line, keys.bake};
         s = dr_io_manifest_write(dir, "mesh", keys.mesh, dr_scene_path(scene), inputs, 2, &err);
     }
+    char hair[64] = "";
+    if (dr_scene_count_type(scene, "hair") > 0) snprintf(hair, sizeof hair, " and %ld strands", strands);
     for (int i = 0; rest && i < nel; i++) dr_trimesh_free(&rest[i]);
     free(rest);
     dr_scene_destroy(&scene);
     if (s < 0) return fail(&err);
-    fprintf(stderr, "mesh: %d frames in %.1fs, %ld triangles written to %s\n", last - first + 1, dr_time_now() - t0,
-            triangles, dir);
+    fprintf(stderr, "mesh: %d frames in %.1fs, %ld triangles%s written to %s\n", last - first + 1,
+            dr_time_now() - t0, triangles, hair, dir);
     return 0;
 }

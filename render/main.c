@@ -17,12 +17,13 @@ static int fail(const DrError *err)
     return dr_exit_code(err->status);
 }
 
-/* What the stage draws of one element: a file per frame (liquid surfaces, MPM solids, moving colliders) or
- * one file for the whole shot (static colliders, loaded once). */
+/* What the stage draws of one element: a file per frame (liquid surfaces, MPM solids, moving colliders, hair
+ * strands) or one file for the whole shot (static colliders, loaded once). */
 typedef struct Drawable {
     const DrElement *element;
     DrRenderMaterial material;
     bool per_frame;
+    bool strands;    /* the frame's file holds OBJ polylines with their radii (hair), not triangles */
     DrTriMesh still; /* static geometry, loaded once */
 } Drawable;
 
@@ -58,6 +59,14 @@ static DrStatus render_frame(const Job *job, int frame, int threads, DrError *er
             s = dr_error_set(err, DR_ERR_INPUT, path, 0, 0,
                              "frame %d of element '%s' has not been meshed; run mesh (or pipeline.sh) first", frame,
                              d->element->name);
+        if (s == DR_OK && d->strands) {
+            /* hair: the mesh stage's polylines, each strand as wide as its radius says */
+            DrPolylines p;
+            s = dr_io_read_polylines_obj(path, &p, err);
+            if (s == DR_OK) s = dr_render_scene_add_polylines(rs, p.x, p.offsets, p.count, p.radius, d->material, err);
+            dr_io_polylines_free(&p);
+            continue;
+        }
         if (s == DR_OK) s = dr_io_load_mesh(path, &m, err);
         /* a liquid that has drained away meshes to an empty OBJ, which assimp refuses: nothing to draw */
         if (s == DR_ERR_INPUT && d->material == DR_MATERIAL_LIQUID && strstr(err->message, "no triangles")) {
@@ -224,6 +233,11 @@ int main(int argc, char **argv)
             /* MPM solids are opaque deformable bodies: the warm matte solid material, not the liquid's */
             d.material = liquid ? DR_MATERIAL_LIQUID : DR_MATERIAL_SOLID;
             d.per_frame = true;
+        } else if (!strcmp(e->type, "hair")) {
+            /* strands, from the polylines the mesh stage writes for every frame whatever mesh.write_obj says */
+            d.material = DR_MATERIAL_HAIR;
+            d.per_frame = true;
+            d.strands = true;
         } else if (!strcmp(e->type, "collider")) {
             d.material = DR_MATERIAL_COLLIDER;
             d.per_frame = dr_component_present(dr_element_component(e, "Motion"));

@@ -180,4 +180,36 @@ DR_NODISCARD DrStatus dr_io_precache_open(const char *root, const char *kind, co
 /* ISO 8601 UTC time of now, "YYYY-MM-DDTHH:MM:SSZ" (21 bytes with NUL). */
 void dr_io_time_iso8601(char buf[32]);
 
+/* ---- OBJ polylines (hair strands) -------------------------------------------------------------
+ * A strand set as OBJ: "v x y z" records, then one "l a b c ..." record per strand (1-based indices,
+ * root first). OBJ has no record for a radius, so it travels in comment lines "# radius R" (metres):
+ * each sets the radius of the "l" records after it, as "usemtl" sets a material, so a set of one radius
+ * holds one such line. Tools that skip comments read plain polylines. */
+typedef struct DrPolylines {
+    int count;      /* strands */
+    int *offsets;   /* count + 1: strand s is vertices offsets[s] .. offsets[s+1]-1, root first */
+    double *x;      /* 3*offsets[count] coordinates, metres */
+    double *radius; /* count radii, metres */
+} DrPolylines;
+void dr_io_polylines_free(DrPolylines *p); /* frees the arrays and zeroes the struct */
+
+/* Writes `p` atomically as above: optional header comment lines (as dr_io_write_obj), the "v" lines,
+ * then per strand a "# radius R" line where the radius differs from the previous strand's (always
+ * before the first) and its "l" line. Numbers are printed with %.9g. An empty set (count 0) gives a
+ * file with only the comment. Every strand has at least 2 vertices, offsets[0] is 0 and offsets do not
+ * decrease (asserted: the caller validates what it read). A non-finite coordinate or a non-finite or
+ * negative radius is DR_ERR_RUNTIME and nothing is written; a write failure is DR_ERR_IO naming the
+ * file, and neither path is left behind. */
+DR_NODISCARD DrStatus dr_io_write_polylines_obj(const char *path, const DrPolylines *p, const char *comment,
+                                                DrError *err);
+/* Reads an OBJ polyline file into *out (caller frees with dr_io_polylines_free): every "l" record is a
+ * strand whose vertices are copied in record order (a vertex shared by two records is copied into
+ * both). Indices may be positive (1-based) or negative (relative to the "v" records before the line);
+ * "a/b" takes the vertex a. "v" records beyond x y z (a weight) are ignored, as are faces, normals,
+ * groups and other comments. DR_ERR_INPUT naming the file and line for: a malformed "v" or radius
+ * line, a non-finite coordinate, a negative or non-finite radius, an "l" record of fewer than 2
+ * vertices, an index of no vertex, an "l" record before any "# radius" line; a missing or unreadable
+ * file is DR_ERR_INPUT naming it; *out is left zeroed on failure. */
+DR_NODISCARD DrStatus dr_io_read_polylines_obj(const char *path, DrPolylines *out, DrError *err);
+
 #endif

@@ -177,7 +177,7 @@ static DrStatus emit_casters(const DrRenderScene *scene, const DrShadowMap *sm, 
         for (int s = 0; s < st->count; s++)
             for (int v = st->offsets[s]; v + 1 < st->offsets[s + 1]; v++) {
                 const double *a = st->points + 3 * v, *b = a + 3;
-                DR_TRY(emit_segment(list, sm, dr_v3(a[0], a[1], a[2]), dr_v3(b[0], b[1], b[2]), st->radius, err));
+                DR_TRY(emit_segment(list, sm, dr_v3(a[0], a[1], a[2]), dr_v3(b[0], b[1], b[2]), st->radius[s], err));
             }
     }
     return DR_OK;

@@ -253,8 +253,8 @@ static DrStatus emit_scene(const View *v, const DrRenderScene *scene, int sample
         uint8_t shade = (uint8_t)(DR_SHADE_STRAND | st->mat);
         for (int k = 0; s == DR_OK && k < st->count; k++)
             for (int p = st->offsets[k]; s == DR_OK && p + 1 < st->offsets[k + 1]; p++)
-                s = emit_segment(v, st->points + 3 * p, st->points + 3 * p + 3, st->radius, samples, shade, opaque,
-                                 err);
+                s = emit_segment(v, st->points + 3 * p, st->points + 3 * p + 3, st->radius[k], samples, shade,
+                                 opaque, err);
     }
     free(cam);
     free(oc);

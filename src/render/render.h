@@ -139,12 +139,14 @@ void dr_render_scene_destroy(DrRenderScene **scene);
 DR_NODISCARD DrStatus dr_render_scene_add_mesh(DrRenderScene *scene, const DrTriMesh *mesh, DrRenderMaterial mat,
                                                DrError *err);
 /* Adds `count` polylines (copied): strand s has vertices offsets[s] .. offsets[s+1]-1 of `points` (3 per
- * vertex, metres), drawn as ribbons facing the camera, 2*radius metres wide in projection and at least
- * one pixel wide, depth tested, lit with Kajiya–Kay along their tangent; they cast shadows. A strand
- * of fewer than 2 vertices draws nothing. DR_ERR_INPUT for offsets[0] != 0, decreasing offsets, a
- * non-finite point, a negative or non-finite radius, or the liquid material. */
+ * vertex, metres) and radius radius[s] (metres). Each segment is drawn as a ribbon facing the camera,
+ * 2*radius[s] wide in projection and at least one pixel wide, extended by half its width past each end
+ * (so consecutive segments join without gaps), depth tested against everything else, lit with Kajiya–Kay
+ * along its tangent (a dark brown for DR_MATERIAL_HAIR); strands cast shadows. A strand of fewer than 2
+ * vertices draws nothing; count 0 adds nothing. DR_ERR_INPUT for offsets[0] != 0, decreasing offsets, a
+ * non-finite point, a negative or non-finite radius (naming the strand), or the liquid material. */
 DR_NODISCARD DrStatus dr_render_scene_add_polylines(DrRenderScene *scene, const double *points,
-                                                    const int *offsets, int count, double radius,
+                                                    const int *offsets, int count, const double *radius,
                                                     DrRenderMaterial mat, DrError *err);
 /* Axis-aligned bounds of everything added (false when the scene is empty). */
 bool dr_render_scene_bounds(const DrRenderScene *scene, DrVec3 *lo, DrVec3 *hi);

@@ -19,7 +19,7 @@ typedef struct DrRenderStrands {
     int count;
     int *offsets;   /* count + 1 */
     double *points; /* 3*offsets[count] */
-    double radius;
+    double *radius; /* count, metres */
     DrRenderMaterial mat;
 } DrRenderStrands;
 

@@ -26,6 +26,7 @@ void dr_render_scene_destroy(DrRenderScene **scene)
     for (int i = 0; i < s->nstrands; i++) {
         free(s->strands[i].offsets);
         free(s->strands[i].points);
+        free(s->strands[i].radius);
     }
     free(s->meshes);
     free(s->strands);
@@ -117,17 +118,19 @@ DrStatus dr_render_scene_add_mesh(DrRenderScene *scene, const DrTriMesh *mesh, D
 }
 
 DrStatus dr_render_scene_add_polylines(DrRenderScene *scene, const double *points, const int *offsets, int count,
-                                       double radius, DrRenderMaterial mat, DrError *err)
+                                       const double *radius, DrRenderMaterial mat, DrError *err)
 {
     assert(scene && material_valid(mat));
     if (mat == DR_MATERIAL_LIQUID)
         return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
                             "polylines cannot be drawn as liquid; use a hair, solid or collider material");
-    if (count < 0 || (count > 0 && !offsets))
+    if (count < 0 || (count > 0 && (!offsets || !radius)))
         return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "polyline count %d is invalid", count);
-    if (!(radius >= 0.0) || !isfinite(radius))
-        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "polyline radius %g must be a finite number >= 0", radius);
     if (count == 0) return DR_OK;
+    for (int s = 0; s < count; s++)
+        if (!(radius[s] >= 0.0) || !isfinite(radius[s]))
+            return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                                "polyline %d has radius %g; it must be a finite number >= 0", s, radius[s]);
     if (offsets[0] != 0)
         return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "polyline offsets[0] is %d; it must be 0", offsets[0]);
     for (int s = 0; s < count; s++)
@@ -145,15 +148,18 @@ DrStatus dr_render_scene_add_polylines(DrRenderScene *scene, const double *point
         DR_TRY(dr_realloc((size_t)cap, sizeof *scene->strands, &scene->strands, err));
         scene->cap_strands = cap;
     }
-    DrRenderStrands st = {.count = count, .radius = radius, .mat = mat};
+    DrRenderStrands st = {.count = count, .mat = mat};
     DrStatus s = dr_calloc((size_t)count + 1, sizeof *st.offsets, &st.offsets, err);
     if (s == DR_OK) s = dr_calloc(3 * (size_t)nvert + 1, sizeof *st.points, &st.points, err);
+    if (s == DR_OK) s = dr_calloc((size_t)count, sizeof *st.radius, &st.radius, err);
     if (s != DR_OK) {
         free(st.offsets);
         free(st.points);
+        free(st.radius);
         return s;
     }
     memcpy(st.offsets, offsets, ((size_t)count + 1) * sizeof *offsets);
+    memcpy(st.radius, radius, (size_t)count * sizeof *radius);
     if (nvert > 0) memcpy(st.points, points, 3 * (size_t)nvert * sizeof *points);
     scene->strands[scene->nstrands++] = st;
     return DR_OK;

@@ -295,6 +295,148 @@ static void test_write_obj_round_trip(void **state)
     free(text);
 }
 
+/* ---- OBJ polylines ---- */
+
+/* Writes `text` to the scratch file `name` and returns its path in buf. */
+static void write_scratch(const char *name, const char *text, char *buf, size_t size)
+{
+    DrError err;
+    scratch_path(name, buf, size);
+    assert_int_equal(dr_io_write_text_atomic(buf, text, &err), DR_OK);
+}
+
+static void test_polylines_round_trip(void **state)
+{
+    (void)state;
+    DrError err;
+    char path[512];
+    /* three strands: two of one radius, then one of another (one "# radius" line per change) */
+    double x[3 * 7] = {0, 0, 0, 0, 0.01, 0, 0.001, 0.02, 0, 1, 0, 0, 1, 0.1, 0.003, 0.5, 0.25, 0.125, 0.5, -0.25, 1e-7};
+    int off[4] = {0, 3, 5, 7};
+    double r[3] = {5e-5, 5e-5, 2.5e-4};
+    DrPolylines a = {3, off, x, r}, b;
+    scratch_path("strands.obj", path, sizeof path);
+    assert_int_equal(dr_io_write_polylines_obj(path, &a, "written by test_io\nsecond line", &err), DR_OK);
+    assert_int_equal(count_tmp_files(g_dir), 0);
+    char *text = slurp(path);
+    const char *head = "# written by test_io\n# second line\nv ";
+    assert_true(strncmp(text, head, strlen(head)) == 0);
+    assert_non_null(strstr(text, "\n# radius 5e-05\nl 1 2 3\nl 4 5\n# radius 0.00025\nl 6 7\n"));
+    free(text);
+    assert_int_equal(dr_io_read_polylines_obj(path, &b, &err), DR_OK);
+    assert_int_equal(b.count, 3);
+    assert_memory_equal(b.offsets, off, sizeof off);
+    /* %.9g keeps 9 significant digits: 1e-9 relative to each coordinate bounds the rounding */
+    for (int i = 0; i < 21; i++) assert_true(fabs(b.x[i] - x[i]) <= 1e-9 * fabs(x[i]));
+    for (int s = 0; s < 3; s++) assert_true(fabs(b.radius[s] - r[s]) <= 1e-9 * r[s]);
+    dr_io_polylines_free(&b);
+    assert_null(b.x);
+    dr_io_polylines_free(&b); /* zeroed: a no-op */
+
+    /* an empty set is a comment-only file and reads back empty */
+    DrPolylines empty = {0};
+    int off0[1] = {0};
+    empty.offsets = off0;
+    scratch_path("no_strands.obj", path, sizeof path);
+    assert_int_equal(dr_io_write_polylines_obj(path, &empty, "nothing", &err), DR_OK);
+    text = slurp(path);
+    assert_string_equal(text, "# nothing\n");
+    free(text);
+    assert_int_equal(dr_io_read_polylines_obj(path, &b, &err), DR_OK);
+    assert_int_equal(b.count, 0);
+    dr_io_polylines_free(&b);
+
+    /* non-finite data: DR_ERR_RUNTIME and nothing written */
+    scratch_path("nan_strands.obj", path, sizeof path);
+    x[4] = NAN;
+    assert_int_equal(dr_io_write_polylines_obj(path, &a, NULL, &err), DR_ERR_RUNTIME);
+    assert_non_null(strstr(err.message, "vertex 1 has a non-finite coordinate"));
+    x[4] = 0.01;
+    r[2] = -1;
+    assert_int_equal(dr_io_write_polylines_obj(path, &a, NULL, &err), DR_ERR_RUNTIME);
+    assert_non_null(strstr(err.message, "strand 2 has radius -1"));
+    assert_false(dr_io_exists(path));
+    assert_int_equal(count_tmp_files(g_dir), 0);
+
+    /* a missing directory: DR_ERR_IO naming the file */
+    r[2] = 2.5e-4;
+    scratch_path("no/such/dir/strands.obj", path, sizeof path);
+    assert_int_equal(dr_io_write_polylines_obj(path, &a, NULL, &err), DR_ERR_IO);
+    assert_string_equal(err.file, path);
+}
+
+/* Files from other tools: negative and "a/b" indices, a radius that changes mid-file, vertices shared by two
+ * strands, faces, normals, weights and other comments skipped, CRLF line ends. */
+static void test_polylines_read_other_writers(void **state)
+{
+    (void)state;
+    DrError err;
+    char path[512];
+    write_scratch("other.obj",
+                  "# made elsewhere\r\n# radius_scale 3 (not a radius line)\r\no strands\r\n"
+                  "v 0 0 0 1\r\nv 0 1 0\r\nvn 0 0 1\r\n# radius 0.5\r\nl -2/1 -1/2\r\n"
+                  "v 1 1 0\r\n#radius 0.25\r\nl 2 3 1\r\nf 1 2 3\r\n",
+                  path, sizeof path);
+    DrPolylines p;
+    assert_int_equal(dr_io_read_polylines_obj(path, &p, &err), DR_OK);
+    assert_int_equal(p.count, 2);
+    int off[3] = {0, 2, 5};
+    assert_memory_equal(p.offsets, off, sizeof off);
+    double x[15] = {0, 0, 0, 0, 1, 0, 0, 1, 0, 1, 1, 0, 0, 0, 0};
+    assert_memory_equal(p.x, x, sizeof x); /* small integers: exact */
+    assert_true(p.radius[0] == 0.5 && p.radius[1] == 0.25);
+    dr_io_polylines_free(&p);
+}
+
+static void test_polylines_bad_files(void **state)
+{
+    (void)state;
+    static const struct {
+        const char *text;
+        int line;
+        const char *message;
+    } bad[] = {
+        {"v 0 0 0\nv 0 1 0\nl 1 2\n", 3, "before any \"# radius R\" line"},
+        {"# radius 0.1\nv 0 0 0\nv 0 1 0\nl 1 3\n", 4, "index 3 refers to no vertex"},
+        {"# radius 0.1\nv 0 0 0\nv 0 1 0\nl -3 1\n", 4, "index -3 refers to no vertex"},
+        {"# radius 0.1\nv 0 0 0\nv 0 1 0\nl 0 1\n", 4, "index 0 refers to no vertex"},
+        {"# radius 0.1\nv 0 0 0\nv 0 1 0\nl 1\n", 4, "at least 2 vertices"},
+        {"# radius 0.1\nv 0 0 0\nv 0 1 0\nl 1 x\n", 4, "malformed polyline"},
+        {"# radius 0.1\nv 0 0\n", 2, "malformed vertex"},
+        {"# radius 0.1\nv 0 nan 0\n", 2, "non-finite"},
+        {"# radius -0.1\n", 1, "radius -0.1 is not a finite number >= 0"},
+        {"# radius inf\n", 1, "not a finite number"},
+        {"# radius 0.1 m\n", 1, "malformed radius line"},
+    };
+    DrError err;
+    char path[512], name[64];
+    for (size_t k = 0; k < sizeof bad / sizeof bad[0]; k++) {
+        snprintf(name, sizeof name, "bad_%zu.obj", k);
+        write_scratch(name, bad[k].text, path, sizeof path);
+        DrPolylines p = {.count = 7};
+        assert_int_equal(dr_io_read_polylines_obj(path, &p, &err), DR_ERR_INPUT);
+        assert_string_equal(err.file, path);
+        assert_int_equal(err.line, bad[k].line);
+        if (!strstr(err.message, bad[k].message))
+            fail_msg("case %zu: message \"%s\" lacks \"%s\"", k, err.message, bad[k].message);
+        assert_int_equal(p.count, 0);
+        assert_null(p.x);
+    }
+    /* a NUL byte: binary, not text */
+    scratch_path("nul.obj", path, sizeof path);
+    FILE *f = fopen(path, "wb");
+    assert_non_null(f);
+    fwrite("# radius 1\nv 0 0 0\nv \0 1 0\n", 1, 28, f);
+    fclose(f);
+    DrPolylines p;
+    assert_int_equal(dr_io_read_polylines_obj(path, &p, &err), DR_ERR_INPUT);
+    assert_int_equal(err.line, 3);
+    /* missing file */
+    scratch_path("absent.obj", path, sizeof path);
+    assert_int_equal(dr_io_read_polylines_obj(path, &p, &err), DR_ERR_INPUT);
+    assert_string_equal(err.file, path);
+}
+
 /* ---- files ---- */
 
 static void test_files(void **state)
@@ -754,6 +896,9 @@ int main(void)
         cmocka_unit_test(test_load_sphere_and_ground),
         cmocka_unit_test(test_load_bad_meshes),
         cmocka_unit_test(test_write_obj_round_trip),
+        cmocka_unit_test(test_polylines_round_trip),
+        cmocka_unit_test(test_polylines_read_other_writers),
+        cmocka_unit_test(test_polylines_bad_files),
         cmocka_unit_test(test_files),
         cmocka_unit_test(test_remove_stale_tmp),
         cmocka_unit_test(test_manifest),

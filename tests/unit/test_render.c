@@ -707,7 +707,8 @@ static void test_shadow_under_cube(void **state)
     double pts[6] = {-0.3, c.y, 0, 0.3, c.y, 0};
     int off[2] = {0, 2};
     DrError err;
-    assert_int_equal(dr_render_scene_add_polylines(s, pts, off, 1, 0.05, DR_MATERIAL_HAIR, &err), DR_OK);
+    double r_thick = 0.05;
+    assert_int_equal(dr_render_scene_add_polylines(s, pts, off, 1, &r_thick, DR_MATERIAL_HAIR, &err), DR_OK);
     desc.shadows = true;
     img = render(s, &cam, &desc);
     shadowed = luma(px(&img, (int)ux, (int)uy)), lit = luma(px(&img, (int)ax, (int)ay));
@@ -757,7 +758,7 @@ static void test_strands(void **state)
         DrRenderScene *s = new_scene();
         /* (focal 161 px, depth about 3 m) 1e-5 m projects to 1e-3 px: drawn one pixel wide; 0.06 m to 6 px */
         double radius = thick ? 0.06 : 1e-5;
-        assert_int_equal(dr_render_scene_add_polylines(s, pts, off, 1, radius, DR_MATERIAL_HAIR, &err), DR_OK);
+        assert_int_equal(dr_render_scene_add_polylines(s, pts, off, 1, &radius, DR_MATERIAL_HAIR, &err), DR_OK);
         DrImage img = render(s, &cam, &desc);
         int on_path = 0;
         for (int seg = 0; seg < 4; seg++)
@@ -787,13 +788,166 @@ static void test_strands(void **state)
     }
     /* bad strands */
     DrRenderScene *s = new_scene();
-    int bad_off[2] = {0, -1};
-    assert_int_equal(dr_render_scene_add_polylines(s, pts, bad_off, 1, 0.01, DR_MATERIAL_HAIR, &err), DR_ERR_INPUT);
-    assert_int_equal(dr_render_scene_add_polylines(s, pts, off, 1, -1.0, DR_MATERIAL_HAIR, &err), DR_ERR_INPUT);
-    assert_int_equal(dr_render_scene_add_polylines(s, pts, off, 1, 0.01, DR_MATERIAL_LIQUID, &err), DR_ERR_INPUT);
+    int bad_off[2] = {0, -1}, late_off[2] = {1, 5};
+    double r = 0.01, r_neg = -1.0, r_nan = NAN;
+    assert_int_equal(dr_render_scene_add_polylines(s, pts, bad_off, 1, &r, DR_MATERIAL_HAIR, &err), DR_ERR_INPUT);
+    assert_int_equal(dr_render_scene_add_polylines(s, pts, late_off, 1, &r, DR_MATERIAL_HAIR, &err), DR_ERR_INPUT);
+    assert_non_null(strstr(err.message, "offsets[0]"));
+    assert_int_equal(dr_render_scene_add_polylines(s, pts, off, 1, &r_neg, DR_MATERIAL_HAIR, &err), DR_ERR_INPUT);
+    assert_non_null(strstr(err.message, "polyline 0 has radius -1"));
+    assert_int_equal(dr_render_scene_add_polylines(s, pts, off, 1, &r_nan, DR_MATERIAL_HAIR, &err), DR_ERR_INPUT);
+    assert_int_equal(dr_render_scene_add_polylines(s, pts, off, 1, &r, DR_MATERIAL_LIQUID, &err), DR_ERR_INPUT);
+    pts[4] = INFINITY;
+    assert_int_equal(dr_render_scene_add_polylines(s, pts, off, 1, &r, DR_MATERIAL_HAIR, &err), DR_ERR_INPUT);
+    assert_non_null(strstr(err.message, "vertex 1 is not finite"));
     DrVec3 lo, hi;
     assert_false(dr_render_scene_bounds(s, &lo, &hi));
     dr_render_scene_destroy(&s);
+}
+
+/* Columns of row j that are not background: the first and last (-1, -1 when none), and whether every
+ * column between them is covered too. */
+static void covered_columns(const DrImage *img, const DrCamera *cam, int j, int i0, int i1, int *first, int *last,
+                            bool *solid)
+{
+    *first = *last = -1;
+    for (int i = i0; i <= i1; i++)
+        if (!is_background(img, cam, i, j)) {
+            if (*first < 0) *first = i;
+            *last = i;
+        }
+    *solid = true;
+    for (int i = *first; *first >= 0 && i <= *last; i++) *solid = *solid && !is_background(img, cam, i, j);
+}
+
+/* Vertical strands seen square on: each covers the pixel columns its projected width 2·radius spans (at least
+ * one pixel), each with its own radius, along its whole length. */
+static void test_strand_columns(void **state)
+{
+    (void)state;
+    /* three strands on the plane z = 0, 3 m from the eye: 10 cm wide, 6 mm wide, 2 µm wide */
+    const double xs[3] = {-0.5, 0.5, 0.0}, radius[3] = {0.05, 0.003, 1e-6};
+    double pts[3 * 9];
+    for (int k = 0; k < 3; k++)
+        for (int i = 0; i < 3; i++) {
+            double *p = pts + 3 * (3 * k + i);
+            p[0] = xs[k], p[1] = -0.25 + 0.25 * i, p[2] = 0.0;
+        }
+    int off[4] = {0, 3, 6, 9};
+    DrCamera cam = camera(dr_v3(0, 0, 3), dr_v3(0, 0, 0), dr_v3(0, 1, 0), 40, 200, 150);
+    DrRenderScene *s = new_scene();
+    DrError err;
+    assert_int_equal(dr_render_scene_add_polylines(s, pts, off, 3, radius, DR_MATERIAL_HAIR, &err), DR_OK);
+    DrRenderDesc desc = dr_render_desc_default();
+    desc.ground = false;
+    DrImage img = render(s, &cam, &desc);
+    /* focal = 75 / tan(20°) = 206 px: at 3 m a metre is 68.7 px, so the strands are 6.9 px, 0.41 px and
+       1.4e-4 px across; the last two are drawn one pixel wide */
+    double xc[3], y_top, y_bottom, depth;
+    for (int k = 0; k < 3; k++) assert_true(dr_camera_project(&cam, dr_v3(xs[k], 0, 0), &xc[k], &y_top, &depth));
+    assert_true(dr_camera_project(&cam, dr_v3(0, 0.25, 0), &xc[2], &y_top, &depth));
+    assert_true(dr_camera_project(&cam, dr_v3(0, -0.25, 0), &xc[2], &y_bottom, &depth));
+    double focal = 0.5 * cam.height / tan(20.0 * DR_PI / 180.0);
+    int rows = 0;
+    /* rows a pixel inside the strands' ends (past them each ribbon has a cap of half its width) */
+    for (int j = (int)y_top + 2; j <= (int)y_bottom - 2; j++, rows++)
+        for (int k = 0; k < 3; k++) {
+            double hw = fmax(0.5, focal * radius[k] / depth); /* half width in pixels: at least half a pixel */
+            int want0 = (int)floor(xc[k] - hw), want1 = (int)floor(xc[k] + hw);
+            int first, last;
+            bool solid;
+            covered_columns(&img, &cam, j, (int)xc[k] - 20, (int)xc[k] + 20, &first, &last, &solid);
+            /* ±1 px: a pixel the edge crosses is covered when one of its 3×3 supersamples is inside */
+            if (first < 0 || abs(first - want0) > 1 || abs(last - want1) > 1 || !solid)
+                fail_msg("row %d: strand %d (radius %g) covers columns %d..%d%s, expected %d..%d", j, k, radius[k],
+                         first, last, solid ? "" : " with gaps", want0, want1);
+        }
+    assert_true(rows > 25);
+    /* the widest strand is wider on screen than the thinnest, which still shows */
+    int f0, l0, f2, l2;
+    bool solid;
+    covered_columns(&img, &cam, 75, (int)xc[0] - 20, (int)xc[0] + 20, &f0, &l0, &solid);
+    covered_columns(&img, &cam, 75, (int)xc[2] - 20, (int)xc[2] + 20, &f2, &l2, &solid);
+    assert_true(l0 - f0 >= l2 - f2 && l2 >= f2);
+    /* above and below the strands: background */
+    for (int i = 0; i < cam.width; i++) {
+        assert_true(is_background(&img, &cam, i, (int)y_top - 4));
+        assert_true(is_background(&img, &cam, i, (int)y_bottom + 4));
+    }
+    dr_image_free(&img);
+    dr_render_scene_destroy(&s);
+}
+
+/* No strands, or only strands of one vertex: nothing drawn, the image is the background's, and with the ground
+ * on it is byte for byte an empty scene's. */
+static void test_strands_empty(void **state)
+{
+    (void)state;
+    DrCamera cam = camera(dr_v3(0, 1, 3), dr_v3(0, 0.8, 0), dr_v3(0, 1, 0), 50, 160, 120);
+    DrRenderDesc desc = dr_render_desc_default();
+    DrError err;
+    DrRenderScene *empty = new_scene(), *s = new_scene();
+    int off0[1] = {0};
+    assert_int_equal(dr_render_scene_add_polylines(s, NULL, off0, 0, NULL, DR_MATERIAL_HAIR, &err), DR_OK);
+    double single[6] = {0, 0.8, 0, 0.1, 0.9, 0}, r[2] = {0.05, 0.05};
+    int off1[3] = {0, 1, 2}; /* two strands of one vertex each */
+    assert_int_equal(dr_render_scene_add_polylines(s, single, off1, 2, r, DR_MATERIAL_HAIR, &err), DR_OK);
+    DrVec3 lo, hi;
+    assert_false(dr_render_scene_bounds(s, &lo, &hi));
+    desc.ground = false;
+    DrImage img = render(s, &cam, &desc);
+    for (int j = 0; j < img.height; j++)
+        for (int i = 0; i < img.width; i++) assert_true(is_background(&img, &cam, i, j));
+    dr_image_free(&img);
+    desc.ground = true;
+    img = render(s, &cam, &desc);
+    DrImage ref = render(empty, &cam, &desc);
+    assert_memory_equal(img.rgb, ref.rgb, 3 * (size_t)img.width * img.height);
+    dr_image_free(&img);
+    dr_image_free(&ref);
+    dr_render_scene_destroy(&s);
+    dr_render_scene_destroy(&empty);
+}
+
+/* Strands are depth tested against meshes: behind a box they are hidden where it covers them and seen where it
+ * does not; in front of it they are drawn over it. */
+static void test_strand_depth(void **state)
+{
+    (void)state;
+    DrCamera cam = camera(dr_v3(0, 0, 3), dr_v3(0, 0, 0), dr_v3(0, 1, 0), 40, 200, 150);
+    DrRenderDesc desc = dr_render_desc_default();
+    desc.ground = false;
+    desc.shadows = false; /* the comparisons below are of coverage, not of the strand's shadow on the box */
+    DrError err;
+    double radius = 0.01;
+    int off[2] = {0, 2};
+    DrImage img[3];
+    for (int k = 0; k < 3; k++) {
+        DrRenderScene *s = new_scene();
+        add_mesh(s, make_box(dr_v3(-0.3, -0.1, 0.2), dr_v3(0.3, 0.1, 0.4)), DR_MATERIAL_COLLIDER);
+        double z = k == 1 ? 0.0 : 0.6; /* behind the box (its front face is at z = 0.4), or in front of it */
+        double pts[6] = {0, -0.3, z, 0, 0.3, z};
+        if (k > 0)
+            assert_int_equal(dr_render_scene_add_polylines(s, pts, off, 1, &radius, DR_MATERIAL_HAIR, &err), DR_OK);
+        img[k] = render(s, &cam, &desc);
+        dr_render_scene_destroy(&s);
+    }
+    double x, y, d;
+    assert_true(dr_camera_project(&cam, dr_v3(0, 0, 0.4), &x, &y, &d));
+    int i = (int)x, j = (int)y;
+    assert_false(is_background(&img[0], &cam, i, j));
+    /* behind: the box's pixels are untouched */
+    assert_memory_equal(px(&img[1], i, j), px(&img[0], i, j), 3);
+    /* ... and above the box, where nothing hides it, the strand shows */
+    assert_true(dr_camera_project(&cam, dr_v3(0, 0.25, 0), &x, &y, &d));
+    assert_true(is_background(&img[0], &cam, (int)x, (int)y));
+    assert_false(is_background(&img[1], &cam, (int)x, (int)y));
+    /* in front: drawn over the box, dark brown hair against the grey-blue collider */
+    const uint8_t *h = px(&img[2], i, j), *b = px(&img[0], i, j);
+    if (!(h[0] + h[1] + h[2] + 30 < b[0] + b[1] + b[2] && h[0] >= h[2]))
+        fail_msg("strand in front of the box (%d %d %d) is not drawn over it (%d %d %d)", h[0], h[1], h[2], b[0],
+                 b[1], b[2]);
+    for (int k = 0; k < 3; k++) dr_image_free(&img[k]);
 }
 
 /* ---- 8. determinism, scene input ---------------------------------------------------------------------------- */
@@ -808,8 +962,9 @@ static void test_threads_identical(void **state)
     double pts[3 * 8];
     for (int i = 0; i < 8; i++) pts[3 * i] = 0.6, pts[3 * i + 1] = 0.1 + 0.1 * i, pts[3 * i + 2] = 0.4 + 0.02 * i * i;
     int off[3] = {0, 4, 8};
+    double radius[2] = {0.004, 0.002};
     DrError err;
-    assert_int_equal(dr_render_scene_add_polylines(s, pts, off, 2, 0.004, DR_MATERIAL_HAIR, &err), DR_OK);
+    assert_int_equal(dr_render_scene_add_polylines(s, pts, off, 2, radius, DR_MATERIAL_HAIR, &err), DR_OK);
     DrVec3 lo, hi;
     assert_true(dr_render_scene_bounds(s, &lo, &hi));
     assert_true(lo.x == -1 && hi.x == 1 && lo.y == 0 && fabs(hi.y - 0.9) < 1e-12);
@@ -1036,6 +1191,9 @@ int main(void)
         cmocka_unit_test(test_liquid_reads_as_water),
         cmocka_unit_test(test_shadow_under_cube),
         cmocka_unit_test(test_strands),
+        cmocka_unit_test(test_strand_columns),
+        cmocka_unit_test(test_strands_empty),
+        cmocka_unit_test(test_strand_depth),
         cmocka_unit_test(test_threads_identical),
         cmocka_unit_test(test_scene_input),
         cmocka_unit_test(test_contact_sheet),
