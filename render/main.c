@@ -62,7 +62,7 @@ static DrStatus render_frame(const Job *job, int frame, int threads, DrError *er
         if (s == DR_OK && d->strands) {
             /* hair: the mesh stage's polylines, each strand as wide as its radius says */
             DrPolylines p;
-            s = dr_io_read_polylines_obj(path, &p, err);
+            s = dr_io_read_polylines_obj(path, NULL, &p, err); /* the mesh stage's format: radius required */
             if (s == DR_OK) s = dr_render_scene_add_polylines(rs, p.x, p.offsets, p.count, p.radius, d->material, err);
             dr_io_polylines_free(&p);
             continue;

@@ -11,16 +11,15 @@
  * inscribed in a sphere whose vertex normals are radial, the interpolated normal is exactly the root's
  * radial direction (the root is the same barycentric mix of the vertices).
  *
- * Reading. Only "v" and "l" records matter (assimp drops lines, so the file is parsed here); every other
- * record is skipped, as OBJ readers do. Indices are 1-based, negative ones count back from the last "v"
- * before the record, "i/t" takes the vertex index. The whole file is checked before anything is returned,
- * and every problem is reported at its line and column. */
+ * Reading. The file is parsed and checked by dr_io_read_polylines_obj (io owns file formats); a groom adds
+ * the root normals. */
 #include "hair/hair.h"
 
-#include <errno.h>
 #include <limits.h>
 #include <stdlib.h>
 #include <string.h>
+
+#include "io/io.h"
 
 void dr_groom_free(DrGroom *g)
 {
@@ -232,254 +231,30 @@ done:
 
 /* ---- reading OBJ polylines ------------------------------------------------------------------------------ */
 
-/* Growable arrays of the reader; `n` counts elements of `size` bytes. */
-typedef struct Buf {
-    void *p;
-    size_t n, cap, size;
-} Buf;
-
-static DrStatus buf_push(Buf *b, const void *item, DrError *err)
-{
-    if (b->n == b->cap) {
-        size_t cap = b->cap ? 2 * b->cap : 256;
-        DR_TRY(dr_realloc(cap, b->size, &b->p, err));
-        b->cap = cap;
-    }
-    memcpy((char *)b->p + b->n * b->size, item, b->size);
-    b->n++;
-    return DR_OK;
-}
-
-typedef struct Ref {
-    long index; /* 0-based after resolving a relative index; ≥ 0 */
-    int line, col;
-} Ref;
-
-typedef struct Strand {
-    size_t first; /* into the refs */
-    int count, line;
-} Strand;
-
-static DrStatus read_all(const char *path, char **text, size_t *len, DrError *err)
-{
-    FILE *f = fopen(path, "rb");
-    if (!f)
-        return dr_error_set(err, DR_ERR_IO, path, 0, 0, "cannot open the curves file (%s); check the path",
-                            strerror(errno));
-    size_t cap = 1 << 16, n = 0;
-    char *buf = malloc(cap);
-    DrStatus st = DR_OK;
-    while (buf) {
-        n += fread(buf + n, 1, cap - n - 1, f);
-        if (ferror(f)) {
-            st = dr_error_set(err, DR_ERR_IO, path, 0, 0, "cannot read the curves file (%s)", strerror(errno));
-            break;
-        }
-        if (feof(f)) break;
-        char *bigger = cap <= SIZE_MAX / 2 ? realloc(buf, cap * 2) : NULL;
-        if (!bigger) {
-            free(buf);
-            buf = NULL;
-            break;
-        }
-        buf = bigger;
-        cap *= 2;
-    }
-    fclose(f);
-    if (!buf) return dr_error_set(err, DR_ERR_NOMEM, path, 0, 0, "out of memory reading the curves file");
-    if (st != DR_OK) {
-        free(buf);
-        return st;
-    }
-    buf[n] = '\0';
-    *text = buf;
-    *len = n;
-    return DR_OK;
-}
-
-/* Next whitespace-separated token of a line; NULL at its end. */
-static char *next_token(char **cursor)
-{
-    char *c = *cursor;
-    while (*c == ' ' || *c == '\t' || *c == '\f' || *c == '\v') c++;
-    if (!*c) return NULL;
-    char *start = c;
-    while (*c && *c != ' ' && *c != '\t' && *c != '\f' && *c != '\v') c++;
-    if (*c) *c++ = '\0';
-    *cursor = c;
-    return start;
-}
-
-/* The reader's state: where it is (for messages) and what it has collected. */
-typedef struct Reader {
-    const char *path;
-    DrError *err;
-    int line;
-    const char *ln; /* the current line (columns count from it) */
-    Buf verts, refs, strands;
-} Reader;
-
-/* A DR_ERR_INPUT at the current line, column of `at` (NULL: column 1). */
-DR_PRINTF(3, 4) static DrStatus fail_at(Reader *r, const char *at, const char *fmt, ...)
-{
-    char msg[sizeof r->err->message];
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(msg, sizeof msg, fmt, ap);
-    va_end(ap);
-    int col = at ? (int)(at - r->ln) + 1 : 1;
-    return dr_error_set(r->err, DR_ERR_INPUT, r->path, r->line, col, "%s", msg);
-}
-
-/* "v x y z [more numbers]": a weight w or a vertex colour may follow x y z; they are checked and ignored. */
-static DrStatus read_vertex(Reader *r, char *cursor)
-{
-    double xyz[3];
-    int got = 0;
-    for (char *tok; (tok = next_token(&cursor)); got++) {
-        char *end;
-        double x = strtod(tok, &end); /* overflow gives ±inf, caught below */
-        if (end == tok || *end) return fail_at(r, tok, "'%s' is not a number; a 'v' record is \"v x y z\" in metres", tok);
-        if (!isfinite(x)) return fail_at(r, tok, "vertex coordinate '%s' is not finite; fix the exporter's output", tok);
-        if (got < 3) xyz[got] = x;
-    }
-    if (got < 3)
-        return fail_at(r, NULL, "'v' record with %d number%s; a vertex is \"v x y z\" in metres", got, got == 1 ? "" : "s");
-    if (r->verts.n >= (size_t)INT_MAX / 3) return fail_at(r, NULL, "more than %d vertices; split the file", INT_MAX / 3);
-    return buf_push(&r->verts, xyz, r->err);
-}
-
-/* "l i j k ...": one strand. Relative indices resolve now (against the vertices so far); positive ones are
-   checked once the whole file is read, since they may point forward. */
-static DrStatus read_polyline(Reader *r, char *cursor)
-{
-    Strand sd = {.first = r->refs.n, .count = 0, .line = r->line};
-    for (char *tok; (tok = next_token(&cursor)); sd.count++) {
-        char *end;
-        errno = 0;
-        long idx = strtol(tok, &end, 10);
-        if (end == tok || (*end && *end != '/') || errno == ERANGE)
-            return fail_at(r, tok, "'%s' is not a vertex index; an 'l' record lists 'v' indices (1-based, or negative "
-                                   "from the last vertex), root first", tok);
-        if (idx == 0)
-            return fail_at(r, tok, "vertex index 0: OBJ indices start at 1 (negative ones count back from the last "
-                                   "vertex)");
-        if (idx < 0 && -idx > (long)r->verts.n)
-            return fail_at(r, tok, "vertex index %ld is out of range: only %zu 'v' records come before this line", idx,
-                           r->verts.n);
-        if (r->refs.n >= (size_t)INT_MAX) return fail_at(r, tok, "more than %d strand vertices; split the file", INT_MAX);
-        Ref ref = {.index = idx < 0 ? (long)r->verts.n + idx : idx - 1, .line = r->line, .col = (int)(tok - r->ln) + 1};
-        DR_TRY(buf_push(&r->refs, &ref, r->err));
-    }
-    if (sd.count < 2)
-        return fail_at(r, NULL, "'l' record with %d vert%s; a strand needs at least 2 (root first)", sd.count,
-                       sd.count == 1 ? "ex" : "ices");
-    return buf_push(&r->strands, &sd, r->err);
-}
-
-/* One line, NUL-terminated without its '\n': text checks, comment, then the record if it is "v" or "l". */
-static DrStatus read_line(Reader *r, char *ln, size_t n)
-{
-    r->ln = ln;
-    if (strlen(ln) != n) return fail_at(r, ln + strlen(ln), "a NUL byte: this is not a text OBJ file; export the "
-                                                            "curves as text OBJ");
-    if (n && ln[n - 1] == '\r') ln[--n] = '\0';
-    for (size_t i = 0; i < n; i++) {
-        unsigned char c = (unsigned char)ln[i];
-        if (c < 0x20 && c != '\t' && c != '\f' && c != '\v')
-            return fail_at(r, ln + i, "control byte 0x%02x: this is not a text OBJ file; export the curves as text OBJ",
-                           c);
-    }
-    char *hash = strchr(ln, '#');
-    if (hash) *hash = '\0';
-    size_t used = strlen(ln); /* a trailing '\' continues the record on the next line */
-    while (used && (ln[used - 1] == ' ' || ln[used - 1] == '\t')) used--;
-    bool continued = used && ln[used - 1] == '\\';
-    char *cursor = ln;
-    char *key = next_token(&cursor);
-    bool is_v = key && strcmp(key, "v") == 0, is_l = key && strcmp(key, "l") == 0;
-    if (!is_v && !is_l) return DR_OK;
-    if (continued)
-        return fail_at(r, ln + used - 1, "'%s' record continued on the next line ('\\'), which is not supported; write "
-                                         "the record on one line", key);
-    return is_v ? read_vertex(r, cursor) : read_polyline(r, cursor);
-}
-
 DrStatus dr_groom_read_obj(const char *path, DrGroom *out, DrError *err)
 {
     assert(path && out);
     memset(out, 0, sizeof *out);
-    char *text = NULL;
-    size_t len = 0;
-    DR_TRY(read_all(path, &text, &len, err));
-
-    /* 1. the records, line by line */
-    Reader r = {.path = path,
-                .err = err,
-                .verts = {.size = 3 * sizeof(double)},
-                .refs = {.size = sizeof(Ref)},
-                .strands = {.size = sizeof(Strand)}};
-    DrStatus st = DR_OK;
-    for (char *ln = text; st == DR_OK && ln < text + len;) {
-        r.line++;
-        char *eol = memchr(ln, '\n', (size_t)(text + len - ln));
-        char *stop = eol ? eol : text + len;
-        *stop = '\0'; /* text[len] is the terminator read_all added */
-        st = read_line(&r, ln, (size_t)(stop - ln));
-        ln = stop + 1;
-    }
-    const int line = r.line;
-    Buf verts = r.verts, refs = r.refs, strands = r.strands;
-
-    /* 2. checks that need the whole file: forward indices and edge lengths */
-    const double *vx = verts.p;
-    const Ref *rf = refs.p;
-    const Strand *sd = strands.p;
-    if (st == DR_OK && strands.n == 0)
-        st = dr_error_set(err, DR_ERR_INPUT, path, 0, 0,
-                          "no 'l' records (polylines) among %d lines: each strand is an 'l' record listing its 'v' "
-                          "indices, root first",
-                          line);
-    for (size_t i = 0; st == DR_OK && i < refs.n; i++)
-        if (rf[i].index >= (long)verts.n)
-            st = dr_error_set(err, DR_ERR_INPUT, path, rf[i].line, rf[i].col,
-                              "vertex index %ld is out of range: the file has %zu 'v' records", rf[i].index + 1,
-                              verts.n);
-    for (size_t s = 0; st == DR_OK && s < strands.n; s++) {
-        for (int k = 0; k + 1 < sd[s].count; k++) {
-            const Ref *a = &rf[sd[s].first + (size_t)k], *b = a + 1;
-            DrVec3 pa = vec_at(vx, (int)a->index), pb = vec_at(vx, (int)b->index);
-            if (dr_v3_norm(dr_v3_sub(pb, pa)) > 0.0) continue;
-            st = dr_error_set(err, DR_ERR_INPUT, path, b->line, b->col,
-                              "zero-length edge: vertices %d and %d of this strand (OBJ indices %ld and %ld) are at "
-                              "the same position; remove the repeated vertex",
-                              k + 1, k + 2, a->index + 1, b->index + 1);
-            break;
-        }
-    }
-
-    /* 3. the groom: positions copied per strand, root normal along the first edge */
+    DrPolylinesReadDesc desc;
+    dr_io_polylines_read_desc_default(&desc);
+    desc.require_radius = false; /* a groom has no radius: the rod material gives it */
+    desc.require_strands = true;
+    desc.reject_zero_edges = true; /* the first edge gives the root normal; rods need lengths > 0 */
+    DrPolylines p;
+    DR_TRY(dr_io_read_polylines_obj(path, &desc, &p, err));
+    DrStatus st = dr_calloc((size_t)p.count * 3, sizeof(double), &out->root_normal, err);
     if (st == DR_OK) {
-        int S = (int)strands.n, V = (int)refs.n;
-        st = dr_calloc((size_t)S + 1, sizeof(int), &out->offsets, err);
-        if (st == DR_OK) st = dr_calloc((size_t)V * 3, sizeof(double), &out->x, err);
-        if (st == DR_OK) st = dr_calloc((size_t)S * 3, sizeof(double), &out->root_normal, err);
-        for (int s = 0; st == DR_OK && s < S; s++) {
-            int o = (int)sd[s].first;
-            out->offsets[s] = o;
-            for (int k = 0; k < sd[s].count; k++) vec_put(out->x, o + k, vec_at(vx, (int)rf[o + k].index));
-            vec_put(out->root_normal, s, dr_v3_normalize(dr_v3_sub(vec_at(out->x, o + 1), vec_at(out->x, o))));
+        for (int s = 0; s < p.count; s++) {
+            int o = p.offsets[s];
+            vec_put(out->root_normal, s, dr_v3_normalize(dr_v3_sub(vec_at(p.x, o + 1), vec_at(p.x, o))));
         }
-        if (st == DR_OK) {
-            out->offsets[S] = V;
-            out->nstrands = S;
-        } else {
-            dr_groom_free(out);
-        }
+        /* the strands are the polylines: take over their arrays */
+        out->nstrands = p.count;
+        out->offsets = p.offsets;
+        out->x = p.x;
+        p.offsets = NULL;
+        p.x = NULL;
     }
-    free(verts.p);
-    free(refs.p);
-    free(strands.p);
-    free(text);
+    dr_io_polylines_free(&p);
     return st;
 }

@@ -202,14 +202,34 @@ void dr_io_polylines_free(DrPolylines *p); /* frees the arrays and zeroes the st
  * file, and neither path is left behind. */
 DR_NODISCARD DrStatus dr_io_write_polylines_obj(const char *path, const DrPolylines *p, const char *comment,
                                                 DrError *err);
-/* Reads an OBJ polyline file into *out (caller frees with dr_io_polylines_free): every "l" record is a
- * strand whose vertices are copied in record order (a vertex shared by two records is copied into
- * both). Indices may be positive (1-based) or negative (relative to the "v" records before the line);
- * "a/b" takes the vertex a. "v" records beyond x y z (a weight) are ignored, as are faces, normals,
- * groups and other comments. DR_ERR_INPUT naming the file and line for: a malformed "v" or radius
- * line, a non-finite coordinate, a negative or non-finite radius, an "l" record of fewer than 2
- * vertices, an index of no vertex, an "l" record before any "# radius" line; a missing or unreadable
- * file is DR_ERR_INPUT naming it; *out is left zeroed on failure. */
-DR_NODISCARD DrStatus dr_io_read_polylines_obj(const char *path, DrPolylines *out, DrError *err);
+
+/* What dr_io_read_polylines_obj asks of a file beyond being well formed. The defaults (in brackets,
+ * dr_io_polylines_read_desc_default) are the mesh stage's format. */
+typedef struct DrPolylinesReadDesc {
+    bool require_radius;    /* [true] an "l" record before any "# radius" line is an error. When false,
+                               such strands get radius NAN (unknown; dr_io_write_polylines_obj refuses it) */
+    bool require_strands;   /* [false] a file without "l" records is an error (else an empty set, count 0) */
+    bool reject_zero_edges; /* [false] two consecutive vertices of a strand at one position are an error */
+} DrPolylinesReadDesc;
+void dr_io_polylines_read_desc_default(DrPolylinesReadDesc *d);
+
+/* Reads an OBJ polyline file into *out (caller frees with dr_io_polylines_free), with the checks `desc`
+ * asks for (NULL: the defaults). Every "l" record is a strand whose vertices are copied in record order (a
+ * vertex shared by two records is copied into both); its radius is that of the last "# radius" line
+ * before it. Indices are 1-based, negative ones count back from the last "v" record before the line,
+ * positive ones may point forward; "a/b" takes the vertex a. Numbers after x y z of a "v" record (a
+ * weight, a colour) are checked and ignored. Faces, normals, groups, other comments and text after a '#'
+ * are skipped; CRLF line ends are accepted. The whole file is checked before anything is returned.
+ * Errors, *out left zeroed:
+ *   DR_ERR_INPUT at file:line:col for: a NUL or other control byte (not a text file); a "v" record
+ *   without three numbers, a token in it that is not a number, a non-finite coordinate; a "# radius"
+ *   line without one finite number >= 0 (whatever require_radius says); an "l" token that is not an
+ *   index, index 0, an index of no vertex, an "l" record of fewer than 2 vertices; a "v" or "l" record
+ *   continued with '\'; with require_radius an "l" record before any "# radius" line; with
+ *   reject_zero_edges a zero-length edge (at its second vertex).
+ *   DR_ERR_INPUT naming the file: a missing or unopenable file; with require_strands, no "l" record.
+ *   DR_ERR_IO naming the file: a read failure. */
+DR_NODISCARD DrStatus dr_io_read_polylines_obj(const char *path, const DrPolylinesReadDesc *desc, DrPolylines *out,
+                                               DrError *err);
 
 #endif

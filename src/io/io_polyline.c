@@ -1,5 +1,8 @@
-/* OBJ polylines: strand sets (hair) written by the mesh stage and read back by the render stage. The radius
- * rides in "# radius R" comments (io.h), so the file stays a plain OBJ for every other tool. */
+/* OBJ polylines: strand sets (hair) written by the mesh stage and read back by the render stage, and grooms
+ * drawn in other tools (dr_groom_read_obj). The radius rides in "# radius R" comments (io.h), so the file
+ * stays a plain OBJ for every other tool. Parsed here rather than through assimp, as dr_io_load_mesh keeps
+ * triangles only. The whole file is checked before anything is returned, and every problem is reported at
+ * its line and column. */
 #include <errno.h>
 #include <limits.h>
 #include <stdlib.h>
@@ -75,193 +78,303 @@ DrStatus dr_io_write_polylines_obj(const char *path, const DrPolylines *p, const
 
 /* ---- reading ---- */
 
-/* What the parser accumulates: vertices in file order, and per strand its vertex indices (0-based, into
- * the file's vertices) in one flat array. */
+void dr_io_polylines_read_desc_default(DrPolylinesReadDesc *d)
+{
+    *d = (DrPolylinesReadDesc){.require_radius = true, .require_strands = false, .reject_zero_edges = false};
+}
+
+/* A positive index past the vertices read so far. OBJ allows such forward references; whether the vertex
+ * exists is known only at the end of the file, and then the first one that does not is reported. */
+typedef struct Forward {
+    long index; /* 0-based */
+    int line, col;
+} Forward;
+
+/* The parser: where it is (for messages) and what it has collected. Vertices in file order, and per strand
+ * its vertex indices (0-based, into the file's vertices) in one flat array. The column of every index and
+ * the line of every strand are kept only when zero-length edges are checked: that check waits for the end
+ * of the file (an edge may end at a forward reference) and its message needs them. */
 typedef struct Parse {
+    const char *path;
+    DrPolylinesReadDesc desc;
+    DrError *err;
+    int line;       /* current line, 1-based */
+    const char *ln; /* its text: columns count from here */
+    double radius;  /* the last "# radius" line's; NAN before any */
+    bool have_radius;
     double *v;
-    int nv, cap_v;
+    int nv;
+    size_t cap_v;
     int *idx;
+    int *col; /* per index its column (reject_zero_edges only) */
     size_t nidx, cap_idx;
     int *start; /* nstrands + 1 into idx */
-    double *radius;
-    int nstrands, cap_strands;
-    int max_index, max_index_line; /* largest positive index seen (1-based) and its line */
+    double *sradius;
+    int *sline; /* per strand its line (reject_zero_edges only) */
+    int nstrands;
+    size_t cap_strands;
+    Forward *fwd;
+    size_t nfwd, cap_fwd;
 } Parse;
 
 static void parse_free(Parse *p)
 {
     free(p->v);
     free(p->idx);
+    free(p->col);
     free(p->start);
-    free(p->radius);
+    free(p->sradius);
+    free(p->sline);
+    free(p->fwd);
     *p = (Parse){0};
 }
 
-static bool blank(const char *s)
+/* A DR_ERR_INPUT at the current line, at the column of `at` (NULL: column 1). */
+DR_PRINTF(3, 4) static DrStatus fail_at(const Parse *p, const char *at, const char *fmt, ...)
 {
-    while (*s == ' ' || *s == '\t') s++;
-    return *s == '\0';
+    char msg[sizeof p->err->message];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(msg, sizeof msg, fmt, ap);
+    va_end(ap);
+    int col = at ? (int)(at - p->ln) + 1 : 1;
+    return dr_error_set(p->err, DR_ERR_INPUT, p->path, p->line, col, "%s", msg);
+}
+
+static bool is_blank(char c) { return c == ' ' || c == '\t' || c == '\f' || c == '\v'; }
+
+static char *skip_blanks(char *s)
+{
+    while (is_blank(*s)) s++;
+    return s;
+}
+
+/* Next blank-separated token of a line, NUL-terminated in place; NULL at the line's end. */
+static char *next_token(char **cursor)
+{
+    char *c = skip_blanks(*cursor);
+    if (!*c) return NULL;
+    char *start = c;
+    while (*c && !is_blank(*c)) c++;
+    if (*c) *c++ = '\0';
+    *cursor = c;
+    return start;
 }
 
 /* Token `word` at the start of s, followed by a blank or the end. */
 static bool keyword(const char *s, const char *word)
 {
     size_t n = strlen(word);
-    return strncmp(s, word, n) == 0 && (s[n] == ' ' || s[n] == '\t' || s[n] == '\0');
+    return strncmp(s, word, n) == 0 && (s[n] == '\0' || is_blank(s[n]));
 }
 
-static DrStatus parse_vertex(const char *path, int line, const char *s, Parse *p, DrError *err)
+/* "v x y z [more numbers]": a weight w or a vertex colour may follow x y z; they are checked and ignored. */
+static DrStatus parse_vertex(Parse *p, char *cursor)
 {
-    double c[3];
-    for (int k = 0; k < 3; k++) {
+    double xyz[3];
+    int got = 0;
+    for (char *tok; (tok = next_token(&cursor)); got++) {
         char *end;
-        c[k] = strtod(s, &end);
-        if (end == s || (*end != ' ' && *end != '\t' && *end != '\0'))
-            return dr_error_set(err, DR_ERR_INPUT, path, line, 0,
-                                "malformed vertex: expected \"v x y z\" with three numbers");
-        if (!isfinite(c[k]))
-            return dr_error_set(err, DR_ERR_INPUT, path, line, 0,
-                                "vertex %d has a non-finite coordinate; the file is corrupt, rerun the stage that "
-                                "wrote it",
-                                p->nv + 1);
-        s = end;
+        double x = strtod(tok, &end); /* overflow gives ±inf, caught below */
+        if (end == tok || *end)
+            return fail_at(p, tok, "'%s' is not a number; a 'v' record is \"v x y z\" in metres", tok);
+        if (!isfinite(x))
+            return fail_at(p, tok, "vertex coordinate '%s' is not finite; the file is corrupt, fix or rerun what "
+                                   "wrote it", tok);
+        if (got < 3) xyz[got] = x;
     }
-    if (p->nv >= INT_MAX / 3)
-        return dr_error_set(err, DR_ERR_INPUT, path, line, 0, "too many vertices (more than %d)", INT_MAX / 3);
-    if (p->nv == p->cap_v) {
-        int cap = p->cap_v ? (p->cap_v < INT_MAX / 6 ? 2 * p->cap_v : INT_MAX / 3) : 1024;
-        DR_TRY(dr_realloc(3 * (size_t)cap, sizeof *p->v, &p->v, err));
+    if (got < 3)
+        return fail_at(p, NULL, "'v' record with %d number%s; a vertex is \"v x y z\" in metres", got,
+                       got == 1 ? "" : "s");
+    if (p->nv >= INT_MAX / 3) return fail_at(p, NULL, "more than %d vertices; split the file", INT_MAX / 3);
+    if ((size_t)p->nv == p->cap_v) {
+        size_t cap = p->cap_v ? 2 * p->cap_v : 1024;
+        DR_TRY(dr_realloc(3 * cap, sizeof *p->v, &p->v, p->err));
         p->cap_v = cap;
     }
-    memcpy(p->v + 3 * (size_t)p->nv, c, sizeof c);
+    memcpy(p->v + 3 * (size_t)p->nv, xyz, sizeof xyz);
     p->nv++;
     return DR_OK;
 }
 
-static DrStatus push_index(Parse *p, int i, DrError *err)
+static DrStatus push_index(Parse *p, int i, int col)
 {
     if (p->nidx == p->cap_idx) {
         size_t cap = p->cap_idx ? 2 * p->cap_idx : 4096;
-        DR_TRY(dr_realloc(cap, sizeof *p->idx, &p->idx, err));
+        DR_TRY(dr_realloc(cap, sizeof *p->idx, &p->idx, p->err));
+        if (p->desc.reject_zero_edges) DR_TRY(dr_realloc(cap, sizeof *p->col, &p->col, p->err));
         p->cap_idx = cap;
     }
-    p->idx[p->nidx++] = i;
+    p->idx[p->nidx] = i;
+    if (p->desc.reject_zero_edges) p->col[p->nidx] = col;
+    p->nidx++;
     return DR_OK;
 }
 
-static DrStatus parse_line_record(const char *path, int line, const char *s, double radius, bool have_radius,
-                                  Parse *p, DrError *err)
+static DrStatus push_forward(Parse *p, Forward f)
 {
-    if (!have_radius)
-        return dr_error_set(err, DR_ERR_INPUT, path, line, 0,
-                            "polyline before any \"# radius R\" line: the strand radius is unknown; the file was not "
-                            "written by the mesh stage, rerun mesh (or pipeline.sh)");
-    if (p->nstrands >= INT_MAX - 1)
-        return dr_error_set(err, DR_ERR_INPUT, path, line, 0, "too many polylines");
-    if (p->nstrands == p->cap_strands) {
-        int cap = p->cap_strands ? (p->cap_strands < INT_MAX / 4 ? 2 * p->cap_strands : INT_MAX - 1) : 256;
-        DR_TRY(dr_realloc((size_t)cap + 1, sizeof *p->start, &p->start, err));
-        DR_TRY(dr_realloc((size_t)cap, sizeof *p->radius, &p->radius, err));
+    if (p->nfwd == p->cap_fwd) {
+        size_t cap = p->cap_fwd ? 2 * p->cap_fwd : 64;
+        DR_TRY(dr_realloc(cap, sizeof *p->fwd, &p->fwd, p->err));
+        p->cap_fwd = cap;
+    }
+    p->fwd[p->nfwd++] = f;
+    return DR_OK;
+}
+
+/* "l i j k ...": one strand, root first. Relative indices resolve now (against the vertices so far);
+ * positive ones past them are checked at the end of the file. */
+static DrStatus parse_polyline(Parse *p, const char *key, char *cursor)
+{
+    if (p->desc.require_radius && !p->have_radius)
+        return fail_at(p, key, "polyline before any \"# radius R\" line: the strand radius is unknown; the file was "
+                               "not written by the mesh stage, rerun mesh (or pipeline.sh)");
+    if (p->nstrands >= INT_MAX - 1) return fail_at(p, key, "more than %d polylines; split the file", INT_MAX - 2);
+    if ((size_t)p->nstrands + 1 >= p->cap_strands) {
+        size_t cap = p->cap_strands ? 2 * p->cap_strands : 256;
+        DR_TRY(dr_realloc(cap, sizeof *p->start, &p->start, p->err));
+        DR_TRY(dr_realloc(cap, sizeof *p->sradius, &p->sradius, p->err));
+        if (p->desc.reject_zero_edges) DR_TRY(dr_realloc(cap, sizeof *p->sline, &p->sline, p->err));
         p->cap_strands = cap;
     }
     size_t first = p->nidx;
-    for (;;) {
-        while (*s == ' ' || *s == '\t') s++;
-        if (!*s) break;
+    for (char *tok; (tok = next_token(&cursor));) {
         char *end;
         errno = 0;
-        long k = strtol(s, &end, 10);
-        if (end == s || (*end != '/' && *end != ' ' && *end != '\t' && *end != '\0'))
-            return dr_error_set(err, DR_ERR_INPUT, path, line, 0,
-                                "malformed polyline: expected \"l a b ...\" with vertex indices");
-        int i;
-        if (errno == 0 && k > 0 && k <= INT_MAX) {
-            i = (int)(k - 1);
-            if (k > p->max_index) p->max_index = (int)k, p->max_index_line = line;
-        } else if (errno == 0 && k < 0 && k >= -(long)p->nv) {
-            i = p->nv + (int)k; /* -1 is the last vertex so far */
-        } else {
-            return dr_error_set(err, DR_ERR_INPUT, path, line, 0,
-                                "polyline index %ld refers to no vertex (%d vertices so far)", k, p->nv);
-        }
-        DR_TRY(push_index(p, i, err));
-        s = end;
-        while (*s && *s != ' ' && *s != '\t') s++; /* the rest of "a/b" */
+        long k = strtol(tok, &end, 10);
+        if (end == tok || (*end && *end != '/') || errno == ERANGE)
+            return fail_at(p, tok, "'%s' is not a vertex index; an 'l' record lists 'v' indices (1-based, or "
+                                   "negative from the last vertex), root first", tok);
+        if (k == 0)
+            return fail_at(p, tok, "vertex index 0: OBJ indices start at 1 (negative ones count back from the last "
+                                   "vertex)");
+        if (k < -(long)p->nv)
+            return fail_at(p, tok, "vertex index %ld is out of range: only %d 'v' records come before this line", k,
+                           p->nv);
+        if (p->nidx >= INT_MAX / 3)
+            return fail_at(p, tok, "more than %d strand vertices; split the file", INT_MAX / 3);
+        long i = k < 0 ? p->nv + k : k - 1;
+        int col = (int)(tok - p->ln) + 1;
+        if (i >= p->nv) DR_TRY(push_forward(p, (Forward){.index = i, .line = p->line, .col = col}));
+        /* an index past INT_MAX is out of range whatever follows; the forward check reports it */
+        DR_TRY(push_index(p, i < INT_MAX ? (int)i : INT_MAX, col));
     }
-    if (p->nidx - first < 2)
-        return dr_error_set(err, DR_ERR_INPUT, path, line, 0,
-                            "polyline of %zu vertex index(es): a strand needs at least 2 vertices", p->nidx - first);
-    if (p->nidx > INT_MAX / 3)
-        return dr_error_set(err, DR_ERR_INPUT, path, line, 0, "too many polyline vertices (more than %d)",
-                            INT_MAX / 3);
+    size_t n = p->nidx - first;
+    if (n < 2)
+        return fail_at(p, key, "'l' record with %zu vert%s; a strand needs at least 2 (root first)", n,
+                       n == 1 ? "ex" : "ices");
     if (p->nstrands == 0) p->start[0] = 0;
-    p->radius[p->nstrands] = radius;
+    p->sradius[p->nstrands] = p->radius;
+    if (p->desc.reject_zero_edges) p->sline[p->nstrands] = p->line;
     p->start[++p->nstrands] = (int)p->nidx;
     return DR_OK;
 }
 
-static DrStatus parse_radius(const char *path, int line, const char *s, double *radius, DrError *err)
+/* "# radius R": the radius of the "l" records that follow. */
+static DrStatus parse_radius(Parse *p, char *s)
 {
+    s = skip_blanks(s);
     char *end;
     double r = strtod(s, &end);
-    if (end == s || !blank(end))
-        return dr_error_set(err, DR_ERR_INPUT, path, line, 0,
-                            "malformed radius line: expected \"# radius R\" (metres)");
-    if (!isfinite(r) || r < 0.0)
-        return dr_error_set(err, DR_ERR_INPUT, path, line, 0, "strand radius %g is not a finite number >= 0", r);
-    *radius = r;
+    if (end == s || *skip_blanks(end))
+        return fail_at(p, s, "malformed radius line: expected \"# radius R\" (metres)");
+    if (!isfinite(r) || r < 0.0) return fail_at(p, s, "strand radius %g is not a finite number >= 0", r);
+    p->radius = r;
+    p->have_radius = true;
     return DR_OK;
 }
 
-static DrStatus parse_file(const char *path, FILE *f, Parse *p, DrError *err)
+/* One line as getline returned it (`len` bytes with its '\n'): text checks, then a radius comment or a
+ * "v" or "l" record; anything else is skipped. */
+static DrStatus parse_line(Parse *p, char *ln, size_t len)
+{
+    p->ln = ln;
+    if (strlen(ln) != len)
+        return fail_at(p, ln + strlen(ln), "a NUL byte: this is not a text OBJ file; write or export it as text");
+    while (len > 0 && (ln[len - 1] == '\n' || ln[len - 1] == '\r')) ln[--len] = '\0';
+    for (size_t i = 0; i < len; i++) {
+        unsigned char c = (unsigned char)ln[i];
+        if (c < 0x20 && c != '\t' && c != '\f' && c != '\v')
+            return fail_at(p, ln + i, "control byte 0x%02x: this is not a text OBJ file; write or export it as text",
+                           c);
+    }
+    char *t = skip_blanks(ln);
+    if (*t == '#') {
+        t = skip_blanks(t + 1);
+        return keyword(t, "radius") ? parse_radius(p, t + 6) : DR_OK;
+    }
+    char *hash = strchr(t, '#'); /* a comment after a record */
+    if (hash) *hash = '\0';
+    size_t used = strlen(ln);
+    while (used && is_blank(ln[used - 1])) used--;
+    bool continued = used && ln[used - 1] == '\\';
+    char *cursor = t;
+    char *key = next_token(&cursor);
+    bool is_v = key && strcmp(key, "v") == 0, is_l = key && strcmp(key, "l") == 0;
+    if (!is_v && !is_l) return DR_OK;
+    if (continued)
+        return fail_at(p, ln + used - 1, "'%s' record continued on the next line ('\\'), which is not supported; "
+                                         "write the record on one line", key);
+    return is_v ? parse_vertex(p, cursor) : parse_polyline(p, key, cursor);
+}
+
+/* Checks that need the whole file: forward indices, then (when asked) edge lengths. */
+static DrStatus check_file(Parse *p)
+{
+    if (p->desc.require_strands && p->nstrands == 0)
+        return dr_error_set(p->err, DR_ERR_INPUT, p->path, 0, 0,
+                            "no 'l' records (polylines) among %d lines: each strand is an 'l' record listing its 'v' "
+                            "indices, root first",
+                            p->line);
+    for (size_t k = 0; k < p->nfwd; k++)
+        if (p->fwd[k].index >= p->nv)
+            return dr_error_set(p->err, DR_ERR_INPUT, p->path, p->fwd[k].line, p->fwd[k].col,
+                                "vertex index %ld is out of range: the file has %d 'v' records", p->fwd[k].index + 1,
+                                p->nv);
+    if (!p->desc.reject_zero_edges) return DR_OK;
+    for (int s = 0; s < p->nstrands; s++) {
+        for (int k = p->start[s]; k + 1 < p->start[s + 1]; k++) {
+            const double *a = p->v + 3 * (size_t)p->idx[k], *b = p->v + 3 * (size_t)p->idx[k + 1];
+            if (dr_v3_norm(dr_v3(b[0] - a[0], b[1] - a[1], b[2] - a[2])) > 0.0) continue;
+            return dr_error_set(p->err, DR_ERR_INPUT, p->path, p->sline[s], p->col[k + 1],
+                                "zero-length edge: vertices %d and %d of this strand (OBJ indices %d and %d) are at "
+                                "the same position; remove the repeated vertex",
+                                k - p->start[s] + 1, k - p->start[s] + 2, p->idx[k] + 1, p->idx[k + 1] + 1);
+        }
+    }
+    return DR_OK;
+}
+
+static DrStatus parse_file(FILE *f, Parse *p)
 {
     char *buf = NULL;
     size_t cap = 0;
     ssize_t len;
-    int line = 0;
-    double radius = 0.0;
-    bool have_radius = false;
     DrStatus s = DR_OK;
     while (s == DR_OK && (len = getline(&buf, &cap, f)) >= 0) {
-        line++;
-        if ((size_t)len != strlen(buf)) {
-            s = dr_error_set(err, DR_ERR_INPUT, path, line, 0, "binary data (a NUL byte): not a text OBJ file");
-            break;
-        }
-        while (len > 0 && (buf[len - 1] == '\n' || buf[len - 1] == '\r')) buf[--len] = '\0';
-        const char *t = buf;
-        while (*t == ' ' || *t == '\t') t++;
-        if (*t == '#') {
-            t++;
-            while (*t == ' ' || *t == '\t') t++;
-            if (keyword(t, "radius")) {
-                s = parse_radius(path, line, t + 6, &radius, err);
-                have_radius = true;
-            }
-        } else if (keyword(t, "v")) {
-            s = parse_vertex(path, line, t + 1, p, err);
-        } else if (keyword(t, "l")) {
-            s = parse_line_record(path, line, t + 1, radius, have_radius, p, err);
-        }
+        p->line++;
+        s = parse_line(p, buf, (size_t)len);
     }
     if (s == DR_OK && ferror(f))
-        s = dr_error_set(err, DR_ERR_IO, path, 0, 0, "cannot read the file: %s", strerror(errno));
+        s = dr_error_set(p->err, DR_ERR_IO, p->path, 0, 0, "cannot read the file: %s", strerror(errno));
     free(buf);
-    if (s == DR_OK && p->max_index > p->nv)
-        s = dr_error_set(err, DR_ERR_INPUT, path, p->max_index_line, 0,
-                         "polyline index %d refers to no vertex (the file has %d)", p->max_index, p->nv);
+    if (s == DR_OK) s = check_file(p);
     return s;
 }
 
-DrStatus dr_io_read_polylines_obj(const char *path, DrPolylines *out, DrError *err)
+DrStatus dr_io_read_polylines_obj(const char *path, const DrPolylinesReadDesc *desc, DrPolylines *out,
+                                  DrError *err)
 {
     assert(path && out);
     *out = (DrPolylines){0};
+    Parse p = {.path = path, .err = err, .radius = NAN};
+    if (desc) p.desc = *desc;
+    else dr_io_polylines_read_desc_default(&p.desc);
     FILE *f = fopen(path, "r");
     if (!f)
-        return dr_error_set(err, DR_ERR_INPUT, path, 0, 0, "cannot open the polyline file: %s", strerror(errno));
-    Parse p = {0};
-    DrStatus s = parse_file(path, f, &p, err);
+        return dr_error_set(err, DR_ERR_INPUT, path, 0, 0, "cannot open the polyline file: %s; check the path",
+                            strerror(errno));
+    DrStatus s = parse_file(f, &p);
     fclose(f);
     DrPolylines r = {.count = p.nstrands};
     if (s == DR_OK) s = dr_calloc((size_t)r.count + 1, sizeof *r.offsets, &r.offsets, err);
@@ -270,7 +383,7 @@ DrStatus dr_io_read_polylines_obj(const char *path, DrPolylines *out, DrError *e
     if (s == DR_OK) {
         for (int k = 0; k < r.count; k++) {
             r.offsets[k + 1] = p.start[k + 1];
-            r.radius[k] = p.radius[k];
+            r.radius[k] = p.sradius[k];
         }
         for (size_t k = 0; k < p.nidx; k++) memcpy(r.x + 3 * k, p.v + 3 * (size_t)p.idx[k], 3 * sizeof *r.x);
         *out = r;

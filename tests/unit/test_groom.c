@@ -1,8 +1,9 @@
 /* Unit tests of src/hair/groom.c: the desc and material defaults; grown grooms (counts, lengths, roots on the
  * scalp surface, uniform by area, strands along the interpolated normals, the face-normal fallback, curl
  * radius and pitch measured on the output, length jitter, bit-identical per seed, roots independent of curl
- * and jitter, bad descs and meshes); OBJ polylines (records, index forms, skipped records) and every
- * documented bad input with its file:line:col. Runs from the repository root (tests/run_tests.sh). */
+ * and jitter, bad descs and meshes); OBJ polylines (records, index forms, skipped records, optional radius
+ * lines, a file written by dr_io_write_polylines_obj) and every documented bad input with its file:line:col.
+ * Runs from the repository root (tests/run_tests.sh). */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -562,6 +563,27 @@ static void test_read_obj(void **state)
     assert_vec(at(g.root_normal, 0), 0, 0, 1);
     assert_vec(at(g.root_normal, 1), 0, -1, 0);
     dr_groom_free(&g);
+
+    /* "# radius" lines are optional: a strand before the first and the mesh stage's own files both read */
+    text = "v 0 0 0\nv 0 0 2\nl 1 2\n# radius 5e-05\nl 2 1\n";
+    write_text("radius.obj", text, strlen(text), path, sizeof path);
+    if (dr_groom_read_obj(path, &g, &err) != DR_OK) fail_msg("%s", err.message);
+    assert_int_equal(g.nstrands, 2);
+    assert_vec(at(g.root_normal, 1), 0, 0, -1);
+    dr_groom_free(&g);
+    double wx[] = {0, 0, 0, 0, 1, 0, 0, 3, 0, 1, 0, 0, 2, 0, 0};
+    int woff[] = {0, 3, 5};
+    double wr[] = {5e-5, 1e-4};
+    DrPolylines p = {2, woff, wx, wr};
+    snprintf(path, sizeof path, "%s/written.obj", g_dir);
+    if (dr_io_write_polylines_obj(path, &p, "strands", &err) != DR_OK) fail_msg("%s", err.message);
+    if (dr_groom_read_obj(path, &g, &err) != DR_OK) fail_msg("%s", err.message);
+    assert_int_equal(g.nstrands, 2);
+    assert_memory_equal(g.offsets, woff, sizeof woff);
+    assert_memory_equal(g.x, wx, sizeof wx); /* small integers: exact through %.9g */
+    assert_vec(at(g.root_normal, 0), 0, 1, 0);
+    assert_vec(at(g.root_normal, 1), 1, 0, 0);
+    dr_groom_free(&g);
 }
 
 typedef struct BadObj {
@@ -594,6 +616,8 @@ static void test_read_obj_bad(void **state)
         {"nul.obj", nul, sizeof nul - 1, 3, 4, "a NUL byte: this is not a text OBJ file"},
         {"cont.obj", "v 0 0 0\nv 1 0 0\nl 1 \\\n 2\n", 0, 3, 5, "'l' record continued on the next line ('\\')"},
         {"empty.obj", "", 0, 0, 0, "no 'l' records (polylines) among 0 lines"},
+        {"bad_radius.obj", "v 0 0 0\nv 1 0 0\n# radius -1\nl 1 2\n", 0, 3, 10,
+         "strand radius -1 is not a finite number >= 0"},
     };
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
         const BadObj *c = &cases[i];
@@ -623,10 +647,10 @@ static void test_read_obj_bad(void **state)
     DrError err;
     char missing[512];
     snprintf(missing, sizeof missing, "%s/no_such_curves.obj", g_dir);
-    assert_int_equal(dr_groom_read_obj(missing, &g, &err), DR_ERR_IO);
+    assert_int_equal(dr_groom_read_obj(missing, &g, &err), DR_ERR_INPUT);
     assert_empty(&g);
     assert_string_equal(err.file, missing);
-    assert_contains(err.message, "cannot open the curves file (No such file or directory)");
+    assert_contains(err.message, "cannot open the polyline file: No such file or directory");
 }
 
 int main(void)

@@ -323,7 +323,7 @@ static void test_polylines_round_trip(void **state)
     assert_true(strncmp(text, head, strlen(head)) == 0);
     assert_non_null(strstr(text, "\n# radius 5e-05\nl 1 2 3\nl 4 5\n# radius 0.00025\nl 6 7\n"));
     free(text);
-    assert_int_equal(dr_io_read_polylines_obj(path, &b, &err), DR_OK);
+    assert_int_equal(dr_io_read_polylines_obj(path, NULL, &b, &err), DR_OK);
     assert_int_equal(b.count, 3);
     assert_memory_equal(b.offsets, off, sizeof off);
     /* %.9g keeps 9 significant digits: 1e-9 relative to each coordinate bounds the rounding */
@@ -342,7 +342,7 @@ static void test_polylines_round_trip(void **state)
     text = slurp(path);
     assert_string_equal(text, "# nothing\n");
     free(text);
-    assert_int_equal(dr_io_read_polylines_obj(path, &b, &err), DR_OK);
+    assert_int_equal(dr_io_read_polylines_obj(path, NULL, &b, &err), DR_OK);
     assert_int_equal(b.count, 0);
     dr_io_polylines_free(&b);
 
@@ -365,8 +365,9 @@ static void test_polylines_round_trip(void **state)
     assert_string_equal(err.file, path);
 }
 
-/* Files from other tools: negative and "a/b" indices, a radius that changes mid-file, vertices shared by two
- * strands, faces, normals, weights and other comments skipped, CRLF line ends. */
+/* Files from other tools: negative and "a/b" indices, a forward reference, a radius that changes mid-file,
+ * vertices shared by two strands, faces, normals, weights, colours, other comments and comments after a
+ * record skipped, tabs, CRLF line ends. */
 static void test_polylines_read_other_writers(void **state)
 {
     (void)state;
@@ -375,17 +376,75 @@ static void test_polylines_read_other_writers(void **state)
     write_scratch("other.obj",
                   "# made elsewhere\r\n# radius_scale 3 (not a radius line)\r\no strands\r\n"
                   "v 0 0 0 1\r\nv 0 1 0\r\nvn 0 0 1\r\n# radius 0.5\r\nl -2/1 -1/2\r\n"
-                  "v 1 1 0\r\n#radius 0.25\r\nl 2 3 1\r\nf 1 2 3\r\n",
+                  "v 1 1 0\r\n#radius 0.25\r\nl 2 3 1 # a comment\r\nf 1 2 3\r\nl\t4 2\r\n"
+                  "v 2 0 0 0.5 0.5 0.5\r\n",
                   path, sizeof path);
     DrPolylines p;
-    assert_int_equal(dr_io_read_polylines_obj(path, &p, &err), DR_OK);
-    assert_int_equal(p.count, 2);
-    int off[3] = {0, 2, 5};
+    assert_int_equal(dr_io_read_polylines_obj(path, NULL, &p, &err), DR_OK);
+    assert_int_equal(p.count, 3);
+    int off[4] = {0, 2, 5, 7};
     assert_memory_equal(p.offsets, off, sizeof off);
-    double x[15] = {0, 0, 0, 0, 1, 0, 0, 1, 0, 1, 1, 0, 0, 0, 0};
+    double x[21] = {0, 0, 0, 0, 1, 0, 0, 1, 0, 1, 1, 0, 0, 0, 0, 2, 0, 0, 0, 1, 0};
     assert_memory_equal(p.x, x, sizeof x); /* small integers: exact */
-    assert_true(p.radius[0] == 0.5 && p.radius[1] == 0.25);
+    assert_true(p.radius[0] == 0.5 && p.radius[1] == 0.25 && p.radius[2] == 0.25);
     dr_io_polylines_free(&p);
+}
+
+/* The desc: radius lines optional (strands before the first get NAN), a file without strands refused,
+ * zero-length edges refused; and the defaults, which accept the last two. */
+static void test_polylines_read_desc(void **state)
+{
+    (void)state;
+    DrError err;
+    char path[512];
+    DrPolylinesReadDesc d;
+    dr_io_polylines_read_desc_default(&d);
+    assert_true(d.require_radius);
+    assert_false(d.require_strands);
+    assert_false(d.reject_zero_edges);
+
+    /* without require_radius: NAN until the first radius line, that radius after it */
+    write_scratch("no_radius.obj", "v 0 0 0\nv 0 1 0\nl 1 2\n# radius 0.5\nl 2 1\n", path, sizeof path);
+    DrPolylines p;
+    assert_int_equal(dr_io_read_polylines_obj(path, NULL, &p, &err), DR_ERR_INPUT);
+    assert_int_equal(err.line, 3);
+    d.require_radius = false;
+    assert_int_equal(dr_io_read_polylines_obj(path, &d, &p, &err), DR_OK);
+    assert_int_equal(p.count, 2);
+    assert_true(isnan(p.radius[0]));
+    assert_true(p.radius[1] == 0.5);
+    dr_io_polylines_free(&p);
+    /* a radius line is still checked when it is optional */
+    write_scratch("bad_radius.obj", "v 0 0 0\nv 0 1 0\n# radius 5 cm\nl 1 2\n", path, sizeof path);
+    assert_int_equal(dr_io_read_polylines_obj(path, &d, &p, &err), DR_ERR_INPUT);
+    assert_int_equal(err.line, 3);
+    assert_int_equal(err.col, 10);
+    assert_non_null(strstr(err.message, "malformed radius line"));
+    assert_null(p.x);
+
+    /* require_strands: a file without "l" records is refused, naming the file */
+    write_scratch("no_lines.obj", "# radius 1\nv 0 0 0\nf 1 1 1\n", path, sizeof path);
+    assert_int_equal(dr_io_read_polylines_obj(path, &d, &p, &err), DR_OK);
+    assert_int_equal(p.count, 0);
+    dr_io_polylines_free(&p);
+    d.require_strands = true;
+    assert_int_equal(dr_io_read_polylines_obj(path, &d, &p, &err), DR_ERR_INPUT);
+    assert_string_equal(err.file, path);
+    assert_int_equal(err.line, 0);
+    assert_non_null(strstr(err.message, "no 'l' records (polylines) among 3 lines"));
+    assert_null(p.offsets);
+
+    /* reject_zero_edges: reported at the edge's second vertex, also through a forward reference */
+    write_scratch("zero_edge.obj", "# radius 1\nv 0 0 0\nv 0 1 0\nl 1 2\nl 2  3\nv 0 1 0\n", path, sizeof path);
+    assert_int_equal(dr_io_read_polylines_obj(path, NULL, &p, &err), DR_OK);
+    assert_int_equal(p.count, 2);
+    dr_io_polylines_free(&p);
+    d.reject_zero_edges = true;
+    assert_int_equal(dr_io_read_polylines_obj(path, &d, &p, &err), DR_ERR_INPUT);
+    assert_int_equal(err.line, 5);
+    assert_int_equal(err.col, 6);
+    assert_non_null(strstr(err.message, "zero-length edge: vertices 1 and 2 of this strand (OBJ indices 2 and 3)"));
+    assert_null(p.x);
 }
 
 static void test_polylines_bad_files(void **state)
@@ -393,20 +452,29 @@ static void test_polylines_bad_files(void **state)
     (void)state;
     static const struct {
         const char *text;
-        int line;
+        int line, col;
         const char *message;
     } bad[] = {
-        {"v 0 0 0\nv 0 1 0\nl 1 2\n", 3, "before any \"# radius R\" line"},
-        {"# radius 0.1\nv 0 0 0\nv 0 1 0\nl 1 3\n", 4, "index 3 refers to no vertex"},
-        {"# radius 0.1\nv 0 0 0\nv 0 1 0\nl -3 1\n", 4, "index -3 refers to no vertex"},
-        {"# radius 0.1\nv 0 0 0\nv 0 1 0\nl 0 1\n", 4, "index 0 refers to no vertex"},
-        {"# radius 0.1\nv 0 0 0\nv 0 1 0\nl 1\n", 4, "at least 2 vertices"},
-        {"# radius 0.1\nv 0 0 0\nv 0 1 0\nl 1 x\n", 4, "malformed polyline"},
-        {"# radius 0.1\nv 0 0\n", 2, "malformed vertex"},
-        {"# radius 0.1\nv 0 nan 0\n", 2, "non-finite"},
-        {"# radius -0.1\n", 1, "radius -0.1 is not a finite number >= 0"},
-        {"# radius inf\n", 1, "not a finite number"},
-        {"# radius 0.1 m\n", 1, "malformed radius line"},
+        {"v 0 0 0\nv 0 1 0\nl 1 2\n", 3, 1, "before any \"# radius R\" line"},
+        {"# radius 0.1\nv 0 0 0\nv 0 1 0\nl 1 3\n", 4, 5, "vertex index 3 is out of range: the file has 2 'v' records"},
+        /* forward references: the first one past the end of the file is reported */
+        {"# radius 0.1\nv 0 0 0\nl 1 2\nl 1 9\nl 7 1\nv 0 1 0\n", 4, 5, "vertex index 9 is out of range"},
+        {"# radius 0.1\nv 0 0 0\nv 0 1 0\nl -3 1\n", 4, 3,
+         "vertex index -3 is out of range: only 2 'v' records come before this line"},
+        {"# radius 0.1\nv 0 0 0\nv 0 1 0\nl 0 1\n", 4, 3, "vertex index 0: OBJ indices start at 1"},
+        {"# radius 0.1\nv 0 0 0\nv 0 1 0\nl 1\n", 4, 1, "'l' record with 1 vertex; a strand needs at least 2"},
+        {"# radius 0.1\nv 0 0 0\nv 0 1 0\nl\n", 4, 1, "'l' record with 0 vertices"},
+        {"# radius 0.1\nv 0 0 0\nv 0 1 0\nl 1 x\n", 4, 5, "'x' is not a vertex index"},
+        {"# radius 0.1\nv 0 0 0\nv 0 1 0\nl 1 99999999999999999999\n", 4, 5, "is not a vertex index"},
+        {"# radius 0.1\nv 0 0\n", 2, 1, "'v' record with 2 numbers; a vertex is \"v x y z\""},
+        {"# radius 0.1\nv 0 0 0 w\n", 2, 9, "'w' is not a number"},
+        {"# radius 0.1\nv 0 nan 0\n", 2, 5, "vertex coordinate 'nan' is not finite"},
+        {"# radius 0.1\nv 0 1e999 0\n", 2, 5, "vertex coordinate '1e999' is not finite"},
+        {"# radius 0.1\nv 0 0 0\nv 0 1 0\nl 1 2\x01\n", 4, 6, "control byte 0x01: this is not a text OBJ file"},
+        {"# radius 0.1\nv 0 0 0\nv 0 1 0\nl 1 \\\n 2\n", 4, 5, "'l' record continued on the next line"},
+        {"# radius -0.1\n", 1, 10, "radius -0.1 is not a finite number >= 0"},
+        {"# radius inf\n", 1, 10, "not a finite number"},
+        {"# radius 0.1 m\n", 1, 10, "malformed radius line"},
     };
     DrError err;
     char path[512], name[64];
@@ -414,9 +482,10 @@ static void test_polylines_bad_files(void **state)
         snprintf(name, sizeof name, "bad_%zu.obj", k);
         write_scratch(name, bad[k].text, path, sizeof path);
         DrPolylines p = {.count = 7};
-        assert_int_equal(dr_io_read_polylines_obj(path, &p, &err), DR_ERR_INPUT);
+        assert_int_equal(dr_io_read_polylines_obj(path, NULL, &p, &err), DR_ERR_INPUT);
         assert_string_equal(err.file, path);
-        assert_int_equal(err.line, bad[k].line);
+        if (err.line != bad[k].line || err.col != bad[k].col)
+            fail_msg("case %zu: reported at %d:%d, expected %d:%d", k, err.line, err.col, bad[k].line, bad[k].col);
         if (!strstr(err.message, bad[k].message))
             fail_msg("case %zu: message \"%s\" lacks \"%s\"", k, err.message, bad[k].message);
         assert_int_equal(p.count, 0);
@@ -429,12 +498,15 @@ static void test_polylines_bad_files(void **state)
     fwrite("# radius 1\nv 0 0 0\nv \0 1 0\n", 1, 28, f);
     fclose(f);
     DrPolylines p;
-    assert_int_equal(dr_io_read_polylines_obj(path, &p, &err), DR_ERR_INPUT);
+    assert_int_equal(dr_io_read_polylines_obj(path, NULL, &p, &err), DR_ERR_INPUT);
     assert_int_equal(err.line, 3);
+    assert_int_equal(err.col, 3);
+    assert_non_null(strstr(err.message, "a NUL byte: this is not a text OBJ file"));
     /* missing file */
     scratch_path("absent.obj", path, sizeof path);
-    assert_int_equal(dr_io_read_polylines_obj(path, &p, &err), DR_ERR_INPUT);
+    assert_int_equal(dr_io_read_polylines_obj(path, NULL, &p, &err), DR_ERR_INPUT);
     assert_string_equal(err.file, path);
+    assert_non_null(strstr(err.message, "cannot open the polyline file: No such file or directory"));
 }
 
 /* ---- files ---- */
@@ -898,6 +970,7 @@ int main(void)
         cmocka_unit_test(test_write_obj_round_trip),
         cmocka_unit_test(test_polylines_round_trip),
         cmocka_unit_test(test_polylines_read_other_writers),
+        cmocka_unit_test(test_polylines_read_desc),
         cmocka_unit_test(test_polylines_bad_files),
         cmocka_unit_test(test_files),
         cmocka_unit_test(test_remove_stale_tmp),
