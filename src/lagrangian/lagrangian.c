@@ -30,6 +30,7 @@ typedef struct LagObject {
     double *geo;      /* (kd + 1) × ndof lower band: −h² G */
     double *pre;      /* (kd + 1) × ndof lower band: the in-band part of K_G on this object's DOFs, for the
                          preconditioner only (the operator takes K_G whole) */
+    double *op;       /* (kd + 1) × ndof lower band of the operator: mat + geo, or mat when geo was dropped */
     DrBanded *factor;
     bool dropped;     /* geometric part dropped this step */
     LagRecords rec;
@@ -99,6 +100,7 @@ void dr_lag_destroy(DrLag **sp)
         free(s->obj[i].mat);
         free(s->obj[i].geo);
         free(s->obj[i].pre);
+        free(s->obj[i].op);
         dr_banded_destroy(&s->obj[i].factor);
         records_free(&s->obj[i].rec);
     }
@@ -154,6 +156,7 @@ DrStatus dr_lag_add_object(DrLag *s, int ndof, int kd, int *id, int *dof_begin, 
     DrStatus st = dr_calloc(band, sizeof(double), &o->mat, err);
     if (st == DR_OK) st = dr_calloc(band, sizeof(double), &o->geo, err);
     if (st == DR_OK) st = dr_calloc(band, sizeof(double), &o->pre, err);
+    if (st == DR_OK) st = dr_calloc(band, sizeof(double), &o->op, err);
     if (st == DR_OK) st = dr_banded_create(ndof, kd, &o->factor, err);
     if (st == DR_OK) {
         size_t c = s->cap_dof;
@@ -164,6 +167,7 @@ DrStatus dr_lag_add_object(DrLag *s, int ndof, int kd, int *id, int *dof_begin, 
         free(o->mat);
         free(o->geo);
         free(o->pre);
+        free(o->op);
         dr_banded_destroy(&o->factor);
         return st;
     }
@@ -419,17 +423,14 @@ static void apply_blocks(long begin, long end, void *vctx)
         const double *x = c->x + o->dof0;
         double *y = c->y + o->dof0;
         int n = o->ndof, ld = o->kd + 1;
-        bool geo = !o->dropped;
         for (int i = 0; i < n; i++) y[i] = 0;
         for (int j = 0; j < n; j++) {
-            const double *cm = o->mat + (size_t)ld * (size_t)j, *cg = o->geo + (size_t)ld * (size_t)j;
-            double d = cm[0] + (geo ? cg[0] : 0);
-            double acc = d * x[j];
+            const double *col = o->op + (size_t)ld * (size_t)j;
+            double xj = x[j], acc = col[0] * xj;
             int top = j + o->kd < n - 1 ? j + o->kd : n - 1;
             for (int i = j + 1; i <= top; i++) {
-                double a = cm[i - j] + (geo ? cg[i - j] : 0);
-                y[i] += a * x[j];
-                acc += a * x[i];
+                y[i] += col[i - j] * xj;
+                acc += col[i - j] * x[i];
             }
             y[j] += acc;
         }
@@ -463,13 +464,19 @@ static void factor_blocks(long begin, long end, void *vctx)
         LagObject *o = &c->s->obj[oi];
         size_t band = (size_t)(o->kd + 1) * (size_t)o->ndof;
         DrError e;
-        for (size_t k = 0; k < band; k++) o->factor->ab[k] = o->mat[k] + o->geo[k] + o->pre[k];
+        for (size_t k = 0; k < band; k++) {
+            o->op[k] = o->mat[k] + o->geo[k];
+            o->factor->ab[k] = o->op[k] + o->pre[k];
+        }
         o->factor->factored = false;
         if (dr_banded_factor(o->factor, &e) == DR_OK) {
             c->status[oi] = 0;
             continue;
         }
-        for (size_t k = 0; k < band; k++) o->factor->ab[k] = o->mat[k] + o->pre[k];
+        for (size_t k = 0; k < band; k++) {
+            o->op[k] = o->mat[k];
+            o->factor->ab[k] = o->mat[k] + o->pre[k];
+        }
         o->factor->factored = false;
         o->dropped = true;
         c->status[oi] = dr_banded_factor(o->factor, &e) == DR_OK ? 1 : 2;

@@ -120,7 +120,7 @@ DR_NODISCARD DrStatus dr_lag_add_global(DrLag *s, const DrLagGroup *g, DrError *
  * iterate or a breakdown (A not positive definite even after dropping geometric stiffness). */
 DR_NODISCARD DrStatus dr_lag_solve(DrLag *s, double *qdot_out, DrLagStats *stats, DrError *err);
 
-/* y = A x with the matrix of the last dr_lag_begin/add (after elimination of prescribed DOFs): for tests. */
+/* y = A x with the matrix the last dr_lag_solve used (prescribed DOFs eliminated, geometric stiffness as kept). */
 void dr_lag_apply(const DrLag *s, const double *x, double *y);
 
 #endif

@@ -143,7 +143,7 @@ DrLinearOp dr_jacobi_op(const DrJacobi *M);
 
 /* A symmetric positive definite n×n matrix with bandwidth kd (A(i,j) = 0 for |i − j| > kd), such as the
  * block of one hair in the Lagrangian solve: factored by banded Cholesky (LAPACK dpbtrf through OpenBLAS,
- * O(n kd²)) and solved (dpbtrs, O(n kd)). Storage is LAPACK's lower band, column-major:
+ * O(n kd²)) and solved by forward and back substitution (O(n kd)). Storage is LAPACK's lower band, column-major:
  * ab[(i − j) + (kd + 1) j] = A(i, j) for j <= i <= min(n − 1, j + kd). One object per block; objects may
  * be used from different threads at once. */
 typedef struct DrBanded {
