@@ -78,13 +78,12 @@ double dr_collider_friction(const DrCollider *c) { return c->friction; }
 bool dr_collider_no_slip(const DrCollider *c) { return c->no_slip; }
 
 /* Interpolated key row at time t (translation and Euler angles) and its time derivative. */
-static void key_state(const DrCollider *c, double t, double st[6], double rate[6])
+static void keys_state(const double *K, int nkeys, double t, double st[6], double rate[6])
 {
     for (int i = 0; i < 6; i++) { st[i] = 0.0; rate[i] = 0.0; }
-    if (c->nkeys == 0) return;
-    const double *K = c->keys;
+    if (nkeys == 0) return;
     if (t <= K[0]) { for (int i = 0; i < 6; i++) st[i] = K[1 + i]; return; }
-    const double *L = K + 7 * (c->nkeys - 1);
+    const double *L = K + 7 * (nkeys - 1);
     if (t >= L[0]) { for (int i = 0; i < 6; i++) st[i] = L[1 + i]; return; }
     int k = 0;
     while (K[7 * (k + 1)] <= t) k++;
@@ -94,6 +93,21 @@ static void key_state(const DrCollider *c, double t, double st[6], double rate[6
         st[i] = a[1 + i] + s * (b[1 + i] - a[1 + i]);
         rate[i] = (b[1 + i] - a[1 + i]) / h;
     }
+}
+
+static void key_state(const DrCollider *c, double t, double st[6], double rate[6])
+{
+    keys_state(c->keys, c->nkeys, t, st, rate);
+}
+
+DrXform dr_motion_pose(const double *keys, int nkeys, double t)
+{
+    double st[6], rate[6];
+    keys_state(keys, nkeys, t, st, rate);
+    DrXform x;
+    x.R = dr_m3_from_euler_xyz(dr_v3(st[3], st[4], st[5]));
+    x.t = dr_v3(st[0], st[1], st[2]);
+    return x;
 }
 
 DrXform dr_collider_pose(const DrCollider *c, double t)

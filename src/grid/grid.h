@@ -113,6 +113,10 @@ DrVec3 dr_collider_velocity(const DrCollider *c, double t, DrVec3 x);
 double dr_collider_friction(const DrCollider *c);
 bool dr_collider_no_slip(const DrCollider *c);
 
+/* Rigid motion from key rows as DrColliderDesc.keys describe them (also the scalp motion of hair): the pose at
+   time t (identity without keys; linear between keys, constant outside). */
+DrXform dr_motion_pose(const double *keys, int nkeys, double t);
+
 /* Per-substep form: the pose and rigid motion evaluated once at time t, then queried many times. */
 typedef struct DrColliderFrame {
     const DrCollider *c;

@@ -480,7 +480,8 @@ static DrStatus build_strand(DrRodSet *r, int k, double h, const DrRodCollider *
         double best = INFINITY;
         for (int c = 0; c < ncol; c++) {
             DrVec3 n;
-            double d = col[c].sdf(p, &n, col[c].ctx) - (r->radius[k] + col[c].thickness);
+            const DrRodBatch *bt = &r->batch[r->strand_batch[k]];
+            double d = col[c].sdf(p, &n, col[c].ctx) - (r->radius[k] + col[c].thickness + bt->collider_thickness);
             DrVec3 vc = col[c].velocity_at ? col[c].velocity_at(p, col[c].ctx) : dr_v3(0, 0, 0);
             double approach = h * dr_v3_dot(dr_v3_sub(v, vc), n);
             if (d + fmin(approach, 0) >= 0 || d >= best) continue;
@@ -494,7 +495,7 @@ static DrStatus build_strand(DrRodSet *r, int k, double h, const DrRodCollider *
             r->cvel[3 * vid] = vc.x;
             r->cvel[3 * vid + 1] = vc.y;
             r->cvel[3 * vid + 2] = vc.z;
-            r->cfric[vid] = col[c].friction;
+            r->cfric[vid] = fmax(col[c].friction, bt->collider_friction);
         }
         if (!r->cflag[vid]) continue;
         memset(&g, 0, sizeof g);

@@ -51,13 +51,15 @@ void dr_groom_desc_default(DrGroomDesc *d);
  * count and seed only; the same inputs give bit-identical output. On failure *out is left empty. */
 DR_NODISCARD DrStatus dr_groom_grow(const DrTriMesh *scalp, const DrGroomDesc *desc, DrGroom *out, DrError *err);
 
-/* Reads polylines ("v" and "l" records) from an OBJ file: each "l" record is one strand, its first vertex
- * the root; the root normal is the direction of the first edge. DR_ERR_INPUT (file:line) for a line with
- * fewer than 2 vertices, an index out of range, repeated consecutive vertices (a zero-length edge) or a file
- * without "l" records; DR_ERR_IO when unreadable. Other records are skipped. Indices are 1-based (negative:
- * back from the last "v" before the record; "i/t" takes i; forward references are allowed). Also DR_ERR_INPUT
- * at file:line:col: a "v" without three finite numbers, a token that is not a number or index, index 0, a
- * control byte (not a text file), a record continued with '\'. On failure *out is left empty. */
+/* Reads polylines ("v" and "l" records) from an OBJ file through dr_io_read_polylines_obj (io.h), with
+ * "# radius" lines optional and their values unused: each "l" record is one strand, its first vertex the
+ * root; the root normal is the direction of the first edge. Other records are skipped. Indices are 1-based
+ * (negative: back from the last "v" before the record; "i/t" takes i; forward references are allowed).
+ * DR_ERR_INPUT at file:line:col for: a line with fewer than 2 vertices, an index out of range, index 0,
+ * repeated consecutive vertices (a zero-length edge), a "v" without three finite numbers, a token that is
+ * not a number or index, a control byte (not a text file), a record continued with '\', a "# radius" line
+ * without one finite number >= 0. DR_ERR_INPUT naming the file for a file without "l" records and for a
+ * missing or unopenable file; DR_ERR_IO when reading fails. On failure *out is left empty. */
 DR_NODISCARD DrStatus dr_groom_read_obj(const char *path, DrGroom *out, DrError *err);
 
 /* ---- rod material ------------------------------------------------------------------------------------ */
@@ -115,6 +117,8 @@ typedef struct DrRodBatch {
     double contact_stiffness;   /* N/m per contact, > 0 */
     double contact_friction;    /* Coulomb coefficient of strand–strand contact */
     double contact_thickness;   /* m */
+    double collider_friction;   /* against colliders: the larger of this and the collider's own coefficient */
+    double collider_thickness;  /* m, added to the radius against colliders (with the collider's own) */
 } DrRodBatch;
 
 typedef struct DrRodSet DrRodSet;
