@@ -20,6 +20,10 @@ typedef struct Totals {
     long mpm_particles, mpm_newton, mpm_cg;
     int mpm_not_converged;
     double mpm_transfer, mpm_solve;
+    bool hair;
+    long hair_vertices, hair_cg;
+    int hair_not_converged;
+    double hair_seconds;
 } Totals;
 
 /* Exit code of a bake stopped by SIGUSR1, SIGTERM or SIGINT after writing its checkpoint: the caller (a
@@ -116,11 +120,21 @@ static void append_progress(const char *path, const DrFrameStats *fs, double io_
                 fs->mpm_gravity_energy, fs->mpm_kinetic_energy + fs->mpm_elastic_energy + fs->mpm_gravity_energy, p.x,
                 p.y, p.z, l.x, l.y, l.z);
     }
+    if (fs->hair)
+        fprintf(f,
+                "\"hair_vertices\":%ld,\"hair_substeps\":%d,\"hair_cg_iterations\":%ld,\"hair_residual\":%.6g,"
+                "\"hair_not_converged\":%d,\"hair_collider_contacts\":%d,\"hair_contacts\":%d,"
+                "\"hair_kinetic_energy\":%.9g,\"hair_elastic_energy\":%.9g,\"hair_gravity_energy\":%.9g,"
+                "\"hair_total_energy\":%.9g,",
+                fs->hair_vertices, fs->hair_substeps, fs->hair_cg_iterations, fs->hair_residual, fs->hair_not_converged,
+                fs->hair_collider_contacts, fs->hair_contacts, fs->hair_kinetic_energy, fs->hair_elastic_energy,
+                fs->hair_gravity_energy, fs->hair_kinetic_energy + fs->hair_elastic_energy + fs->hair_gravity_energy);
     fprintf(f,
             "\"seconds\":{\"p2g\":%.6f,\"pressure\":%.6f,\"g2p\":%.6f,\"advect\":%.6f,\"other\":%.6f,",
             fs->seconds_p2g, fs->seconds_pressure, fs->seconds_g2p, fs->seconds_advect, fs->seconds_other);
     if (fs->mpm)
         fprintf(f, "\"mpm_transfer\":%.6f,\"mpm_solve\":%.6f,", fs->seconds_mpm_transfer, fs->seconds_mpm_solve);
+    if (fs->hair) fprintf(f, "\"hair\":%.6f,", fs->seconds_hair);
     fprintf(f, "\"io\":%.6f,\"frame\":%.6f}}\n", io_seconds, fs->seconds + io_seconds);
     fclose(f);
 }
@@ -151,6 +165,11 @@ static DrStatus write_report(const char *dir, const char *status, const char *me
                                       "newton_iterations", (json_int_t)t->mpm_newton, "cg_iterations",
                                       (json_int_t)t->mpm_cg, "newton_not_converged_frames", t->mpm_not_converged,
                                       "seconds_transfer", t->mpm_transfer, "seconds_solve", t->mpm_solve));
+    if (t->hair)
+        json_object_set_new(r, "hair",
+                            json_pack("{s:I, s:I, s:i, s:f}", "vertices", (json_int_t)t->hair_vertices, "cg_iterations",
+                                      (json_int_t)t->hair_cg, "not_converged_substeps", t->hair_not_converged,
+                                      "seconds", t->hair_seconds));
     char *text = json_dumps(r, JSON_INDENT(2) | JSON_REAL_PRECISION(9));
     json_decref(r);
     char path[4096];
@@ -274,12 +293,21 @@ int main(int argc, char **argv)
         tot.mpm_not_converged += fs.mpm_not_converged;
         tot.mpm_transfer += fs.seconds_mpm_transfer;
         tot.mpm_solve += fs.seconds_mpm_solve;
-        char detail[256], mpm[96] = "";
+        tot.hair |= fs.hair;
+        tot.hair_vertices = fs.hair_vertices;
+        tot.hair_cg += fs.hair_cg_iterations;
+        tot.hair_not_converged += fs.hair_not_converged;
+        tot.hair_seconds += fs.seconds_hair;
+        char detail[320], mpm[96] = "", hair[96] = "";
         if (fs.mpm)
             snprintf(mpm, sizeof mpm, " mpm %ld newton %ld cg %ld", fs.mpm_particles, fs.mpm_newton_iterations,
                      fs.mpm_cg_iterations);
-        snprintf(detail, sizeof detail, "frame %d substeps %d iters %d particles %ld cells %+.1f%%%s %.2fs", fs.frame,
-                 fs.substeps, fs.pressure_iterations_max, fs.particles, 100.0 * fs.volume_drift, mpm, fs.seconds + io);
+        if (fs.hair)
+            snprintf(hair, sizeof hair, " hair %ld cg %ld contacts %d+%d", fs.hair_vertices, fs.hair_cg_iterations,
+                     fs.hair_collider_contacts, fs.hair_contacts);
+        snprintf(detail, sizeof detail, "frame %d substeps %d iters %d particles %ld cells %+.1f%%%s%s %.2fs", fs.frame,
+                 fs.substeps, fs.pressure_iterations_max, fs.particles, 100.0 * fs.volume_drift, mpm, hair,
+                 fs.seconds + io);
         dr_progress_step(&prog, detail);
         if (stop_signal && dr_world_frame(world) < last) break;
     }
@@ -322,8 +350,12 @@ int main(int argc, char **argv)
     if (tot.mpm)
         snprintf(mpm, sizeof mpm, ", %ld MPM particles (Newton iterations %ld, CG %ld%s)", tot.mpm_particles,
                  tot.mpm_newton, tot.mpm_cg, tot.mpm_not_converged ? ", some Newton solves hit their cap" : "");
-    fprintf(stderr, "bake: %d frames in %.1fs (%.2fs/frame, %d threads), %ld particles, pressure iterations max %d%s%s\n",
+    char hair[160] = "";
+    if (tot.hair)
+        snprintf(hair, sizeof hair, ", %ld hair vertices (CG iterations %ld%s)", tot.hair_vertices, tot.hair_cg,
+                 tot.hair_not_converged ? ", some hair solves hit their cap" : "");
+    fprintf(stderr, "bake: %d frames in %.1fs (%.2fs/frame, %d threads), %ld particles, pressure iterations max %d%s%s%s\n",
             tot.frames, wall, tot.frames ? wall / tot.frames : 0.0, dr_threads(), tot.particles_last, tot.pressure_max,
-            tot.not_converged ? ", some pressure solves did not converge (see warnings)" : "", mpm);
+            tot.not_converged ? ", some pressure solves did not converge (see warnings)" : "", mpm, hair);
     return 0;
 }

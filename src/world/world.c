@@ -16,6 +16,7 @@ const DrLiquid *dr_world_liquid(const DrWorld *w, int i) { return w->liquids[i].
 const DrElement *dr_world_liquid_element(const DrWorld *w, int i) { return w->liquids[i].element; }
 int dr_world_live_collider_count(const DrWorld *w) { return w->nlive; }
 long dr_world_mpm_particle_count(const DrWorld *w) { return w->mpm ? dr_mpm_state(w->mpm->mpm).n : 0; }
+long dr_world_hair_vertex_count(const DrWorld *w) { return w->hair ? dr_rod_set_state(w->hair->rods).nverts : 0; }
 
 double dr_world_frame_time(const DrWorld *w, int frame) { return (double)(frame - w->first_frame + 1) / w->fps; }
 
@@ -79,14 +80,22 @@ DrStatus dr_world_make_collider_(const DrTriMesh *mesh, double dx, double fricti
     return s;
 }
 
-/* The smallest cell of any grid that samples colliders (liquid and MPM), 0 when there is none. */
+/* The smallest cell of any grid that samples colliders (liquid and MPM) or, for hair, a grown groom's segment
+   length (4 mm for curves read from a file), 0 when nothing samples colliders. */
 static double smallest_grid_dx(const DrScene *scene)
 {
     double dx = 0.0;
     for (int i = 0; i < dr_scene_element_count(scene); i++) {
         const DrElement *e = dr_scene_element(scene, i);
-        if (strcmp(e->type, "liquid") != 0 && strcmp(e->type, "mpm_solid") != 0) continue;
-        double d = dr_component_num(dr_element_component(e, "Domain"), "voxel_size");
+        double d;
+        if (strcmp(e->type, "hair") == 0) {
+            const DrComponent *g = dr_element_component(e, "Groom");
+            d = dr_component_is_set(g, "scalp") ? dr_component_num(g, "length") / dr_component_int(g, "segments") : 0.004;
+        } else if (strcmp(e->type, "liquid") == 0 || strcmp(e->type, "mpm_solid") == 0) {
+            d = dr_component_num(dr_element_component(e, "Domain"), "voxel_size");
+        } else {
+            continue;
+        }
         if (dx == 0.0 || d < dx) dx = d;
     }
     return dx;
@@ -239,16 +248,22 @@ DrStatus dr_world_create(const DrScene *scene, DrWorld **out, DrError *err)
         if (strcmp(e->type, "liquid") == 0) s = build_liquid(w, e, &w->liquids[w->nliquids++], err);
     }
     if (s == DR_OK) s = dr_world_mpm_create_(w, err);
+    if (s == DR_OK) s = dr_world_hair_create_(w, err);
     if (s < 0) {
         dr_world_destroy(&w);
         return s;
     }
     long mpm_particles = dr_world_mpm_particle_count(w);
+    char hair[128] = "no hair";
+    if (w->hair) {
+        DrRodState rs = dr_rod_set_state(w->hair->rods);
+        snprintf(hair, sizeof hair, "%d strand(s) of hair with %d vertices", rs.nstrands, rs.nverts);
+    }
     if (w->mpm)
-        dr_log_info("world: %d liquid grid(s), one MPM grid with %ld particles in %d bod%s, %d collider SDF(s)",
-                    w->nliquids, mpm_particles, w->mpm->nbodies, w->mpm->nbodies == 1 ? "y" : "ies", w->nlive);
+        dr_log_info("world: %d liquid grid(s), one MPM grid with %ld particles in %d bod%s, %s, %d collider SDF(s)",
+                    w->nliquids, mpm_particles, w->mpm->nbodies, w->mpm->nbodies == 1 ? "y" : "ies", hair, w->nlive);
     else
-        dr_log_info("world: %d liquid grid(s), no MPM solver, %d collider SDF(s)", w->nliquids, w->nlive);
+        dr_log_info("world: %d liquid grid(s), no MPM solver, %s, %d collider SDF(s)", w->nliquids, hair, w->nlive);
     *out = w;
     return DR_OK;
 }
@@ -263,6 +278,7 @@ void dr_world_destroy(DrWorld **world)
         free(w->liquids[i].shapes);
     }
     dr_world_mpm_destroy_(&w->mpm);
+    dr_world_hair_destroy_(&w->hair);
     for (int i = 0; i < w->ncolliders; i++) dr_collider_destroy(&w->colliders[i].collider);
     free(w->liquids);
     free(w->colliders);
@@ -322,6 +338,7 @@ DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrError *err)
     stats->liquid_volume = volume;
     stats->volume_drift = volume0 > 0 ? volume / volume0 - 1.0 : 0.0;
     DR_TRY(dr_world_mpm_step_(w, t0, t1, stats, err));
+    DR_TRY(dr_world_hair_step_(w, t0, t1, stats, err));
     w->frame = frame;
     stats->seconds = dr_time_now() - t_start;
     return DR_OK;
@@ -416,6 +433,7 @@ static DrStatus write_frame_body(const DrWorld *w, const DrFrameStats *stats, Dr
         DR_TRY(dr_h5_attr_str(h, path, "type", "collider", err));
     }
     DR_TRY(dr_world_mpm_write_(w, h, true, err));
+    DR_TRY(dr_world_hair_write_(w, h, true, err));
     const char *g = "/diagnostics";
     DR_TRY(dr_world_write_scalar_(h, g, "substeps", stats->substeps, "1", err));
     DR_TRY(dr_world_write_scalar_(h, g, "liquid_volume_cells", stats->liquid_volume, "m^3", err));
@@ -458,6 +476,7 @@ DrStatus dr_world_write_checkpoint(const DrWorld *w, const char *path, const cha
         if (s == DR_OK) s = dr_h5_write_f64(h, p, 1, d1, &wl->volume0, "m^3", false, err);
     }
     if (s == DR_OK) s = dr_world_mpm_write_(w, h, false, err);
+    if (s == DR_OK) s = dr_world_hair_write_(w, h, false, err);
     if (s < 0) {
         dr_h5_close(&h);
         return s;
@@ -514,6 +533,7 @@ DrStatus dr_world_read_checkpoint(DrWorld *w, const char *path, const char *bake
                          (long long)frame, w->first_frame, w->last_frame);
     for (int i = 0; s == DR_OK && i < w->nliquids; i++) s = read_liquid(h, path, &w->liquids[i], err);
     if (s == DR_OK) s = dr_world_mpm_read_(w, h, path, err);
+    if (s == DR_OK) s = dr_world_hair_read_(w, h, path, err);
     if (s == DR_OK) w->frame = (int)frame;
     free(key);
     dr_h5_close(&h);
@@ -536,5 +556,6 @@ DrHash dr_world_state_hash(const DrWorld *w)
         dr_hasher_update(&h, rng, sizeof rng);
     }
     dr_world_mpm_hash_(w, &h);
+    dr_world_hair_hash_(w, &h);
     return dr_hasher_final(&h);
 }

@@ -36,13 +36,24 @@ typedef struct DrFrameStats {
     double mpm_kinetic_energy, mpm_elastic_energy, mpm_gravity_energy; /* J: ½Σmv², ΣV₀Ψ(F), −Σm g·x */
     DrVec3 mpm_momentum, mpm_angular_momentum; /* kg·m/s, kg·m²/s about the origin (with the affine part) */
     double seconds_mpm_transfer, seconds_mpm_solve;
+    /* hair (all zero in a scene without hair elements) */
+    bool hair;                        /* the scene has hair */
+    long hair_vertices;
+    int hair_substeps;
+    long hair_cg_iterations;          /* summed over the frame's substeps */
+    double hair_residual;             /* last relative residual */
+    int hair_not_converged;           /* substeps whose solve stopped at its cap (a warning) */
+    int hair_collider_contacts, hair_contacts; /* of the last substep */
+    double hair_kinetic_energy, hair_elastic_energy, hair_gravity_energy; /* J */
+    double seconds_hair;
     double seconds;          /* wall time of the frame */
 } DrFrameStats;
 
 /* Loads every asset the scene references (meshes through assimp, collider SDFs through OpenVDB) and builds
  * the solvers. All bad input (broken asset, empty or open mesh, NaN, a body outside its domain) is reported
  * here, before anything is written. A scene without liquid creates no liquid grid; a scene without
- * mpm_solid elements creates no MPM solver. Every mpm_solid shares one DrMpm: its grid spans the bounding
+ * mpm_solid elements creates no MPM solver; a scene without hair creates no rod solver (and a scene with hair
+ * but neither liquid nor MPM creates no grid: its colliders' SDFs are sampled at the hair's segment length). Every mpm_solid shares one DrMpm: its grid spans the bounding
  * box of their Domain boxes at their (equal) voxel_size; the scene colliders act on its grid velocities. */
 DR_NODISCARD DrStatus dr_world_create(const DrScene *scene, DrWorld **out, DrError *err);
 void dr_world_destroy(DrWorld **world);
@@ -52,6 +63,7 @@ int dr_world_last_frame(const DrWorld *w);
 int dr_world_frame(const DrWorld *w);      /* last completed frame; first_frame − 1 before any step */
 double dr_world_frame_time(const DrWorld *w, int frame);
 int dr_world_liquid_count(const DrWorld *w);
+long dr_world_hair_vertex_count(const DrWorld *w); /* 0 when the scene has no hair */
 long dr_world_mpm_particle_count(const DrWorld *w); /* 0 when the scene has no MPM solver */
 /* The i-th liquid solver (element order) and its element, for diagnostics and tests. */
 typedef struct DrLiquid DrLiquid;
@@ -72,7 +84,10 @@ DR_NODISCARD DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrErr
  * position (N×3, m), velocity (N×3, m/s), affine (N×3×3, 1/s: the APIC matrix C, zero for PIC/FLIP),
  * deformation_gradient (N×3×3, 1), volume (N, m³: rest volume V₀; the current one is det(F)·V₀), with
  * attributes type "mpm_solid" and particle_spacing (m); /diagnostics/<element> its totals and
- * /diagnostics/mpm_* those of the solver. */
+ * /diagnostics/mpm_* those of the solver. A hair element's group holds position (V×3, m), velocity (V×3, m/s),
+ * twist (E, rad: each edge's material angle from its reference frame), strand_offsets (S+1, int64: strand s
+ * is vertices offsets[s] .. offsets[s+1]−1, root first) and radius (S, m), with attribute type "hair";
+ * /diagnostics/hair_* the solver's figures. */
 DR_NODISCARD DrStatus dr_world_write_frame(const DrWorld *w, const DrFrameStats *stats, const char *path,
                                            const char *bake_key, DrError *err);
 /* Checkpoint: everything a bit-identical continuation needs (particles in their current order, rng states,

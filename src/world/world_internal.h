@@ -6,6 +6,7 @@
 #include "world/world.h"
 
 #include "grid/grid.h"
+#include "hair/hair.h"
 #include "io/io.h"
 #include "liquid/liquid.h"
 #include "mpm/mpm.h"
@@ -62,6 +63,25 @@ typedef struct WorldMpm {
     int not_converged;       /* 1 when a Newton iteration of the last frame stopped at its cap */
 } WorldMpm;
 
+/* Everything hair; NULL in a world whose scene has no hair element. All hair elements are batches of one rod
+   set, in element order. */
+typedef struct WorldHair {
+    DrRodSet *rods;
+    const DrElement **elements;
+    int nelements;
+    double **keys;           /* per element: scalp motion keys (rows of 7: s, m, rad) */
+    int *nkeys;
+    bool any_motion;
+    DrXform *poses;          /* per element, the substep's end pose */
+    DrRodCollider *colliders;
+    struct HairCollider *ctx;
+    int ncolliders;
+    int substeps;            /* HairSolver.substeps */
+    double time;
+    DrRodStats last;         /* the last frame's, summed over its substeps */
+    int not_converged;
+} WorldHair;
+
 struct DrWorld {
     const DrScene *scene;
     int first_frame, last_frame, frame;
@@ -74,6 +94,7 @@ struct DrWorld {
     WorldLiquid *liquids;
     int nliquids;
     WorldMpm *mpm;
+    WorldHair *hair;
 };
 
 /* Prefixes an asset error with the element and field it came from ("jelly.MpmShape.mesh: ..."), keeping the
@@ -107,5 +128,16 @@ DR_NODISCARD DrStatus dr_world_mpm_step_(DrWorld *w, double t0, double t1, DrFra
 DR_NODISCARD DrStatus dr_world_mpm_write_(const DrWorld *w, DrH5 *h, bool frame_cache, DrError *err);
 DR_NODISCARD DrStatus dr_world_mpm_read_(DrWorld *w, DrH5 *h, const char *path, DrError *err);
 void dr_world_mpm_hash_(const DrWorld *w, DrHasher *h);
+
+/* ---- world_hair.c: the hair elements (each a no-op when w->hair is NULL) ---- */
+
+DR_NODISCARD DrStatus dr_world_hair_create_(DrWorld *w, DrError *err);
+void dr_world_hair_destroy_(WorldHair **h);
+DR_NODISCARD DrStatus dr_world_hair_step_(DrWorld *w, double t0, double t1, DrFrameStats *stats, DrError *err);
+/* Per element: position, velocity, twist, strand_offsets, radius (+ diagnostics in a frame cache; + twist rates,
+   reference directors, reference twists and multipliers in a checkpoint). */
+DR_NODISCARD DrStatus dr_world_hair_write_(const DrWorld *w, DrH5 *h, bool frame_cache, DrError *err);
+DR_NODISCARD DrStatus dr_world_hair_read_(DrWorld *w, DrH5 *h, const char *path, DrError *err);
+void dr_world_hair_hash_(const DrWorld *w, DrHasher *h);
 
 #endif
