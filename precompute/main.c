@@ -30,7 +30,7 @@ int main(int argc, char **argv)
     int needs = 0;
     if (s == DR_OK) {
         fprintf(stderr, "precompute: nothing to do: no element in '%s' needs precomputed data (%d elements: "
-                        "liquid, mpm_solid and collider elements use none)\n",
+                        "liquid, mpm_solid, hair and collider elements use none)\n",
                 dr_scene_path(scene), dr_scene_element_count(scene));
         s = dr_io_mkdirs(dir, &err);
     }

@@ -2,7 +2,7 @@
  * keys derived from it (DESIGN §5).
  *
  * Model. Top-level sections ("shot", "solver", "mesh", "render" with its nested "render.camera") and
- * an "elements" array. An element has a unique name, a type ("liquid", "collider", "mpm_solid") and named
+ * an "elements" array. An element has a unique name, a type ("liquid", "collider", "mpm_solid", "hair") and named
  * components; a component is a table of typed fields. One set of static tables (DrFieldSpec,
  * DrComponentSpec, DrElementSpec) drives parsing, validation, defaults, the canonical JSON and the
  * printed reference, so the documentation cannot drift from the parser.
@@ -12,9 +12,11 @@
  * all defaults; a field without a default that was not written reads as unset (dr_component_str
  * returns NULL, dr_component_is_set false). Required fields must be written when their component is;
  * a liquid element must have a Domain, a collider a Mesh, an mpm_solid a Domain and an MpmShape (exactly
- * one of box, centre + radius, mesh). Cross-element rules: every mpm_solid of a scene shares one grid
- * and one time step, so their Domain.voxel_size and wall_boundary and all Transfer and Integrator fields
- * must be equal (the error names both elements and the field); a liquid's Transfer takes neither
+ * one of box, centre + radius, mesh), a hair element a Groom (exactly one of scalp and curves; the growth
+ * fields only with scalp; Collider.boundary is for colliders). Cross-element rules: every mpm_solid of a
+ * scene shares one grid and one time step, so their Domain.voxel_size and wall_boundary and all Transfer
+ * and Integrator fields must be equal (the error names both elements and the field); every hair element
+ * is solved in one system, so their HairSolver fields must be equal; a liquid's Transfer takes neither
  * scheme rpic nor a kernel other than quadratic.
  *
  * Errors. Every problem in the file is DR_ERR_INPUT with DrError.file = the scene path, line and
