@@ -149,6 +149,7 @@ DrLinearOp dr_jacobi_op(const DrJacobi *M);
 typedef struct DrBanded {
     int n, kd;
     double *ab;    /* (kd + 1) × n */
+    double *inv_diag; /* n: 1 / L_jj once factored (the substitutions multiply instead of dividing) */
     bool factored; /* ab holds the Cholesky factor L (A = L Lᵀ) */
 } DrBanded;
 /* n >= 1, 0 <= kd < n; DR_ERR_INPUT otherwise, DR_ERR_NOMEM. The matrix starts at zero. */
