@@ -33,6 +33,7 @@ typedef struct LagObject {
     double *op;       /* (kd + 1) × ndof lower band of the operator: mat + geo, or mat when geo was dropped */
     DrBanded *factor;
     bool dropped;     /* geometric part dropped this step */
+    bool has_pre;     /* pre holds contact terms this step */
     LagRecords rec;
 } LagObject;
 
@@ -217,6 +218,7 @@ DrStatus dr_lag_begin(DrLag *s, double h, const double *mass, const double *qdot
         memset(o->mat, 0, band * sizeof(double));
         memset(o->geo, 0, band * sizeof(double));
         memset(o->pre, 0, band * sizeof(double));
+        o->has_pre = false;
         for (int k = 0; k < o->ndof; k++) o->mat[(size_t)(o->kd + 1) * (size_t)k] = mass[o->dof0 + k];
         o->dropped = false;
         o->rec.nints = o->rec.nreals = o->rec.ngroups = 0;
@@ -363,9 +365,11 @@ DrStatus dr_lag_add_global(DrLag *s, const DrLagGroup *g, DrError *err)
             if (v == 0) continue;
             s->trip[s->ntrip++] = (LagTriplet){da, db, v};
             /* the part on one object's DOFs within its band also goes into that block of the preconditioner */
-            const LagObject *oa = &s->obj[s->dof_object[da]];
-            if (db <= da && s->dof_object[db] == s->dof_object[da] && da - db <= oa->kd)
+            LagObject *oa = &s->obj[s->dof_object[da]];
+            if (db <= da && s->dof_object[db] == s->dof_object[da] && da - db <= oa->kd) {
                 oa->pre[(size_t)(da - db) + (size_t)(oa->kd + 1) * (size_t)(db - oa->dof0)] += v;
+                oa->has_pre = true;
+            }
         }
     }
     s->groups_global++;
@@ -457,6 +461,10 @@ typedef struct FactorCtx {
     int *status;  /* per object: 0 ok, 1 dropped geometric part, 2 failed */
 } FactorCtx;
 
+/* Positive definiteness is decided on the block's own operator (mat + geo): with it positive definite and
+   K_G positive semidefinite the whole A is. Testing op + pre instead is not enough: the in-band part of K_G
+   can hide an indefinite op whose off-block remainder then makes A indefinite (seen as a CG breakdown on a
+   contact-rich groom). A block with contact terms is then factored again with them for the preconditioner. */
 static void factor_blocks(long begin, long end, void *vctx)
 {
     FactorCtx *c = vctx;
@@ -464,22 +472,20 @@ static void factor_blocks(long begin, long end, void *vctx)
         LagObject *o = &c->s->obj[oi];
         size_t band = (size_t)(o->kd + 1) * (size_t)o->ndof;
         DrError e;
-        for (size_t k = 0; k < band; k++) {
-            o->op[k] = o->mat[k] + o->geo[k];
-            o->factor->ab[k] = o->op[k] + o->pre[k];
-        }
+        for (size_t k = 0; k < band; k++) o->factor->ab[k] = o->op[k] = o->mat[k] + o->geo[k];
         o->factor->factored = false;
-        if (dr_banded_factor(o->factor, &e) == DR_OK) {
-            c->status[oi] = 0;
-            continue;
+        c->status[oi] = 0;
+        if (dr_banded_factor(o->factor, &e) != DR_OK) {
+            for (size_t k = 0; k < band; k++) o->factor->ab[k] = o->op[k] = o->mat[k];
+            o->factor->factored = false;
+            o->dropped = true;
+            c->status[oi] = dr_banded_factor(o->factor, &e) == DR_OK ? 1 : 2;
+            if (c->status[oi] == 2) continue;
         }
-        for (size_t k = 0; k < band; k++) {
-            o->op[k] = o->mat[k];
-            o->factor->ab[k] = o->mat[k] + o->pre[k];
-        }
+        if (!o->has_pre) continue;
+        for (size_t k = 0; k < band; k++) o->factor->ab[k] = o->op[k] + o->pre[k];
         o->factor->factored = false;
-        o->dropped = true;
-        c->status[oi] = dr_banded_factor(o->factor, &e) == DR_OK ? 1 : 2;
+        if (dr_banded_factor(o->factor, &e) != DR_OK) c->status[oi] = 2; /* op PD + pre PSD: cannot happen */
     }
 }
 

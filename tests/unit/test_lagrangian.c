@@ -361,6 +361,43 @@ static void test_indefinite_block(void **state)
     sys_free(&t);
 }
 
+
+/* Two one-DOF objects whose geometric stiffness makes each operator negative (−0.5), joined by a stiff spring in
+   K_G: each block with the spring's own diagonal (k − 0.5) is positive, yet A = [[k−.5, −k], [−k, k−.5]] has
+   the eigenvalue −0.5. Definiteness must be decided on the blocks without their contact terms. */
+static void test_contact_hides_indefinite_block(void **state)
+{
+    (void)state;
+    DrLag *s = NULL;
+    DrError err;
+    assert_int_equal(dr_lag_create(NULL, &s, &err), DR_OK);
+    int id, d0;
+    assert_int_equal(dr_lag_add_object(s, 1, 0, &id, &d0, &err), DR_OK);
+    assert_int_equal(dr_lag_add_object(s, 1, 0, &id, &d0, &err), DR_OK);
+    double m[2] = {1, 1}, v[2] = {0.3, -0.1}, h = 0.1, k = 100;
+    assert_int_equal(dr_lag_begin(s, h, m, v, NULL, NULL, NULL, &err), DR_OK);
+    double G = 150; /* −h² G = −1.5: op = 1 − 1.5 = −0.5 */
+    for (int i = 0; i < 2; i++) {
+        DrLagGroup g = {.kind = DR_LAG_POSITIONAL, .nrows = 1, .ndof = 1, .dof = {i}, .phi = {0}, .cinv = {1e-12},
+                        .J = {1}, .G = &G};
+        assert_int_equal(dr_lag_add(s, &g, &err), DR_OK);
+    }
+    DrLagGroup spring = {.kind = DR_LAG_POSITIONAL, .nrows = 1, .ndof = 2, .dof = {0, 1}, .phi = {0.01},
+                         .cinv = {k / (h * h)}, .J = {1, -1}};
+    assert_int_equal(dr_lag_add_global(s, &spring, &err), DR_OK);
+    double x[2];
+    DrLagStats st;
+    assert_int_equal(dr_lag_solve(s, x, &st, &err), DR_OK);
+    assert_int_equal(st.indefinite_blocks, 2);
+    /* the solution of the system without geometric stiffness: [[1 + k, −k], [−k, 1 + k]] x = v − h k φ [1, −1]
+       (material terms 1e-14 dropped) */
+    double b0 = v[0] - h * (k / (h * h)) * 0.01, b1 = v[1] + h * (k / (h * h)) * 0.01;
+    double det = (1 + k) * (1 + k) - k * k;
+    assert_near(x[0], ((1 + k) * b0 + k * b1) / det, 1e-9);
+    assert_near(x[1], (k * b0 + (1 + k) * b1) / det, 1e-9);
+    dr_lag_destroy(&s);
+}
+
 static void test_bad_groups(void **state)
 {
     (void)state;
@@ -448,7 +485,7 @@ int main(void)
         cmocka_unit_test(test_preconditioners_agree), cmocka_unit_test(test_local_solve_exact),
         cmocka_unit_test(test_prescribed),           cmocka_unit_test(test_indefinite_block),
         cmocka_unit_test(test_bad_groups),           cmocka_unit_test(test_iteration_cap),
-        cmocka_unit_test(test_threads_bit_identical),
+        cmocka_unit_test(test_threads_bit_identical), cmocka_unit_test(test_contact_hides_indefinite_block),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
