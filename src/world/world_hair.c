@@ -222,6 +222,17 @@ DrStatus dr_world_hair_step_(DrWorld *w, double t0, double t1, DrFrameStats *sta
 
 /* ---- files ------------------------------------------------------------------------------------------------- */
 
+/* Where hair element b's strands lie in the rod set's arrays: first strand, vertex and edge, and their counts. */
+typedef struct BatchSpan { int s0, v0, e0; uint64_t ns, nv, ne; } BatchSpan;
+
+static BatchSpan batch_span(const DrRodState *rs, int b)
+{
+    int s0 = rs->batch_offsets[b], s1 = rs->batch_offsets[b + 1];
+    int v0 = rs->offsets[s0], v1 = rs->offsets[s1];
+    BatchSpan sp = {s0, v0, v0 - s0, (uint64_t)(s1 - s0), (uint64_t)(v1 - v0), (uint64_t)((v1 - s1) - (v0 - s0))};
+    return sp;
+}
+
 DrStatus dr_world_hair_write_(const DrWorld *w, DrH5 *hf, bool frame_cache, DrError *err)
 {
     const WorldHair *h = w->hair;
@@ -229,10 +240,9 @@ DrStatus dr_world_hair_write_(const DrWorld *w, DrH5 *hf, bool frame_cache, DrEr
     DrRodState rs = dr_rod_set_state(h->rods);
     for (int b = 0; b < h->nelements; b++) {
         const char *name = h->elements[b]->name;
-        int s0 = rs.batch_offsets[b], s1 = rs.batch_offsets[b + 1];
-        int v0 = rs.offsets[s0], v1 = rs.offsets[s1];
-        int e0 = v0 - s0, e1 = v1 - s1;
-        uint64_t nv = (uint64_t)(v1 - v0), ne = (uint64_t)(e1 - e0), ns = (uint64_t)(s1 - s0);
+        BatchSpan sp = batch_span(&rs, b);
+        int s0 = sp.s0, v0 = sp.v0, e0 = sp.e0;
+        uint64_t nv = sp.nv, ne = sp.ne, ns = sp.ns;
         char path[512];
         PATHF(path, "/%s/position", name);
         DR_TRY(dr_h5_write_f64(hf, path, 2, (uint64_t[]){nv, 3}, rs.x + 3 * v0, "m", frame_cache, err));
@@ -310,10 +320,9 @@ DrStatus dr_world_hair_read_(DrWorld *w, DrH5 *hf, const char *file, DrError *er
     DrRodState rs = dr_rod_set_state(h->rods);
     for (int b = 0; b < h->nelements; b++) {
         const char *name = h->elements[b]->name;
-        int s0 = rs.batch_offsets[b], s1 = rs.batch_offsets[b + 1];
-        int v0 = rs.offsets[s0], v1 = rs.offsets[s1];
-        int e0 = v0 - s0, e1 = v1 - s1;
-        uint64_t nv = (uint64_t)(v1 - v0), ne = (uint64_t)(e1 - e0);
+        BatchSpan sp = batch_span(&rs, b);
+        int v0 = sp.v0, e0 = sp.e0;
+        uint64_t nv = sp.nv, ne = sp.ne;
         char path[512];
         PATHF(path, "/%s/position", name);
         DR_TRY(read_exact(hf, file, path, 3 * nv, rs.x + 3 * v0, err));
