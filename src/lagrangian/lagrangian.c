@@ -441,17 +441,50 @@ static void apply_blocks(long begin, long end, void *vctx)
     }
 }
 
+/* Element-wise vector kernels of the PCG loop, run in parallel: each element is computed alone, so the result
+   does not depend on the thread count. */
+typedef enum VecOp { VEC_ADD, VEC_STEP, VEC_DIRECTION, VEC_JACOBI } VecOp;
+typedef struct VecCtx {
+    VecOp op;
+    double a;
+    double *x, *r, *p, *q;
+    const double *u, *v, *w;
+} VecCtx;
+
+static void vec_range(long begin, long end, void *vctx)
+{
+    VecCtx *c = vctx;
+    switch (c->op) {
+    case VEC_ADD: /* x += u */
+        for (long k = begin; k < end; k++) c->x[k] += c->u[k];
+        break;
+    case VEC_STEP: /* x += a p, r −= a w, q = r ∘ M⁻¹ (for the mass-weighted norm) */
+        for (long k = begin; k < end; k++) {
+            c->x[k] += c->a * c->p[k];
+            c->r[k] -= c->a * c->w[k];
+            c->q[k] = c->r[k] * c->v[k];
+        }
+        break;
+    case VEC_DIRECTION: /* p = u + a p */
+        for (long k = begin; k < end; k++) c->p[k] = c->u[k] + c->a * c->p[k];
+        break;
+    case VEC_JACOBI: /* q = u / v */
+        for (long k = begin; k < end; k++) c->q[k] = c->u[k] / c->v[k];
+        break;
+    }
+}
+
+static void vec(VecCtx c, int n) { dr_parallel_for(n, 4096, vec_range, &c); }
+
 void dr_lag_apply(const DrLag *s, const double *x, double *y)
 {
     ApplyCtx c = {s, x, y};
     dr_parallel_for(s->nobj, 64, apply_blocks, &c);
     if (s->kg && s->ntrip > 0) {
-        const DrCsr *A = s->kg;
-        for (int i = 0; i < A->n; i++) {
-            double acc = 0;
-            for (int k = A->rowptr[i]; k < A->rowptr[i + 1]; k++) acc += A->val[k] * x[A->col[k]];
-            y[i] += acc;
-        }
+        /* K_G x by rows in parallel (dr_csr_matvec: each row summed in column order) */
+        double *t = s->work + 4 * (size_t)s->ndof;
+        dr_csr_matvec(s->kg, x, t);
+        vec((VecCtx){.op = VEC_ADD, .x = y, .u = t}, s->ndof);
     }
 }
 
@@ -515,7 +548,7 @@ static void precondition(const DrLag *s, const double *r, double *z)
         break;
     }
     case DR_LAG_PRECOND_JACOBI:
-        for (int k = 0; k < n; k++) z[k] = r[k] / s->diag[k];
+        vec((VecCtx){.op = VEC_JACOBI, .q = z, .u = r, .v = s->diag}, n);
         break;
     case DR_LAG_PRECOND_NONE:
         memcpy(z, r, (size_t)n * sizeof(double));
@@ -646,16 +679,14 @@ DrStatus dr_lag_solve(DrLag *s, double *x, DrLagStats *stats, DrError *err)
                                 it, pw, gamma);
         }
         double alpha = gamma / pw;
-        for (int k = 0; k < n; k++) {
-            x[k] += alpha * p[k];
-            r[k] -= alpha * w[k];
-        }
+        double *rm = s->work + 4 * (size_t)n; /* r ∘ M⁻¹ */
+        vec((VecCtx){.op = VEC_STEP, .a = alpha, .x = x, .r = r, .p = p, .w = w, .q = rm, .v = s->inv_mass}, n);
         precondition(s, r, z);
         double gamma1 = dr_dot(r, z, n);
         double beta = gamma1 / gamma;
         gamma = gamma1;
-        for (int k = 0; k < n; k++) p[k] = z[k] + beta * p[k];
-        rnorm = sqrt(wdot(r, r, s->inv_mass, n));
+        vec((VecCtx){.op = VEC_DIRECTION, .a = beta, .p = p, .u = z}, n);
+        rnorm = sqrt(dr_dot(r, rm, n));
         it++;
         if (!isfinite(rnorm)) {
             s->begun = false;
