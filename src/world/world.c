@@ -58,6 +58,18 @@ DrStatus dr_world_load_posed_mesh_(const DrElement *e, const char *path, const c
     return DR_OK;
 }
 
+double dr_world_posed_sdf_(DrVec3 x, DrVec3 *normal, void *ctx)
+{
+    const WorldPosedCollider *c = ctx;
+    return dr_collider_frame_phi(&c->frame, x, normal);
+}
+
+DrVec3 dr_world_posed_velocity_(DrVec3 x, void *ctx)
+{
+    const WorldPosedCollider *c = ctx;
+    return dr_collider_frame_velocity(&c->frame, x);
+}
+
 DrStatus dr_world_make_collider_(const DrTriMesh *mesh, double dx, double friction, bool no_slip, double thickness,
                                  int nkeys, const double *keys, DrCollider **out, DrError *err)
 {

@@ -5,24 +5,6 @@
 #include <stdlib.h>
 #include <string.h>
 
-/* An SDF callback's context: a scene collider posed at the start of the substep being taken. */
-typedef struct HairCollider {
-    const DrCollider *collider;
-    DrColliderFrame frame;
-} HairCollider;
-
-static double hair_sdf(DrVec3 x, DrVec3 *normal, void *ctx)
-{
-    const HairCollider *c = ctx;
-    return dr_collider_frame_phi(&c->frame, x, normal);
-}
-
-static DrVec3 hair_velocity(DrVec3 x, void *ctx)
-{
-    const HairCollider *c = ctx;
-    return dr_collider_frame_velocity(&c->frame, x);
-}
-
 void dr_world_hair_destroy_(WorldHair **hp)
 {
     if (!hp || !*hp) return;
@@ -165,7 +147,7 @@ DrStatus dr_world_hair_create_(DrWorld *w, DrError *err)
         DR_TRY(dr_calloc((size_t)w->nlive, sizeof *h->ctx, &h->ctx, err));
         for (int c = 0; c < w->nlive; c++) {
             h->ctx[c].collider = w->collider_ptrs[c];
-            h->colliders[c] = (DrRodCollider){hair_sdf, hair_velocity, &h->ctx[c],
+            h->colliders[c] = (DrRodCollider){dr_world_posed_sdf_, dr_world_posed_velocity_, &h->ctx[c],
                                               dr_collider_friction(w->collider_ptrs[c]), 0};
         }
         h->ncolliders = w->nlive;

@@ -40,20 +40,23 @@ typedef struct WorldMpmBody {
     long count;              /* its particles */
 } WorldMpmBody;
 
-/* A scene collider as the MPM grid sees it: the context of its SDF callback, posed at the time of the
-   substep being taken (world_mpm.c moves it between substeps). */
-typedef struct WorldMpmCollider {
+/* A scene collider as a solver sees it (the MPM grid, the hair): its SDF and surface velocity posed at the time
+   of the substep being taken (the solver's world file moves the frame between substeps). */
+typedef struct WorldPosedCollider {
     const DrCollider *collider;
     DrColliderFrame frame;
     bool moving;
-} WorldMpmCollider;
+} WorldPosedCollider;
+/* Callbacks on a WorldPosedCollider (ctx): signed distance with the outward unit normal, and surface velocity. */
+double dr_world_posed_sdf_(DrVec3 x, DrVec3 *normal, void *ctx);
+DrVec3 dr_world_posed_velocity_(DrVec3 x, void *ctx);
 
 /* Everything MPM; NULL in a world whose scene has no mpm_solid (nothing of it is allocated then). */
 typedef struct WorldMpm {
     DrMpm *mpm;
     WorldMpmBody *bodies;
     int nbodies;
-    WorldMpmCollider *colliders;
+    WorldPosedCollider *colliders;
     int ncolliders;
     bool any_moving;
     int max_substeps;
@@ -74,7 +77,7 @@ typedef struct WorldHair {
     bool any_motion;
     DrXform *poses;          /* per element, the substep's end pose */
     DrRodCollider *colliders;
-    struct HairCollider *ctx;
+    WorldPosedCollider *ctx;
     int ncolliders;
     int substeps;            /* HairSolver.substeps */
     double time;

@@ -157,20 +157,6 @@ static DrStatus add_body(DrWorld *w, WorldMpm *m, const DrElement *e, double dx,
 
 /* ---- the solver ---------------------------------------------------------------------------------------- */
 
-/* The scene collider at the pose of the substep being taken; normal = the SDF's unit gradient (outward). */
-static double collider_sdf(DrVec3 x, DrVec3 *normal, void *ctx)
-{
-    const WorldMpmCollider *c = ctx;
-    return dr_collider_frame_phi(&c->frame, x, normal);
-}
-
-/* Velocity of that collider's surface at x (its keyframed rigid motion at the substep). */
-static DrVec3 collider_velocity(DrVec3 x, void *ctx)
-{
-    const WorldMpmCollider *c = ctx;
-    return dr_collider_frame_velocity(&c->frame, x);
-}
-
 static DrMpmIntegrator integrator_of(const char *s)
 {
     if (strcmp(s, "symplectic_euler") == 0) return DR_MPM_SYMPLECTIC_EULER;
@@ -248,15 +234,15 @@ DrStatus dr_world_mpm_create_(DrWorld *w, DrError *err)
     for (int i = 0; i < w->ncolliders; i++) {
         const WorldCollider *c = &w->colliders[i];
         if (!c->collider) continue;
-        WorldMpmCollider *mc = &m->colliders[m->ncolliders++];
+        WorldPosedCollider *mc = &m->colliders[m->ncolliders++];
         const double *rows;
         mc->collider = c->collider;
         mc->frame = dr_collider_frame(c->collider, 0.0);
         mc->moving = dr_component_table(dr_element_component(c->element, "Motion"), "keys", &rows) > 0;
         m->any_moving |= mc->moving;
         /* posed at every substep; its surface velocity (keyframed motion) goes into the contacts */
-        DrMpmCollider desc = {collider_sdf, mc, dr_v3(0, 0, 0), dr_collider_friction(c->collider),
-                              dr_collider_no_slip(c->collider), collider_velocity};
+        DrMpmCollider desc = {dr_world_posed_sdf_, mc, dr_v3(0, 0, 0), dr_collider_friction(c->collider),
+                              dr_collider_no_slip(c->collider), dr_world_posed_velocity_};
         DR_TRY(dr_mpm_add_collider(m->mpm, &desc, err));
     }
 
