@@ -87,6 +87,7 @@ struct DrRodSet {
     /* step scratch to restore on failure */
     double *save;
     double *t_old;             /* 3 E: tangents at the start of the step */
+    int *edge_strand, *edge_local; /* E: each edge's strand and its index along it */
     double h_step;             /* the step being taken */
 };
 
@@ -112,7 +113,7 @@ void dr_rod_set_destroy(DrRodSet **rp)
     DrRodSet *r = *rp;
     void *arrays[] = {r->offsets, r->batch_offsets, r->batch_group, r->batch_mask, r->strand_batch, r->materials, r->batch,
                       r->lbar, r->kbar, r->tbar, r->lv, r->vmass, r->tinertia, r->radius, r->stiff, r->root_rest,
-                      r->m1_rest, r->tip_rest, r->t_old, r->x, r->v, r->theta, r->theta_dot, r->a1, r->m, r->t, r->len, r->lambda,
+                      r->m1_rest, r->tip_rest, r->t_old, r->edge_strand, r->edge_local, r->x, r->v, r->theta, r->theta_dot, r->a1, r->m, r->t, r->len, r->lambda,
                       r->dof0, r->dmass, r->qdot, r->fext, r->qdot_p, r->qdot_out, r->pres, r->cflag, r->cnormal,
                       r->cvel, r->clambda, r->cfric, r->hc, r->hash_entries, r->save};
     for (size_t k = 0; k < sizeof arrays / sizeof arrays[0]; k++) free(arrays[k]);
@@ -200,6 +201,8 @@ DrStatus dr_rod_set_create(const DrRodSetDesc *desc, const DrRodBatch *batches, 
     ALLOC(r->cfric, V);
     ALLOC(r->save, 6 * V + 2 * r->E + 3 * r->E + r->I);
     ALLOC(r->t_old, 3 * r->E);
+    ALLOC(r->edge_strand, r->E);
+    ALLOC(r->edge_local, r->E);
 
     /* strands, in batch order */
     int si = 0, vi = 0;
@@ -226,6 +229,11 @@ DrStatus dr_rod_set_create(const DrRodSetDesc *desc, const DrRodBatch *batches, 
     }
     r->offsets[S] = vi;
     r->batch_offsets[nbatches] = si;
+    for (int k = 0; k < r->S; k++)
+        for (int j = 0; j < r->offsets[k + 1] - r->offsets[k] - 1; j++) {
+            r->edge_strand[edge_index(r, k, j)] = k;
+            r->edge_local[edge_index(r, k, j)] = j;
+        }
 
     /* rest state: tangents, space-parallel frames from each root normal, curvatures, masses */
     si = 0;
@@ -600,19 +608,11 @@ static DrStatus find_hair_contacts(DrRodSet *r, DrError *err)
     }
     HashEntry *he = r->hash_entries;
     size_t n = 0;
-    int *edge_strand = NULL, *edge_local = NULL;
-    DR_TRY(dr_calloc((size_t)r->E, sizeof(int), &edge_strand, err));
-    DrStatus st = dr_calloc((size_t)r->E, sizeof(int), &edge_local, err);
-    if (st != DR_OK) {
-        free(edge_strand);
-        return st;
-    }
+    const int *edge_strand = r->edge_strand, *edge_local = r->edge_local;
     for (int k = 0; k < r->S; k++) {
         int o = r->offsets[k], nv = r->offsets[k + 1] - o, e0 = edge_index(r, k, 0);
         for (int j = 0; j < nv - 1; j++) {
             int e = e0 + j;
-            edge_strand[e] = k;
-            edge_local[e] = j;
             const double *p = r->x + 3 * (o + j), *q = p + 3;
             int lo[3], hi[3];
             for (int a = 0; a < 3; a++) {
@@ -654,8 +654,6 @@ static DrStatus find_hair_contacts(DrRodSet *r, DrError *err)
                     size_t cap = r->cap_hc ? 2 * r->cap_hc : 256;
                     HairContact *q = realloc(r->hc, cap * sizeof *q);
                     if (!q) {
-                        free(edge_strand);
-                        free(edge_local);
                         return dr_error_set(err, DR_ERR_NOMEM, NULL, 0, 0, "out of memory for %zu hair contacts", cap);
                     }
                     r->hc = q;
@@ -674,23 +672,13 @@ static DrStatus find_hair_contacts(DrRodSet *r, DrError *err)
             }
         a = b;
     }
-    free(edge_strand);
-    free(edge_local);
     return DR_OK;
 }
 
-/* The DOF of vertex-local index j of the strand owning global edge e (j = 0, 1: the edge's two ends). */
+/* The DOF of end `end` (0, 1) of global edge e. */
 static int edge_vertex_dof(const DrRodSet *r, int e, int end)
 {
-    /* strand of edge e: offsets[s] − s ≤ e < offsets[s+1] − (s+1) */
-    int lo = 0, hi = r->S - 1;
-    while (lo < hi) {
-        int mid = (lo + hi + 1) / 2;
-        if (r->offsets[mid] - mid <= e) lo = mid;
-        else hi = mid - 1;
-    }
-    int local = e - (r->offsets[lo] - lo);
-    return r->dof0[lo] + 4 * (local + end);
+    return r->dof0[r->edge_strand[e]] + 4 * (r->edge_local[e] + end);
 }
 
 /* Each contact is a positional row φ = d − (r_a + t_a + r_b + t_b) on the 12 DOFs of the two edges' ends,

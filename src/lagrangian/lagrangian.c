@@ -490,7 +490,6 @@ void dr_lag_apply(const DrLag *s, const double *x, double *y)
 
 typedef struct FactorCtx {
     DrLag *s;
-    int failed;   /* objects that could not be factored even without geometric stiffness (first one) */
     int *status;  /* per object: 0 ok, 1 dropped geometric part, 2 failed */
 } FactorCtx;
 
@@ -614,7 +613,7 @@ DrStatus dr_lag_solve(DrLag *s, double *x, DrLagStats *stats, DrError *err)
     bool need_factor = s->desc.precond == DR_LAG_PRECOND_BLOCK;
     int *status = NULL;
     DR_TRY(dr_calloc((size_t)(s->nobj > 0 ? s->nobj : 1), sizeof(int), &status, err));
-    FactorCtx fc = {s, 0, status};
+    FactorCtx fc = {s, status};
     dr_parallel_for(s->nobj, 16, factor_blocks, &fc);
     for (int i = 0; i < s->nobj; i++) {
         if (status[i] == 1) st.indefinite_blocks++;
