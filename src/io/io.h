@@ -116,6 +116,9 @@ DR_NODISCARD DrStatus dr_h5_write_i64(DrH5 *h, const char *path, int rank, const
                                       const int64_t *data, const char *units, bool compress, DrError *err);
 DR_NODISCARD DrStatus dr_h5_write_u64(DrH5 *h, const char *path, int rank, const uint64_t *dims,
                                       const uint64_t *data, bool compress, DrError *err);
+/* Signed 4-byte integers: indices stored at half the size of i64 (sparse matrix columns, triangles). */
+DR_NODISCARD DrStatus dr_h5_write_i32(DrH5 *h, const char *path, int rank, const uint64_t *dims,
+                                      const int32_t *data, const char *units, bool compress, DrError *err);
 
 /* Attributes on "/", a group (created with its parents if missing) or an existing dataset. An
  * existing attribute of that name is replaced. Write handles only. */
@@ -126,13 +129,15 @@ DR_NODISCARD DrStatus dr_h5_attr_i64(DrH5 *h, const char *obj, const char *name,
 
 /* Dataset readers: *rank and dims[0..rank) are filled and *data is a malloc'd array of prod(dims)
  * elements (non-NULL even for 0 elements; caller frees). A missing dataset, one of another element
- * type (f64 = 8-byte float, i64 = signed 8-byte integer, u64 = unsigned 8-byte integer) or of rank
- * above 4 is DR_ERR_INPUT naming file and dataset; *data is NULL on failure. */
+ * type (f64 = 8-byte float, i64 = signed 8-byte integer, u64 = unsigned 8-byte integer, i32 = signed
+ * 4-byte integer) or of rank above 4 is DR_ERR_INPUT naming file and dataset; *data is NULL on failure. */
 DR_NODISCARD DrStatus dr_h5_read_f64(DrH5 *h, const char *path, int *rank, uint64_t dims[4], double **data,
                                      DrError *err);
 DR_NODISCARD DrStatus dr_h5_read_i64(DrH5 *h, const char *path, int *rank, uint64_t dims[4], int64_t **data,
                                      DrError *err);
 DR_NODISCARD DrStatus dr_h5_read_u64(DrH5 *h, const char *path, int *rank, uint64_t dims[4], uint64_t **data,
+                                     DrError *err);
+DR_NODISCARD DrStatus dr_h5_read_i32(DrH5 *h, const char *path, int *rank, uint64_t dims[4], int32_t **data,
                                      DrError *err);
 /* Attribute readers; a missing attribute or one of another type is DR_ERR_INPUT naming file, object
  * and attribute. The string is malloc'd (caller frees). Integer attributes of any integer type that

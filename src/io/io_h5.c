@@ -310,22 +310,36 @@ DrStatus dr_h5_write_u64(DrH5 *h, const char *path, int rank, const uint64_t *di
     return write_dataset(h, path, rank, dims, H5T_STD_U64LE, H5T_NATIVE_UINT64, data, NULL, compress, err);
 }
 
-typedef enum ElemKind { ELEM_F64, ELEM_I64, ELEM_U64 } ElemKind;
+DrStatus dr_h5_write_i32(DrH5 *h, const char *path, int rank, const uint64_t *dims, const int32_t *data,
+                         const char *units, bool compress, DrError *err)
+{
+    return write_dataset(h, path, rank, dims, H5T_STD_I32LE, H5T_NATIVE_INT32, data, units, compress, err);
+}
+
+typedef enum ElemKind { ELEM_F64, ELEM_I64, ELEM_U64, ELEM_I32 } ElemKind;
+
+static size_t kind_size(ElemKind kind) { return kind == ELEM_I32 ? 4 : 8; }
 
 static bool type_is(hid_t type, ElemKind kind)
 {
     H5T_class_t cls = H5Tget_class(type);
     size_t size = H5Tget_size(type);
-    if (size != 8) return false;
+    if (size != kind_size(kind)) return false;
     if (kind == ELEM_F64) return cls == H5T_FLOAT;
     if (cls != H5T_INTEGER) return false;
     H5T_sign_t sign = H5Tget_sign(type);
-    return kind == ELEM_I64 ? sign == H5T_SGN_2 : sign == H5T_SGN_NONE;
+    return kind == ELEM_U64 ? sign == H5T_SGN_NONE : sign == H5T_SGN_2;
 }
 
 static const char *kind_name(ElemKind kind)
 {
-    return kind == ELEM_F64 ? "64-bit float" : (kind == ELEM_I64 ? "signed 64-bit integer" : "unsigned 64-bit integer");
+    switch (kind) {
+    case ELEM_F64: return "64-bit float";
+    case ELEM_I64: return "signed 64-bit integer";
+    case ELEM_U64: return "unsigned 64-bit integer";
+    case ELEM_I32: return "signed 32-bit integer";
+    }
+    return "";
 }
 
 static DrStatus read_dataset(DrH5 *h, const char *path, ElemKind kind, hid_t mem_type, int *rank, uint64_t dims[4],
@@ -361,7 +375,7 @@ static DrStatus read_dataset(DrH5 *h, const char *path, ElemKind kind, hid_t mem
         for (int i = 0; i < r; i++) dims[i] = hd[i];
         s = element_count(h, path, r, dims, &count, err);
     }
-    if (s == DR_OK) s = dr_calloc(count > 0 ? count : 1, 8, data, err);
+    if (s == DR_OK) s = dr_calloc(count > 0 ? count : 1, kind_size(kind), data, err);
     if (s == DR_OK && count > 0 && H5Dread(dset, mem_type, H5S_ALL, H5S_ALL, H5P_DEFAULT, *data) < 0) {
         char msg[512];
         h5_msg(msg, sizeof msg);
@@ -390,6 +404,11 @@ DrStatus dr_h5_read_i64(DrH5 *h, const char *path, int *rank, uint64_t dims[4], 
 DrStatus dr_h5_read_u64(DrH5 *h, const char *path, int *rank, uint64_t dims[4], uint64_t **data, DrError *err)
 {
     return read_dataset(h, path, ELEM_U64, H5T_NATIVE_UINT64, rank, dims, (void **)data, err);
+}
+
+DrStatus dr_h5_read_i32(DrH5 *h, const char *path, int *rank, uint64_t dims[4], int32_t **data, DrError *err)
+{
+    return read_dataset(h, path, ELEM_I32, H5T_NATIVE_INT32, rank, dims, (void **)data, err);
 }
 
 /* ---- attributes ---- */

@@ -2,7 +2,8 @@
  * keys derived from it (DESIGN §5).
  *
  * Model. Top-level sections ("shot", "solver", "mesh", "render" with its nested "render.camera") and
- * an "elements" array. An element has a unique name, a type ("liquid", "collider", "mpm_solid", "hair") and named
+ * an "elements" array. An element has a unique name, a type ("liquid", "collider", "mpm_solid", "hair",
+ * "bem_solid") and named
  * components; a component is a table of typed fields. One set of static tables (DrFieldSpec,
  * DrComponentSpec, DrElementSpec) drives parsing, validation, defaults, the canonical JSON and the
  * printed reference, so the documentation cannot drift from the parser.
@@ -86,7 +87,7 @@ typedef struct DrElementSpec {
     int component_count;
     const char *const *required_components;
     int required_count;
-    bool needs_precompute; /* whether `precompute` builds data for elements of this type (none today) */
+    bool needs_precompute; /* whether `precompute` builds data for elements of this type (bem_solid) */
 } DrElementSpec;
 
 /* Spec lookups (NULL when unknown). Sections: "shot", "solver", "mesh", "render", "render.camera". */
@@ -166,7 +167,7 @@ typedef struct DrSceneKeys { char precompute[33], bake[33], mesh[33], render[33]
 /* 32 lowercase hex digits each (XXH3-128); every input is fed with a label and a terminator so that
  * moving bytes from one input to the next changes the key.
  *   precompute: DR_STAGE_VERSION_PRECOMPUTE + canonical JSON and asset bytes of every element whose
- *               type needs_precompute (none today: the key of an empty list);
+ *               type needs_precompute (bem_solid; a scene without one has the key of an empty list);
  *   bake:       canonical shot, solver and elements + the bytes of every asset + precompute key +
  *               DR_STAGE_VERSION_BAKE + DR_VERSION (not mesh, not render);
  *   mesh:       bake key + canonical mesh + DR_STAGE_VERSION_MESH;

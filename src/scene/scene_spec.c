@@ -332,6 +332,40 @@ static const DrFieldSpec motion_fields[] = {
             "linear between keys; frames strictly increasing"},
 };
 
+/* A soft jelly by default: c₂ = √(μ/ρ) = 10 m/s, so a body 0.2 m across keeps n_max = ⌊0.2/(10/240) + 2⌋ = 6
+   history steps at the default 1/240 s. */
+static const DrFieldSpec linear_elastic_fields[] = {
+    {.name = "density", .kind = DR_FIELD_NUMBER, .unit = "kg/m^3", .def = {1000}, RANGE_LO_OPEN(0, 1e5),
+     .doc = "mass density rho", .hint = "use a positive density such as 1000 for a jelly"},
+    {.name = "shear_modulus", .kind = DR_FIELD_NUMBER, .unit = "Pa", .def = {1e5}, RANGE_LO_OPEN(0, 1e12),
+     .doc = "shear modulus mu (Lame's second parameter; E = 2 mu (1 + nu))",
+     .hint = "use a positive stiffness such as 1e5 for a jelly, 1e6 for rubber"},
+    {.name = "poisson", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {0.4}, RANGE(-0.99, 0.49),
+     .doc = "Poisson's ratio nu (0.5, incompressible, would make the longitudinal wave speed infinite)",
+     .hint = "use a ratio such as 0.4 (at most 0.49)"},
+};
+
+static const DrFieldSpec compression_fields[] = {
+    {.name = "ratio", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {32}, RANGE(1, 4096),
+     .doc = "fraction of Haar coefficients kept is 1/ratio; 1 stores dense matrices",
+     .hint = "use 32 (the paper's choice) or 1 for dense matrices"},
+    {.name = "ordering", .kind = DR_FIELD_ENUM, .unit = "", .def_str = "vertex_xyz", .choices = "vertex_xyz|xyz|none",
+     .doc = "unknown ordering before the Haar transform: vertex_xyz (vertices along a Hilbert curve, coordinates in "
+            "x, y, z blocks: the full scheme), xyz (coordinate blocks in the mesh's vertex order), none (interleaved, "
+            "mesh order; for comparison)"},
+};
+
+static const DrFieldSpec bem_solver_fields[] = {
+    {.name = "time_step", .kind = DR_FIELD_NUMBER, .unit = "s", .def = {1.0 / 240.0}, RANGE_LO_OPEN(0, 1),
+     .doc = "dt the matrices are built for; the body advances at this step",
+     .hint = "use a positive step such as 0.004166666666666667 (1/240 s)"},
+    {.name = "history_margin", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {2}, RANGE(0, 1000),
+     .doc = "history steps beyond r_max/(c2 dt): n_max = floor(r_max/(c2 dt) + margin), with r_max the body's "
+            "largest vertex distance and c2 its shear wave speed"},
+    {.name = "quadrature_levels", .kind = DR_FIELD_INT, .unit = "", .def = {1}, RANGE(1, 4),
+     .doc = "4-way subdivisions of each triangle for the regular 9-point rule (1 = the paper's)"},
+};
+
 const DrComponentSpec dr_scene_components_[] = {
     {"Domain", "the simulation grid", domain_fields, COUNT(domain_fields)},
     {"LiquidSource", "liquid present at t=0 (needs box or mesh)", liquid_source_fields,
@@ -367,6 +401,13 @@ const DrComponentSpec dr_scene_components_[] = {
      COUNT(collision_response_fields)},
     {"HairSolver", "the linear solve of a hair step (the same for every hair element: they are solved together)",
      hair_solver_fields, COUNT(hair_solver_fields)},
+    {"LinearElastic", "isotropic linear elastic material of a boundary-element body", linear_elastic_fields,
+     COUNT(linear_elastic_fields)},
+    {"Compression", "wavelet compression of the boundary-element matrices (Haar transform, largest coefficients kept)",
+     compression_fields, COUNT(compression_fields)},
+    {"BemSolver", "time discretisation of a boundary-element body: the step its matrices are built for, the history "
+                  "length and the spatial quadrature",
+     bem_solver_fields, COUNT(bem_solver_fields)},
 };
 const int dr_scene_component_count_ = COUNT(dr_scene_components_);
 
@@ -383,6 +424,8 @@ static const char *const mpm_solid_required[] = {"Domain", "MpmShape"};
 static const char *const hair_components[] = {"Groom",     "RodMaterial", "Collider",          "Transform",
                                               "Motion",    "CollisionGroup", "CollisionResponse", "HairSolver"};
 static const char *const hair_required[] = {"Groom"};
+static const char *const bem_solid_components[] = {"Mesh", "LinearElastic", "Compression", "BemSolver"};
+static const char *const bem_solid_required[] = {"Mesh"};
 
 const DrElementSpec dr_scene_types_[] = {
     {"liquid", "a body of incompressible liquid (APIC/FLIP/PIC particles on a MAC grid inside its Domain)",
@@ -397,6 +440,10 @@ const DrElementSpec dr_scene_types_[] = {
      "strands of hair or fur as discrete elastic rods, grown from a scalp mesh or read from OBJ polylines; the roots "
      "are fixed to the scalp and follow its Transform and Motion",
      hair_components, COUNT(hair_components), hair_required, COUNT(hair_required), false},
+    {"bem_solid",
+     "an elastic body simulated on its surface only by the boundary element method; its matrices are computed by "
+     "precompute and cached under cache/bem",
+     bem_solid_components, COUNT(bem_solid_components), bem_solid_required, COUNT(bem_solid_required), true},
 };
 const int dr_scene_type_count_ = COUNT(dr_scene_types_);
 

@@ -276,6 +276,11 @@ DrStatus dr_world_create(const DrScene *scene, DrWorld **out, DrError *err)
                     w->nliquids, mpm_particles, w->mpm->nbodies, w->mpm->nbodies == 1 ? "y" : "ies", hair, w->nlive);
     else
         dr_log_info("world: %d liquid grid(s), no MPM solver, %s, %d collider SDF(s)", w->nliquids, hair, w->nlive);
+    int nbem = dr_scene_count_type(scene, "bem_solid");
+    if (nbem > 0)
+        dr_log_warn("world: %d bem_solid bod%s left out of the bake: boundary-element bodies are precomputed only, "
+                    "not simulated yet",
+                    nbem, nbem == 1 ? "y" : "ies");
     *out = w;
     return DR_OK;
 }

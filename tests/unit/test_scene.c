@@ -817,6 +817,168 @@ static void test_hair_bad_input(void **state)
     assert_error_at(text, "\"none\"", "b.HairSolver.preconditioner = 'none' differs from a.HairSolver.preconditioner = 'block'");
 }
 
+/* ---- bem_solid ------------------------------------------------------------------------------------------- */
+
+/* A scene of one bem_solid element "jelly" with the given components (the text inside "components": {...}). */
+static void bem_scene(const char *components, char *buf, size_t size)
+{
+    snprintf(buf, size, "{\"elements\":[{\"name\":\"jelly\",\"type\":\"bem_solid\",\"components\":{%s}}]}",
+             components);
+}
+
+static void test_bem_solid_defaults(void **state)
+{
+    (void)state;
+    write_tri();
+    char text[4096];
+    bem_scene("\"Mesh\":{\"file\":\"meshes/tri.obj\"}", text, sizeof text);
+    DrScene *s = load_text(text);
+    const DrElement *e = dr_scene_find(s, "jelly");
+    assert_non_null(e);
+    assert_string_equal(e->type, "bem_solid");
+    assert_true(e->spec->needs_precompute);
+    assert_int_equal(dr_scene_count_type(s, "bem_solid"), 1);
+    char tri[512];
+    tmp_path("meshes/tri.obj", tri, sizeof tri);
+    assert_string_equal(dr_component_str(dr_element_component(e, "Mesh"), "file"), tri);
+    const DrComponent *mat = dr_element_component(e, "LinearElastic");
+    assert_false(dr_component_present(mat));
+    assert_true(dr_component_num(mat, "density") == 1000.0);
+    assert_true(dr_component_num(mat, "shear_modulus") == 1e5);
+    assert_true(dr_component_num(mat, "poisson") == 0.4);
+    const DrComponent *cmp = dr_element_component(e, "Compression");
+    assert_true(dr_component_num(cmp, "ratio") == 32.0);
+    assert_string_equal(dr_component_str(cmp, "ordering"), "vertex_xyz");
+    const DrComponent *sol = dr_element_component(e, "BemSolver");
+    assert_true(dr_component_num(sol, "time_step") == 1.0 / 240.0);
+    assert_true(dr_component_num(sol, "time_step") == 0.004166666666666667);
+    assert_true(dr_component_num(sol, "history_margin") == 2.0);
+    assert_int_equal(dr_component_int(sol, "quadrature_levels"), 1);
+    assert_int_equal(dr_scene_asset_count(s), 1);
+    dr_scene_destroy(&s);
+
+    /* every field written, at the ends of the ranges */
+    bem_scene("\"Mesh\":{\"file\":\"meshes/tri.obj\"},"
+              "\"LinearElastic\":{\"density\":1e5,\"shear_modulus\":1e12,\"poisson\":-0.99},"
+              "\"Compression\":{\"ratio\":1,\"ordering\":\"none\"},"
+              "\"BemSolver\":{\"time_step\":1,\"history_margin\":0,\"quadrature_levels\":4}",
+              text, sizeof text);
+    s = load_text(text);
+    e = dr_scene_find(s, "jelly");
+    mat = dr_element_component(e, "LinearElastic");
+    assert_true(dr_component_present(mat));
+    assert_true(dr_component_num(mat, "density") == 1e5 && dr_component_num(mat, "shear_modulus") == 1e12);
+    assert_true(dr_component_num(mat, "poisson") == -0.99);
+    cmp = dr_element_component(e, "Compression");
+    assert_true(dr_component_num(cmp, "ratio") == 1.0);
+    assert_string_equal(dr_component_str(cmp, "ordering"), "none");
+    sol = dr_element_component(e, "BemSolver");
+    assert_true(dr_component_num(sol, "time_step") == 1.0 && dr_component_num(sol, "history_margin") == 0.0);
+    assert_int_equal(dr_component_int(sol, "quadrature_levels"), 4);
+    char *c = dr_scene_canonical(s, "elements");
+    assert_non_null(strstr(c, "\"Compression\":{\"ordering\":\"none\",\"ratio\":1}"));
+    assert_non_null(strstr(c, "\"type\":\"bem_solid\""));
+    free(c);
+    dr_scene_destroy(&s);
+}
+
+static void test_bem_solid_bad_input(void **state)
+{
+    (void)state;
+    write_tri();
+    struct {
+        const char *components;
+        const char *expect[2];
+    } cases[] = {
+        {"\"LinearElastic\":{}",
+         {"element 'jelly' (bem_solid): missing component 'Mesh'", "add \"Mesh\": {\"file\": "}},
+        {"\"Mesh\":{}", {"jelly.Mesh: missing required field 'file'"}},
+        {"\"Mesh\":{\"file\":\"meshes/no_such.obj\"}", {"jelly.Mesh.file: asset 'meshes/no_such.obj' not found"}},
+        {"\"Mesh\":{\"file\":\"meshes/tri.obj\"},\"LinearElastic\":{\"density\":0}",
+         {"jelly.LinearElastic.density = 0 is out of range (0, 100000] kg/m^3; use a positive density"}},
+        {"\"Mesh\":{\"file\":\"meshes/tri.obj\"},\"LinearElastic\":{\"shear_modulus\":-5}",
+         {"jelly.LinearElastic.shear_modulus = -5 is out of range (0, 1000000000000] Pa"}},
+        {"\"Mesh\":{\"file\":\"meshes/tri.obj\"},\"LinearElastic\":{\"poisson\":0.5}",
+         {"jelly.LinearElastic.poisson = 0.5 is out of range [-0.99, 0.49]", "at most 0.49"}},
+        {"\"Mesh\":{\"file\":\"meshes/tri.obj\"},\"LinearElastic\":{\"poisson\":-1}",
+         {"jelly.LinearElastic.poisson = -1 is out of range [-0.99, 0.49]"}},
+        {"\"Mesh\":{\"file\":\"meshes/tri.obj\"},\"LinearElastic\":{\"shear_modulos\":1e5}",
+         {"jelly.LinearElastic: unknown field 'shear_modulos'", "did you mean 'shear_modulus'?"}},
+        {"\"Mesh\":{\"file\":\"meshes/tri.obj\"},\"Compression\":{\"ratio\":0.5}",
+         {"jelly.Compression.ratio = 0.5 is out of range [1, 4096]"}},
+        {"\"Mesh\":{\"file\":\"meshes/tri.obj\"},\"Compression\":{\"ratio\":8192}",
+         {"jelly.Compression.ratio = 8192 is out of range [1, 4096]"}},
+        {"\"Mesh\":{\"file\":\"meshes/tri.obj\"},\"Compression\":{\"ordering\":\"vertex_xzy\"}",
+         {"jelly.Compression.ordering: 'vertex_xzy' is not a valid choice; did you mean 'vertex_xyz'?",
+          "vertex_xyz, xyz, none"}},
+        {"\"Mesh\":{\"file\":\"meshes/tri.obj\"},\"BemSolver\":{\"time_step\":0}",
+         {"jelly.BemSolver.time_step = 0 is out of range (0, 1] s"}},
+        {"\"Mesh\":{\"file\":\"meshes/tri.obj\"},\"BemSolver\":{\"history_margin\":-1}",
+         {"jelly.BemSolver.history_margin = -1 is out of range [0, 1000]"}},
+        {"\"Mesh\":{\"file\":\"meshes/tri.obj\"},\"BemSolver\":{\"quadrature_levels\":5}",
+         {"jelly.BemSolver.quadrature_levels = 5 is out of range [1, 4]"}},
+        {"\"Mesh\":{\"file\":\"meshes/tri.obj\"},\"BemSolver\":{\"quadrature_levels\":1.5}",
+         {"jelly.BemSolver.quadrature_levels"}},
+        {"\"Mesh\":{\"file\":\"meshes/tri.obj\"},\"LinearElastik\":{}",
+         {"element 'jelly' (bem_solid): unknown component 'LinearElastik'; did you mean 'LinearElastic'?",
+          "Components of bem_solid: Mesh, LinearElastic, Compression, BemSolver"}},
+        {"\"Mesh\":{\"file\":\"meshes/tri.obj\"},\"Transform\":{}",
+         {"unknown component 'Transform' ('Transform' is a component of collider elements)"}},
+    };
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+        char text[4096], path[512];
+        bem_scene(cases[i].components, text, sizeof text);
+        tmp_path("bem.json", path, sizeof path);
+        write_file(path, text);
+        DrScene *s = (DrScene *)(uintptr_t)1;
+        DrError err;
+        DrStatus st = dr_scene_load(path, &s, &err);
+        assert_null(s);
+        if (st != DR_ERR_INPUT) fail_msg("case %zu: status %d for %s", i, (int)st, text);
+        for (int k = 0; k < 2 && cases[i].expect[k]; k++)
+            if (!strstr(err.message, cases[i].expect[k]))
+                fail_msg("case %zu: expected \"%s\" in \"%s\"", i, cases[i].expect[k], err.message);
+        if (err.line < 1 || err.col < 1) fail_msg("case %zu: no position for %s", i, err.message);
+    }
+    /* an unknown type close to bem_solid is suggested */
+    DrError err;
+    assert_int_equal(load_bad("{\"elements\":[{\"name\":\"j\",\"type\":\"bem_solids\"}]}", &err), DR_ERR_INPUT);
+    assert_contains(err.message, "did you mean 'bem_solid'?");
+}
+
+/* The precompute key follows the bem_solid elements (their canonical JSON and mesh bytes) and nothing else; every
+ * later key follows it. */
+static void test_bem_solid_keys(void **state)
+{
+    (void)state;
+    char obj[512], text[2048];
+    tmp_path("meshes/jelly.obj", obj, sizeof obj);
+    write_file(obj, TRI_OBJ);
+    const char *fmt = "{\"elements\":[{\"name\":\"%s\",\"type\":\"bem_solid\",\"components\":{\"Mesh\":{\"file\":"
+                      "\"meshes/jelly.obj\"},\"LinearElastic\":{\"shear_modulus\":%s}}}%s]}";
+    const char *collider = ",{\"name\":\"cup\",\"type\":\"collider\",\"components\":{\"Mesh\":{\"file\":"
+                           "\"meshes/tri.obj\"},\"Collider\":{\"friction\":%s}}}";
+    write_tri();
+    char col_a[512], col_b[512];
+    snprintf(col_a, sizeof col_a, collider, "0.1");
+    snprintf(col_b, sizeof col_b, collider, "0.2");
+    DrSceneKeys base, k;
+    snprintf(text, sizeof text, fmt, "jelly", "1e5", col_a);
+    keys_of(text, &base);
+    snprintf(text, sizeof text, fmt, "jelly", "2e5", col_a); /* a material field: precompute and all after */
+    keys_of(text, &k);
+    assert_string_not_equal(k.precompute, base.precompute);
+    assert_string_not_equal(k.bake, base.bake);
+    snprintf(text, sizeof text, fmt, "jelly", "1e5", col_b); /* another element: not precompute */
+    keys_of(text, &k);
+    assert_string_equal(k.precompute, base.precompute);
+    assert_string_not_equal(k.bake, base.bake);
+    write_file(obj, "v 0 0 0\nv 2 0 0\nv 0 1 0\nf 1 2 3\n"); /* the body's mesh bytes */
+    snprintf(text, sizeof text, fmt, "jelly", "1e5", col_a);
+    keys_of(text, &k);
+    assert_string_not_equal(k.precompute, base.precompute);
+}
+
 /* ---- canonical JSON and keys ---------------------------------------------------------------------------- */
 
 static void test_canonical_json(void **state)
@@ -996,8 +1158,8 @@ static void test_reference_lists_everything(void **state)
             assert_contains(md, row);
         }
     }
-    const char *types[] = {"liquid", "collider", "mpm_solid", "hair"};
-    for (int i = 0; i < 4; i++) {
+    const char *types[] = {"liquid", "collider", "mpm_solid", "hair", "bem_solid"};
+    for (int i = 0; i < 5; i++) {
         const DrElementSpec *t = dr_scene_element_spec(types[i]);
         assert_non_null(t);
         char head[128];
@@ -1028,6 +1190,14 @@ static void test_reference_lists_everything(void **state)
                           "CollisionResponse, HairSolver");
     assert_contains(md, "| `preconditioner` | one of block, jacobi, none | - | `\"block\"` | - |");
     assert_contains(md, "| `collides_with` | integer | - | `2147483647` | [0, 2147483647] |");
+    assert_contains(text, "components: Mesh (required), LinearElastic, Compression, BemSolver");
+    assert_contains(md, "### Element type `bem_solid`");
+    assert_contains(md, "| `poisson` | number | 1 | `0.4` | [-0.99, 0.49] |");
+    assert_contains(md, "| `ratio` | number | 1 | `32` | [1, 4096] | fraction of Haar coefficients kept is 1/ratio; 1 "
+                        "stores dense matrices |");
+    assert_contains(md, "| `ordering` | one of vertex_xyz, xyz, none | - | `\"vertex_xyz\"` | - |");
+    assert_contains(md, "| `time_step` | number | s | `0.00416666666666667` | (0, 1] |");
+    assert_contains(md, "| `quadrature_levels` | integer | - | `1` | [1, 4] |");
     free(text);
     free(md);
 }
@@ -1048,6 +1218,16 @@ static void test_spec_lookups(void **state)
     assert_int_equal(hair->required_count, 1);
     assert_string_equal(hair->required_components[0], "Groom");
     assert_false(hair->needs_precompute);
+    const DrElementSpec *bem = dr_scene_element_spec("bem_solid");
+    assert_non_null(bem);
+    assert_int_equal(bem->component_count, 4);
+    assert_int_equal(bem->required_count, 1);
+    assert_string_equal(bem->required_components[0], "Mesh");
+    assert_true(bem->needs_precompute);
+    for (int i = 0; i < 3; i++) { /* every other type needs none */
+        const char *others[] = {"liquid", "collider", "mpm_solid"};
+        assert_false(dr_scene_element_spec(others[i])->needs_precompute);
+    }
     assert_null(dr_scene_component_spec("Nope"));
     assert_null(dr_scene_section_spec("elements"));
     const DrComponentSpec *mat = dr_scene_component_spec("LiquidMaterial");
@@ -1069,6 +1249,9 @@ int main(void)
         cmocka_unit_test(test_error_positions),
         cmocka_unit_test(test_hair_defaults),
         cmocka_unit_test(test_hair_bad_input),
+        cmocka_unit_test(test_bem_solid_defaults),
+        cmocka_unit_test(test_bem_solid_bad_input),
+        cmocka_unit_test(test_bem_solid_keys),
         cmocka_unit_test(test_canonical_json),
         cmocka_unit_test(test_keys_survive_reformatting),
         cmocka_unit_test(test_keys_invalidate_what_changed),
