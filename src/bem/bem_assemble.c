@@ -383,6 +383,59 @@ done:
     return s;
 }
 
+/* Unit normal of every triangle (3·nt). */
+static void triangle_normals(const DrTriMesh *mesh, double *tn)
+{
+    for (int t = 0; t < mesh->nt; t++) {
+        const double *a = &mesh->v[3 * mesh->tri[3 * t]], *b = &mesh->v[3 * mesh->tri[3 * t + 1]],
+                     *c = &mesh->v[3 * mesh->tri[3 * t + 2]];
+        DrVec3 nr = dr_v3_normalize(
+            dr_v3_cross(dr_v3(b[0] - a[0], b[1] - a[1], b[2] - a[2]), dr_v3(c[0] - a[0], c[1] - a[1], c[2] - a[2])));
+        tn[3 * t] = nr.x;
+        tn[3 * t + 1] = nr.y;
+        tn[3 * t + 2] = nr.z;
+    }
+}
+
+/* What is done with a row block once integrated: written as time-domain rows, or copied out as it is. */
+typedef void (*RowSink)(const Assembly *as, const RowWork *w, int i, void *ctx);
+
+/* Every collocation vertex's row block in parallel (rows are independent: the result does not depend on the
+   thread count), each handed to `sink`; progress on stderr when `prog` is not NULL. */
+static DrStatus for_each_row(const Assembly *as, RowSink sink, void *ctx, DrProgress *prog, DrError *err)
+{
+    bool oom = false;
+    int nv = as->mesh->nv;
+#pragma omp parallel
+    {
+        RowWork w;
+        bool ok = rowwork_alloc(&w, as->cap, as->lh, as->n);
+        if (!ok) {
+#pragma omp atomic write
+            oom = true;
+        }
+#pragma omp for schedule(dynamic, 1)
+        for (int i = 0; i < nv; i++) {
+            if (!ok) continue;
+            integrate_row(as, &w, i);
+            sink(as, &w, i, ctx);
+            if (prog) {
+#pragma omp critical(dr_bem_progress)
+                dr_progress_step(prog, NULL);
+            }
+        }
+        rowwork_free(&w);
+    }
+    if (oom) return dr_error_set(err, DR_ERR_NOMEM, NULL, 0, 0, "BEM: out of memory for the per-thread row scratch");
+    return DR_OK;
+}
+
+static void time_row_sink(const Assembly *as, const RowWork *w, int i, void *ctx)
+{
+    (void)ctx;
+    time_row(as, w, i);
+}
+
 DrStatus dr_bem_matrices_build(const DrTriMesh *mesh, const DrBemDesc *d, const char *label, DrBemMatrices **out,
                                DrError *err)
 {
@@ -446,15 +499,7 @@ DrStatus dr_bem_matrices_build(const DrTriMesh *mesh, const DrBemDesc *d, const 
     dr_bem_vertex_order(mesh, order);
     s = dr_bem_layout_init(nv, d->ordering, d->wavelet, order, &m->layout, err);
     if (s != DR_OK) goto fail;
-    for (int t = 0; t < mesh->nt; t++) {
-        const double *a = &mesh->v[3 * mesh->tri[3 * t]], *b = &mesh->v[3 * mesh->tri[3 * t + 1]],
-                     *c = &mesh->v[3 * mesh->tri[3 * t + 2]];
-        DrVec3 nr = dr_v3_cross(dr_v3(b[0] - a[0], b[1] - a[1], b[2] - a[2]), dr_v3(c[0] - a[0], c[1] - a[1], c[2] - a[2]));
-        double len = dr_v3_norm(nr);
-        tn[3 * t] = nr.x / len;
-        tn[3 * t + 1] = nr.y / len;
-        tn[3 * t + 2] = nr.z / len;
-    }
+    triangle_normals(mesh, tn);
     cq_real_weights(&cq, nk, lh, alpha, beta);
 
     /* 1. rows: Laplace-domain integrals and their time-domain weights */
@@ -470,32 +515,9 @@ DrStatus dr_bem_matrices_build(const DrTriMesh *mesh, const DrBemDesc *d, const 
     char plabel[256];
     snprintf(plabel, sizeof plabel, "bem %s: %d vertices, %d history steps", label ? label : "", nv, m->n_max);
     if (label) dr_progress_begin(&prog, plabel, nv);
-    bool oom = false;
-#pragma omp parallel
-    {
-        RowWork w;
-        bool ok = rowwork_alloc(&w, as.cap, lh, n);
-        if (!ok) {
-#pragma omp atomic write
-            oom = true;
-        }
-#pragma omp for schedule(dynamic, 1)
-        for (int i = 0; i < nv; i++) {
-            if (!ok) continue;
-            integrate_row(&as, &w, i);
-            time_row(&as, &w, i);
-            if (label) {
-#pragma omp critical(dr_bem_progress)
-                dr_progress_step(&prog, NULL);
-            }
-        }
-        rowwork_free(&w);
-    }
+    s = for_each_row(&as, time_row_sink, NULL, label ? &prog : NULL, err);
     if (label) dr_progress_end(&prog);
-    if (oom) {
-        s = dr_error_set(err, DR_ERR_NOMEM, NULL, 0, 0, "BEM: out of memory for the per-thread row scratch");
-        goto fail;
-    }
+    if (s != DR_OK) goto fail;
     double t1 = dr_time_now();
     m->stats.seconds_quadrature = t1 - t0;
 
@@ -581,59 +603,48 @@ fail:
     return s;
 }
 
+typedef struct LaplaceOut {
+    double complex *H, *G, *D, *Q;
+} LaplaceOut;
+
+static void laplace_sink(const Assembly *as, const RowWork *w, int i, void *ctx)
+{
+    const LaplaceOut *o = ctx;
+    int n = as->n;
+    for (int l = 0; l < as->lh; l++)
+        for (int a = 0; a < 3; a++) {
+            size_t src = ((size_t)l * 3 + a) * n, dst = ((size_t)l * n + 3 * (size_t)i + a) * n;
+            for (int c = 0; c < n; c++) {
+                o->H[dst + c] = w->hre[src + c] + I * w->him[src + c];
+                o->G[dst + c] = w->gre[src + c] + I * w->gim[src + c];
+            }
+            for (int b = 0; b < 3; b++) {
+                size_t q = ((size_t)l * n + 3 * (size_t)i + a) * 3 + b;
+                if (o->D) o->D[q] = w->dacc[l * 9 + 3 * a + b];
+                if (o->Q) o->Q[q] = w->qacc[l * 9 + 3 * a + b];
+            }
+        }
+}
+
 DrStatus bem_laplace_matrices(const DrTriMesh *mesh, const DrBemDesc *d, int ns, const double complex *s,
                               double complex *H, double complex *G, double complex *D, double complex *Q,
                               DrError *err)
 {
     DR_TRY(check_desc(d, err));
     assert(ns >= 1 && ns <= 64);
-    int nv = mesh->nv, n = 3 * nv;
+    int n = 3 * mesh->nv;
     DrBemBody body;
     dr_bem_body_compute(mesh, d->material.density, &body);
     double *tn = NULL;
     DR_TRY(alloc_doubles((size_t)3 * mesh->nt, &tn, err));
-    for (int t = 0; t < mesh->nt; t++) {
-        const double *a = &mesh->v[3 * mesh->tri[3 * t]], *b = &mesh->v[3 * mesh->tri[3 * t + 1]],
-                     *c = &mesh->v[3 * mesh->tri[3 * t + 2]];
-        DrVec3 nr = dr_v3_cross(dr_v3(b[0] - a[0], b[1] - a[1], b[2] - a[2]), dr_v3(c[0] - a[0], c[1] - a[1], c[2] - a[2]));
-        double len = dr_v3_norm(nr);
-        tn[3 * t] = nr.x / len;
-        tn[3 * t + 1] = nr.y / len;
-        tn[3 * t + 2] = nr.z / len;
-    }
+    triangle_normals(mesh, tn);
     Assembly as = {.mesh = mesh, .d = d, .s = s, .tn = tn, .n = n, .lh = ns, .max_levels = d->quad_levels + 3};
     dr_bem_wave_init(&d->material, &as.wave);
     as.cap = bem_quad_capacity(d->quad_levels, as.max_levels, d->singular_order);
     memcpy(as.xbar, body.centroid, sizeof as.xbar);
-    bool oom = false;
-#pragma omp parallel
-    {
-        RowWork w;
-        bool ok = rowwork_alloc(&w, as.cap, ns, n);
-        if (!ok) {
-#pragma omp atomic write
-            oom = true;
-        }
-#pragma omp for schedule(dynamic, 1)
-        for (int i = 0; i < nv; i++) {
-            if (!ok) continue;
-            integrate_row(&as, &w, i);
-            for (int l = 0; l < ns; l++)
-                for (int a = 0; a < 3; a++) {
-                    size_t src = ((size_t)l * 3 + a) * n, dst = ((size_t)l * n + 3 * (size_t)i + a) * n;
-                    for (int c = 0; c < n; c++) {
-                        H[dst + c] = w.hre[src + c] + I * w.him[src + c];
-                        G[dst + c] = w.gre[src + c] + I * w.gim[src + c];
-                    }
-                    for (int b = 0; b < 3; b++) {
-                        if (D) D[((size_t)l * n + 3 * (size_t)i + a) * 3 + b] = w.dacc[l * 9 + 3 * a + b];
-                        if (Q) Q[((size_t)l * n + 3 * (size_t)i + a) * 3 + b] = w.qacc[l * 9 + 3 * a + b];
-                    }
-                }
-        }
-        rowwork_free(&w);
-    }
+    LaplaceOut lo = {H, G, D, Q};
+    DrStatus st = for_each_row(&as, laplace_sink, &lo, NULL, err);
     free(tn);
-    if (oom) return dr_error_set(err, DR_ERR_NOMEM, NULL, 0, 0, "BEM: out of memory for the per-thread row scratch");
-    return DR_OK;
+    return st;
 }
+
