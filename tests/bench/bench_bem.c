@@ -1,0 +1,253 @@
+/* BEM precompute benchmark, two parts, each a markdown table on stdout and a CSV:
+ *  1. precompute cost against the vertex count (the first csv, default out/bench/bem.csv): closed boxes
+ *     0.1 m on a side with 9, 13 and 22 segments per edge (488, 1,016 and 2,906 vertices; the paper's bumpy cube
+ *     has 3,000), jelly (ρ = 1000 kg/m³, μ = 1e5 Pa, ν = 0.4) at Δt = 1/200 s, so n_max = 5 as in the paper's
+ *     Table 1, compression 32× (vertex order + xyz blocks). Each size runs in its own process so that its peak
+ *     resident memory (getrusage) is its own: seconds of quadrature (kernels, integration and the CQ weights),
+ *     of H₀⁻¹ and H₀⁻¹G′, of compression, in total, peak memory, and the rigid-translation residual of the
+ *     truncated history.
+ *  2. compression (out/bench/bem_compression.csv, next to the first): the 2,906-vertex box built once with
+ *     dense matrices, then every matrix compressed at ratios 1 (dense), 8, 32 and 128: storage of the whole set
+ *     (H_k, G_k for k = 0..n_max, H₀⁻¹, H₀⁻¹G′), the relative Frobenius error of H_1, the relative error of
+ *     H_1 x against the dense product for a smooth and a random x, and the seconds of one product and of the
+ *     history sum of one step (2·n_max products plus H₀⁻¹G′ and H₀⁻¹) on 1 and 2 threads — the analogue of
+ *     the paper's Table 1 and Fig. 7.
+ * Targets from the issue: N ≈ 3,000 precomputed within 20 minutes on 2 cores.
+ * usage: bench_bem [csv = out/bench/bem.csv] [part = all | precompute | compression]
+ *        bench_bem --one SEGMENTS   (one precompute, one CSV line on stdout; used by part 1) */
+#include <errno.h>
+#include <omp.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/resource.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include "bem/bem.h"
+#include "core/core.h"
+
+static DrBemDesc bench_desc(void)
+{
+    DrBemDesc d;
+    dr_bem_desc_default(&d);
+    d.material = (DrBemMaterial){.density = 1000, .shear_modulus = 1e5, .poisson = 0.4};
+    d.dt = 1.0 / 200.0;
+    d.compression_ratio = 32;
+    return d;
+}
+
+static DrTriMesh box_mesh(int seg)
+{
+    double lo[3] = {-0.05, -0.05, -0.05}, hi[3] = {0.05, 0.05, 0.05};
+    int n[3] = {seg, seg, seg};
+    DrTriMesh m = {0};
+    DrError err;
+    if (dr_bem_mesh_box(lo, hi, n, &m, &err) != DR_OK) {
+        fprintf(stderr, "bench_bem: %s\n", err.message);
+        exit(1);
+    }
+    return m;
+}
+
+static int run_one(int seg)
+{
+    DrTriMesh m = box_mesh(seg);
+    DrBemDesc d = bench_desc();
+    DrBemMatrices *bm = NULL;
+    DrError err;
+    double t0 = dr_time_now();
+    if (dr_bem_matrices_build(&m, &d, NULL, &bm, &err) != DR_OK) {
+        fprintf(stderr, "bench_bem: %s\n", err.message);
+        return 1;
+    }
+    double total = dr_time_now() - t0;
+    struct rusage ru;
+    getrusage(RUSAGE_SELF, &ru);
+    printf("%d,%d,%d,%.3f,%.3f,%.3f,%.3f,%.1f,%.1f,%.1f,%.3e\n", m.nv, omp_get_max_threads(), bm->n_max,
+           bm->stats.seconds_quadrature, bm->stats.seconds_inverse, bm->stats.seconds_compress, total,
+           ru.ru_maxrss / 1024.0, bm->stats.bytes_dense / 1e6, bm->stats.bytes_compressed / 1e6,
+           bm->stats.rigid_residual);
+    dr_bem_matrices_destroy(&bm);
+    dr_trimesh_free(&m);
+    return 0;
+}
+
+static void part_precompute(const char *csv)
+{
+    FILE *f = fopen(csv, "w");
+    if (!f) {
+        fprintf(stderr, "bench_bem: cannot write %s: %s\n", csv, strerror(errno));
+        exit(1);
+    }
+    const char *head = "vertices,threads,n_max,s_quadrature,s_inverse,s_compress,s_total,peak_mb,dense_mb,"
+                       "compressed_mb,rigid_residual";
+    fprintf(f, "%s\n", head);
+    printf("### precompute against N (boxes, n_max as listed, 32x, %d threads)\n\n", omp_get_max_threads());
+    printf("| vertices | n_max | quadrature s | H0 inverse s | compression s | total s | peak MB | dense MB | "
+           "kept MB | rigid residual |\n|---|---|---|---|---|---|---|---|---|---|\n");
+    int segs[] = {9, 13, 22};
+    char self[1024];
+    ssize_t len = readlink("/proc/self/exe", self, sizeof self - 1);
+    if (len <= 0) {
+        fprintf(stderr, "bench_bem: cannot find its own executable: %s\n", strerror(errno));
+        exit(1);
+    }
+    self[len] = '\0';
+    for (int i = 0; i < 3; i++) {
+        char cmd[1200];
+        snprintf(cmd, sizeof cmd, "'%s' --one %d", self, segs[i]);
+        FILE *p = popen(cmd, "r");
+        char line[512] = "";
+        if (!p || !fgets(line, sizeof line, p)) {
+            fprintf(stderr, "bench_bem: run with %d segments failed\n", segs[i]);
+            if (p) pclose(p);
+            continue;
+        }
+        pclose(p);
+        fputs(line, f);
+        fflush(f);
+        int nv, th, nmax;
+        double q, inv, comp, tot, peak, dmb, kmb, rr;
+        if (sscanf(line, "%d,%d,%d,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf", &nv, &th, &nmax, &q, &inv, &comp, &tot, &peak,
+                   &dmb, &kmb, &rr) == 11)
+            printf("| %d | %d | %.1f | %.1f | %.1f | %.1f | %.0f | %.0f | %.0f | %.2e |\n", nv, nmax, q, inv, comp,
+                   tot, peak, dmb, kmb, rr);
+        fflush(stdout);
+    }
+    fclose(f);
+}
+
+static double rel_err(int n, const double *a, const double *b)
+{
+    double num = 0, den = 0;
+    for (int i = 0; i < n; i++) {
+        num += (a[i] - b[i]) * (a[i] - b[i]);
+        den += b[i] * b[i];
+    }
+    return sqrt(num / den);
+}
+
+static void dense_matvec(int n, const double *M, const double *x, double *y)
+{
+#pragma omp parallel for schedule(static)
+    for (int r = 0; r < n; r++) {
+        double a = 0;
+        for (int c = 0; c < n; c++) a += M[(size_t)r * n + c] * x[c];
+        y[r] = a;
+    }
+}
+
+static void part_compression(const char *csv)
+{
+    DrTriMesh m = box_mesh(22);
+    DrBemDesc d = bench_desc();
+    d.compression_ratio = 1;
+    d.keep_dense = true;
+    DrBemMatrices *bm = NULL;
+    DrError err;
+    if (dr_bem_matrices_build(&m, &d, NULL, &bm, &err) != DR_OK) {
+        fprintf(stderr, "bench_bem: %s\n", err.message);
+        exit(1);
+    }
+    int n = bm->n, nk = bm->n_max + 1;
+    size_t nn = (size_t)n * n;
+    const double *H1 = bm->H_dense + nn;
+    double *x1 = malloc(sizeof(double) * n), *x2 = malloc(sizeof(double) * n), *ref1 = malloc(sizeof(double) * n),
+           *ref2 = malloc(sizeof(double) * n), *y = malloc(sizeof(double) * n), *sc = malloc(sizeof(double) * 2 * n);
+    uint64_t rng = 12345;
+    for (int v = 0; v < m.nv; v++)
+        for (int c = 0; c < 3; c++) {
+            x1[3 * v + c] = sin(20 * m.v[3 * v]) * cos(15 * m.v[3 * v + 1] + c); /* a smooth field */
+            rng = rng * 6364136223846793005ULL + 1442695040888963407ULL;
+            x2[3 * v + c] = (double)(rng >> 11) / 9007199254740992.0 - 0.5;
+        }
+    dense_matvec(n, H1, x1, ref1);
+    dense_matvec(n, H1, x2, ref2);
+    double norm = 0;
+    for (size_t q = 0; q < nn; q++) norm += H1[q] * H1[q];
+    norm = sqrt(norm);
+
+    FILE *f = fopen(csv, "w");
+    if (!f) {
+        fprintf(stderr, "bench_bem: cannot write %s: %s\n", csv, strerror(errno));
+        exit(1);
+    }
+    fprintf(f, "ratio,vertices,n_max,set_mb,h1_frobenius_err,matvec_err_smooth,matvec_err_random,threads,"
+               "s_matvec,s_step_history\n");
+    printf("\n### compression (%d vertices, n_max %d; one product of H_1, and a step's history: %d products)\n\n",
+           m.nv, bm->n_max, 2 * nk);
+    printf("| ratio | set MB | H_1 Frobenius err | H_1 x err (smooth) | H_1 x err (random) | threads | s per product "
+           "| s per step history |\n|---|---|---|---|---|---|---|---|\n");
+    double ratios[] = {1, 8, 32, 128};
+    double *back = malloc(sizeof(double) * nn);
+    for (int r = 0; r < 4; r++) {
+        /* the whole set at this ratio: storage; H_1 alone: error and product time */
+        DrBemCMat *set = calloc((size_t)2 * nk + 2, sizeof(DrBemCMat));
+        size_t bytes = 0;
+        for (int k = 0; k < nk; k++) {
+            if (dr_bem_compress(&bm->layout, bm->H_dense + (size_t)k * nn, ratios[r], &set[2 * k], &err) != DR_OK ||
+                dr_bem_compress(&bm->layout, bm->G_dense + (size_t)k * nn, ratios[r], &set[2 * k + 1], &err) != DR_OK) {
+                fprintf(stderr, "bench_bem: %s\n", err.message);
+                exit(1);
+            }
+            bytes += dr_bem_cmat_bytes(&set[2 * k]) + dr_bem_cmat_bytes(&set[2 * k + 1]);
+        }
+        /* H₀⁻¹ and H₀⁻¹G′ at this ratio: the same storage per entry as H_0 and G_0 (dense inverses) */
+        bytes += dr_bem_cmat_bytes(&set[0]) + dr_bem_cmat_bytes(&set[1]);
+        const DrBemCMat *c1 = &set[2];
+        dr_bem_cmat_decompress(&bm->layout, c1, back);
+        double fe = 0;
+        for (size_t q = 0; q < nn; q++) fe += (back[q] - H1[q]) * (back[q] - H1[q]);
+        fe = sqrt(fe) / norm;
+        dr_bem_cmat_matvec(&bm->layout, c1, x1, y, sc);
+        double e1 = rel_err(n, y, ref1);
+        dr_bem_cmat_matvec(&bm->layout, c1, x2, y, sc);
+        double e2 = rel_err(n, y, ref2);
+        for (int th = 1; th <= 2; th++) {
+            omp_set_num_threads(th);
+            int reps = 0;
+            double t0 = dr_time_now();
+            while (dr_time_now() - t0 < 1.0 || reps < 3) {
+                dr_bem_cmat_matvec(&bm->layout, c1, x1, y, sc);
+                reps++;
+            }
+            double per = (dr_time_now() - t0) / reps;
+            t0 = dr_time_now();
+            for (int k = 0; k < 2 * nk; k++) dr_bem_cmat_matvec(&bm->layout, &set[k], x1, y, sc);
+            double step = dr_time_now() - t0;
+            fprintf(f, "%g,%d,%d,%.1f,%.3e,%.3e,%.3e,%d,%.5f,%.5f\n", ratios[r], m.nv, bm->n_max, bytes / 1e6, fe, e1,
+                    e2, th, per, step);
+            printf("| %g | %.0f | %.2e | %.2e | %.2e | %d | %.4f | %.4f |\n", ratios[r], bytes / 1e6, fe, e1, e2, th,
+                   per, step);
+            fflush(stdout);
+        }
+        omp_set_num_threads(2);
+        for (int k = 0; k < 2 * nk; k++) dr_bem_cmat_free(&set[k]);
+        free(set);
+    }
+    fclose(f);
+    free(back);
+    free(x1);
+    free(x2);
+    free(ref1);
+    free(ref2);
+    free(y);
+    free(sc);
+    dr_bem_matrices_destroy(&bm);
+    dr_trimesh_free(&m);
+}
+
+int main(int argc, char **argv)
+{
+    if (argc == 3 && strcmp(argv[1], "--one") == 0) return run_one(atoi(argv[2]));
+    const char *csv = argc > 1 ? argv[1] : "out/bench/bem.csv";
+    const char *part = argc > 2 ? argv[2] : "all";
+    if (strcmp(part, "all") == 0 || strcmp(part, "precompute") == 0) part_precompute(csv);
+    if (strcmp(part, "all") == 0 || strcmp(part, "compression") == 0) {
+        char csv2[1024];
+        snprintf(csv2, sizeof csv2, "%.*s_compression.csv", (int)(strlen(csv) - 4), csv);
+        part_compression(csv2);
+    }
+    return 0;
+}
