@@ -157,6 +157,11 @@ void dr_bem_cmat_matvec(const DrBemLayout *l, const DrBemCMat *m, const double *
 /* The matrix the compressed form stands for, n×n row-major natural order. */
 void dr_bem_cmat_decompress(const DrBemLayout *l, const DrBemCMat *m, double *dense);
 void dr_bem_cmat_free(DrBemCMat *m);
+/* Products in the coefficient domain x̃ = W P x (x̃ = x when the set is dense), so that sums of many products
+ * pay one transform: y = from_coeff(Σ M̃_k x̃_k). scratch holds 2n doubles. */
+void dr_bem_layout_to_coeff(const DrBemLayout *l, bool dense, const double *x, double *xt, double *scratch);
+void dr_bem_layout_from_coeff(const DrBemLayout *l, bool dense, const double *yt, double *y, double *scratch);
+void dr_bem_cmat_matvec_coeff(const DrBemCMat *m, const double *xt, double *yt); /* ỹ = M̃ x̃ */
 size_t dr_bem_cmat_bytes(const DrBemCMat *m); /* storage of the kept values and indices */
 
 /* 1-D orthonormal Haar transform of x[0..n) in place (forward: averages first, details after, level by
@@ -229,5 +234,129 @@ DR_NODISCARD DrStatus dr_bem_cache_write(const char *cache_root, const char *key
  * returns them NULL with desc.keep_dense false. */
 DR_NODISCARD DrStatus dr_bem_cache_read(const char *cache_root, const char *key_hex, DrBemMatrices **out,
                                         bool *found, DrError *err);
+
+/* ---- runtime: one body in a shot (BEM §3.1–3.2) ----------------------------------------------------------
+ * The body's vertices are V = R (x − x̄ + u) + T: a rigid frame (rotation R, position T of the centre of mass x̄)
+ * carries the rest shape x and the displacement u of eq. (9), which the boundary element matrices advance one
+ * step of Δt = matrices->desc.dt at a time. Tractions are given per vertex in the body frame (Pa). */
+typedef struct DrBemSolidDesc {
+    double gravity[3];          /* g in the inertial frame, m/s² */
+    double rotation[9];         /* R at t = 0, row-major */
+    double position[3];         /* T at t = 0: where the centre of mass x̄ is, m */
+    double velocity[3];         /* Ṫ at t = 0, m/s */
+    double angular_velocity[3]; /* ω at t = 0 in the inertial frame, rad/s */
+    bool frame_update;          /* move the frame by eqs. (10)–(11); false: R, T stay and u carries all motion */
+    bool error_correction;      /* §3.2.1: move drift of u into the frame (only with frame_update) */
+} DrBemSolidDesc;
+void dr_bem_solid_desc_default(DrBemSolidDesc *d); /* identity pose at the origin, at rest, g = (0, −9.81, 0) */
+
+typedef struct DrBemSolid DrBemSolid;
+/* The solid keeps a pointer to m, which must outlive it (several solids may share one matrix set). */
+DR_NODISCARD DrStatus dr_bem_solid_create(const DrBemMatrices *m, const DrBemSolidDesc *d, DrBemSolid **out,
+                                          DrError *err);
+void dr_bem_solid_destroy(DrBemSolid **s);
+
+typedef struct DrBemStepStats {
+    double seconds_history;    /* the history sums of eq. (9) */
+    double seconds_solve;      /* eq. (12) and the frame (11) */
+    double seconds_correction; /* §3.2.1 */
+    double translation_error;  /* drift moved from u into the frame by error correction, m */
+    double rotation_error;     /* its rotation angle, rad */
+} DrBemStepStats;
+
+/* One step with nodal tractions p (3N, body frame, Pa; NULL = traction-free). DR_ERR_RUNTIME if the state
+ * turns non-finite (the step is refused and the previous state kept). st may be NULL. */
+DR_NODISCARD DrStatus dr_bem_solid_step(DrBemSolid *s, const double *traction, DrBemStepStats *st, DrError *err);
+
+const DrBemMatrices *dr_bem_solid_matrices(const DrBemSolid *s);
+long dr_bem_solid_steps(const DrBemSolid *s);                         /* steps taken */
+void dr_bem_solid_pose(const DrBemSolid *s, double R[9], double T[3]); /* the frame */
+void dr_bem_solid_frame_velocity(const DrBemSolid *s, double v[3], double w[3]); /* Ṫ and ω, inertial */
+const double *dr_bem_solid_displacement(const DrBemSolid *s);         /* u, 3N, body frame */
+void dr_bem_solid_positions(const DrBemSolid *s, double *V);          /* 3N world positions */
+/* x − x̄, 3N: the rest shape about the centre of mass (what R and u act on). */
+const double *dr_bem_solid_reference(const DrBemSolid *s);
+
+typedef struct DrBemSolidDiag {
+    double momentum[3];         /* m Ṫ, kg m/s */
+    double angular_momentum[3]; /* R I Rᵀ ω about the centre of mass, kg m²/s */
+    double kinetic;             /* ½ m |Ṫ|² + ½ ωᵀ R I Rᵀ ω of the frame, J */
+    double potential;           /* −m g·T, J */
+    double volume;              /* enclosed volume of the deformed surface, m³ */
+    double max_displacement;    /* max |u_i|, m */
+} DrBemSolidDiag;
+void dr_bem_solid_diagnostics(const DrBemSolid *s, DrBemSolidDiag *out);
+
+/* The whole state for a bit-identical resume: the history window of u, p and the frame accelerations, the frame
+ * and the step count, as one flat array of dr_bem_solid_state_size() doubles. */
+size_t dr_bem_solid_state_size(const DrBemSolid *s);
+void dr_bem_solid_state_get(const DrBemSolid *s, double *state);
+DR_NODISCARD DrStatus dr_bem_solid_state_set(DrBemSolid *s, const double *state, size_t size, DrError *err);
+
+/* ---- runtime: constraints, contact and friction (BEM §3.4) ----------------------------------------------------
+ * dr_bem_solids_step advances every body one step with position-level constraints solved for nodal forces: a force
+ * f at a vertex acts as the traction f / area_j (area_j = ∫Φ_j) on it. Constraints live at vertices: fixed vertices
+ * held at world positions, vertices kept outside colliders (signed distance callbacks) with Coulomb friction, and
+ * point joints holding a vertex of one body on a vertex of another. All positions are world positions (m) at the
+ * end of the step; forces are world-frame newtons. Bodies in one call are stepped with the same Δt (each solid's
+ * matrices must share desc.dt). Not thread-safe for the same solids; callbacks are called from the calling thread. */
+
+/* Signed distance to a collider at x (m, negative inside); grad, if not NULL, receives its gradient (the outward
+ * normal where the distance is exact). */
+typedef double (*DrBemSdfFn)(const double x[3], double grad[3], void *ctx);
+/* The collider's velocity at x (m/s, world frame). */
+typedef void (*DrBemVelocityFn)(const double x[3], double v[3], void *ctx);
+
+typedef struct DrBemCollider {
+    DrBemSdfFn sdf;           /* required */
+    DrBemVelocityFn velocity; /* NULL: the collider is at rest */
+    void *ctx;                /* passed to both callbacks, not owned */
+    double friction;          /* Coulomb μ ≥ 0 */
+} DrBemCollider;
+
+typedef struct DrBemFixed {
+    int body, vertex;  /* index into the solids array, vertex of that body's mesh */
+    double target[3];  /* world position the vertex is held at, m */
+} DrBemFixed;
+
+typedef struct DrBemJoint {
+    int body[2], vertex[2]; /* the two vertices held together (equal and opposite forces) */
+} DrBemJoint;
+
+typedef struct DrBemConstraints {
+    const DrBemCollider *colliders;
+    int collider_count;
+    double thickness;       /* contact offset: a vertex is kept at sdf ≥ thickness, and is active once its
+                               unconstrained position comes closer than 2·thickness, m */
+    const DrBemFixed *fixed;
+    int fixed_count;
+    const DrBemJoint *joints;
+    int joint_count;
+    int max_iterations;     /* projected Gauss–Seidel sweeps per pass */
+    int max_passes;         /* re-linearisations: trial step with the current forces, solve again */
+    double tolerance;       /* position error accepted for fixed vertices, joints and penetration, m */
+} DrBemConstraints;
+/* No constraints; thickness 1e-4 m, 200 sweeps, 8 passes, tolerance 1e-7 m. */
+void dr_bem_constraints_default(DrBemConstraints *c);
+
+typedef struct DrBemConstraintStats {
+    int fixed, contacts, joints; /* active constraints this step */
+    int sticking;                /* contacts whose friction force is inside the cone */
+    int iterations;              /* PGS sweeps, all passes */
+    int passes;                  /* linearisations solved (1 = the paper's single solve) */
+    double residual;             /* largest fixed/joint position error or penetration after the step, m */
+    double seconds_trial;        /* trial steps (zero-force and re-linearisation passes) */
+    double seconds_detect;       /* collider queries */
+    double seconds_assembly;     /* the dense response blocks */
+    double seconds_pgs;
+    double seconds_final;        /* the committed step */
+} DrBemConstraintStats;
+
+/* One step of every solid. Fails with DR_ERR_INPUT (nothing stepped) on an out-of-range body or vertex index, a
+ * collider without sdf, negative friction or thickness, or solids with different Δt; DR_ERR_RUNTIME if a body's
+ * step turns non-finite (the bodies stepped before it keep their step). DR_WARN_NOT_CONVERGED (all bodies stepped)
+ * when the residual is still above the tolerance after max_passes. st may be NULL. */
+DR_NODISCARD DrStatus dr_bem_solids_step(DrBemSolid *const *solids, int count, const DrBemConstraints *c,
+                                         DrBemConstraintStats *st, DrError *err);
 
 #endif

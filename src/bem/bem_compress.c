@@ -637,6 +637,44 @@ void dr_bem_cmat_matvec(const DrBemLayout *l, const DrBemCMat *m, const double *
     for (int i = 0; i < n; i++) y[perm[i]] = v[i];
 }
 
+/* The coefficient domain of the products: x̃ = W P x (identity for dense sets). A runtime keeps its history vectors
+   there, so a step is one sparse product per history matrix and one inverse transform (BEM §3.3). */
+void dr_bem_layout_to_coeff(const DrBemLayout *l, bool dense, const double *x, double *xt, double *scratch)
+{
+    int n = 3 * l->nv;
+    if (dense) {
+        memcpy(xt, x, sizeof(double) * (size_t)n);
+        return;
+    }
+    int nseg, seglen;
+    haar_segments(l, &nseg, &seglen);
+    for (int i = 0; i < n; i++) xt[i] = x[l->perm[i]];
+    if (l->wavelet)
+        for (int s = 0; s < nseg; s++) dr_bem_haar_forward(xt + (size_t)s * seglen, seglen, scratch);
+}
+
+void dr_bem_layout_from_coeff(const DrBemLayout *l, bool dense, const double *yt, double *y, double *scratch)
+{
+    int n = 3 * l->nv;
+    if (dense) {
+        memcpy(y, yt, sizeof(double) * (size_t)n);
+        return;
+    }
+    int nseg, seglen;
+    haar_segments(l, &nseg, &seglen);
+    double *v = scratch, *tmp = scratch + n;
+    memcpy(v, yt, sizeof(double) * (size_t)n);
+    if (l->wavelet)
+        for (int s = 0; s < nseg; s++) dr_bem_haar_inverse(v + (size_t)s * seglen, seglen, tmp);
+    for (int i = 0; i < n; i++) y[l->perm[i]] = v[i];
+}
+
+void dr_bem_cmat_matvec_coeff(const DrBemCMat *m, const double *xt, double *yt)
+{
+    if (m->dense) dense_matvec(m->val, m->n, xt, yt);
+    else csr_matvec(m, xt, yt);
+}
+
 void dr_bem_cmat_decompress(const DrBemLayout *l, const DrBemCMat *m, double *dense)
 {
     assert(m && dense);

@@ -35,4 +35,27 @@ DR_NODISCARD DrStatus bem_laplace_matrices(const DrTriMesh *mesh, const DrBemDes
                                            double complex *H, double complex *G, double complex *D,
                                            double complex *Q, DrError *err);
 
+/* A body in a shot (bem_solid.c); the constraint solver reads its frame and matrices. */
+struct DrBemSolid {
+    const DrBemMatrices *m;
+    DrBemSolidDesc d;
+    int n, nv, nmax;
+    bool dense;
+    double *ref;            /* x − x̄, 3N */
+    double *u;              /* u_n, 3N, body frame */
+    double *ut_hist, *pt_hist; /* nmax × 3N: ũ and p̃ of past steps, slot (step − 1) mod nmax */
+    double *b_hist, *al_hist;  /* nmax × 3: b = a − g′ and α of past steps */
+    long step;
+    double R[9], T[3], Tdot[3], omega[3];
+    double c0[3], wsum;     /* w-weighted centroid of ref, Σw (§3.2.1) */
+    double *E, *F;          /* H₀⁻¹D₀ and H₀⁻¹Q₀, 3N × 3: u = z + E b + F α solves eq. (9) for given b, α */
+    double *Epinv, *Fpinv;  /* 3 × 3N least-squares inverses of E and F (§3.2.1) */
+    double *s_ht, *s_tmp, *s_h, *s_p, *s_u, *s_z, *s_r, *s_coeff; /* scratch, 3N each (coeff: 2·3N) */
+};
+
+/* dr_bem_solid_step with commit = true; with commit = false a trial step: V_out (3N) receives the world positions
+ * the step would give and the solid is left as it was (the constraint solver's linearisation, eq. 14). */
+DR_NODISCARD DrStatus bem_solid_advance(DrBemSolid *s, const double *traction, bool commit, DrBemStepStats *st,
+                                        double *V_out, DrError *err);
+
 #endif

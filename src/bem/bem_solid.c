@@ -1,0 +1,534 @@
+/* One boundary-element body in a shot: eq. (9) stepped by eq. (12) inside a rigid frame moved by eqs. (10)–(11),
+ * with the error correction of BEM §3.2.1.
+ *
+ * The history sums of eq. (9) run over the last n_max steps. Their displacement and traction vectors are kept in
+ * the coefficient domain of the compressed matrices (x̃ = W P x), so the sum Σ_k (−H̃_k ũ_{n−k} + G̃_k p̃_{n−k})
+ * costs one sparse product per matrix and a single inverse transform. The frame accelerations b = a − g′ and α
+ * of past steps enter through the 3N × 3 matrices D_k and Q_k.
+ *
+ * Omitted as in the paper: the centrifugal and Coriolis forces of the rotating frame (a body spinning freely does
+ * not bulge), and the momentum of the deformation itself in the frame's dynamics; error correction returns the
+ * drift these leave in u to the frame. */
+#include "bem_internal.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+
+void dr_bem_solid_desc_default(DrBemSolidDesc *d)
+{
+    *d = (DrBemSolidDesc){
+        .gravity = {0, -9.81, 0},
+        .rotation = {1, 0, 0, 0, 1, 0, 0, 0, 1},
+        .frame_update = true,
+        .error_correction = true,
+    };
+}
+
+/* ---- small 3×3 helpers ------------------------------------------------------------------------------------ */
+
+static void m3_mul(const double *A, const double *B, double *C)
+{
+    double t[9];
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++) t[3 * i + j] = A[3 * i] * B[j] + A[3 * i + 1] * B[3 + j] + A[3 * i + 2] * B[6 + j];
+    memcpy(C, t, sizeof t);
+}
+
+static void m3_vec(const double *A, const double *x, double *y)
+{
+    double t[3];
+    for (int i = 0; i < 3; i++) t[i] = A[3 * i] * x[0] + A[3 * i + 1] * x[1] + A[3 * i + 2] * x[2];
+    memcpy(y, t, sizeof t);
+}
+
+static void m3_tvec(const double *A, const double *x, double *y) /* Aᵀ x */
+{
+    double t[3];
+    for (int i = 0; i < 3; i++) t[i] = A[i] * x[0] + A[3 + i] * x[1] + A[6 + i] * x[2];
+    memcpy(y, t, sizeof t);
+}
+
+static double m3_det(const double *A)
+{
+    return A[0] * (A[4] * A[8] - A[5] * A[7]) - A[1] * (A[3] * A[8] - A[5] * A[6]) + A[2] * (A[3] * A[7] - A[4] * A[6]);
+}
+
+static bool m3_inv(const double *A, double *inv)
+{
+    double det = m3_det(A);
+    if (!(fabs(det) > 0) || !isfinite(det)) return false;
+    inv[0] = (A[4] * A[8] - A[5] * A[7]) / det;
+    inv[1] = (A[2] * A[7] - A[1] * A[8]) / det;
+    inv[2] = (A[1] * A[5] - A[2] * A[4]) / det;
+    inv[3] = (A[5] * A[6] - A[3] * A[8]) / det;
+    inv[4] = (A[0] * A[8] - A[2] * A[6]) / det;
+    inv[5] = (A[2] * A[3] - A[0] * A[5]) / det;
+    inv[6] = (A[3] * A[7] - A[4] * A[6]) / det;
+    inv[7] = (A[1] * A[6] - A[0] * A[7]) / det;
+    inv[8] = (A[0] * A[4] - A[1] * A[3]) / det;
+    return true;
+}
+
+/* e^{θ[k]×} by Rodrigues' formula for the rotation vector v = θk (eq. 11g). */
+static void rodrigues(const double v[3], double *Rm)
+{
+    double th = sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+    double a = th > 1e-8 ? sin(th) / th : 1.0 - th * th / 6.0;
+    double b = th > 1e-8 ? (1.0 - cos(th)) / (th * th) : 0.5 - th * th / 24.0;
+    double K[9] = {0, -v[2], v[1], v[2], 0, -v[0], -v[1], v[0], 0};
+    double K2[9];
+    m3_mul(K, K, K2);
+    for (int q = 0; q < 9; q++) Rm[q] = (q % 4 == 0 ? 1.0 : 0.0) + a * K[q] + b * K2[q];
+}
+
+/* The rotation of the polar decomposition A = R S (det R = +1) by Higham's scaled Newton iteration; the shape-
+   matching matrices it meets are near rotations, so a handful of iterations reach round-off. */
+static void polar_rotation(const double *A, double *Rm)
+{
+    double X[9];
+    memcpy(X, A, sizeof X);
+    for (int it = 0; it < 30; it++) {
+        double Xi[9];
+        if (!m3_inv(X, Xi)) {
+            memcpy(Rm, (double[9]){1, 0, 0, 0, 1, 0, 0, 0, 1}, sizeof X);
+            return;
+        }
+        double g = pow(fabs(m3_det(X)), -1.0 / 3.0), next[9], change = 0;
+        for (int i = 0; i < 3; i++)
+            for (int j = 0; j < 3; j++) next[3 * i + j] = 0.5 * (g * X[3 * i + j] + Xi[3 * j + i] / g);
+        for (int q = 0; q < 9; q++) change = fmax(change, fabs(next[q] - X[q]));
+        memcpy(X, next, sizeof X);
+        if (change < 1e-15) break;
+    }
+    memcpy(Rm, X, sizeof X);
+}
+
+/* ---- creation --------------------------------------------------------------------------------------------- */
+
+/* (MᵀM)⁻¹Mᵀ for an n × 3 row-major M: the least-squares solve of §3.2.1 as a 3 × n matrix. */
+static bool pinv_n3(const double *M, int n, double *P)
+{
+    double G[9] = {0}, Gi[9];
+    for (int r = 0; r < n; r++)
+        for (int i = 0; i < 3; i++)
+            for (int j = 0; j < 3; j++) G[3 * i + j] += M[3 * r + i] * M[3 * r + j];
+    if (!m3_inv(G, Gi)) return false;
+    for (int r = 0; r < n; r++)
+        for (int i = 0; i < 3; i++)
+            P[(size_t)i * n + r] = Gi[3 * i] * M[3 * r] + Gi[3 * i + 1] * M[3 * r + 1] + Gi[3 * i + 2] * M[3 * r + 2];
+    return true;
+}
+
+void dr_bem_solid_destroy(DrBemSolid **ps)
+{
+    DrBemSolid *s = ps ? *ps : NULL;
+    if (!s) return;
+    free(s->ref);
+    free(s->u);
+    free(s->ut_hist);
+    free(s->pt_hist);
+    free(s->b_hist);
+    free(s->al_hist);
+    free(s->E);
+    free(s->F);
+    free(s->Epinv);
+    free(s->Fpinv);
+    free(s->s_ht);
+    free(s->s_tmp);
+    free(s->s_h);
+    free(s->s_p);
+    free(s->s_u);
+    free(s->s_z);
+    free(s->s_r);
+    free(s->s_coeff);
+    free(s);
+    *ps = NULL;
+}
+
+DrStatus dr_bem_solid_create(const DrBemMatrices *m, const DrBemSolidDesc *d, DrBemSolid **out, DrError *err)
+{
+    *out = NULL;
+    DrBemSolid *s = NULL;
+    DR_TRY(dr_calloc(1, sizeof *s, &s, err));
+    s->m = m;
+    s->d = *d;
+    s->n = m->n;
+    s->nv = m->nv;
+    s->nmax = m->n_max;
+    s->dense = m->H0inv.dense;
+    size_t n = (size_t)s->n, nh = (size_t)s->nmax;
+    DrStatus st = dr_calloc(n, sizeof(double), &s->ref, err);
+    if (st == DR_OK) st = dr_calloc(n, sizeof(double), &s->u, err);
+    if (st == DR_OK) st = dr_calloc(nh * n, sizeof(double), &s->ut_hist, err);
+    if (st == DR_OK) st = dr_calloc(nh * n, sizeof(double), &s->pt_hist, err);
+    if (st == DR_OK) st = dr_calloc(nh * 3, sizeof(double), &s->b_hist, err);
+    if (st == DR_OK) st = dr_calloc(nh * 3, sizeof(double), &s->al_hist, err);
+    double **n3[] = {&s->E, &s->F, &s->Epinv, &s->Fpinv};
+    for (int i = 0; st == DR_OK && i < 4; i++) st = dr_calloc(3 * n, sizeof(double), n3[i], err);
+    double **scratch[] = {&s->s_ht, &s->s_tmp, &s->s_h, &s->s_p, &s->s_u, &s->s_z, &s->s_r};
+    for (int i = 0; st == DR_OK && i < 7; i++) st = dr_calloc(n, sizeof(double), scratch[i], err);
+    if (st == DR_OK) st = dr_calloc(2 * n, sizeof(double), &s->s_coeff, err);
+    if (st != DR_OK) {
+        dr_bem_solid_destroy(&s);
+        return st;
+    }
+    const double *xb = m->body.centroid;
+    for (int v = 0; v < s->nv; v++)
+        for (int c = 0; c < 3; c++) s->ref[3 * v + c] = m->x[3 * v + c] - xb[c];
+    s->wsum = 0;
+    for (int v = 0; v < s->nv; v++) {
+        s->wsum += m->w[v];
+        for (int c = 0; c < 3; c++) s->c0[c] += m->w[v] * s->ref[3 * v + c];
+    }
+    for (int c = 0; c < 3; c++) s->c0[c] /= s->wsum;
+    /* E = H₀⁻¹D₀ and F = H₀⁻¹Q₀ with the same (compressed) H₀⁻¹ the steps use */
+    for (int c = 0; c < 3; c++) {
+        for (int r = 0; r < s->n; r++) s->s_tmp[r] = m->D[3 * r + c];
+        dr_bem_cmat_matvec(&m->layout, &m->H0inv, s->s_tmp, s->s_u, s->s_coeff);
+        for (int r = 0; r < s->n; r++) s->E[3 * r + c] = s->s_u[r];
+        for (int r = 0; r < s->n; r++) s->s_tmp[r] = m->Q[3 * r + c];
+        dr_bem_cmat_matvec(&m->layout, &m->H0inv, s->s_tmp, s->s_u, s->s_coeff);
+        for (int r = 0; r < s->n; r++) s->F[3 * r + c] = s->s_u[r];
+    }
+    if (!pinv_n3(s->E, s->n, s->Epinv) || !pinv_n3(s->F, s->n, s->Fpinv)) {
+        dr_bem_solid_destroy(&s);
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                            "BEM: the body-force matrices H0^-1 D0 or H0^-1 Q0 are rank-deficient; the matrices are "
+                            "damaged or the mesh is degenerate: run precompute again");
+    }
+    memcpy(s->R, d->rotation, sizeof s->R);
+    memcpy(s->T, d->position, sizeof s->T);
+    if (d->frame_update) {
+        memcpy(s->Tdot, d->velocity, sizeof s->Tdot);
+        memcpy(s->omega, d->angular_velocity, sizeof s->omega);
+    }
+    *out = s;
+    return DR_OK;
+}
+
+/* ---- one step ---------------------------------------------------------------------------------------------- */
+
+static int slot(const DrBemSolid *s, long j) { return (int)((j - 1) % s->nmax); } /* step j ≥ 1 */
+
+/* y = M x (natural order), using the solid's transform scratch. */
+static void apply(const DrBemSolid *s, const DrBemCMat *M, const double *x, double *y)
+{
+    dr_bem_cmat_matvec(&s->m->layout, M, x, y, s->s_coeff);
+}
+
+/* out += Σ_c M[r][c] v[c] for an n × 3 row-major M. */
+static void add_n3(const double *M, int n, const double v[3], double *out)
+{
+    for (int r = 0; r < n; r++) out[r] += M[3 * r] * v[0] + M[3 * r + 1] * v[1] + M[3 * r + 2] * v[2];
+}
+
+static void mul_3n(const double *P, int n, const double *x, double out[3])
+{
+    for (int i = 0; i < 3; i++) {
+        double acc = 0;
+        for (int r = 0; r < n; r++) acc += P[(size_t)i * n + r] * x[r];
+        out[i] = acc;
+    }
+}
+
+DrStatus dr_bem_solid_step(DrBemSolid *s, const double *traction, DrBemStepStats *st, DrError *err)
+{
+    return bem_solid_advance(s, traction, true, st, NULL, err);
+}
+
+DrStatus bem_solid_advance(DrBemSolid *s, const double *traction, bool commit, DrBemStepStats *st, double *V_out,
+                           DrError *err)
+{
+    const DrBemMatrices *m = s->m;
+    int n = s->n;
+    size_t nb = sizeof(double) * (size_t)n;
+    double dt = m->desc.dt;
+    DrBemStepStats stats = {0};
+    double t0 = dr_time_now();
+    long step = s->step + 1; /* the step being taken */
+
+    /* 1. history: h = Σ_{k=1}^{n_max} (−H_k u_{n−k} + G_k p_{n−k} + D_k b_{n−k} + Q_k α_{n−k}) (eq. 9) */
+    double *ht = s->s_ht, *tmp = s->s_tmp, *h = s->s_h;
+    memset(ht, 0, nb);
+    memset(h, 0, nb);
+    for (int k = 1; k <= s->nmax && k < step; k++) {
+        int sl = slot(s, step - k);
+        dr_bem_cmat_matvec_coeff(&m->H[k], s->ut_hist + (size_t)sl * n, tmp);
+        for (int i = 0; i < n; i++) ht[i] -= tmp[i];
+        dr_bem_cmat_matvec_coeff(&m->G[k], s->pt_hist + (size_t)sl * n, tmp);
+        for (int i = 0; i < n; i++) ht[i] += tmp[i];
+    }
+    if (step > 1) dr_bem_layout_from_coeff(&m->layout, s->dense, ht, h, s->s_coeff);
+    for (int k = 1; k <= s->nmax && k < step; k++) {
+        int sl = slot(s, step - k);
+        add_n3(m->D + (size_t)k * n * 3, n, s->b_hist + 3 * sl, h);
+        add_n3(m->Q + (size_t)k * n * 3, n, s->al_hist + 3 * sl, h);
+    }
+    double t1 = dr_time_now();
+    stats.seconds_history = t1 - t0;
+
+    /* 2. eq. (9) solved for u given the frame accelerations b = a − g′ and α: u = z + E b + F α with
+          z = H₀⁻¹(G₀p + h) = H₀⁻¹G′p − E A p − F C p + H₀⁻¹h (G′ = G₀ + D₀A + Q₀C, eq. 12) */
+    double *p = s->s_p;
+    bool loaded = false;
+    if (traction) {
+        memcpy(p, traction, nb);
+        for (int i = 0; i < n && !loaded; i++) loaded = p[i] != 0.0;
+    } else {
+        memset(p, 0, nb);
+    }
+    double gp[3], b0[3] = {0, 0, 0}, al0[3] = {0, 0, 0};
+    m3_tvec(s->R, s->d.gravity, gp); /* g′ = Rᵀ g (11a) */
+    double *u = s->s_u, *z = s->s_z, *r = s->s_r;
+    memset(z, 0, nb);
+    if (loaded) {
+        for (int i = 0; i < 3; i++)
+            for (int c = 0; c < n; c++) {
+                b0[i] += m->A[(size_t)i * n + c] * p[c]; /* a_ext = A p, α = C p (eq. 10) */
+                al0[i] += m->C[(size_t)i * n + c] * p[c];
+            }
+        apply(s, &m->H0inv_Gp, p, z);
+        double nb0[3] = {-b0[0], -b0[1], -b0[2]}, nal0[3] = {-al0[0], -al0[1], -al0[2]};
+        add_n3(s->E, n, nb0, z);
+        add_n3(s->F, n, nal0, z);
+    }
+    if (step > 1) {
+        apply(s, &m->H0inv, h, tmp);
+        for (int i = 0; i < n; i++) z[i] += tmp[i];
+    }
+    double b[3], al[3];
+    if (s->d.frame_update) { /* a = g′ + A p (11b), α = C p (11c): g′ cancels in b */
+        memcpy(b, b0, sizeof b);
+        memcpy(al, al0, sizeof al);
+    } else { /* a fixed frame: a = 0, so b = −g′ and α = 0, and u carries all motion */
+        for (int c = 0; c < 3; c++) b[c] = -gp[c];
+        al[0] = al[1] = al[2] = 0;
+    }
+    memcpy(u, z, nb);
+    add_n3(s->E, n, b, u);
+    add_n3(s->F, n, al, u);
+    double t2 = dr_time_now();
+    stats.seconds_solve = t2 - t1;
+
+    /* 3. error correction (§3.2.1): the translation and rotation left in u go to the frame's accelerations. The
+          least-squares solves of eq. (9) for b and α are taken in its H₀⁻¹-multiplied form u = z + E b + F α, which
+          needs no product with H₀ or G₀ themselves. */
+    if (s->d.frame_update && s->d.error_correction) {
+        double te[3] = {0, 0, 0};
+        for (int v = 0; v < s->nv; v++)
+            for (int c = 0; c < 3; c++) te[c] += m->w[v] * u[3 * v + c];
+        for (int c = 0; c < 3; c++) te[c] /= s->wsum;
+        for (int v = 0; v < s->nv; v++)
+            for (int c = 0; c < 3; c++) u[3 * v + c] -= te[c];
+        stats.translation_error = sqrt(te[0] * te[0] + te[1] * te[1] + te[2] * te[2]);
+        /* b: E b ≈ u − z − F α */
+        for (int i = 0; i < n; i++) r[i] = u[i] - z[i];
+        double nal[3] = {-al[0], -al[1], -al[2]};
+        add_n3(s->F, n, nal, r);
+        mul_3n(s->Epinv, n, r, b);
+        /* the rotation by shape matching with the weights w: A_pq = Σ w (ref + u − c0)(ref − c0)ᵀ */
+        double Apq[9] = {0}, Re[9];
+        for (int v = 0; v < s->nv; v++) {
+            double q[3], y[3];
+            for (int c = 0; c < 3; c++) {
+                q[c] = s->ref[3 * v + c] - s->c0[c];
+                y[c] = q[c] + u[3 * v + c];
+            }
+            for (int i = 0; i < 3; i++)
+                for (int j = 0; j < 3; j++) Apq[3 * i + j] += m->w[v] * y[i] * q[j];
+        }
+        polar_rotation(Apq, Re);
+        double tr = Re[0] + Re[4] + Re[8];
+        stats.rotation_error = acos(fmax(-1.0, fmin(1.0, 0.5 * (tr - 1.0))));
+        for (int v = 0; v < s->nv; v++) { /* u ← Reᵀ(ref + u − c0) + c0 − ref */
+            double y[3], w3[3];
+            for (int c = 0; c < 3; c++) y[c] = s->ref[3 * v + c] + u[3 * v + c] - s->c0[c];
+            m3_tvec(Re, y, w3);
+            for (int c = 0; c < 3; c++) u[3 * v + c] = w3[c] + s->c0[c] - s->ref[3 * v + c];
+        }
+        /* α: F α ≈ u − z − E b; then u from (9) with both */
+        for (int i = 0; i < n; i++) r[i] = u[i] - z[i];
+        double nb3[3] = {-b[0], -b[1], -b[2]};
+        add_n3(s->E, n, nb3, r);
+        mul_3n(s->Fpinv, n, r, al);
+        memcpy(u, z, nb);
+        add_n3(s->E, n, b, u);
+        add_n3(s->F, n, al, u);
+    }
+    stats.seconds_correction = dr_time_now() - t2;
+
+    /* 4. the frame (eqs. 11d–g) with a = g′ + b in the body frame */
+    double R[9], T[3], Tdot[3], omega[3];
+    memcpy(R, s->R, sizeof R);
+    memcpy(T, s->T, sizeof T);
+    memcpy(Tdot, s->Tdot, sizeof Tdot);
+    memcpy(omega, s->omega, sizeof omega);
+    if (s->d.frame_update) {
+        double a[3] = {gp[0] + b[0], gp[1] + b[1], gp[2] + b[2]}, Ra[3], Ral[3], rot[9], dv[3];
+        m3_vec(s->R, a, Ra);
+        m3_vec(s->R, al, Ral);
+        for (int c = 0; c < 3; c++) {
+            Tdot[c] += dt * Ra[c];
+            omega[c] += dt * Ral[c];
+            T[c] += dt * Tdot[c];
+            dv[c] = dt * omega[c];
+        }
+        rodrigues(dv, rot);
+        m3_mul(rot, s->R, R);
+    }
+    bool finite = true;
+    for (int i = 0; i < n && finite; i++) finite = isfinite(u[i]);
+    for (int c = 0; c < 9 && finite; c++) finite = isfinite(R[c]);
+    for (int c = 0; c < 3 && finite; c++) finite = isfinite(T[c]) && isfinite(Tdot[c]) && isfinite(omega[c]);
+    if (!finite)
+        return dr_error_set(err, DR_ERR_RUNTIME, NULL, 0, 0,
+                            "BEM body: step %ld produced a non-finite state (the step was refused); check the "
+                            "tractions applied to it and its time step",
+                            step);
+
+    if (!commit) { /* a trial step: the positions it would give, the state untouched */
+        for (int v = 0; v < s->nv; v++) {
+            double y[3];
+            for (int c = 0; c < 3; c++) y[c] = s->ref[3 * v + c] + u[3 * v + c];
+            m3_vec(R, y, &V_out[3 * v]);
+            for (int c = 0; c < 3; c++) V_out[3 * v + c] += T[c];
+        }
+        if (st) *st = stats;
+        return DR_OK;
+    }
+
+    /* 5. commit: the state and this step's entry of the history window */
+    memcpy(s->u, u, nb);
+    memcpy(s->R, R, sizeof R);
+    memcpy(s->T, T, sizeof T);
+    memcpy(s->Tdot, Tdot, sizeof Tdot);
+    memcpy(s->omega, omega, sizeof omega);
+    int sl = slot(s, step);
+    dr_bem_layout_to_coeff(&m->layout, s->dense, u, s->ut_hist + (size_t)sl * n, s->s_coeff);
+    dr_bem_layout_to_coeff(&m->layout, s->dense, p, s->pt_hist + (size_t)sl * n, s->s_coeff);
+    memcpy(s->b_hist + 3 * sl, b, sizeof b);
+    memcpy(s->al_hist + 3 * sl, al, sizeof al);
+    s->step = step;
+    if (st) *st = stats;
+    return DR_OK;
+}
+
+/* ---- readers ----------------------------------------------------------------------------------------------- */
+
+const DrBemMatrices *dr_bem_solid_matrices(const DrBemSolid *s) { return s->m; }
+long dr_bem_solid_steps(const DrBemSolid *s) { return s->step; }
+const double *dr_bem_solid_displacement(const DrBemSolid *s) { return s->u; }
+const double *dr_bem_solid_reference(const DrBemSolid *s) { return s->ref; }
+
+void dr_bem_solid_pose(const DrBemSolid *s, double R[9], double T[3])
+{
+    memcpy(R, s->R, sizeof s->R);
+    memcpy(T, s->T, sizeof s->T);
+}
+
+void dr_bem_solid_frame_velocity(const DrBemSolid *s, double v[3], double w[3])
+{
+    memcpy(v, s->Tdot, sizeof s->Tdot);
+    memcpy(w, s->omega, sizeof s->omega);
+}
+
+void dr_bem_solid_positions(const DrBemSolid *s, double *V)
+{
+    for (int v = 0; v < s->nv; v++) {
+        double y[3];
+        for (int c = 0; c < 3; c++) y[c] = s->ref[3 * v + c] + s->u[3 * v + c];
+        m3_vec(s->R, y, &V[3 * v]);
+        for (int c = 0; c < 3; c++) V[3 * v + c] += s->T[c];
+    }
+}
+
+void dr_bem_solid_diagnostics(const DrBemSolid *s, DrBemSolidDiag *out)
+{
+    const DrBemMatrices *m = s->m;
+    double mass = m->body.mass, Iw[9], tmp[9], Rt[9], Lw[3];
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++) Rt[3 * i + j] = s->R[3 * j + i];
+    m3_mul(s->R, m->body.inertia, tmp);
+    m3_mul(tmp, Rt, Iw);
+    m3_vec(Iw, s->omega, Lw);
+    double v2 = 0, gT = 0;
+    for (int c = 0; c < 3; c++) {
+        out->momentum[c] = mass * s->Tdot[c];
+        out->angular_momentum[c] = Lw[c];
+        v2 += s->Tdot[c] * s->Tdot[c];
+        gT += s->d.gravity[c] * s->T[c];
+    }
+    out->kinetic = 0.5 * mass * v2 + 0.5 * (s->omega[0] * Lw[0] + s->omega[1] * Lw[1] + s->omega[2] * Lw[2]);
+    out->potential = -mass * gT;
+    double vol = 0, umax = 0;
+    for (int t = 0; t < m->nt; t++) {
+        const int *tt = &m->tri[3 * t];
+        double p[3][3];
+        for (int k = 0; k < 3; k++)
+            for (int c = 0; c < 3; c++) p[k][c] = s->ref[3 * tt[k] + c] + s->u[3 * tt[k] + c];
+        vol += (p[0][0] * (p[1][1] * p[2][2] - p[1][2] * p[2][1]) - p[0][1] * (p[1][0] * p[2][2] - p[1][2] * p[2][0]) +
+                p[0][2] * (p[1][0] * p[2][1] - p[1][1] * p[2][0])) /
+               6.0;
+    }
+    for (int v = 0; v < s->nv; v++) {
+        const double *uv = &s->u[3 * v];
+        umax = fmax(umax, sqrt(uv[0] * uv[0] + uv[1] * uv[1] + uv[2] * uv[2]));
+    }
+    out->volume = vol;
+    out->max_displacement = umax;
+}
+
+/* ---- checkpoint -------------------------------------------------------------------------------------------- */
+
+size_t dr_bem_solid_state_size(const DrBemSolid *s)
+{
+    return (size_t)s->n * (1 + 2 * (size_t)s->nmax) + 6 * (size_t)s->nmax + 18 + 1;
+}
+
+void dr_bem_solid_state_get(const DrBemSolid *s, double *st)
+{
+    size_t n = (size_t)s->n, nh = (size_t)s->nmax;
+    memcpy(st, s->u, sizeof(double) * n);
+    st += n;
+    memcpy(st, s->ut_hist, sizeof(double) * nh * n);
+    st += nh * n;
+    memcpy(st, s->pt_hist, sizeof(double) * nh * n);
+    st += nh * n;
+    memcpy(st, s->b_hist, sizeof(double) * nh * 3);
+    st += nh * 3;
+    memcpy(st, s->al_hist, sizeof(double) * nh * 3);
+    st += nh * 3;
+    memcpy(st, s->R, sizeof s->R);
+    memcpy(st + 9, s->T, sizeof s->T);
+    memcpy(st + 12, s->Tdot, sizeof s->Tdot);
+    memcpy(st + 15, s->omega, sizeof s->omega);
+    st[18] = (double)s->step;
+}
+
+DrStatus dr_bem_solid_state_set(DrBemSolid *s, const double *st, size_t size, DrError *err)
+{
+    if (size != dr_bem_solid_state_size(s))
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                            "BEM body: the checkpoint holds %zu state values where this body needs %zu (another mesh "
+                            "or history length); bake again without --resume",
+                            size, dr_bem_solid_state_size(s));
+    size_t n = (size_t)s->n, nh = (size_t)s->nmax;
+    memcpy(s->u, st, sizeof(double) * n);
+    st += n;
+    memcpy(s->ut_hist, st, sizeof(double) * nh * n);
+    st += nh * n;
+    memcpy(s->pt_hist, st, sizeof(double) * nh * n);
+    st += nh * n;
+    memcpy(s->b_hist, st, sizeof(double) * nh * 3);
+    st += nh * 3;
+    memcpy(s->al_hist, st, sizeof(double) * nh * 3);
+    st += nh * 3;
+    memcpy(s->R, st, sizeof s->R);
+    memcpy(s->T, st + 9, sizeof s->T);
+    memcpy(s->Tdot, st + 12, sizeof s->Tdot);
+    memcpy(s->omega, st + 15, sizeof s->omega);
+    s->step = (long)st[18];
+    return DR_OK;
+}
