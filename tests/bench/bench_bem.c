@@ -11,7 +11,9 @@
  *     (H_k, G_k for k = 0..n_max, H₀⁻¹, H₀⁻¹G′), the relative Frobenius error of H_1, the relative error of
  *     H_1 x against the dense product for a smooth and a random x, and the seconds of one product and of the
  *     history sum of one step (2·n_max products plus H₀⁻¹G′ and H₀⁻¹) on 1 and 2 threads — the analogue of
- *     the paper's Table 1 and Fig. 7.
+ *     the paper's Table 1 and Fig. 7; and the seconds of a body's unconstrained step (history sums, eq. 12,
+ *     error correction) on that set, 1 and 2 threads (issue goal: ≤ 0.011 s at 32× on 2 cores). Part 1 also
+ *     times the step at 32× for each size.
  * Targets from the issue: N ≈ 3,000 precomputed within 20 minutes on 2 cores.
  * usage: bench_bem [csv = out/bench/bem.csv] [part = all | precompute | compression]
  *        bench_bem --one SEGMENTS   (one precompute, one CSV line on stdout; used by part 1) */
@@ -50,6 +52,42 @@ static DrTriMesh box_mesh(int seg)
     return m;
 }
 
+
+/* Mean seconds per unconstrained step (history, solve, error correction) of a body under an uneven load, over
+   `steps` steps after as many warm-up steps, on `threads` threads. */
+static void time_steps(const DrBemMatrices *bm, int threads, int steps, double out[4])
+{
+    omp_set_num_threads(threads);
+    DrBemSolidDesc d;
+    dr_bem_solid_desc_default(&d);
+    DrBemSolid *s = NULL;
+    DrError err;
+    if (dr_bem_solid_create(bm, &d, &s, &err) != DR_OK) {
+        fprintf(stderr, "bench_bem: %s\n", err.message);
+        exit(1);
+    }
+    double *p = calloc((size_t)bm->n, sizeof(double));
+    for (int v = 0; v < bm->nv; v++) p[3 * v + 1] = v % 3 == 0 ? 50.0 : 0.0;
+    memset(out, 0, sizeof(double) * 4);
+    for (int k = 0; k < 2 * steps; k++) {
+        DrBemStepStats st;
+        double t0 = dr_time_now();
+        if (dr_bem_solid_step(s, p, &st, &err) != DR_OK) {
+            fprintf(stderr, "bench_bem: %s\n", err.message);
+            exit(1);
+        }
+        double t = dr_time_now() - t0;
+        if (k < steps) continue; /* warm-up: the history window fills */
+        out[0] += t / steps;
+        out[1] += st.seconds_history / steps;
+        out[2] += st.seconds_solve / steps;
+        out[3] += st.seconds_correction / steps;
+    }
+    free(p);
+    dr_bem_solid_destroy(&s);
+    omp_set_num_threads(2);
+}
+
 static int run_one(int seg)
 {
     DrTriMesh m = box_mesh(seg);
@@ -64,10 +102,14 @@ static int run_one(int seg)
     double total = dr_time_now() - t0;
     struct rusage ru;
     getrusage(RUSAGE_SELF, &ru);
-    printf("%d,%d,%d,%.3f,%.3f,%.3f,%.3f,%.1f,%.1f,%.1f,%.3e\n", m.nv, omp_get_max_threads(), bm->n_max,
+    int threads = omp_get_max_threads();
+    double st1[4], st2[4];
+    time_steps(bm, 1, 20, st1);
+    time_steps(bm, 2, 20, st2);
+    printf("%d,%d,%d,%.3f,%.3f,%.3f,%.3f,%.1f,%.1f,%.1f,%.3e,%.5f,%.5f\n", m.nv, threads, bm->n_max,
            bm->stats.seconds_quadrature, bm->stats.seconds_inverse, bm->stats.seconds_compress, total,
            ru.ru_maxrss / 1024.0, bm->stats.bytes_dense / 1e6, bm->stats.bytes_compressed / 1e6,
-           bm->stats.rigid_residual);
+           bm->stats.rigid_residual, st1[0], st2[0]);
     dr_bem_matrices_destroy(&bm);
     dr_trimesh_free(&m);
     return 0;
@@ -81,11 +123,12 @@ static void part_precompute(const char *csv)
         exit(1);
     }
     const char *head = "vertices,threads,n_max,s_quadrature,s_inverse,s_compress,s_total,peak_mb,dense_mb,"
-                       "compressed_mb,rigid_residual";
+                       "compressed_mb,rigid_residual,s_step_1t,s_step_2t";
     fprintf(f, "%s\n", head);
     printf("### precompute against N (boxes, n_max as listed, 32x, %d threads)\n\n", omp_get_max_threads());
     printf("| vertices | n_max | quadrature s | H0 inverse s | compression s | total s | peak MB | dense MB | "
-           "kept MB | rigid residual |\n|---|---|---|---|---|---|---|---|---|---|\n");
+           "kept MB | rigid residual | step s (1 thread) | step s (2 threads) |\n"
+           "|---|---|---|---|---|---|---|---|---|---|---|---|\n");
     int segs[] = {9, 13, 22};
     char self[1024];
     ssize_t len = readlink("/proc/self/exe", self, sizeof self - 1);
@@ -108,11 +151,11 @@ static void part_precompute(const char *csv)
         fputs(line, f);
         fflush(f);
         int nv, th, nmax;
-        double q, inv, comp, tot, peak, dmb, kmb, rr;
-        if (sscanf(line, "%d,%d,%d,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf", &nv, &th, &nmax, &q, &inv, &comp, &tot, &peak,
-                   &dmb, &kmb, &rr) == 11)
-            printf("| %d | %d | %.1f | %.1f | %.1f | %.1f | %.0f | %.0f | %.0f | %.2e |\n", nv, nmax, q, inv, comp,
-                   tot, peak, dmb, kmb, rr);
+        double q, inv, comp, tot, peak, dmb, kmb, rr, s1, s2;
+        if (sscanf(line, "%d,%d,%d,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf", &nv, &th, &nmax, &q, &inv, &comp, &tot,
+                   &peak, &dmb, &kmb, &rr, &s1, &s2) == 13)
+            printf("| %d | %d | %.1f | %.1f | %.1f | %.1f | %.0f | %.0f | %.0f | %.2e | %.4f | %.4f |\n", nv, nmax, q,
+                   inv, comp, tot, peak, dmb, kmb, rr, s1, s2);
         fflush(stdout);
     }
     fclose(f);
@@ -174,11 +217,12 @@ static void part_compression(const char *csv)
         exit(1);
     }
     fprintf(f, "ratio,vertices,n_max,set_mb,h1_frobenius_err,matvec_err_smooth,matvec_err_random,threads,"
-               "s_matvec,s_step_history\n");
+               "s_matvec,s_step_history,s_step,s_step_history_part,s_step_solve,s_step_correction\n");
     printf("\n### compression (%d vertices, n_max %d; one product of H_1, and a step's history: %d products)\n\n",
            m.nv, bm->n_max, 2 * nk);
     printf("| ratio | set MB | H_1 Frobenius err | H_1 x err (smooth) | H_1 x err (random) | threads | s per product "
-           "| s per step history |\n|---|---|---|---|---|---|---|---|\n");
+           "| s per 12 products | s per unconstrained step (history + solve + correction) |\n"
+           "|---|---|---|---|---|---|---|---|---|\n");
     double ratios[] = {1, 8, 32, 128};
     double *back = malloc(sizeof(double) * nn);
     for (int r = 0; r < 4; r++) {
@@ -196,6 +240,28 @@ static void part_compression(const char *csv)
         /* H₀⁻¹ and H₀⁻¹G′ at this ratio: the same storage per entry as H_0 and G_0 (dense inverses) */
         bytes += dr_bem_cmat_bytes(&set[0]) + dr_bem_cmat_bytes(&set[1]);
         const DrBemCMat *c1 = &set[2];
+        /* the body's step on this set: a view of the dense build with the recompressed matrices */
+        DrBemMatrices view = *bm;
+        DrBemCMat *H = calloc((size_t)nk, sizeof(DrBemCMat)), *G = calloc((size_t)nk, sizeof(DrBemCMat));
+        for (int k = 0; k < nk; k++) {
+            H[k] = set[2 * k];
+            G[k] = set[2 * k + 1];
+        }
+        view.H = H;
+        view.G = G;
+        double *inv = malloc(sizeof(double) * nn);
+        dr_bem_cmat_decompress(&bm->layout, &bm->H0inv, inv);
+        if (dr_bem_compress(&bm->layout, inv, ratios[r], &view.H0inv, &err) != DR_OK) exit(1);
+        dr_bem_cmat_decompress(&bm->layout, &bm->H0inv_Gp, inv);
+        if (dr_bem_compress(&bm->layout, inv, ratios[r], &view.H0inv_Gp, &err) != DR_OK) exit(1);
+        free(inv);
+        double stp[2][4];
+        time_steps(&view, 1, 10, stp[0]);
+        time_steps(&view, 2, 10, stp[1]);
+        dr_bem_cmat_free(&view.H0inv);
+        dr_bem_cmat_free(&view.H0inv_Gp);
+        free(H);
+        free(G);
         dr_bem_cmat_decompress(&bm->layout, c1, back);
         double fe = 0;
         for (size_t q = 0; q < nn; q++) fe += (back[q] - H1[q]) * (back[q] - H1[q]);
@@ -216,10 +282,11 @@ static void part_compression(const char *csv)
             t0 = dr_time_now();
             for (int k = 0; k < 2 * nk; k++) dr_bem_cmat_matvec(&bm->layout, &set[k], x1, y, sc);
             double step = dr_time_now() - t0;
-            fprintf(f, "%g,%d,%d,%.1f,%.3e,%.3e,%.3e,%d,%.5f,%.5f\n", ratios[r], m.nv, bm->n_max, bytes / 1e6, fe, e1,
-                    e2, th, per, step);
-            printf("| %g | %.0f | %.2e | %.2e | %.2e | %d | %.4f | %.4f |\n", ratios[r], bytes / 1e6, fe, e1, e2, th,
-                   per, step);
+            const double *sp = stp[th - 1];
+            fprintf(f, "%g,%d,%d,%.1f,%.3e,%.3e,%.3e,%d,%.5f,%.5f,%.5f,%.5f,%.5f,%.5f\n", ratios[r], m.nv, bm->n_max,
+                    bytes / 1e6, fe, e1, e2, th, per, step, sp[0], sp[1], sp[2], sp[3]);
+            printf("| %g | %.0f | %.2e | %.2e | %.2e | %d | %.4f | %.4f | %.4f (%.4f + %.4f + %.4f) |\n", ratios[r],
+                   bytes / 1e6, fe, e1, e2, th, per, step, sp[0], sp[1], sp[2], sp[3]);
             fflush(stdout);
         }
         omp_set_num_threads(2);
