@@ -1,7 +1,7 @@
 # BEM benchmark plots (run from out/bench/):
 #   bem.png: precompute seconds (quadrature, inverse, compression, total) and peak memory against the vertex count;
 #   bem_compression.png: storage of the matrix set, the error of H_1 and of its product, and the seconds of one
-#   product against the compression ratio, on 1 and 2 threads.
+#   product, of 12 products and of a body's unconstrained step against the compression ratio, on 1 and 2 threads.
 set datafile separator ","
 set terminal pngcairo size 1400,600 noenhanced
 set key top left
@@ -34,6 +34,8 @@ plot "< awk -F, 'NR>1 && $8==1' bem_compression.csv" using 1:4 with linespoints 
 set ylabel "seconds"
 plot "< awk -F, 'NR>1 && $8==1' bem_compression.csv" using 1:9 with linespoints title "one product, 1 thread", \
      "< awk -F, 'NR>1 && $8==2' bem_compression.csv" using 1:9 with linespoints title "one product, 2 threads", \
-     "< awk -F, 'NR>1 && $8==1' bem_compression.csv" using 1:10 with linespoints title "step history, 1 thread", \
-     "< awk -F, 'NR>1 && $8==2' bem_compression.csv" using 1:10 with linespoints title "step history, 2 threads"
+     "< awk -F, 'NR>1 && $8==1' bem_compression.csv" using 1:10 with linespoints title "12 products, 1 thread", \
+     "< awk -F, 'NR>1 && $8==2' bem_compression.csv" using 1:10 with linespoints title "12 products, 2 threads", \
+     "< awk -F, 'NR>1 && $8==1' bem_compression.csv" using 1:11 with linespoints lw 2 title "body step, 1 thread", \
+     "< awk -F, 'NR>1 && $8==2' bem_compression.csv" using 1:11 with linespoints lw 2 title "body step, 2 threads"
 unset multiplot
