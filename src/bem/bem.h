@@ -296,9 +296,11 @@ DR_NODISCARD DrStatus dr_bem_solid_state_set(DrBemSolid *s, const double *state,
 /* ---- runtime: constraints, contact and friction (BEM §3.4) ----------------------------------------------------
  * dr_bem_solids_step advances every body one step with position-level constraints solved for nodal forces: a force
  * f at a vertex acts as the traction f / area_j (area_j = ∫Φ_j) on it. Constraints live at vertices: fixed vertices
- * held at world positions, vertices kept outside colliders (signed distance callbacks) with Coulomb friction, and
- * point joints holding a vertex of one body on a vertex of another. All positions are world positions (m) at the
- * end of the step; forces are world-frame newtons. Bodies in one call are stepped with the same Δt (each solid's
+ * held at world positions, vertices kept outside colliders (signed distance callbacks) with Coulomb friction, point
+ * joints holding a vertex of one body on a vertex of another, and optionally contact with friction between bodies (a
+ * vertex of one body kept outside the triangles of another, found through a spatial hash; its force is shared by the
+ * triangle's vertices with barycentric weights). All positions are world positions (m) at the end of the step;
+ * forces are world-frame newtons. Bodies in one call are stepped with the same Δt (each solid's
  * matrices must share desc.dt). Not thread-safe for the same solids; callbacks are called from the calling thread. */
 
 /* Signed distance to a collider at x (m, negative inside); grad, if not NULL, receives its gradient (the outward
@@ -332,28 +334,33 @@ typedef struct DrBemConstraints {
     int fixed_count;
     const DrBemJoint *joints;
     int joint_count;
+    bool body_contact;      /* keep every vertex of each body outside every other body (no self-contact; a vertex
+                               found deeper than the other body's mean edge length is left alone) */
+    double body_friction;   /* Coulomb μ ≥ 0 between bodies */
     int max_iterations;     /* projected Gauss–Seidel sweeps per pass */
     int max_passes;         /* re-linearisations: trial step with the current forces, solve again */
     double tolerance;       /* position error accepted for fixed vertices, joints and penetration, m */
 } DrBemConstraints;
-/* No constraints; thickness 1e-4 m, 200 sweeps, 8 passes, tolerance 1e-7 m. */
+/* No constraints, no body contact; thickness 1e-4 m, body friction 0.5, 200 sweeps, 8 passes, tolerance 1e-7 m. */
 void dr_bem_constraints_default(DrBemConstraints *c);
 
 typedef struct DrBemConstraintStats {
-    int fixed, contacts, joints; /* active constraints this step */
+    int fixed, contacts, joints; /* active constraints this step (contacts: against colliders) */
+    int body_contacts;           /* vertex–triangle contacts between bodies */
     int sticking;                /* contacts whose friction force is inside the cone */
     int iterations;              /* PGS sweeps, all passes */
     int passes;                  /* linearisations solved (1 = the paper's single solve) */
-    double residual;             /* largest fixed/joint position error or penetration after the step, m */
+    double residual;             /* largest fixed/joint position error or penetration after the step, m (0 when
+                                    nothing was active) */
     double seconds_trial;        /* trial steps (zero-force and re-linearisation passes) */
-    double seconds_detect;       /* collider queries */
+    double seconds_detect;       /* collider queries, body-pair detection, and measuring each pass's trial */
     double seconds_assembly;     /* the dense response blocks */
     double seconds_pgs;
     double seconds_final;        /* the committed step */
 } DrBemConstraintStats;
 
 /* One step of every solid. Fails with DR_ERR_INPUT (nothing stepped) on an out-of-range body or vertex index, a
- * collider without sdf, negative friction or thickness, or solids with different Δt; DR_ERR_RUNTIME if a body's
+ * collider without sdf, negative friction or thickness, a non-positive tolerance, or solids with different Δt; DR_ERR_RUNTIME if a body's
  * step turns non-finite (the bodies stepped before it keep their step). DR_WARN_NOT_CONVERGED (all bodies stepped)
  * when the residual is still above the tolerance after max_passes. st may be NULL. */
 DR_NODISCARD DrStatus dr_bem_solids_step(DrBemSolid *const *solids, int count, const DrBemConstraints *c,
