@@ -24,6 +24,10 @@ typedef struct Totals {
     long hair_vertices, hair_cg;
     int hair_not_converged;
     double hair_seconds;
+    bool bem;
+    int bem_bodies;
+    long bem_steps;
+    double bem_seconds, bem_max_displacement;
 } Totals;
 
 /* Exit code of a bake stopped by SIGUSR1, SIGTERM or SIGINT after writing its checkpoint: the caller (a
@@ -107,18 +111,37 @@ static void append_progress(const char *path, const DrFrameStats *fs, double io_
             fs->kinetic_energy);
     /* MPM solids, only in scenes that have them; the names follow render/plots.c's rules (…_iterations,
        …_energy, momentum.*, seconds.*) so the plots pick them up */
-    if (fs->mpm) {
-        DrVec3 p = fs->mpm_momentum, l = fs->mpm_angular_momentum;
+    if (fs->mpm)
         fprintf(f,
                 "\"mpm_particles\":%ld,\"mpm_substeps\":%d,\"mpm_newton_iterations\":%ld,\"mpm_cg_iterations\":%ld,"
                 "\"mpm_newton_residual\":%.6g,\"mpm_newton_not_converged\":%d,\"mpm_kinetic_energy\":%.9g,"
-                "\"mpm_elastic_energy\":%.9g,\"mpm_gravity_energy\":%.9g,\"mpm_total_energy\":%.9g,"
-                "\"momentum\":{\"mpm_linear\":{\"x\":%.9g,\"y\":%.9g,\"z\":%.9g},"
-                "\"mpm_angular\":{\"x\":%.9g,\"y\":%.9g,\"z\":%.9g}},",
+                "\"mpm_elastic_energy\":%.9g,\"mpm_gravity_energy\":%.9g,\"mpm_total_energy\":%.9g,",
                 fs->mpm_particles, fs->mpm_substeps, fs->mpm_newton_iterations, fs->mpm_cg_iterations,
                 fs->mpm_newton_residual, fs->mpm_not_converged, fs->mpm_kinetic_energy, fs->mpm_elastic_energy,
-                fs->mpm_gravity_energy, fs->mpm_kinetic_energy + fs->mpm_elastic_energy + fs->mpm_gravity_energy, p.x,
-                p.y, p.z, l.x, l.y, l.z);
+                fs->mpm_gravity_energy, fs->mpm_kinetic_energy + fs->mpm_elastic_energy + fs->mpm_gravity_energy);
+    /* boundary-element bodies: the energies of their rigid frames (kinetic and gravity's) */
+    if (fs->bem)
+        fprintf(f,
+                "\"bem_bodies\":%d,\"bem_steps\":%ld,\"bem_kinetic_energy\":%.9g,\"bem_potential_energy\":%.9g,"
+                "\"bem_total_energy\":%.9g,\"bem_max_displacement\":%.9g,\"bem_translation_error\":%.6g,"
+                "\"bem_rotation_error\":%.6g,",
+                fs->bem_bodies, fs->bem_steps, fs->bem_kinetic_energy, fs->bem_potential_energy,
+                fs->bem_kinetic_energy + fs->bem_potential_energy, fs->bem_max_displacement, fs->bem_translation_error,
+                fs->bem_rotation_error);
+    /* one "momentum" object: a panel per vector */
+    if (fs->mpm || fs->bem) {
+        fprintf(f, "\"momentum\":{");
+        if (fs->mpm) {
+            DrVec3 p = fs->mpm_momentum, l = fs->mpm_angular_momentum;
+            fprintf(f,
+                    "\"mpm_linear\":{\"x\":%.9g,\"y\":%.9g,\"z\":%.9g},\"mpm_angular\":{\"x\":%.9g,\"y\":%.9g,"
+                    "\"z\":%.9g}%s",
+                    p.x, p.y, p.z, l.x, l.y, l.z, fs->bem ? "," : "");
+        }
+        if (fs->bem)
+            fprintf(f, "\"bem_linear\":{\"x\":%.9g,\"y\":%.9g,\"z\":%.9g}", fs->bem_momentum.x, fs->bem_momentum.y,
+                    fs->bem_momentum.z);
+        fprintf(f, "},");
     }
     if (fs->hair)
         fprintf(f,
@@ -135,6 +158,9 @@ static void append_progress(const char *path, const DrFrameStats *fs, double io_
     if (fs->mpm)
         fprintf(f, "\"mpm_transfer\":%.6f,\"mpm_solve\":%.6f,", fs->seconds_mpm_transfer, fs->seconds_mpm_solve);
     if (fs->hair) fprintf(f, "\"hair\":%.6f,", fs->seconds_hair);
+    if (fs->bem)
+        fprintf(f, "\"bem_history\":%.6f,\"bem_solve\":%.6f,\"bem_correction\":%.6f,", fs->seconds_bem_history,
+                fs->seconds_bem_solve, fs->seconds_bem_correction);
     fprintf(f, "\"io\":%.6f,\"frame\":%.6f}}\n", io_seconds, fs->seconds + io_seconds);
     fclose(f);
 }
@@ -170,6 +196,10 @@ static DrStatus write_report(const char *dir, const char *status, const char *me
                             json_pack("{s:I, s:I, s:i, s:f}", "vertices", (json_int_t)t->hair_vertices, "cg_iterations",
                                       (json_int_t)t->hair_cg, "not_converged_substeps", t->hair_not_converged,
                                       "seconds", t->hair_seconds));
+    if (t->bem)
+        json_object_set_new(r, "bem",
+                            json_pack("{s:i, s:I, s:f, s:f}", "bodies", t->bem_bodies, "steps", (json_int_t)t->bem_steps,
+                                      "seconds", t->bem_seconds, "max_displacement", t->bem_max_displacement));
     char *text = json_dumps(r, JSON_INDENT(2) | JSON_REAL_PRECISION(9));
     json_decref(r);
     char path[4096];
@@ -225,7 +255,10 @@ int main(int argc, char **argv)
 
     /* Everything that can be bad input is checked here, before anything is written. */
     DrWorld *world = NULL;
-    DrStatus s = dr_world_create(scene, &world, &err);
+    DrWorldDesc wd;
+    dr_world_desc_default(&wd);
+    wd.cache_root = args.cache_root;
+    DrStatus s = dr_world_create_desc(scene, &wd, &world, &err);
     char ckpt[4096], progress[4096], path[4096];
     snprintf(ckpt, sizeof ckpt, "%s/checkpoint.h5", dir);
     snprintf(progress, sizeof progress, "%s/progress.jsonl", dir);
@@ -298,16 +331,24 @@ int main(int argc, char **argv)
         tot.hair_cg += fs.hair_cg_iterations;
         tot.hair_not_converged += fs.hair_not_converged;
         tot.hair_seconds += fs.seconds_hair;
-        char detail[320], mpm[96] = "", hair[96] = "";
+        tot.bem |= fs.bem;
+        tot.bem_bodies = fs.bem_bodies;
+        tot.bem_steps += fs.bem_steps;
+        tot.bem_seconds += fs.seconds_bem_history + fs.seconds_bem_solve + fs.seconds_bem_correction;
+        tot.bem_max_displacement = fmax(tot.bem_max_displacement, fs.bem_max_displacement);
+        char detail[400], mpm[96] = "", hair[96] = "", bem[96] = "";
         if (fs.mpm)
             snprintf(mpm, sizeof mpm, " mpm %ld newton %ld cg %ld", fs.mpm_particles, fs.mpm_newton_iterations,
                      fs.mpm_cg_iterations);
         if (fs.hair)
             snprintf(hair, sizeof hair, " hair %ld cg %ld contacts %d+%d", fs.hair_vertices, fs.hair_cg_iterations,
                      fs.hair_collider_contacts, fs.hair_contacts);
-        snprintf(detail, sizeof detail, "frame %d substeps %d iters %d particles %ld cells %+.1f%%%s%s %.2fs", fs.frame,
-                 fs.substeps, fs.pressure_iterations_max, fs.particles, 100.0 * fs.volume_drift, mpm, hair,
-                 fs.seconds + io);
+        if (fs.bem)
+            snprintf(bem, sizeof bem, " bem %d steps %ld max|u| %.3g m", fs.bem_bodies, fs.bem_steps,
+                     fs.bem_max_displacement);
+        snprintf(detail, sizeof detail, "frame %d substeps %d iters %d particles %ld cells %+.1f%%%s%s%s %.2fs",
+                 fs.frame, fs.substeps, fs.pressure_iterations_max, fs.particles, 100.0 * fs.volume_drift, mpm, hair,
+                 bem, fs.seconds + io);
         dr_progress_step(&prog, detail);
         if (stop_signal && dr_world_frame(world) < last) break;
     }
@@ -354,8 +395,12 @@ int main(int argc, char **argv)
     if (tot.hair)
         snprintf(hair, sizeof hair, ", %ld hair vertices (CG iterations %ld%s)", tot.hair_vertices, tot.hair_cg,
                  tot.hair_not_converged ? ", some hair solves hit their cap" : "");
-    fprintf(stderr, "bake: %d frames in %.1fs (%.2fs/frame, %d threads), %ld particles, pressure iterations max %d%s%s%s\n",
+    char bem[160] = "";
+    if (tot.bem)
+        snprintf(bem, sizeof bem, ", %d BEM bod%s (%ld steps, %.1f s)", tot.bem_bodies, tot.bem_bodies == 1 ? "y" : "ies",
+                 tot.bem_steps, tot.bem_seconds);
+    fprintf(stderr, "bake: %d frames in %.1fs (%.2fs/frame, %d threads), %ld particles, pressure iterations max %d%s%s%s%s\n",
             tot.frames, wall, tot.frames ? wall / tot.frames : 0.0, dr_threads(), tot.particles_last, tot.pressure_max,
-            tot.not_converged ? ", some pressure solves did not converge (see warnings)" : "", mpm, hair);
+            tot.not_converged ? ", some pressure solves did not converge (see warnings)" : "", mpm, hair, bem);
     return 0;
 }

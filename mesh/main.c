@@ -1,6 +1,7 @@
 /* mesh: turns each baked frame's liquid particles and MPM solid particles into an OpenVDB level set (.vdb) and
  * a surface (.obj) per element, writes hair strands as OBJ polylines (and, with mesh.hair_ribbons, as
- * triangle-strip ribbons), and exports colliders as OBJ, into out/<shot>/mesh/. */
+ * triangle-strip ribbons) and boundary-element bodies as their deformed surfaces, and exports colliders as OBJ,
+ * into out/<shot>/mesh/. */
 #include <limits.h>
 #include <stdlib.h>
 #include <string.h>
@@ -246,6 +247,136 @@ static DrStatus mesh_hair(const DrElement *e, DrH5 *h, const char *dir, int fram
     return s;
 }
 
+/* ---- boundary-element bodies ------------------------------------------------------------------------------ */
+
+static bool is_bem(const DrElement *e) { return strcmp(e->type, "bem_solid") == 0; }
+
+/* Reads dataset /<name>/<what> of a frame cache: `rows` rows of `cols` finite numbers (rows 0: a vector of cols
+ * numbers, rank 1; rows < 0: any count of rows, returned in *nrows). Anything else is DR_ERR_INPUT naming the file
+ * and the dataset. */
+static DrStatus read_bem_f64(DrH5 *h, const char *name, const char *what, long rows, int cols, double **out,
+                             long *nrows, DrError *err)
+{
+    char path[1024], shape[96], want[64];
+    snprintf(path, sizeof path, "/%s/%s", name, what);
+    int rank;
+    uint64_t dims[4];
+    DR_TRY(dr_h5_read_f64(h, path, &rank, dims, out, err));
+    bool ok = rows == 0 ? rank == 1 && dims[0] == (uint64_t)cols
+                        : rank == 2 && dims[1] == (uint64_t)cols && dims[0] <= (uint64_t)(INT_MAX / 3) &&
+                              (rows < 0 || dims[0] == (uint64_t)rows);
+    uint64_t count = rows == 0 ? (uint64_t)cols : (ok ? dims[0] * (uint64_t)cols : 0);
+    DrStatus s = DR_OK;
+    if (!ok) {
+        shape_str(rank, dims, shape, sizeof shape);
+        if (rows == 0) snprintf(want, sizeof want, "%d", cols);
+        else if (rows < 0) snprintf(want, sizeof want, "N×%d", cols);
+        else snprintf(want, sizeof want, "%ld×%d", rows, cols);
+        s = dr_error_set(err, DR_ERR_INPUT, dr_h5_path(h), 0, 0,
+                         "dataset %s has shape %s; expected %s; rerun bake (or pipeline.sh)", path, shape, want);
+    }
+    for (uint64_t i = 0; s == DR_OK && i < count; i++)
+        if (!isfinite((*out)[i]))
+            s = dr_error_set(err, DR_ERR_INPUT, dr_h5_path(h), 0, 0,
+                             "dataset %s holds a non-finite number; the bake produced invalid data (check the scene, "
+                             "then rerun bake)", path);
+    if (s != DR_OK) {
+        free(*out);
+        *out = NULL;
+        return s;
+    }
+    if (nrows) *nrows = rows == 0 ? 1 : (long)dims[0];
+    return DR_OK;
+}
+
+/* The body's surface in this frame (DESIGN §4): V = R·(reference + displacement) + translation, with the cached
+ * triangles (counter-clockwise from outside: R is a rotation, so it keeps the winding) and area-weighted vertex
+ * normals. */
+static DrStatus read_bem_surface(DrH5 *h, const char *name, DrTriMesh *out, DrError *err)
+{
+    *out = (DrTriMesh){0};
+    double *R = NULL, *T = NULL, *ref = NULL, *u = NULL;
+    int32_t *tri = NULL;
+    long nv = 0, nt = 0;
+    DrStatus s = read_bem_f64(h, name, "rotation", 3, 3, &R, NULL, err);
+    if (s == DR_OK) s = read_bem_f64(h, name, "translation", 0, 3, &T, NULL, err);
+    if (s == DR_OK) s = read_bem_f64(h, name, "reference", -1, 3, &ref, &nv, err);
+    if (s == DR_OK) s = read_bem_f64(h, name, "displacement", nv, 3, &u, NULL, err);
+    char path[1024];
+    snprintf(path, sizeof path, "/%s/triangles", name);
+    int rank;
+    uint64_t dims[4];
+    if (s == DR_OK) s = dr_h5_read_i32(h, path, &rank, dims, &tri, err);
+    if (s == DR_OK && (rank != 2 || dims[1] != 3 || dims[0] < 1 || dims[0] > (uint64_t)(INT_MAX / 3))) {
+        char shape[96];
+        shape_str(rank, dims, shape, sizeof shape);
+        s = dr_error_set(err, DR_ERR_INPUT, dr_h5_path(h), 0, 0,
+                         "dataset %s has shape %s; expected M×3 vertex indices; rerun bake (or pipeline.sh)", path, shape);
+    }
+    if (s == DR_OK) nt = (long)dims[0];
+    for (long k = 0; s == DR_OK && k < 3 * nt; k++)
+        if (tri[k] < 0 || tri[k] >= nv)
+            s = dr_error_set(err, DR_ERR_INPUT, dr_h5_path(h), 0, 0,
+                             "dataset %s: triangle %ld refers to vertex %d of %ld; rerun bake (or pipeline.sh)", path,
+                             k / 3, (int)tri[k], nv);
+    DrTriMesh m = {.nv = (int)nv, .nt = (int)nt};
+    if (s == DR_OK) s = dr_calloc(3 * (size_t)nv + 1, sizeof *m.v, &m.v, err);
+    if (s == DR_OK) s = dr_calloc(3 * (size_t)nv + 1, sizeof *m.n, &m.n, err);
+    if (s == DR_OK) s = dr_calloc(3 * (size_t)nt + 1, sizeof *m.tri, &m.tri, err);
+    if (s == DR_OK) {
+        for (long i = 0; i < nv; i++) {
+            double b[3] = {ref[3 * i] + u[3 * i], ref[3 * i + 1] + u[3 * i + 1], ref[3 * i + 2] + u[3 * i + 2]};
+            for (int a = 0; a < 3; a++)
+                m.v[3 * i + a] = R[3 * a] * b[0] + R[3 * a + 1] * b[1] + R[3 * a + 2] * b[2] + T[a];
+        }
+        for (long k = 0; k < 3 * nt; k++) m.tri[k] = tri[k];
+        /* area-weighted: the sum of the (unnormalised) face normals around each vertex */
+        for (long t = 0; t < nt; t++) {
+            const int *c = m.tri + 3 * t;
+            DrVec3 p0 = dr_v3(m.v[3 * c[0]], m.v[3 * c[0] + 1], m.v[3 * c[0] + 2]);
+            DrVec3 p1 = dr_v3(m.v[3 * c[1]], m.v[3 * c[1] + 1], m.v[3 * c[1] + 2]);
+            DrVec3 p2 = dr_v3(m.v[3 * c[2]], m.v[3 * c[2] + 1], m.v[3 * c[2] + 2]);
+            DrVec3 fn = dr_v3_cross(dr_v3_sub(p1, p0), dr_v3_sub(p2, p0));
+            for (int j = 0; j < 3; j++) {
+                m.n[3 * c[j]] += fn.x;
+                m.n[3 * c[j] + 1] += fn.y;
+                m.n[3 * c[j] + 2] += fn.z;
+            }
+        }
+        for (long i = 0; i < nv; i++) {
+            DrVec3 n = dr_v3(m.n[3 * i], m.n[3 * i + 1], m.n[3 * i + 2]);
+            double len = dr_v3_norm(n);
+            n = len > 0.0 ? dr_v3_scale(n, 1.0 / len) : dr_v3(0, 0, 0);
+            m.n[3 * i] = n.x, m.n[3 * i + 1] = n.y, m.n[3 * i + 2] = n.z;
+        }
+        *out = m;
+    } else {
+        dr_trimesh_free(&m);
+    }
+    free(R);
+    free(T);
+    free(ref);
+    free(u);
+    free(tri);
+    return s;
+}
+
+static DrStatus mesh_bem(const DrElement *e, DrH5 *h, const char *dir, int frame, long *triangles, DrError *err)
+{
+    DrTriMesh m;
+    DR_TRY(read_bem_surface(h, e->name, &m, err));
+    char comment[512], out[4096];
+    snprintf(comment, sizeof comment,
+             "drench %s BEM solid '%s' frame %d (m, y up): R (reference + displacement) + translation of the frame "
+             "cache",
+             DR_VERSION, e->name, frame);
+    dr_stage_frame_path(dir, e->name, frame, "obj", out, sizeof out);
+    DrStatus s = dr_io_write_obj(out, &m, comment, err);
+    if (s == DR_OK) *triangles += m.nt;
+    dr_trimesh_free(&m);
+    return s;
+}
+
 /* With mesh.hair_ribbons, hair element H writes H_ribbons.NNNN.obj: an element named H_ribbons would share
  * those files. Checked before anything is written. */
 static DrStatus check_ribbon_names(const DrScene *scene, DrError *err)
@@ -315,6 +446,10 @@ static DrStatus mesh_frame(const DrScene *scene, const DrTriMesh *rest, const ch
         }
         if (is_hair(e)) {
             s = mesh_hair(e, h, dir, frame, dr_component_bool(ms, "hair_ribbons"), strands, triangles, err);
+            continue;
+        }
+        if (is_bem(e)) {
+            s = mesh_bem(e, h, dir, frame, triangles, err);
             continue;
         }
         bool liquid = strcmp(e->type, "liquid") == 0;
@@ -399,7 +534,7 @@ static DrStatus check_outputs(const DrScene *scene, const char *dir, int first, 
             const char *file[3][2] = {{NULL, NULL}, {NULL, NULL}, {NULL, NULL}};
             if (liquid && dr_component_bool(ms, "write_obj")) file[0][0] = e->name, file[0][1] = "obj";
             if (liquid && dr_component_bool(ms, "write_vdb")) file[1][0] = e->name, file[1][1] = "vdb";
-            if (moving || is_hair(e)) file[0][0] = e->name, file[0][1] = "obj";
+            if (moving || is_hair(e) || is_bem(e)) file[0][0] = e->name, file[0][1] = "obj";
             if (is_hair(e) && dr_component_bool(ms, "hair_ribbons")) file[2][0] = ribbons, file[2][1] = "obj";
             for (int k = 0; k < 3; k++) {
                 if (!file[k][0]) continue;

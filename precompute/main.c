@@ -16,19 +16,10 @@ static int fail(const DrError *err)
     return dr_exit_code(err->status);
 }
 
-/* Welding merges vertices closer than this fraction of the bounding-box diagonal: far below any real feature,
- * far above the float rounding of the loader (6e-8 relative) only where a file holds the same point twice with
- * different digits. A change here changes the matrices: it goes with a new DR_BEM_VERSION. */
-#define WELD_RELATIVE 1e-9
-
-/* One bem_solid element, checked and keyed. */
+/* One bem_solid element, checked and keyed (dr_world_bem_asset_load: the world reads the matrices under the same
+ * key). */
 typedef struct Body {
-    const DrElement *e;
-    const char *path; /* Mesh.file, resolved */
-    DrTriMesh mesh;   /* welded and checked */
-    int welded;       /* vertices merged by the weld */
-    DrBemDesc desc;
-    char mesh_hash[33], key[33];
+    DrWorldBemAsset a;
     int first; /* index of the first body with the same key (itself when it is the first) */
 } Body;
 
@@ -37,57 +28,20 @@ static DrStatus in_element(DrStatus s, const Body *b, DrError *err)
 {
     if (s >= 0) return s;
     char msg[sizeof err->message];
-    int n = snprintf(msg, sizeof msg, "%s.Mesh.file: %s", b->e->name, err->message);
+    int n = snprintf(msg, sizeof msg, "%s.Mesh.file: %s", b->a.element->name, err->message);
     if (n >= (int)sizeof msg) msg[sizeof msg - 2] = '.';
     memcpy(err->message, msg, sizeof msg);
-    if (!err->file[0]) snprintf(err->file, sizeof err->file, "%s", b->path);
+    if (!err->file[0]) snprintf(err->file, sizeof err->file, "%s", b->a.path);
     return s;
 }
 
-static DrBemOrdering ordering_of(const char *name)
-{
-    DrBemOrdering o = DR_BEM_ORDER_VERTEX_XYZ;
-    bool known = dr_bem_ordering_parse(name, &o);
-    assert(known); /* the scene's enum admits nothing else */
-    (void)known;
-    return o;
-}
-
-/* The element's components as build parameters; what the scene does not set keeps dr_bem_desc_default. */
-static void desc_of(const DrElement *e, DrBemDesc *d)
-{
-    dr_bem_desc_default(d);
-    const DrComponent *mat = dr_element_component(e, "LinearElastic");
-    const DrComponent *cmp = dr_element_component(e, "Compression");
-    const DrComponent *sol = dr_element_component(e, "BemSolver");
-    d->material.density = dr_component_num(mat, "density");
-    d->material.shear_modulus = dr_component_num(mat, "shear_modulus");
-    d->material.poisson = dr_component_num(mat, "poisson");
-    d->compression_ratio = dr_component_num(cmp, "ratio");
-    d->ordering = ordering_of(dr_component_str(cmp, "ordering"));
-    d->dt = dr_component_num(sol, "time_step");
-    d->history_margin = dr_component_num(sol, "history_margin");
-    d->quad_levels = dr_component_int(sol, "quadrature_levels");
-    d->keep_dense = false;
-}
-
 /* Loads, welds and checks the element's mesh, hashes its file and computes the cache key. */
-static DrStatus prepare(Body *b, DrError *err)
+static DrStatus prepare(const DrElement *e, Body *b, DrError *err)
 {
-    b->path = dr_component_str(dr_element_component(b->e, "Mesh"), "file");
-    DR_TRY(in_element(dr_io_load_mesh(b->path, &b->mesh, err), b, err));
-    DrVec3 lo, hi;
-    double diag = dr_trimesh_bounds(&b->mesh, &lo, &hi) ? dr_v3_norm(dr_v3_sub(hi, lo)) : 0.0;
-    int nv_file = b->mesh.nv;
-    DR_TRY(in_element(dr_bem_mesh_weld(&b->mesh, WELD_RELATIVE * diag, &b->welded, err), b, err));
-    DR_TRY(in_element(dr_bem_mesh_check(&b->mesh, b->path, err), b, err));
+    DR_TRY(dr_world_bem_asset_load(e, &b->a, err));
+    const DrWorldBemAsset *a = &b->a;
     dr_log_info("bem: %s: %s: %d vertices, %d triangles (%d of %d vertices merged by welding within %.3g m)",
-                b->e->name, b->path, b->mesh.nv, b->mesh.nt, b->welded, nv_file, WELD_RELATIVE * diag);
-    DrHash h;
-    DR_TRY(in_element(dr_hash_file(b->path, &h, err), b, err));
-    dr_hash_hex(h, b->mesh_hash);
-    desc_of(b->e, &b->desc);
-    dr_bem_cache_key(b->mesh_hash, &b->desc, b->key);
+                e->name, a->path, a->mesh.nv, a->mesh.nt, a->welded, a->vertices_in_file, a->weld_tolerance);
     return DR_OK;
 }
 
@@ -97,47 +51,49 @@ static double canon(double v) { return v == 0.0 ? 0.0 : v; }
 /* The canonical JSON of what the key covers (keys sorted, numbers %.17g), recorded in the file as "inputs". */
 static void inputs_json(const Body *b, char *buf, size_t size)
 {
-    const DrBemDesc *d = &b->desc;
+    const DrBemDesc *d = &b->a.desc;
     snprintf(buf, size,
              "{\"bem_version\":\"%s\",\"compression_ratio\":%.17g,\"cq_epsilon\":%.17g,\"density\":%.17g,"
              "\"dt\":%.17g,\"history_margin\":%.17g,\"mesh_hash\":\"%s\",\"near_factor\":%.17g,\"ordering\":\"%s\","
              "\"poisson\":%.17g,\"quad_levels\":%d,\"shear_modulus\":%.17g,\"singular_order\":%d,\"wavelet\":%s}",
              DR_BEM_VERSION, canon(d->compression_ratio), canon(d->cq_epsilon), canon(d->material.density),
-             canon(d->dt), canon(d->history_margin), b->mesh_hash, canon(d->near_factor), dr_bem_ordering_name(d->ordering),
+             canon(d->dt), canon(d->history_margin), b->a.mesh_hash, canon(d->near_factor), dr_bem_ordering_name(d->ordering),
              canon(d->material.poisson), d->quad_levels, canon(d->material.shear_modulus), d->singular_order,
              d->wavelet ? "true" : "false");
 }
 
 /* Makes sure cache/bem/<key>.h5 holds the body's matrices: a trusted file is a hit, anything else is built and
  * written (atomically: a kill leaves at most a temporary file that no reader trusts). */
-static DrStatus ensure_cached(const Body *b, const char *cache_root, bool *hit, DrError *err)
+static DrStatus ensure_cached(const Body *body, const char *cache_root, bool *hit, DrError *err)
 {
+    const DrWorldBemAsset *b = &body->a;
+    const DrElement *e = b->element;
     DrBemMatrices *m = NULL;
     DR_TRY(dr_bem_cache_read(cache_root, b->key, &m, hit, err));
     if (*hit) {
-        dr_log_info("bem: %s: cache hit %s (n_max %d)", b->e->name, b->key, m->n_max);
+        dr_log_info("bem: %s: cache hit %s (n_max %d)", e->name, b->key, m->n_max);
         dr_bem_matrices_destroy(&m);
         return DR_OK;
     }
-    dr_log_info("bem: %s: computing %s (%d vertices, dt %.6g s, compression 1/%g)", b->e->name, b->key, b->mesh.nv,
+    dr_log_info("bem: %s: computing %s (%d vertices, dt %.6g s, compression 1/%g)", e->name, b->key, b->mesh.nv,
                 b->desc.dt, b->desc.compression_ratio);
     double t0 = dr_time_now();
-    DR_TRY(dr_bem_matrices_build(&b->mesh, &b->desc, b->e->name, &m, err));
+    DR_TRY(dr_bem_matrices_build(&b->mesh, &b->desc, e->name, &m, err));
     double t_build = dr_time_now() - t0;
     /* Σ_k H_k annihilates rigid translations only for a complete history (BEM §4's margin of 2 steps leaves a
        few per cent, the runtime's error correction absorbs it); a large remainder means a visible drift. */
     if (m->stats.rigid_residual > 0.05)
         dr_log_warn("bem: %s: the %d-step history leaves %.1f %% of a rigid translation (|sum_k H_k m| / |H_0 m|); "
                     "raise BemSolver.history_margin (now %g) to reduce it: 6 more steps typically divide it by 10",
-                    b->e->name, m->n_max, 100 * m->stats.rigid_residual, b->desc.history_margin);
+                    e->name, m->n_max, 100 * m->stats.rigid_residual, b->desc.history_margin);
     char inputs[2048];
-    inputs_json(b, inputs, sizeof inputs);
+    inputs_json(body, inputs, sizeof inputs);
     DrStatus s = dr_bem_cache_write(cache_root, b->key, inputs, b->mesh_hash, m, err);
     if (s == DR_OK) {
         char path[DR_IO_PATH_MAX];
         dr_io_precache_path(cache_root, "bem", b->key, path, sizeof path);
         dr_log_info("bem: %s: wrote %s (n_max %d, %.1f MB kept of %.1f MB dense; built in %.1f s, written in %.1f s)",
-                    b->e->name, path, m->n_max, (double)m->stats.bytes_compressed / 1e6,
+                    e->name, path, m->n_max, (double)m->stats.bytes_compressed / 1e6,
                     (double)m->stats.bytes_dense / 1e6, t_build, dr_time_now() - t0 - t_build);
     }
     dr_bem_matrices_destroy(&m);
@@ -146,7 +102,7 @@ static DrStatus ensure_cached(const Body *b, const char *cache_root, bool *hit, 
 
 static void free_bodies(Body *bodies, int n)
 {
-    for (int i = 0; i < n; i++) dr_trimesh_free(&bodies[i].mesh);
+    for (int i = 0; i < n; i++) dr_world_bem_asset_free(&bodies[i].a);
     free(bodies);
 }
 
@@ -173,11 +129,10 @@ int main(int argc, char **argv)
         const DrElement *e = dr_scene_element(scene, i);
         if (strcmp(e->type, "bem_solid") != 0) continue;
         Body *b = &bodies[nb++];
-        b->e = e;
-        s = prepare(b, &err);
+        s = prepare(e, b, &err);
         b->first = nb - 1;
         for (int j = 0; s == DR_OK && j < nb - 1; j++)
-            if (strcmp(bodies[j].key, b->key) == 0) {
+            if (strcmp(bodies[j].a.key, b->a.key) == 0) {
                 b->first = j;
                 break;
             }
@@ -201,7 +156,8 @@ int main(int argc, char **argv)
     for (int i = 0; s == DR_OK && i < nb; i++) {
         const Body *b = &bodies[i];
         if (b->first != i) {
-            dr_log_info("bem: %s: same matrices as %s (%s)", b->e->name, bodies[b->first].e->name, b->key);
+            dr_log_info("bem: %s: same matrices as %s (%s)", b->a.element->name, bodies[b->first].a.element->name,
+                        b->a.key);
             continue;
         }
         distinct++;
@@ -228,7 +184,7 @@ int main(int argc, char **argv)
             inputs[0] = lines;
             for (int i = 0; i < nb; i++) {
                 char *line = lines + (size_t)(i + 1) * line_max;
-                snprintf(line, line_max, "bem %s %s", bodies[i].e->name, bodies[i].key);
+                snprintf(line, line_max, "bem %s %s", bodies[i].a.element->name, bodies[i].a.key);
                 inputs[i + 1] = line;
             }
             s = dr_io_manifest_write(dir, "precompute", keys.precompute, dr_scene_path(scene), inputs, nb + 1, &err);

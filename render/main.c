@@ -17,8 +17,8 @@ static int fail(const DrError *err)
     return dr_exit_code(err->status);
 }
 
-/* What the stage draws of one element: a file per frame (liquid surfaces, MPM solids, moving colliders, hair
- * strands) or one file for the whole shot (static colliders, loaded once). */
+/* What the stage draws of one element: a file per frame (liquid surfaces, MPM and BEM solids, moving colliders,
+ * hair strands) or one file for the whole shot (static colliders, loaded once). */
 typedef struct Drawable {
     const DrElement *element;
     DrRenderMaterial material;
@@ -232,6 +232,10 @@ int main(int argc, char **argv)
             }
             /* MPM solids are opaque deformable bodies: the warm matte solid material, not the liquid's */
             d.material = liquid ? DR_MATERIAL_LIQUID : DR_MATERIAL_SOLID;
+            d.per_frame = true;
+        } else if (!strcmp(e->type, "bem_solid")) {
+            /* the body's deformed surface, which the mesh stage writes for every frame whatever mesh.write_obj says */
+            d.material = DR_MATERIAL_SOLID;
             d.per_frame = true;
         } else if (!strcmp(e->type, "hair")) {
             /* strands, from the polylines the mesh stage writes for every frame whatever mesh.write_obj says */

@@ -578,6 +578,65 @@ static DrStatus check_hair_collider(Parser *p, const DrElement *e)
                        "apply to hair; remove it (a hair element's Collider takes friction and thickness)", e->name);
 }
 
+/* A bem_solid's matrices belong to its mesh as the file holds it (precompute keys them by the file's bytes), so its
+   Transform may rotate and translate the body but not scale it. */
+static DrStatus check_bem_transform(Parser *p, const DrElement *e)
+{
+    double scale = value_at(dr_element_component(e, "Transform"), "scale")->num[0];
+    if (scale == 1.0) return DR_OK;
+    char v[32];
+    dr_scene_fmt_num_(scale, v, sizeof v);
+    push_key(p, "components");
+    push_key(p, "Transform");
+    push_key(p, "scale");
+    return fail(p, "%s.Transform.scale = %s: a bem_solid's boundary-element matrices are built for the mesh as it is in "
+                   "its file, so the body cannot be scaled here; scale the OBJ instead (precompute then builds matrices "
+                   "for it) and remove scale", e->name, v);
+}
+
+/* The shortest %.Ng (N = 15..17) that reads back as v exactly: 1/240 prints as 0.004166666666666667. */
+static void fmt_exact(double v, char *buf, size_t size)
+{
+    for (int digits = 15; digits <= 17; digits++) {
+        snprintf(buf, size, "%.*g", digits, v);
+        if (strtod(buf, NULL) == v) return;
+    }
+}
+
+/* A bem_solid advances by whole steps of BemSolver.time_step, so a frame must hold a whole number of them
+   (relative 1e-6: 1/240 s in a 24 fps frame is 10 steps up to rounding). Needs shot.fps: checked once the whole
+   file is read, since the sections may follow the elements. */
+static DrStatus check_bem_time_steps(Parser *p)
+{
+    const DrScene *s = p->s;
+    double fps = value_at(&s->sections[dr_scene_section_index_("shot")], "fps")->num[0];
+    double frame = 1.0 / fps;
+    for (int i = 0; i < s->element_count; i++) {
+        const DrElement *e = &s->elements[i];
+        if (strcmp(e->type, "bem_solid") != 0) continue;
+        double dt = value_at(dr_element_component(e, "BemSolver"), "time_step")->num[0];
+        double ratio = frame / dt, n = floor(ratio + 0.5);
+        if (n >= 1.0 && fabs(ratio - n) <= 1e-6 * ratio) continue;
+        if (n < 1.0) n = 1.0;
+        char a[32], b[32], c[32], d[32], steps[32];
+        dr_scene_fmt_num_(dt, a, sizeof a);
+        dr_scene_fmt_num_(fps, b, sizeof b);
+        dr_scene_fmt_num_(fps * n, c, sizeof c);
+        fmt_exact(1.0 / (fps * n), d, sizeof d);
+        snprintf(steps, sizeof steps, "%.6g", ratio);
+        p->depth = 0;
+        push_key(p, "elements");
+        push_index(p, i);
+        push_key(p, "components");
+        push_key(p, "BemSolver");
+        push_key(p, "time_step");
+        return fail(p, "%s.BemSolver.time_step = %s s does not divide the frame: 1/fps = 1/%s s is %s steps, and a "
+                       "bem_solid advances a whole number of steps per frame; use 1/%s s = %s (%.0f step%s per frame at "
+                       "%s fps)", e->name, a, b, steps, c, d, n, n == 1.0 ? "" : "s", b);
+    }
+    return DR_OK;
+}
+
 /* Fields that every element of one type must agree on, because those elements are advanced together. */
 typedef struct Shared {
     const char *component, *field; /* field NULL: every field of the component */
@@ -765,6 +824,7 @@ static DrStatus parse_element(Parser *p, const json_t *v, int index)
     }
     if (strcmp(t->type, "liquid") == 0) DR_TRY(check_liquid_transfer(p, e));
     if (strcmp(t->type, "hair") == 0) DR_TRY(check_hair_collider(p, e));
+    if (strcmp(t->type, "bem_solid") == 0) DR_TRY(check_bem_transform(p, e));
     return DR_OK;
 }
 
@@ -850,6 +910,7 @@ static DrStatus parse_root(Parser *p, const json_t *root)
         }
         pop(p);
     }
+    DR_TRY(check_bem_time_steps(p));
     return collect_assets(p);
 }
 

@@ -55,7 +55,9 @@ static const DrFieldSpec mesh_fields[] = {
     {.name = "adaptivity", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {0}, RANGE(0, 1),
      .doc = "mesh adaptivity: 0 uniform triangles, 1 fewest triangles"},
     {.name = "write_vdb", .kind = DR_FIELD_BOOL, .unit = "", .def = {1}, .doc = "write <element>.NNNN.vdb"},
-    {.name = "write_obj", .kind = DR_FIELD_BOOL, .unit = "", .def = {1}, .doc = "write <element>.NNNN.obj"},
+    {.name = "write_obj", .kind = DR_FIELD_BOOL, .unit = "", .def = {1},
+     .doc = "write <element>.NNNN.obj of liquid and MPM solids (hair polylines and bem_solid surfaces are always "
+            "written)"},
     {.name = "hair_ribbons", .kind = DR_FIELD_BOOL, .unit = "", .def = {0},
      .doc = "also write each hair element's strands as triangle strips 2 radii wide, <element>_ribbons.NNNN.obj "
             "(for tools that do not draw OBJ polylines); its <element>.NNNN.obj polylines are always written"},
@@ -198,7 +200,8 @@ static const DrFieldSpec initial_velocity_fields[] = {
     {.name = "velocity", .kind = DR_FIELD_VEC3, .unit = "m/s", .def = {0, 0, 0}, RANGE(-1e4, 1e4),
      .doc = "initial velocity of the body"},
     {.name = "angular_velocity", .kind = DR_FIELD_VEC3, .unit = "deg/s", .def = {0, 0, 0}, RANGE(-1e6, 1e6),
-     .doc = "initial spin about the body's centre (box or sphere centre, a mesh's volume centroid), about x, y, z"},
+     .doc = "initial spin about the body's centre (box or sphere centre, a mesh's volume centroid; a bem_solid's "
+            "centre of mass), about x, y, z"},
 };
 
 static const DrFieldSpec integrator_fields[] = {
@@ -357,13 +360,20 @@ static const DrFieldSpec compression_fields[] = {
 
 static const DrFieldSpec bem_solver_fields[] = {
     {.name = "time_step", .kind = DR_FIELD_NUMBER, .unit = "s", .def = {1.0 / 240.0}, RANGE_LO_OPEN(0, 1),
-     .doc = "dt the matrices are built for; the body advances at this step",
+     .doc = "dt the matrices are built for; the body advances at this step, a whole number of steps per frame (1/fps "
+            "must be a multiple of it: 1/240 s is 10 steps at 24 fps)",
      .hint = "use a positive step such as 0.004166666666666667 (1/240 s)"},
     {.name = "history_margin", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {2}, RANGE(0, 1000),
      .doc = "history steps beyond r_max/(c2 dt): n_max = floor(r_max/(c2 dt) + margin), with r_max the body's "
             "largest vertex distance and c2 its shear wave speed"},
     {.name = "quadrature_levels", .kind = DR_FIELD_INT, .unit = "", .def = {1}, RANGE(1, 4),
      .doc = "4-way subdivisions of each triangle for the regular 9-point rule (1 = the paper's)"},
+    /* How the body moves in a bake; the matrices do not depend on these, so they are not in the cache key. */
+    {.name = "frame_update", .kind = DR_FIELD_BOOL, .unit = "", .def = {1},
+     .doc = "move a rigid frame with the body (BEM eqs. 10-11); false keeps the frame fixed and linear elasticity "
+            "carries all motion"},
+    {.name = "error_correction", .kind = DR_FIELD_BOOL, .unit = "", .def = {1},
+     .doc = "move the drift left in the displacement into the frame each step (BEM 3.2.1)"},
 };
 
 const DrComponentSpec dr_scene_components_[] = {
@@ -379,8 +389,8 @@ const DrComponentSpec dr_scene_components_[] = {
     {"Mesh", "the element's surface mesh", mesh_file_fields, COUNT(mesh_file_fields)},
     {"Collider", "contact with collider surfaces: on a collider, how liquid, solids and hair meet its surface; on "
                  "hair, how its strands meet every collider", collider_fields, COUNT(collider_fields)},
-    {"Transform", "rest placement of the mesh (of an mpm_solid: of its MpmShape; of hair: of its scalp or curves): "
-                  "scale, then rotate, then translate",
+    {"Transform", "rest placement of the mesh (of an mpm_solid: of its MpmShape; of hair: of its scalp or curves; of a "
+                  "bem_solid: its pose at t=0, scale 1 only): scale, then rotate, then translate",
      transform_fields, COUNT(transform_fields)},
     {"Motion", "keyframed rigid motion (of hair: of its scalp, which the roots follow)", motion_fields,
      COUNT(motion_fields)},
@@ -406,7 +416,7 @@ const DrComponentSpec dr_scene_components_[] = {
     {"Compression", "wavelet compression of the boundary-element matrices (Haar transform, largest coefficients kept)",
      compression_fields, COUNT(compression_fields)},
     {"BemSolver", "time discretisation of a boundary-element body: the step its matrices are built for, the history "
-                  "length and the spatial quadrature",
+                  "length and the spatial quadrature; and how the body's frame moves in a bake",
      bem_solver_fields, COUNT(bem_solver_fields)},
 };
 const int dr_scene_component_count_ = COUNT(dr_scene_components_);
@@ -424,7 +434,8 @@ static const char *const mpm_solid_required[] = {"Domain", "MpmShape"};
 static const char *const hair_components[] = {"Groom",     "RodMaterial", "Collider",          "Transform",
                                               "Motion",    "CollisionGroup", "CollisionResponse", "HairSolver"};
 static const char *const hair_required[] = {"Groom"};
-static const char *const bem_solid_components[] = {"Mesh", "LinearElastic", "Compression", "BemSolver"};
+static const char *const bem_solid_components[] = {"Mesh",      "LinearElastic", "Compression",
+                                                   "BemSolver", "Transform",     "InitialVelocity"};
 static const char *const bem_solid_required[] = {"Mesh"};
 
 const DrElementSpec dr_scene_types_[] = {
@@ -442,7 +453,8 @@ const DrElementSpec dr_scene_types_[] = {
      hair_components, COUNT(hair_components), hair_required, COUNT(hair_required), false},
     {"bem_solid",
      "an elastic body simulated on its surface only by the boundary element method; its matrices are computed by "
-     "precompute and cached under cache/bem",
+     "precompute and cached under cache/bem, and bake moves it from the pose of its Transform with its "
+     "InitialVelocity under gravity",
      bem_solid_components, COUNT(bem_solid_components), bem_solid_required, COUNT(bem_solid_required), true},
 };
 const int dr_scene_type_count_ = COUNT(dr_scene_types_);

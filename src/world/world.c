@@ -36,21 +36,27 @@ DrStatus dr_world_load_collider_mesh(const DrElement *e, DrTriMesh *mesh, DrErro
                                      err);
 }
 
+DrXform dr_world_transform_(const DrElement *e, double *scale)
+{
+    const DrComponent *tr = dr_element_component(e, "Transform");
+    DrXform X = {dr_m3_from_euler_xyz(dr_v3_scale(dr_component_vec3(tr, "rotate_deg"), DR_PI / 180.0)),
+                 dr_component_vec3(tr, "translate")};
+    *scale = dr_component_num(tr, "scale");
+    return X;
+}
+
 DrStatus dr_world_load_posed_mesh_(const DrElement *e, const char *path, const char *field, DrTriMesh *mesh,
                                    DrError *err)
 {
     DR_TRY(dr_world_asset_context_(dr_io_load_mesh(path, mesh, err), e->name, field, err));
     free(mesh->n); /* file normals would not follow the transform; consumers recompute what they need */
     mesh->n = NULL;
-    const DrComponent *tr = dr_element_component(e, "Transform");
-    if (!tr) return DR_OK;
-    double s = dr_component_num(tr, "scale");
-    DrVec3 rd = dr_component_vec3(tr, "rotate_deg");
-    DrMat3 R = dr_m3_from_euler_xyz(dr_v3_scale(rd, DR_PI / 180.0));
-    DrVec3 t = dr_component_vec3(tr, "translate");
+    if (!dr_element_component(e, "Transform")) return DR_OK;
+    double s;
+    DrXform X = dr_world_transform_(e, &s);
     for (int i = 0; i < mesh->nv; i++) {
         DrVec3 p = dr_v3(mesh->v[3 * i], mesh->v[3 * i + 1], mesh->v[3 * i + 2]);
-        p = dr_v3_add(dr_m3_apply(R, dr_v3_scale(p, s)), t);
+        p = dr_v3_add(dr_m3_apply(X.R, dr_v3_scale(p, s)), X.t);
         mesh->v[3 * i] = p.x;
         mesh->v[3 * i + 1] = p.y;
         mesh->v[3 * i + 2] = p.z;
@@ -238,7 +244,16 @@ static DrStatus build_liquid(DrWorld *w, const DrElement *e, WorldLiquid *wl, Dr
     return dr_liquid_create(&d, w->collider_ptrs, w->nlive, &wl->liquid, err);
 }
 
+void dr_world_desc_default(DrWorldDesc *d) { *d = (DrWorldDesc){.cache_root = "cache"}; }
+
 DrStatus dr_world_create(const DrScene *scene, DrWorld **out, DrError *err)
+{
+    DrWorldDesc d;
+    dr_world_desc_default(&d);
+    return dr_world_create_desc(scene, &d, out, err);
+}
+
+DrStatus dr_world_create_desc(const DrScene *scene, const DrWorldDesc *desc, DrWorld **out, DrError *err)
 {
     DrWorld *w = NULL;
     DR_TRY(dr_calloc(1, sizeof *w, &w, err));
@@ -261,6 +276,7 @@ DrStatus dr_world_create(const DrScene *scene, DrWorld **out, DrError *err)
     }
     if (s == DR_OK) s = dr_world_mpm_create_(w, err);
     if (s == DR_OK) s = dr_world_hair_create_(w, err);
+    if (s == DR_OK) s = dr_world_bem_create_(w, desc->cache_root, err);
     if (s < 0) {
         dr_world_destroy(&w);
         return s;
@@ -271,16 +287,20 @@ DrStatus dr_world_create(const DrScene *scene, DrWorld **out, DrError *err)
         DrRodState rs = dr_rod_set_state(w->hair->rods);
         snprintf(hair, sizeof hair, "%d strand(s) of hair with %d vertices", rs.nstrands, rs.nverts);
     }
+    char bem[160] = "";
+    if (w->bem) {
+        long nv = 0;
+        for (int i = 0; i < w->bem->nbodies; i++) nv += dr_bem_solid_matrices(w->bem->bodies[i].solid)->nv;
+        snprintf(bem, sizeof bem, ", %d BEM bod%s with %ld vertices (%d matrix set%s)", w->bem->nbodies,
+                 w->bem->nbodies == 1 ? "y" : "ies", nv, w->bem->nsets, w->bem->nsets == 1 ? "" : "s");
+    }
     if (w->mpm)
-        dr_log_info("world: %d liquid grid(s), one MPM grid with %ld particles in %d bod%s, %s, %d collider SDF(s)",
-                    w->nliquids, mpm_particles, w->mpm->nbodies, w->mpm->nbodies == 1 ? "y" : "ies", hair, w->nlive);
+        dr_log_info("world: %d liquid grid(s), one MPM grid with %ld particles in %d bod%s, %s%s, %d collider SDF(s)",
+                    w->nliquids, mpm_particles, w->mpm->nbodies, w->mpm->nbodies == 1 ? "y" : "ies", hair, bem,
+                    w->nlive);
     else
-        dr_log_info("world: %d liquid grid(s), no MPM solver, %s, %d collider SDF(s)", w->nliquids, hair, w->nlive);
-    int nbem = dr_scene_count_type(scene, "bem_solid");
-    if (nbem > 0)
-        dr_log_warn("world: %d bem_solid bod%s left out of the bake: boundary-element bodies are precomputed only, "
-                    "not simulated yet",
-                    nbem, nbem == 1 ? "y" : "ies");
+        dr_log_info("world: %d liquid grid(s), no MPM solver, %s%s, %d collider SDF(s)", w->nliquids, hair, bem,
+                    w->nlive);
     *out = w;
     return DR_OK;
 }
@@ -296,6 +316,7 @@ void dr_world_destroy(DrWorld **world)
     }
     dr_world_mpm_destroy_(&w->mpm);
     dr_world_hair_destroy_(&w->hair);
+    dr_world_bem_destroy_(&w->bem);
     for (int i = 0; i < w->ncolliders; i++) dr_collider_destroy(&w->colliders[i].collider);
     free(w->liquids);
     free(w->colliders);
@@ -356,6 +377,7 @@ DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrError *err)
     stats->volume_drift = volume0 > 0 ? volume / volume0 - 1.0 : 0.0;
     DR_TRY(dr_world_mpm_step_(w, t0, t1, stats, err));
     DR_TRY(dr_world_hair_step_(w, t0, t1, stats, err));
+    DR_TRY(dr_world_bem_step_(w, frame, stats, err));
     w->frame = frame;
     stats->seconds = dr_time_now() - t_start;
     return DR_OK;
@@ -451,6 +473,7 @@ static DrStatus write_frame_body(const DrWorld *w, const DrFrameStats *stats, Dr
     }
     DR_TRY(dr_world_mpm_write_(w, h, true, err));
     DR_TRY(dr_world_hair_write_(w, h, true, err));
+    DR_TRY(dr_world_bem_write_(w, h, true, err));
     const char *g = "/diagnostics";
     DR_TRY(dr_world_write_scalar_(h, g, "substeps", stats->substeps, "1", err));
     DR_TRY(dr_world_write_scalar_(h, g, "liquid_volume_cells", stats->liquid_volume, "m^3", err));
@@ -494,6 +517,7 @@ DrStatus dr_world_write_checkpoint(const DrWorld *w, const char *path, const cha
     }
     if (s == DR_OK) s = dr_world_mpm_write_(w, h, false, err);
     if (s == DR_OK) s = dr_world_hair_write_(w, h, false, err);
+    if (s == DR_OK) s = dr_world_bem_write_(w, h, false, err);
     if (s < 0) {
         dr_h5_close(&h);
         return s;
@@ -551,6 +575,7 @@ DrStatus dr_world_read_checkpoint(DrWorld *w, const char *path, const char *bake
     for (int i = 0; s == DR_OK && i < w->nliquids; i++) s = read_liquid(h, path, &w->liquids[i], err);
     if (s == DR_OK) s = dr_world_mpm_read_(w, h, path, err);
     if (s == DR_OK) s = dr_world_hair_read_(w, h, path, err);
+    if (s == DR_OK) s = dr_world_bem_read_(w, h, path, (int)frame, err);
     if (s == DR_OK) w->frame = (int)frame;
     free(key);
     dr_h5_close(&h);
@@ -574,5 +599,6 @@ DrHash dr_world_state_hash(const DrWorld *w)
     }
     dr_world_mpm_hash_(w, &h);
     dr_world_hair_hash_(w, &h);
+    dr_world_bem_hash_(w, &h);
     return dr_hasher_final(&h);
 }

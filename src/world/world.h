@@ -8,6 +8,7 @@
 #ifndef DR_WORLD_H
 #define DR_WORLD_H
 
+#include "bem/bem.h"
 #include "core/core.h"
 #include "scene/scene.h"
 
@@ -24,7 +25,7 @@ typedef struct DrFrameStats {
     int pressure_not_converged;
     double liquid_volume;    /* m³: liquid cells × dx³ (a cheap frame-to-frame estimate) */
     double volume_drift;     /* relative to the first frame's estimate */
-    double kinetic_energy;   /* J, every solver (liquid and MPM) */
+    double kinetic_energy;   /* J, every solver (liquid, MPM, hair, the BEM bodies' frames) */
     double seconds_p2g, seconds_pressure, seconds_g2p, seconds_advect, seconds_other, seconds_io;
     /* MPM solids (all zero in a scene without mpm_solid elements) */
     bool mpm;                         /* the scene has MPM solids */
@@ -46,6 +47,15 @@ typedef struct DrFrameStats {
     int hair_collider_contacts, hair_contacts; /* of the last substep */
     double hair_kinetic_energy, hair_elastic_energy, hair_gravity_energy; /* J */
     double seconds_hair;
+    /* boundary-element bodies (all zero in a scene without bem_solid elements) */
+    bool bem;                         /* the scene has bem_solid bodies */
+    int bem_bodies;
+    long bem_steps;                   /* steps of every body in the frame */
+    double bem_kinetic_energy, bem_potential_energy; /* J: of the bodies' rigid frames, −Σ m g·T */
+    DrVec3 bem_momentum;              /* kg·m/s, Σ m Ṫ */
+    double bem_max_displacement;      /* m: the largest |u| of any body's vertex */
+    double bem_translation_error, bem_rotation_error; /* m, rad: the largest drift error correction moved in a step */
+    double seconds_bem_history, seconds_bem_solve, seconds_bem_correction;
     double seconds;          /* wall time of the frame */
 } DrFrameStats;
 
@@ -54,7 +64,16 @@ typedef struct DrFrameStats {
  * here, before anything is written. A scene without liquid creates no liquid grid; a scene without
  * mpm_solid elements creates no MPM solver; a scene without hair creates no rod solver (and a scene with hair
  * but neither liquid nor MPM creates no grid: its colliders' SDFs are sampled at the hair's segment length). Every mpm_solid shares one DrMpm: its grid spans the bounding
- * box of their Domain boxes at their (equal) voxel_size; the scene colliders act on its grid velocities. */
+ * box of their Domain boxes at their (equal) voxel_size; the scene colliders act on its grid velocities.
+ * Every bem_solid reads its matrices from the precompute cache (bodies with one cache key share one set); a body
+ * whose matrices are not there is DR_ERR_INPUT naming the element and the key (run precompute first). A scene
+ * of bem_solid bodies (and colliders) builds no grid. */
+typedef struct DrWorldDesc {
+    const char *cache_root; /* precompute cache: <cache_root>/bem/<key>.h5 (default "cache") */
+} DrWorldDesc;
+void dr_world_desc_default(DrWorldDesc *d);
+DR_NODISCARD DrStatus dr_world_create_desc(const DrScene *scene, const DrWorldDesc *d, DrWorld **out, DrError *err);
+/* dr_world_create_desc with dr_world_desc_default. */
 DR_NODISCARD DrStatus dr_world_create(const DrScene *scene, DrWorld **out, DrError *err);
 void dr_world_destroy(DrWorld **world);
 
@@ -75,6 +94,28 @@ DR_NODISCARD DrStatus dr_world_load_collider_mesh(const DrElement *e, DrTriMesh 
 /* Colliders whose SDF was built (none when no solver samples colliders). */
 int dr_world_live_collider_count(const DrWorld *w);
 
+/* One bem_solid element as the boundary element method takes it: its Mesh.file loaded, welded (vertices closer
+ * than 1e-9 of the bounding-box diagonal merged: OBJ files split them along seams) and checked closed, manifold
+ * and outward (dr_bem_mesh_check), in the file's own coordinates (Transform does not apply: it poses the body in a
+ * shot); its build parameters from LinearElastic, Compression and BemSolver; the hash of the file's bytes and the
+ * cache key of its matrices (dr_bem_cache_key). precompute builds the matrices under that key and the world reads
+ * them with it: both come from here, so they cannot disagree. BemSolver.frame_update and error_correction are
+ * runtime choices and enter neither desc nor key. */
+typedef struct DrWorldBemAsset {
+    const DrElement *element;
+    const char *path;        /* Mesh.file, resolved (owned by the scene) */
+    DrTriMesh mesh;          /* welded and checked, owned */
+    int vertices_in_file;    /* before the weld */
+    int welded;              /* vertices the weld merged */
+    double weld_tolerance;   /* m */
+    DrBemDesc desc;
+    char mesh_hash[33], key[33];
+} DrWorldBemAsset;
+/* DR_ERR_INPUT for a missing, unreadable, open, non-manifold or inward mesh, the message starting with
+ * "<element>.Mesh.file: " and err->file the mesh file; *out holds nothing to free then. */
+DR_NODISCARD DrStatus dr_world_bem_asset_load(const DrElement *e, DrWorldBemAsset *out, DrError *err);
+void dr_world_bem_asset_free(DrWorldBemAsset *a);
+
 /* Advances to the next frame. Warnings (a pressure solve that did not converge) are logged and counted in
  * stats; DR_ERR_RUNTIME when a solver produced non-finite values. */
 DR_NODISCARD DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrError *err);
@@ -87,11 +128,21 @@ DR_NODISCARD DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrErr
  * /diagnostics/mpm_* those of the solver. A hair element's group holds position (V×3, m), velocity (V×3, m/s),
  * twist (E, rad: each edge's material angle from its reference frame), strand_offsets (S+1, int64: strand s
  * is vertices offsets[s] .. offsets[s+1]−1, root first) and radius (S, m), with attribute type "hair";
- * /diagnostics/hair_* the solver's figures. */
+ * /diagnostics/hair_* the solver's figures. A bem_solid element's group holds its frame and displacement, so that
+ * the surface is V = R·(reference + displacement) + translation with nothing else: rotation (3×3, 1: R, row-major),
+ * translation (3, m: T, where the centre of mass is), velocity (3, m/s: Ṫ), angular_velocity (3, rad/s: ω, world
+ * frame), displacement (N×3, m: u in the body frame), reference (N×3, m: rest vertices about the centre of mass,
+ * x − x̄), triangles (M×3, int32: counter-clockwise seen from outside), with attributes type "bem_solid" and
+ * time_step (s); /diagnostics/<element> the body's linear_momentum, angular_momentum (about its centre of mass),
+ * kinetic_energy and potential_energy of its frame, volume (m³, of the deformed surface), max_displacement, steps
+ * (this frame) and time_step; /diagnostics/bem_* their sums (the largest max_displacement, angular momentum about
+ * the origin). */
 DR_NODISCARD DrStatus dr_world_write_frame(const DrWorld *w, const DrFrameStats *stats, const char *path,
                                            const char *bake_key, DrError *err);
 /* Checkpoint: everything a bit-identical continuation needs (particles in their current order, rng states,
- * MPM positions, velocities, affine matrices and deformation gradients, frame). Read refuses a checkpoint whose bake key differs (DR_ERR_INPUT, with what to do). */
+ * MPM positions, velocities, affine matrices and deformation gradients, hair state, each bem_solid's
+ * dr_bem_solid_state_get array and step count, frame). Read refuses a checkpoint whose bake key differs, or whose
+ * arrays or step counts do not fit the scene (DR_ERR_INPUT, with what to do). */
 DR_NODISCARD DrStatus dr_world_write_checkpoint(const DrWorld *w, const char *path, const char *bake_key,
                                                 DrError *err);
 DR_NODISCARD DrStatus dr_world_read_checkpoint(DrWorld *w, const char *path, const char *bake_key,

@@ -44,10 +44,10 @@ static DrStatus load_groom(const DrElement *e, DrGroom *g, DrError *err)
     }
     DR_TRY(dr_world_asset_context_(dr_groom_read_obj(dr_component_str(gc, "curves"), g, err), e->name, "Groom.curves",
                                    err));
-    const DrComponent *tr = dr_element_component(e, "Transform");
-    double sc = dr_component_num(tr, "scale");
-    DrMat3 R = dr_m3_from_euler_xyz(dr_v3_scale(dr_component_vec3(tr, "rotate_deg"), DR_PI / 180.0));
-    DrVec3 t = dr_component_vec3(tr, "translate");
+    double sc;
+    DrXform X = dr_world_transform_(e, &sc);
+    DrMat3 R = X.R;
+    DrVec3 t = X.t;
     for (int i = 0; i < g->offsets[g->nstrands]; i++) {
         DrVec3 p = dr_v3_add(dr_m3_apply(R, dr_v3_scale(dr_v3(g->x[3 * i], g->x[3 * i + 1], g->x[3 * i + 2]), sc)), t);
         g->x[3 * i] = p.x;

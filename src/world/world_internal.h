@@ -1,10 +1,11 @@
-/* Private to src/world: the world's layout and the helpers that world.c (liquid, colliders, files) and
- * world_mpm.c (MPM solids) share. */
+/* Private to src/world: the world's layout and the helpers that world.c (liquid, colliders, files),
+ * world_mpm.c (MPM solids), world_hair.c (hair) and world_bem.c (boundary-element bodies) share. */
 #ifndef DR_WORLD_INTERNAL_H
 #define DR_WORLD_INTERNAL_H
 
 #include "world/world.h"
 
+#include "bem/bem.h"
 #include "grid/grid.h"
 #include "hair/hair.h"
 #include "io/io.h"
@@ -85,6 +86,26 @@ typedef struct WorldHair {
     int not_converged;
 } WorldHair;
 
+/* One bem_solid element: a DrBemSolid on a shared matrix set. */
+typedef struct WorldBemBody {
+    const DrElement *element;
+    DrBemSolid *solid;
+    int steps_per_frame;     /* (1/fps) / BemSolver.time_step, whole (the scene checks it) */
+    double *state;           /* dr_bem_solid_state_size() doubles: scratch of checkpoints and hashes */
+    size_t state_size;
+    long last_steps;         /* steps of the last frame */
+    DrBemStepStats last;     /* the last frame's: seconds summed, errors the largest of its steps */
+} WorldBemBody;
+
+/* Everything BEM; NULL in a world whose scene has no bem_solid. */
+typedef struct WorldBem {
+    WorldBemBody *bodies;
+    int nbodies;
+    DrBemMatrices **sets;    /* one per distinct cache key, read once */
+    char (*keys)[33];
+    int nsets;
+} WorldBem;
+
 struct DrWorld {
     const DrScene *scene;
     int first_frame, last_frame, frame;
@@ -98,6 +119,7 @@ struct DrWorld {
     int nliquids;
     WorldMpm *mpm;
     WorldHair *hair;
+    WorldBem *bem;
 };
 
 /* Prefixes an asset error with the element and field it came from ("jelly.MpmShape.mesh: ..."), keeping the
@@ -115,6 +137,9 @@ DR_NODISCARD DrStatus dr_world_write_vec_(DrH5 *h, const char *group, const char
 DR_NODISCARD DrStatus dr_world_make_collider_(const DrTriMesh *mesh, double dx, double friction, bool no_slip,
                                               double thickness, int nkeys, const double *keys, DrCollider **out,
                                               DrError *err);
+/* Element e's Transform component without its scale (R from the XYZ Euler angles, t the translation), and the
+   scale: a point p of its mesh is placed at R·(scale·p) + t. */
+DrXform dr_world_transform_(const DrElement *e, double *scale);
 /* Loads the mesh file `path` (referenced by element e's `field`) and applies e's Transform component. */
 DR_NODISCARD DrStatus dr_world_load_posed_mesh_(const DrElement *e, const char *path, const char *field,
                                                 DrTriMesh *mesh, DrError *err);
@@ -142,5 +167,19 @@ DR_NODISCARD DrStatus dr_world_hair_step_(DrWorld *w, double t0, double t1, DrFr
 DR_NODISCARD DrStatus dr_world_hair_write_(const DrWorld *w, DrH5 *h, bool frame_cache, DrError *err);
 DR_NODISCARD DrStatus dr_world_hair_read_(DrWorld *w, DrH5 *h, const char *path, DrError *err);
 void dr_world_hair_hash_(const DrWorld *w, DrHasher *h);
+
+/* ---- world_bem.c: the boundary-element bodies (each a no-op when w->bem is NULL) ---- */
+
+/* Reads every bem_solid's matrices from cache_root and places the bodies; leaves w->bem NULL when there are none. */
+DR_NODISCARD DrStatus dr_world_bem_create_(DrWorld *w, const char *cache_root, DrError *err);
+void dr_world_bem_destroy_(WorldBem **b);
+/* Advances every body by one frame (steps_per_frame steps each) and adds the frame's BEM figures to stats. */
+DR_NODISCARD DrStatus dr_world_bem_step_(DrWorld *w, int frame, DrFrameStats *stats, DrError *err);
+/* Frame cache: per element rotation, translation, velocity, angular_velocity, displacement, reference, triangles
+   and diagnostics; checkpoint: per element the solid's state array and step count. */
+DR_NODISCARD DrStatus dr_world_bem_write_(const DrWorld *w, DrH5 *h, bool frame_cache, DrError *err);
+/* Restores the bodies from a checkpoint taken after `frame`. */
+DR_NODISCARD DrStatus dr_world_bem_read_(DrWorld *w, DrH5 *h, const char *path, int frame, DrError *err);
+void dr_world_bem_hash_(const DrWorld *w, DrHasher *h);
 
 #endif

@@ -79,16 +79,13 @@ static void fmt_v3(DrVec3 v, char *buf, size_t size) { snprintf(buf, size, "[%.6
 static DrStatus add_body(DrWorld *w, WorldMpm *m, const DrElement *e, double dx, WorldMpmBody *wb, DrError *err)
 {
     const DrComponent *shape = dr_element_component(e, "MpmShape");
-    const DrComponent *tr = dr_element_component(e, "Transform");
     const DrComponent *mat = dr_element_component(e, "MpmMaterial");
     const DrComponent *iv = dr_element_component(e, "InitialVelocity");
     wb->element = e;
     int per_axis = dr_component_int(shape, "particles_per_axis");
     double spacing = dx / per_axis;
     Shape sh = {0};
-    sh.scale = dr_component_num(tr, "scale");
-    sh.X.R = dr_m3_from_euler_xyz(dr_v3_scale(dr_component_vec3(tr, "rotate_deg"), DR_PI / 180.0));
-    sh.X.t = dr_component_vec3(tr, "translate");
+    sh.X = dr_world_transform_(e, &sh.scale);
     DrVec3 lo, hi, centre;
     if (dr_component_is_set(shape, "box")) {
         sh.kind = SHAPE_BOX;

@@ -826,6 +826,14 @@ static void bem_scene(const char *components, char *buf, size_t size)
              components);
 }
 
+/* The same after a "shot" section (the text inside "shot": {...}). */
+static void bem_shot_scene(const char *shot, const char *components, char *buf, size_t size)
+{
+    snprintf(buf, size,
+             "{\"shot\":{%s},\"elements\":[{\"name\":\"jelly\",\"type\":\"bem_solid\",\"components\":{%s}}]}", shot,
+             components);
+}
+
 static void test_bem_solid_defaults(void **state)
 {
     (void)state;
@@ -854,15 +862,31 @@ static void test_bem_solid_defaults(void **state)
     assert_true(dr_component_num(sol, "time_step") == 0.004166666666666667);
     assert_true(dr_component_num(sol, "history_margin") == 2.0);
     assert_int_equal(dr_component_int(sol, "quadrature_levels"), 1);
+    assert_true(dr_component_bool(sol, "frame_update"));
+    assert_true(dr_component_bool(sol, "error_correction"));
+    /* at rest at the mesh's own pose unless Transform and InitialVelocity say otherwise */
+    const DrComponent *tr = dr_element_component(e, "Transform");
+    assert_false(dr_component_present(tr));
+    assert_true(dr_component_num(tr, "scale") == 1.0);
+    DrVec3 v = dr_component_vec3(tr, "translate");
+    assert_true(v.x == 0.0 && v.y == 0.0 && v.z == 0.0);
+    const DrComponent *iv = dr_element_component(e, "InitialVelocity");
+    assert_false(dr_component_present(iv));
+    v = dr_component_vec3(iv, "angular_velocity");
+    assert_true(v.x == 0.0 && v.y == 0.0 && v.z == 0.0);
     assert_int_equal(dr_scene_asset_count(s), 1);
     dr_scene_destroy(&s);
 
-    /* every field written, at the ends of the ranges */
-    bem_scene("\"Mesh\":{\"file\":\"meshes/tri.obj\"},"
-              "\"LinearElastic\":{\"density\":1e5,\"shear_modulus\":1e12,\"poisson\":-0.99},"
-              "\"Compression\":{\"ratio\":1,\"ordering\":\"none\"},"
-              "\"BemSolver\":{\"time_step\":1,\"history_margin\":0,\"quadrature_levels\":4}",
-              text, sizeof text);
+    /* every field written, at the ends of the ranges (a 1 s step needs a frame of whole seconds: 1 fps) */
+    bem_shot_scene("\"fps\":1",
+                   "\"Mesh\":{\"file\":\"meshes/tri.obj\"},"
+                   "\"LinearElastic\":{\"density\":1e5,\"shear_modulus\":1e12,\"poisson\":-0.99},"
+                   "\"Compression\":{\"ratio\":1,\"ordering\":\"none\"},"
+                   "\"BemSolver\":{\"time_step\":1,\"history_margin\":0,\"quadrature_levels\":4,"
+                   "\"frame_update\":false,\"error_correction\":false},"
+                   "\"Transform\":{\"translate\":[0,1,0],\"rotate_deg\":[0,90,0],\"scale\":1},"
+                   "\"InitialVelocity\":{\"velocity\":[1,2,3],\"angular_velocity\":[0,0,360]}",
+                   text, sizeof text);
     s = load_text(text);
     e = dr_scene_find(s, "jelly");
     mat = dr_element_component(e, "LinearElastic");
@@ -875,6 +899,12 @@ static void test_bem_solid_defaults(void **state)
     sol = dr_element_component(e, "BemSolver");
     assert_true(dr_component_num(sol, "time_step") == 1.0 && dr_component_num(sol, "history_margin") == 0.0);
     assert_int_equal(dr_component_int(sol, "quadrature_levels"), 4);
+    assert_false(dr_component_bool(sol, "frame_update"));
+    assert_false(dr_component_bool(sol, "error_correction"));
+    v = dr_component_vec3(dr_element_component(e, "Transform"), "rotate_deg");
+    assert_true(v.x == 0.0 && v.y == 90.0 && v.z == 0.0);
+    v = dr_component_vec3(dr_element_component(e, "InitialVelocity"), "angular_velocity");
+    assert_true(v.z == 360.0);
     char *c = dr_scene_canonical(s, "elements");
     assert_non_null(strstr(c, "\"Compression\":{\"ordering\":\"none\",\"ratio\":1}"));
     assert_non_null(strstr(c, "\"type\":\"bem_solid\""));
@@ -922,8 +952,21 @@ static void test_bem_solid_bad_input(void **state)
         {"\"Mesh\":{\"file\":\"meshes/tri.obj\"},\"LinearElastik\":{}",
          {"element 'jelly' (bem_solid): unknown component 'LinearElastik'; did you mean 'LinearElastic'?",
           "Components of bem_solid: Mesh, LinearElastic, Compression, BemSolver"}},
-        {"\"Mesh\":{\"file\":\"meshes/tri.obj\"},\"Transform\":{}",
-         {"unknown component 'Transform' ('Transform' is a component of collider elements)"}},
+        {"\"Mesh\":{\"file\":\"meshes/tri.obj\"},\"Motion\":{}",
+         {"unknown component 'Motion' ('Motion' is a component of collider elements)"}},
+        {"\"Mesh\":{\"file\":\"meshes/tri.obj\"},\"BemSolver\":{\"frame_update\":1}", {"jelly.BemSolver.frame_update"}},
+        /* the matrices belong to the mesh as in its file */
+        {"\"Mesh\":{\"file\":\"meshes/tri.obj\"},\"Transform\":{\"scale\":2}",
+         {"jelly.Transform.scale = 2: a bem_solid's boundary-element matrices are built for the mesh as it is in its "
+          "file", "scale the OBJ instead"}},
+        /* a frame of the default 24 fps holds 4.17 steps of 0.01 s: the nearest whole number is 4 */
+        {"\"Mesh\":{\"file\":\"meshes/tri.obj\"},\"BemSolver\":{\"time_step\":0.01}",
+         {"jelly.BemSolver.time_step = 0.01 s does not divide the frame: 1/fps = 1/24 s is 4.16667 steps",
+          "use 1/96 s = 0.010416666666666666 (4 steps per frame at 24 fps)"}},
+        /* a step longer than the frame: one step per frame is the nearest */
+        {"\"Mesh\":{\"file\":\"meshes/tri.obj\"},\"BemSolver\":{\"time_step\":0.05}",
+         {"jelly.BemSolver.time_step = 0.05 s does not divide the frame", "use 1/24 s = 0.041666666666666664 (1 step "
+          "per frame at 24 fps)"}},
     };
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
         char text[4096], path[512];
@@ -940,8 +983,33 @@ static void test_bem_solid_bad_input(void **state)
                 fail_msg("case %zu: expected \"%s\" in \"%s\"", i, cases[i].expect[k], err.message);
         if (err.line < 1 || err.col < 1) fail_msg("case %zu: no position for %s", i, err.message);
     }
-    /* an unknown type close to bem_solid is suggested */
+    /* a ratio checked once the file is read: shot.fps after the elements; the error points at the field, or at
+       the deepest part of its path that the file holds */
+    char path[512];
+    tmp_path("bem.json", path, sizeof path);
+    const char *late_shot = "{\"elements\":[{\"name\":\"jelly\",\"type\":\"bem_solid\",\"components\":{\"Mesh\":{"
+                            "\"file\":\"meshes/tri.obj\"}}}],\n\"shot\":{\"fps\":25}}";
+    write_file(path, late_shot);
+    DrScene *s = NULL;
     DrError err;
+    assert_int_equal(dr_scene_load(path, &s, &err), DR_ERR_INPUT);
+    assert_contains(err.message, "jelly.BemSolver.time_step = 0.00416666666666667 s does not divide the frame: "
+                                 "1/fps = 1/25 s is 9.6 steps");
+    assert_contains(err.message, "use 1/250 s = 0.004 (10 steps per frame at 25 fps)");
+    assert_int_equal(err.line, 1);
+    assert_int_equal(err.col, 62); /* the element's "components" object: BemSolver is not written */
+    /* whole numbers of steps up to rounding load: 1/25 s is 4 steps of 0.01 s, 1/24 s 10 of 1/240 s */
+    char text[4096];
+    bem_shot_scene("\"fps\":25", "\"Mesh\":{\"file\":\"meshes/tri.obj\"},\"BemSolver\":{\"time_step\":0.01}", text,
+                   sizeof text);
+    s = load_text(text);
+    dr_scene_destroy(&s);
+    bem_shot_scene("\"fps\":24", "\"Mesh\":{\"file\":\"meshes/tri.obj\"},\"BemSolver\":{\"time_step\":0.0041666666666667}",
+                   text, sizeof text);
+    s = load_text(text);
+    dr_scene_destroy(&s);
+
+    /* an unknown type close to bem_solid is suggested */
     assert_int_equal(load_bad("{\"elements\":[{\"name\":\"j\",\"type\":\"bem_solids\"}]}", &err), DR_ERR_INPUT);
     assert_contains(err.message, "did you mean 'bem_solid'?");
 }
@@ -1198,6 +1266,10 @@ static void test_reference_lists_everything(void **state)
     assert_contains(md, "| `ordering` | one of vertex_xyz, xyz, none | - | `\"vertex_xyz\"` | - |");
     assert_contains(md, "| `time_step` | number | s | `0.00416666666666667` | (0, 1] |");
     assert_contains(md, "| `quadrature_levels` | integer | - | `1` | [1, 4] |");
+    assert_contains(md, "| `frame_update` | bool | - | `true` | - | move a rigid frame with the body (BEM eqs. 10-11)");
+    assert_contains(md, "| `error_correction` | bool | - | `true` | - |");
+    assert_contains(text, "components: Mesh (required), LinearElastic, Compression, BemSolver, Transform, "
+                          "InitialVelocity\n");
     free(text);
     free(md);
 }
@@ -1220,7 +1292,7 @@ static void test_spec_lookups(void **state)
     assert_false(hair->needs_precompute);
     const DrElementSpec *bem = dr_scene_element_spec("bem_solid");
     assert_non_null(bem);
-    assert_int_equal(bem->component_count, 4);
+    assert_int_equal(bem->component_count, 6);
     assert_int_equal(bem->required_count, 1);
     assert_string_equal(bem->required_components[0], "Mesh");
     assert_true(bem->needs_precompute);
