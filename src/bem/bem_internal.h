@@ -51,6 +51,8 @@ struct DrBemSolid {
     double *E, *F;          /* H₀⁻¹D₀ and H₀⁻¹Q₀, 3N × 3: u = z + E b + F α solves eq. (9) for given b, α */
     double *Epinv, *Fpinv;  /* 3 × 3N least-squares inverses of E and F (§3.2.1) */
     double *s_ht, *s_tmp, *s_h, *s_p, *s_u, *s_z, *s_r, *s_coeff; /* scratch, 3N each (coeff: 2·3N) */
+    double *hz;             /* H₀⁻¹h of the history sum for step hz_step: trial steps of one step share it */
+    long hz_step;           /* 0: none */
 };
 
 /* dr_bem_solid_step with commit = true; with commit = false a trial step: V_out (3N) receives the world positions

@@ -138,6 +138,7 @@ void dr_bem_solid_destroy(DrBemSolid **ps)
     free(s->s_ht);
     free(s->s_tmp);
     free(s->s_h);
+    free(s->hz);
     free(s->s_p);
     free(s->s_u);
     free(s->s_z);
@@ -170,6 +171,7 @@ DrStatus dr_bem_solid_create(const DrBemMatrices *m, const DrBemSolidDesc *d, Dr
     double **scratch[] = {&s->s_ht, &s->s_tmp, &s->s_h, &s->s_p, &s->s_u, &s->s_z, &s->s_r};
     for (int i = 0; st == DR_OK && i < 7; i++) st = dr_calloc(n, sizeof(double), scratch[i], err);
     if (st == DR_OK) st = dr_calloc(2 * n, sizeof(double), &s->s_coeff, err);
+    if (st == DR_OK) st = dr_calloc(n, sizeof(double), &s->hz, err);
     if (st != DR_OK) {
         dr_bem_solid_destroy(&s);
         return st;
@@ -249,22 +251,29 @@ DrStatus bem_solid_advance(DrBemSolid *s, const double *traction, bool commit, D
     double t0 = dr_time_now();
     long step = s->step + 1; /* the step being taken */
 
-    /* 1. history: h = Σ_{k=1}^{n_max} (−H_k u_{n−k} + G_k p_{n−k} + D_k b_{n−k} + Q_k α_{n−k}) (eq. 9) */
-    double *ht = s->s_ht, *tmp = s->s_tmp, *h = s->s_h;
-    memset(ht, 0, nb);
-    memset(h, 0, nb);
-    for (int k = 1; k <= s->nmax && k < step; k++) {
-        int sl = slot(s, step - k);
-        dr_bem_cmat_matvec_coeff(&m->H[k], s->ut_hist + (size_t)sl * n, tmp);
-        for (int i = 0; i < n; i++) ht[i] -= tmp[i];
-        dr_bem_cmat_matvec_coeff(&m->G[k], s->pt_hist + (size_t)sl * n, tmp);
-        for (int i = 0; i < n; i++) ht[i] += tmp[i];
-    }
-    if (step > 1) dr_bem_layout_from_coeff(&m->layout, s->dense, ht, h, s->s_coeff);
-    for (int k = 1; k <= s->nmax && k < step; k++) {
-        int sl = slot(s, step - k);
-        add_n3(m->D + (size_t)k * n * 3, n, s->b_hist + 3 * sl, h);
-        add_n3(m->Q + (size_t)k * n * 3, n, s->al_hist + 3 * sl, h);
+    /* 1. history: h = Σ_{k=1}^{n_max} (−H_k u_{n−k} + G_k p_{n−k} + D_k b_{n−k} + Q_k α_{n−k}) (eq. 9), and H₀⁻¹h.
+          It depends on past steps only, so the trial steps of the constraint solver and the final step share it. */
+    double *tmp = s->s_tmp;
+    if (s->hz_step != step) {
+        double *ht = s->s_ht, *h = s->s_h;
+        memset(ht, 0, nb);
+        memset(h, 0, nb);
+        for (int k = 1; k <= s->nmax && k < step; k++) {
+            int sl = slot(s, step - k);
+            dr_bem_cmat_matvec_coeff(&m->H[k], s->ut_hist + (size_t)sl * n, tmp);
+            for (int i = 0; i < n; i++) ht[i] -= tmp[i];
+            dr_bem_cmat_matvec_coeff(&m->G[k], s->pt_hist + (size_t)sl * n, tmp);
+            for (int i = 0; i < n; i++) ht[i] += tmp[i];
+        }
+        if (step > 1) dr_bem_layout_from_coeff(&m->layout, s->dense, ht, h, s->s_coeff);
+        for (int k = 1; k <= s->nmax && k < step; k++) {
+            int sl = slot(s, step - k);
+            add_n3(m->D + (size_t)k * n * 3, n, s->b_hist + 3 * sl, h);
+            add_n3(m->Q + (size_t)k * n * 3, n, s->al_hist + 3 * sl, h);
+        }
+        if (step > 1) apply(s, &m->H0inv, h, s->hz);
+        else memset(s->hz, 0, nb);
+        s->hz_step = step;
     }
     double t1 = dr_time_now();
     stats.seconds_history = t1 - t0;
@@ -294,10 +303,7 @@ DrStatus bem_solid_advance(DrBemSolid *s, const double *traction, bool commit, D
         add_n3(s->E, n, nb0, z);
         add_n3(s->F, n, nal0, z);
     }
-    if (step > 1) {
-        apply(s, &m->H0inv, h, tmp);
-        for (int i = 0; i < n; i++) z[i] += tmp[i];
-    }
+    for (int i = 0; i < n; i++) z[i] += s->hz[i];
     double b[3], al[3];
     if (s->d.frame_update) { /* a = g′ + A p (11b), α = C p (11c): g′ cancels in b */
         memcpy(b, b0, sizeof b);
@@ -530,5 +536,6 @@ DrStatus dr_bem_solid_state_set(DrBemSolid *s, const double *st, size_t size, Dr
     memcpy(s->Tdot, st + 12, sizeof s->Tdot);
     memcpy(s->omega, st + 15, sizeof s->omega);
     s->step = (long)st[18];
+    s->hz_step = 0;
     return DR_OK;
 }
