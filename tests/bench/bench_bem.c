@@ -5,7 +5,10 @@
  *     Table 1, compression 32× (vertex order + xyz blocks). Each size runs in its own process so that its peak
  *     resident memory (getrusage) is its own: seconds of quadrature (kernels, integration and the CQ weights),
  *     of H₀⁻¹ and H₀⁻¹G′, of compression, in total, peak memory, and the rigid-translation residual of the
- *     truncated history.
+ *     truncated history; then the seconds of an unconstrained step of a body at 32× (1 and 2 threads) and of a
+ *     constrained step of the box resting on a floor (its bottom face in contact, friction 0.4) by phase: trial
+ *     steps, collision detection, assembly of the contact response, projected Gauss–Seidel, final step, and error
+ *     correction.
  *  2. compression (out/bench/bem_compression.csv, next to the first): the 2,906-vertex box built once with
  *     dense matrices, then every matrix compressed at ratios 1 (dense), 8, 32 and 128: storage of the whole set
  *     (H_k, G_k for k = 0..n_max, H₀⁻¹, H₀⁻¹G′), the relative Frobenius error of H_1, the relative error of
@@ -88,6 +91,55 @@ static void time_steps(const DrBemMatrices *bm, int threads, int steps, double o
     omp_set_num_threads(2);
 }
 
+
+/* The floor y = −0.05 − 1e-4 m under the box (its bottom face rests on it). */
+static double floor_sdf(const double x[3], double grad[3], void *ctx)
+{
+    (void)ctx;
+    grad[0] = 0;
+    grad[1] = 1;
+    grad[2] = 0;
+    return x[1] + 0.05 + 1e-4;
+}
+
+/* Mean seconds per constrained step of the box resting on a floor under gravity (its bottom face in contact),
+   by phase: out = {total, trial, detection, assembly, PGS, final step, contacts, PGS sweeps}. */
+static void time_contact_steps(const DrBemMatrices *bm, int threads, int steps, double out[8])
+{
+    omp_set_num_threads(threads);
+    DrBemSolidDesc d;
+    dr_bem_solid_desc_default(&d);
+    DrBemSolid *s = NULL;
+    DrError err;
+    if (dr_bem_solid_create(bm, &d, &s, &err) != DR_OK) {
+        fprintf(stderr, "bench_bem: %s\n", err.message);
+        exit(1);
+    }
+    DrBemCollider floor = {.sdf = floor_sdf, .friction = 0.4};
+    DrBemConstraints c;
+    dr_bem_constraints_default(&c);
+    c.colliders = &floor;
+    c.collider_count = 1;
+    memset(out, 0, sizeof(double) * 8);
+    DrBemSolid *const list[1] = {s};
+    for (int k = 0; k < 2 * steps; k++) {
+        DrBemConstraintStats st;
+        double t0 = dr_time_now();
+        DrStatus r = dr_bem_solids_step(list, 1, &c, &st, &err);
+        if (r < 0) {
+            fprintf(stderr, "bench_bem: %s\n", err.message);
+            exit(1);
+        }
+        double t = dr_time_now() - t0;
+        if (k < steps) continue;
+        double v[8] = {t, st.seconds_trial, st.seconds_detect, st.seconds_assembly, st.seconds_pgs, st.seconds_final,
+                       st.contacts, st.iterations};
+        for (int q = 0; q < 8; q++) out[q] += v[q] / steps;
+    }
+    dr_bem_solid_destroy(&s);
+    omp_set_num_threads(2);
+}
+
 static int run_one(int seg)
 {
     DrTriMesh m = box_mesh(seg);
@@ -106,10 +158,20 @@ static int run_one(int seg)
     double st1[4], st2[4];
     time_steps(bm, 1, 20, st1);
     time_steps(bm, 2, 20, st2);
-    printf("%d,%d,%d,%.3f,%.3f,%.3f,%.3f,%.1f,%.1f,%.1f,%.3e,%.5f,%.5f\n", m.nv, threads, bm->n_max,
+    double ct[2][8];
+    time_contact_steps(bm, 1, 3, ct[0]);
+    time_contact_steps(bm, 2, 3, ct[1]);
+    for (int th = 0; th < 2; th++)
+        fprintf(stderr, "contact %d vertices %d thread(s): %.3f s/step (trial %.3f, detection %.3f, assembly %.3f, "
+                        "PGS %.3f, final %.3f), %.0f contacts, %.0f sweeps\n",
+                m.nv, th + 1, ct[th][0], ct[th][1], ct[th][2], ct[th][3], ct[th][4], ct[th][5], ct[th][6], ct[th][7]);
+    printf("%d,%d,%d,%.3f,%.3f,%.3f,%.3f,%.1f,%.1f,%.1f,%.3e,%.5f,%.5f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,"
+           "%.0f,%.0f\n",
+           m.nv, threads, bm->n_max,
            bm->stats.seconds_quadrature, bm->stats.seconds_inverse, bm->stats.seconds_compress, total,
            ru.ru_maxrss / 1024.0, bm->stats.bytes_dense / 1e6, bm->stats.bytes_compressed / 1e6,
-           bm->stats.rigid_residual, st1[0], st2[0]);
+           bm->stats.rigid_residual, st1[0], st2[0], ct[0][0], ct[1][0], ct[1][1], ct[1][2], ct[1][3], ct[1][4],
+           ct[1][5], st2[3], ct[1][6], ct[1][7]);
     dr_bem_matrices_destroy(&bm);
     dr_trimesh_free(&m);
     return 0;
@@ -123,12 +185,14 @@ static void part_precompute(const char *csv)
         exit(1);
     }
     const char *head = "vertices,threads,n_max,s_quadrature,s_inverse,s_compress,s_total,peak_mb,dense_mb,"
-                       "compressed_mb,rigid_residual,s_step_1t,s_step_2t";
+                       "compressed_mb,rigid_residual,s_step_1t,s_step_2t,s_contact_step_1t,s_contact_step_2t,s_trial_2t,"
+                       "s_detect_2t,s_assembly_2t,s_pgs_2t,s_final_2t,s_correction_2t,contacts,pgs_sweeps";
     fprintf(f, "%s\n", head);
     printf("### precompute against N (boxes, n_max as listed, 32x, %d threads)\n\n", omp_get_max_threads());
     printf("| vertices | n_max | quadrature s | H0 inverse s | compression s | total s | peak MB | dense MB | "
-           "kept MB | rigid residual | step s (1 thread) | step s (2 threads) |\n"
-           "|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+           "kept MB | rigid residual | step s (1 / 2 threads) | step on the floor s (1 / 2 threads) | on the floor, 2 "
+           "threads: trial / detection / assembly / PGS / final / error correction s | contacts |\n"
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
     int segs[] = {9, 13, 22};
     char self[1024];
     ssize_t len = readlink("/proc/self/exe", self, sizeof self - 1);
@@ -151,11 +215,13 @@ static void part_precompute(const char *csv)
         fputs(line, f);
         fflush(f);
         int nv, th, nmax;
-        double q, inv, comp, tot, peak, dmb, kmb, rr, s1, s2;
-        if (sscanf(line, "%d,%d,%d,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf", &nv, &th, &nmax, &q, &inv, &comp, &tot,
-                   &peak, &dmb, &kmb, &rr, &s1, &s2) == 13)
-            printf("| %d | %d | %.1f | %.1f | %.1f | %.1f | %.0f | %.0f | %.0f | %.2e | %.4f | %.4f |\n", nv, nmax, q,
-                   inv, comp, tot, peak, dmb, kmb, rr, s1, s2);
+        double q, inv, comp, tot, peak, dmb, kmb, rr, s1, s2, c1, c2, tr, de, as, pg, fi, co, nc, sw;
+        if (sscanf(line, "%d,%d,%d,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf",
+                   &nv, &th, &nmax, &q, &inv, &comp, &tot, &peak, &dmb, &kmb, &rr, &s1, &s2, &c1, &c2, &tr, &de, &as,
+                   &pg, &fi, &co, &nc, &sw) == 23)
+            printf("| %d | %d | %.1f | %.1f | %.1f | %.1f | %.0f | %.0f | %.0f | %.2e | %.4f / %.4f | %.3f / %.3f | "
+                   "%.3f / %.4f / %.3f / %.3f / %.3f / %.4f | %.0f |\n",
+                   nv, nmax, q, inv, comp, tot, peak, dmb, kmb, rr, s1, s2, c1, c2, tr, de, as, pg, fi, co, nc);
         fflush(stdout);
     }
     fclose(f);
