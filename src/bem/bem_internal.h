@@ -35,6 +35,19 @@ DR_NODISCARD DrStatus bem_laplace_matrices(const DrTriMesh *mesh, const DrBemDes
                                            double complex *H, double complex *G, double complex *D,
                                            double complex *Q, DrError *err);
 
+/* A compressed matrix's coefficients in single precision with 16-bit columns (3N ≤ 65535), for the history sums
+ * of a body's step (bem_compress.c). bem_cmat_compact is false for dense matrices, larger ones, or no memory. */
+typedef struct BemCMatF {
+    int n;
+    int64_t nnz;
+    int64_t *row_ptr;
+    uint16_t *col;
+    float *val;
+} BemCMatF;
+bool bem_cmat_compact(const DrBemCMat *m, BemCMatF *out);
+void bem_cmatf_free(BemCMatF *m);
+void bem_cmatf_matvec_acc(const BemCMatF *m, const double *x, double sign, double *y); /* y += sign·M̃x */
+
 /* A body in a shot (bem_solid.c); the constraint solver reads its frame and matrices. */
 struct DrBemSolid {
     const DrBemMatrices *m;
@@ -51,6 +64,7 @@ struct DrBemSolid {
     double *E, *F;          /* H₀⁻¹D₀ and H₀⁻¹Q₀, 3N × 3: u = z + E b + F α solves eq. (9) for given b, α */
     double *Epinv, *Fpinv;  /* 3 × 3N least-squares inverses of E and F (§3.2.1) */
     double *s_ht, *s_tmp, *s_h, *s_p, *s_u, *s_z, *s_r, *s_coeff; /* scratch, 3N each (coeff: 2·3N) */
+    BemCMatF *Hf, *Gf;      /* compact copies of H_k, G_k (k ≥ 1; index k) for the history sums, or NULL */
     double *hz;             /* H₀⁻¹h of the history sum for step hz_step: trial steps of one step share it */
     long hz_step;           /* 0: none */
 };

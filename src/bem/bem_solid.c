@@ -139,6 +139,13 @@ void dr_bem_solid_destroy(DrBemSolid **ps)
     free(s->s_tmp);
     free(s->s_h);
     free(s->hz);
+    if (s->Hf)
+        for (int k = 1; k <= s->nmax; k++) {
+            bem_cmatf_free(&s->Hf[k]);
+            bem_cmatf_free(&s->Gf[k]);
+        }
+    free(s->Hf);
+    free(s->Gf);
     free(s->s_p);
     free(s->s_u);
     free(s->s_z);
@@ -175,6 +182,23 @@ DrStatus dr_bem_solid_create(const DrBemMatrices *m, const DrBemSolidDesc *d, Dr
     if (st != DR_OK) {
         dr_bem_solid_destroy(&s);
         return st;
+    }
+    /* compact copies of the history matrices: half the bytes a step reads (see bem_cmatf_matvec_acc) */
+    if (!s->dense) {
+        s->Hf = calloc((size_t)s->nmax + 1, sizeof(BemCMatF));
+        s->Gf = calloc((size_t)s->nmax + 1, sizeof(BemCMatF));
+        bool ok = s->Hf && s->Gf;
+        for (int k = 1; ok && k <= s->nmax; k++) ok = bem_cmat_compact(&m->H[k], &s->Hf[k]) && bem_cmat_compact(&m->G[k], &s->Gf[k]);
+        if (!ok) { /* the double-precision products serve instead */
+            if (s->Hf && s->Gf)
+                for (int k = 1; k <= s->nmax; k++) {
+                    bem_cmatf_free(&s->Hf[k]);
+                    bem_cmatf_free(&s->Gf[k]);
+                }
+            free(s->Hf);
+            free(s->Gf);
+            s->Hf = s->Gf = NULL;
+        }
     }
     const double *xb = m->body.centroid;
     for (int v = 0; v < s->nv; v++)
@@ -260,9 +284,15 @@ DrStatus bem_solid_advance(DrBemSolid *s, const double *traction, bool commit, D
         memset(h, 0, nb);
         for (int k = 1; k <= s->nmax && k < step; k++) {
             int sl = slot(s, step - k);
-            dr_bem_cmat_matvec_coeff(&m->H[k], s->ut_hist + (size_t)sl * n, tmp);
+            const double *uk = s->ut_hist + (size_t)sl * n, *pk = s->pt_hist + (size_t)sl * n;
+            if (s->Hf) {
+                bem_cmatf_matvec_acc(&s->Hf[k], uk, -1.0, ht);
+                bem_cmatf_matvec_acc(&s->Gf[k], pk, 1.0, ht);
+                continue;
+            }
+            dr_bem_cmat_matvec_coeff(&m->H[k], uk, tmp);
             for (int i = 0; i < n; i++) ht[i] -= tmp[i];
-            dr_bem_cmat_matvec_coeff(&m->G[k], s->pt_hist + (size_t)sl * n, tmp);
+            dr_bem_cmat_matvec_coeff(&m->G[k], pk, tmp);
             for (int i = 0; i < n; i++) ht[i] += tmp[i];
         }
         if (step > 1) dr_bem_layout_from_coeff(&m->layout, s->dense, ht, h, s->s_coeff);
