@@ -28,6 +28,10 @@ typedef struct Totals {
     int bem_bodies;
     long bem_steps;
     double bem_seconds, bem_max_displacement;
+    long bem_pgs_iterations;
+    int bem_not_converged;
+    double bem_residual_max, bem_seconds_trial, bem_seconds_detect, bem_seconds_assembly, bem_seconds_pgs,
+        bem_seconds_final;
 } Totals;
 
 /* Exit code of a bake stopped by SIGUSR1, SIGTERM or SIGINT after writing its checkpoint: the caller (a
@@ -124,10 +128,12 @@ static void append_progress(const char *path, const DrFrameStats *fs, double io_
         fprintf(f,
                 "\"bem_bodies\":%d,\"bem_steps\":%ld,\"bem_kinetic_energy\":%.9g,\"bem_potential_energy\":%.9g,"
                 "\"bem_total_energy\":%.9g,\"bem_max_displacement\":%.9g,\"bem_translation_error\":%.6g,"
-                "\"bem_rotation_error\":%.6g,",
+                "\"bem_rotation_error\":%.6g,\"bem_contacts\":%d,\"bem_body_contacts\":%d,\"bem_fixed\":%d,"
+                "\"bem_joints\":%d,\"bem_pgs_iterations\":%ld,\"bem_residual\":%.6g,\"bem_not_converged\":%d,",
                 fs->bem_bodies, fs->bem_steps, fs->bem_kinetic_energy, fs->bem_potential_energy,
                 fs->bem_kinetic_energy + fs->bem_potential_energy, fs->bem_max_displacement, fs->bem_translation_error,
-                fs->bem_rotation_error);
+                fs->bem_rotation_error, fs->bem_contacts, fs->bem_body_contacts, fs->bem_fixed, fs->bem_joints,
+                fs->bem_pgs_iterations, fs->bem_residual, fs->bem_not_converged);
     /* one "momentum" object: a panel per vector */
     if (fs->mpm || fs->bem) {
         fprintf(f, "\"momentum\":{");
@@ -159,8 +165,11 @@ static void append_progress(const char *path, const DrFrameStats *fs, double io_
         fprintf(f, "\"mpm_transfer\":%.6f,\"mpm_solve\":%.6f,", fs->seconds_mpm_transfer, fs->seconds_mpm_solve);
     if (fs->hair) fprintf(f, "\"hair\":%.6f,", fs->seconds_hair);
     if (fs->bem)
-        fprintf(f, "\"bem_history\":%.6f,\"bem_solve\":%.6f,\"bem_correction\":%.6f,", fs->seconds_bem_history,
-                fs->seconds_bem_solve, fs->seconds_bem_correction);
+        fprintf(f,
+                "\"bem_history\":%.6f,\"bem_solve\":%.6f,\"bem_correction\":%.6f,\"bem_trial\":%.6f,"
+                "\"bem_detect\":%.6f,\"bem_assembly\":%.6f,\"bem_pgs\":%.6f,\"bem_final\":%.6f,",
+                fs->seconds_bem_history, fs->seconds_bem_solve, fs->seconds_bem_correction, fs->seconds_bem_trial,
+                fs->seconds_bem_detect, fs->seconds_bem_assembly, fs->seconds_bem_pgs, fs->seconds_bem_final);
     fprintf(f, "\"io\":%.6f,\"frame\":%.6f}}\n", io_seconds, fs->seconds + io_seconds);
     fclose(f);
 }
@@ -198,8 +207,14 @@ static DrStatus write_report(const char *dir, const char *status, const char *me
                                       "seconds", t->hair_seconds));
     if (t->bem)
         json_object_set_new(r, "bem",
-                            json_pack("{s:i, s:I, s:f, s:f}", "bodies", t->bem_bodies, "steps", (json_int_t)t->bem_steps,
-                                      "seconds", t->bem_seconds, "max_displacement", t->bem_max_displacement));
+                            json_pack("{s:i, s:I, s:f, s:f, s:I, s:f, s:i, s:{s:f, s:f, s:f, s:f, s:f}}", "bodies",
+                                      t->bem_bodies, "steps", (json_int_t)t->bem_steps, "seconds", t->bem_seconds,
+                                      "max_displacement", t->bem_max_displacement, "pgs_iterations",
+                                      (json_int_t)t->bem_pgs_iterations, "residual_max", t->bem_residual_max,
+                                      "not_converged", t->bem_not_converged, "seconds_by_phase", "trial",
+                                      t->bem_seconds_trial, "detection", t->bem_seconds_detect, "assembly",
+                                      t->bem_seconds_assembly, "pgs", t->bem_seconds_pgs, "final",
+                                      t->bem_seconds_final));
     char *text = json_dumps(r, JSON_INDENT(2) | JSON_REAL_PRECISION(9));
     json_decref(r);
     char path[4096];
@@ -334,7 +349,17 @@ int main(int argc, char **argv)
         tot.bem |= fs.bem;
         tot.bem_bodies = fs.bem_bodies;
         tot.bem_steps += fs.bem_steps;
-        tot.bem_seconds += fs.seconds_bem_history + fs.seconds_bem_solve + fs.seconds_bem_correction;
+        tot.bem_seconds += fs.seconds_bem_history + fs.seconds_bem_solve + fs.seconds_bem_correction +
+                           fs.seconds_bem_trial + fs.seconds_bem_detect + fs.seconds_bem_assembly + fs.seconds_bem_pgs +
+                           fs.seconds_bem_final;
+        tot.bem_pgs_iterations += fs.bem_pgs_iterations;
+        tot.bem_not_converged += fs.bem_not_converged;
+        tot.bem_residual_max = fmax(tot.bem_residual_max, fs.bem_residual);
+        tot.bem_seconds_trial += fs.seconds_bem_trial;
+        tot.bem_seconds_detect += fs.seconds_bem_detect;
+        tot.bem_seconds_assembly += fs.seconds_bem_assembly;
+        tot.bem_seconds_pgs += fs.seconds_bem_pgs;
+        tot.bem_seconds_final += fs.seconds_bem_final;
         tot.bem_max_displacement = fmax(tot.bem_max_displacement, fs.bem_max_displacement);
         char detail[400], mpm[96] = "", hair[96] = "", bem[96] = "";
         if (fs.mpm)

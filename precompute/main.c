@@ -84,7 +84,7 @@ static DrStatus ensure_cached(const Body *body, const char *cache_root, bool *hi
     double per_row = 3.0 * b->mesh.nv / b->desc.compression_ratio;
     if (b->desc.compression_ratio > 1 && per_row < 100)
         dr_log_warn("bem: %s: Compression.ratio %g keeps %.0f coefficients per row of this %d-vertex body; below ~100 "
-                    "the body's response is off by 10 %% or more: use a ratio of at most %.0f (3N/100), or 1",
+                    "the response of the body is off by 10 %% or more: use a ratio of at most %.0f (3N/100), or 1",
                     e->name, b->desc.compression_ratio, per_row, b->mesh.nv, fmax(1.0, floor(3.0 * b->mesh.nv / 100)));
     double t0 = dr_time_now();
     DR_TRY(dr_bem_matrices_build(&b->mesh, &b->desc, e->name, &m, err));

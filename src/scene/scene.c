@@ -578,6 +578,33 @@ static DrStatus check_hair_collider(Parser *p, const DrElement *e)
                        "apply to hair; remove it (a hair element's Collider takes friction and thickness)", e->name);
 }
 
+/* On a bem_solid, Collider is how the body's vertices meet colliders and other bodies; the liquid's velocity condition
+   is not one of its parameters. body_contact is between bem_solid bodies and means nothing on other elements. */
+static DrStatus check_collider_fields(Parser *p, const DrElement *e)
+{
+    bool has = false;
+    for (int i = 0; i < e->spec->component_count; i++) has |= strcmp(e->spec->components[i], "Collider") == 0;
+    if (!has) return DR_OK;
+    const DrComponent *col = dr_element_component(e, "Collider");
+    bool bem = strcmp(e->type, "bem_solid") == 0;
+    if (bem && value_at(col, "boundary")->set) {
+        push_key(p, "components");
+        push_key(p, "Collider");
+        push_key(p, "boundary");
+        return fail_key(p, "%s.Collider.boundary is the velocity condition of liquid at a collider surface and does "
+                           "not apply to a bem_solid; remove it (a bem_solid's Collider takes friction, thickness and "
+                           "body_contact)", e->name);
+    }
+    if (!bem && value_at(col, "body_contact")->set) {
+        push_key(p, "components");
+        push_key(p, "Collider");
+        push_key(p, "body_contact");
+        return fail_key(p, "%s.Collider.body_contact is contact between bem_solid bodies and does not apply to a %s "
+                           "element; remove it", e->name, e->type);
+    }
+    return DR_OK;
+}
+
 /* A bem_solid's matrices belong to its mesh as the file holds it (precompute keys them by the file's bytes), so its
    Transform may rotate and translate the body but not scale it. */
 static DrStatus check_bem_transform(Parser *p, const DrElement *e)
@@ -688,6 +715,77 @@ static DrStatus check_shared(Parser *p, const char *type, const Shared *shared, 
     return DR_OK;
 }
 
+/* Locates an error at elements[e].components.Joint.<field>. */
+static void at_joint_field(Parser *p, const DrElement *e, const char *field)
+{
+    push_index(p, e->index);
+    push_key(p, "components");
+    push_key(p, "Joint");
+    push_key(p, field);
+}
+
+/* A bem_joint names two different bem_solid elements that are stepped together (the same BemSolver.time_step: bodies
+   of different steps never meet), and a point when its mode is point. Runs once every element is read, since a joint
+   may come before its bodies. */
+static DrStatus check_bem_joints(Parser *p)
+{
+    const DrScene *s = p->s;
+    const char **bodies = NULL;
+    int nb = 0;
+    for (int i = 0; i < s->element_count; i++) nb += strcmp(s->elements[i].type, "bem_solid") == 0;
+    bodies = dr_arena_alloc(s->arena, (size_t)nb + 1, sizeof *bodies);
+    if (!bodies) return nomem(p);
+    nb = 0;
+    for (int i = 0; i < s->element_count; i++)
+        if (strcmp(s->elements[i].type, "bem_solid") == 0) bodies[nb++] = s->elements[i].name;
+    for (int i = 0; i < s->element_count; i++) {
+        const DrElement *e = &s->elements[i];
+        if (strcmp(e->type, "bem_joint") != 0) continue;
+        const DrComponent *j = dr_element_component(e, "Joint");
+        const char *field[2] = {"body_a", "body_b"};
+        const DrElement *b[2];
+        for (int k = 0; k < 2; k++) {
+            const char *name = value_at(j, field[k])->str;
+            b[k] = dr_scene_find(s, name);
+            if (b[k] && strcmp(b[k]->type, "bem_solid") == 0) continue;
+            char sug[256], list[512];
+            suggestion(name, bodies, nb, sug, sizeof sug);
+            dr_scene_join_names_(bodies, nb, list, sizeof list);
+            at_joint_field(p, e, field[k]);
+            if (b[k])
+                return fail(p, "%s.Joint.%s = '%s' is a %s element, not a bem_solid%s bem_solid elements: %s", e->name,
+                            field[k], name, b[k]->type, sug, nb ? list : "none");
+            return fail(p, "%s.Joint.%s = '%s': no bem_solid element has this name%s bem_solid elements: %s", e->name,
+                        field[k], name, sug, nb ? list : "none");
+        }
+        if (b[0] == b[1]) {
+            at_joint_field(p, e, "body_b");
+            return fail(p, "%s.Joint.body_b = '%s' is body_a as well; a joint holds two different bodies together",
+                        e->name, b[1]->name);
+        }
+        double dta = value_at(dr_element_component(b[0], "BemSolver"), "time_step")->num[0];
+        double dtb = value_at(dr_element_component(b[1], "BemSolver"), "time_step")->num[0];
+        if (dta != dtb) {
+            char xa[32], xb[32];
+            dr_scene_fmt_num_(dta, xa, sizeof xa);
+            dr_scene_fmt_num_(dtb, xb, sizeof xb);
+            at_joint_field(p, e, "body_b");
+            return fail(p, "%s.Joint joins %s and %s, but %s.BemSolver.time_step = %s s differs from "
+                           "%s.BemSolver.time_step = %s s; bodies are stepped together only with the same time step, so "
+                           "give both the same BemSolver.time_step", e->name, b[0]->name, b[1]->name, b[1]->name, xb,
+                        b[0]->name, xa);
+        }
+        if (strcmp(value_at(j, "mode")->str, "point") == 0 && !value_at(j, "point")->set) {
+            push_index(p, e->index);
+            push_key(p, "components");
+            push_key(p, "Joint");
+            return fail(p, "%s.Joint.point is required with mode \"point\": add \"point\": [x, y, z] (m, in the placed "
+                           "rest pose), or use mode \"coincident\"", e->name);
+        }
+    }
+    return DR_OK;
+}
+
 /* Every mpm_solid of a scene lives on one grid advanced by one step, so what defines the grid and the step
    must agree between them: the cell size and wall condition (Domain) and every Transfer and Integrator
    field. The grid box itself is the union of the Domain boxes (world.c). Every hair element is one object
@@ -699,6 +797,7 @@ static DrStatus check_cross_element(Parser *p)
     static const Shared hair[] = {{"HairSolver", NULL}};
     DR_TRY(check_shared(p, "mpm_solid", mpm, (int)(sizeof mpm / sizeof mpm[0]),
                         "every mpm_solid of a scene shares one grid and one time step"));
+    DR_TRY(check_bem_joints(p));
     return check_shared(p, "hair", hair, 1, "every hair element of a scene is solved in one system");
 }
 
@@ -824,6 +923,7 @@ static DrStatus parse_element(Parser *p, const json_t *v, int index)
     }
     if (strcmp(t->type, "liquid") == 0) DR_TRY(check_liquid_transfer(p, e));
     if (strcmp(t->type, "hair") == 0) DR_TRY(check_hair_collider(p, e));
+    DR_TRY(check_collider_fields(p, e));
     if (strcmp(t->type, "bem_solid") == 0) DR_TRY(check_bem_transform(p, e));
     return DR_OK;
 }

@@ -232,7 +232,31 @@ static const DrFieldSpec collider_fields[] = {
     {.name = "boundary", .kind = DR_FIELD_ENUM, .unit = "", .def_str = "slip", .choices = "slip|no_slip",
      .doc = "velocity condition of liquid at the surface (collider elements only)"},
     {.name = "thickness", .kind = DR_FIELD_NUMBER, .unit = "m", .def = {0}, RANGE(0, 1),
-     .doc = "extra thickness added around the surface (on hair: around each strand, beyond its radius)"},
+     .doc = "extra thickness added around the surface (on hair: around each strand, beyond its radius; on a "
+            "bem_solid: the contact offset its vertices keep from colliders and other bodies)"},
+    {.name = "body_contact", .kind = DR_FIELD_BOOL, .unit = "", .def = {1},
+     .doc = "bem_solid only: the body's vertices are kept outside the other bem_solid bodies stepped with it (the "
+            "same BemSolver.time_step), with its friction"},
+};
+
+static const DrFieldSpec fixed_vertices_fields[] = {
+    {.name = "box", .kind = DR_FIELD_BOX, .unit = "m", .required = true, POS_RANGE,
+     .doc = "every vertex inside this box in the placed rest pose (after Transform) is held at its position at t=0; "
+            "the box must hold at least one vertex"},
+};
+
+static const DrFieldSpec joint_fields[] = {
+    {.name = "body_a", .kind = DR_FIELD_NAME, .unit = "", .required = true,
+     .doc = "name of a bem_solid element"},
+    {.name = "body_b", .kind = DR_FIELD_NAME, .unit = "", .required = true,
+     .doc = "name of another bem_solid element with the same BemSolver.time_step"},
+    {.name = "mode", .kind = DR_FIELD_ENUM, .unit = "", .def_str = "coincident", .choices = "coincident|point",
+     .doc = "coincident: join every pair of vertices of the two bodies within tolerance of each other in the placed "
+            "rest pose (a body split into parts, BEM 3.4); point: join the vertex of each body nearest to point"},
+    {.name = "point", .kind = DR_FIELD_VEC3, .unit = "m", .no_default = true, POS_RANGE,
+     .doc = "mode point: where the bodies are joined, in the placed rest pose (required with point)"},
+    {.name = "tolerance", .kind = DR_FIELD_NUMBER, .unit = "m", .def = {1e-6}, RANGE_LO_OPEN(0, 1),
+     .doc = "mode coincident: the largest distance between two vertices that are joined"},
 };
 
 static const DrFieldSpec transform_fields[] = {
@@ -388,7 +412,12 @@ const DrComponentSpec dr_scene_components_[] = {
     {"Pressure", "pressure projection", pressure_fields, COUNT(pressure_fields)},
     {"Mesh", "the element's surface mesh", mesh_file_fields, COUNT(mesh_file_fields)},
     {"Collider", "contact with collider surfaces: on a collider, how liquid, solids and hair meet its surface; on "
-                 "hair, how its strands meet every collider", collider_fields, COUNT(collider_fields)},
+                 "hair, how its strands meet every collider; on a bem_solid, how its vertices meet every collider "
+                 "(friction: the larger of the two elements' values) and the other bodies",
+     collider_fields, COUNT(collider_fields)},
+    {"FixedVertices", "vertices of a boundary-element body held where they start", fixed_vertices_fields,
+     COUNT(fixed_vertices_fields)},
+    {"Joint", "two boundary-element bodies held together at vertices", joint_fields, COUNT(joint_fields)},
     {"Transform", "rest placement of the mesh (of an mpm_solid: of its MpmShape; of hair: of its scalp or curves; of a "
                   "bem_solid: its pose at t=0, scale 1 only): scale, then rotate, then translate",
      transform_fields, COUNT(transform_fields)},
@@ -434,9 +463,10 @@ static const char *const mpm_solid_required[] = {"Domain", "MpmShape"};
 static const char *const hair_components[] = {"Groom",     "RodMaterial", "Collider",          "Transform",
                                               "Motion",    "CollisionGroup", "CollisionResponse", "HairSolver"};
 static const char *const hair_required[] = {"Groom"};
-static const char *const bem_solid_components[] = {"Mesh",      "LinearElastic", "Compression",
-                                                   "BemSolver", "Transform",     "InitialVelocity"};
+static const char *const bem_solid_components[] = {"Mesh",      "LinearElastic",   "Compression", "BemSolver",
+                                                   "Transform", "InitialVelocity", "Collider",    "FixedVertices"};
 static const char *const bem_solid_required[] = {"Mesh"};
+static const char *const bem_joint_components[] = {"Joint"};
 
 const DrElementSpec dr_scene_types_[] = {
     {"liquid", "a body of incompressible liquid (APIC/FLIP/PIC particles on a MAC grid inside its Domain)",
@@ -456,6 +486,8 @@ const DrElementSpec dr_scene_types_[] = {
      "precompute and cached under cache/bem, and bake moves it from the pose of its Transform with its "
      "InitialVelocity under gravity",
      bem_solid_components, COUNT(bem_solid_components), bem_solid_required, COUNT(bem_solid_required), true},
+    {"bem_joint", "a joint between two bem_solid bodies: their vertices held together in a bake",
+     bem_joint_components, COUNT(bem_joint_components), bem_joint_components, COUNT(bem_joint_components), false},
 };
 const int dr_scene_type_count_ = COUNT(dr_scene_types_);
 

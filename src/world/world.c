@@ -162,6 +162,203 @@ static DrStatus build_colliders(DrWorld *w, DrError *err)
     return DR_OK;
 }
 
+/* ---- bem_solid bodies as moving colliders of the liquid (one-way) ------------------------------------------
+ * The liquid poses its colliders itself at every substep time (dr_collider_frame), from motion keys. A body's
+ * frame is known at the BEM steps only, and the bodies are advanced over the whole frame before the liquid, so each
+ * frame the body's DrCollider is rebuilt with keys that carry its frame from the start of the frame to its end:
+ * BODY_KEY_INTERVALS + 1 rows, the position on the cubic Hermite curve through T and Ṫ at both ends (exact for a
+ * free fall), the rotation along the shortest arc from R(t0) to R(t1). Between keys the pose is linear (rotation in
+ * XYZ Euler angles, as every collider's), so the surface velocity the liquid sees is the rate of that pose:
+ * Ṫ + ω × r to within the key spacing. The displacement u is not seen: the SDF is the rest shape's. */
+#define BODY_KEY_INTERVALS 16
+
+static DrMat3 skew_exp(DrVec3 w) /* rotation by |w| about w (Rodrigues) */
+{
+    double th = dr_v3_norm(w);
+    DrMat3 R = dr_m3_identity();
+    if (!(th > 0.0)) return R;
+    DrVec3 a = dr_v3_scale(w, 1.0 / th);
+    double K[3][3] = {{0, -a.z, a.y}, {a.z, 0, -a.x}, {-a.y, a.x, 0}};
+    double s = sin(th), c = 1.0 - cos(th);
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++) {
+            double k2 = 0.0;
+            for (int l = 0; l < 3; l++) k2 += K[i][l] * K[l][j];
+            R.m[i][j] += s * K[i][j] + c * k2;
+        }
+    return R;
+}
+
+static DrVec3 rotation_log(DrMat3 M) /* the rotation vector w with skew_exp(w) = M, |w| ≤ π */
+{
+    double c = 0.5 * (M.m[0][0] + M.m[1][1] + M.m[2][2] - 1.0);
+    c = c > 1.0 ? 1.0 : (c < -1.0 ? -1.0 : c);
+    double th = acos(c);
+    DrVec3 v = dr_v3(M.m[2][1] - M.m[1][2], M.m[0][2] - M.m[2][0], M.m[1][0] - M.m[0][1]); /* 2 sin θ · axis */
+    if (th < 1e-6) return dr_v3_scale(v, 0.5);
+    if (DR_PI - th > 1e-6) return dr_v3_scale(v, th / (2.0 * sin(th)));
+    /* near a half turn: the axis from the symmetric part (M + I)/2 = a aᵀ, its sign from v */
+    int k = 0;
+    for (int i = 1; i < 3; i++)
+        if (M.m[i][i] > M.m[k][k]) k = i;
+    double col[3];
+    for (int i = 0; i < 3; i++) col[i] = 0.5 * (M.m[i][k] + (i == k ? 1.0 : 0.0));
+    DrVec3 a = dr_v3_normalize(dr_v3(col[0], col[1], col[2]));
+    if (dr_v3_dot(a, v) < 0.0) a = dr_v3_scale(a, -1.0);
+    return dr_v3_scale(a, th);
+}
+
+static double unwrap_angle(double a, double near) { return a + 2.0 * DR_PI * floor((near - a) / (2.0 * DR_PI) + 0.5); }
+
+/* XYZ Euler angles of R (R = Rz·Ry·Rx as dr_m3_from_euler_xyz), of the two triples (and their 2π shifts) the one
+   nearest `near`, so that keys interpolate along the short way. */
+static DrVec3 euler_near(DrMat3 R, DrVec3 near)
+{
+    double cy = hypot(R.m[0][0], R.m[1][0]);
+    DrVec3 e[2];
+    int n = 1;
+    if (cy > 1e-9) {
+        double ry = atan2(-R.m[2][0], cy), rx = atan2(R.m[2][1], R.m[2][2]), rz = atan2(R.m[1][0], R.m[0][0]);
+        e[0] = dr_v3(rx, ry, rz);
+        e[1] = dr_v3(rx + DR_PI, DR_PI - ry, rz + DR_PI);
+        n = 2;
+    } else { /* ry = ±90°: only rx − rz or rx + rz is fixed; keep rz, take rx from Rz(rz)ᵀ R = Ry Rx */
+        double rz = near.z, cz = cos(rz), sz = sin(rz);
+        double m11 = -sz * R.m[0][1] + cz * R.m[1][1], m12 = -sz * R.m[0][2] + cz * R.m[1][2];
+        e[0] = dr_v3(atan2(-m12, m11), atan2(-R.m[2][0], cy), rz);
+    }
+    int best = 0;
+    double dbest = INFINITY;
+    for (int i = 0; i < n; i++) {
+        e[i] = dr_v3(unwrap_angle(e[i].x, near.x), unwrap_angle(e[i].y, near.y), unwrap_angle(e[i].z, near.z));
+        DrVec3 d = dr_v3_sub(e[i], near);
+        if (dr_v3_dot(d, d) < dbest) {
+            dbest = dr_v3_dot(d, d);
+            best = i;
+        }
+    }
+    return e[best];
+}
+
+/* The body's frame now: R, T and Ṫ. */
+static void body_frame(const DrBemSolid *s, DrXform *X, DrVec3 *v)
+{
+    double R[9], T[3], va[3], wa[3];
+    dr_bem_solid_pose(s, R, T);
+    dr_bem_solid_frame_velocity(s, va, wa);
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++) X->R.m[i][j] = R[3 * i + j];
+    X->t = dr_v3(T[0], T[1], T[2]);
+    *v = dr_v3(va[0], va[1], va[2]);
+}
+
+static void put_key(double *row, double t, DrVec3 T, DrVec3 e)
+{
+    double r[7] = {t, T.x, T.y, T.z, e.x, e.y, e.z};
+    memcpy(row, r, sizeof r);
+}
+
+/* (Re)builds the body's DrCollider from its SDF and its current keys. */
+static DrStatus pose_body_collider(WorldBodyCollider *bc, DrError *err)
+{
+    dr_collider_destroy(&bc->collider);
+    DrColliderDesc d = {0};
+    d.phi = bc->phi;
+    d.nx = bc->nx;
+    d.ny = bc->ny;
+    d.nz = bc->nz;
+    d.origin = bc->origin;
+    d.dx = bc->dx;
+    d.friction = 0.0; /* slip, frictionless: the liquid slides along the jelly */
+    d.nkeys = bc->nkeys;
+    d.keys = bc->keys;
+    return dr_collider_create(&d, &bc->collider, err);
+}
+
+/* Keys carrying the body from bc->start (at t0) to its frame now (at t1). */
+static void body_keys(WorldBodyCollider *bc, double t0, double t1)
+{
+    DrXform X1;
+    DrVec3 V1, V0 = bc->start_velocity;
+    body_frame(bc->body->solid, &X1, &V1);
+    DrMat3 R0 = bc->start.R;
+    DrVec3 T0 = bc->start.t, w = rotation_log(dr_m3_mul(dr_m3_transpose(R0), X1.R));
+    double h = t1 - t0;
+    DrVec3 e = euler_near(R0, dr_v3(0, 0, 0));
+    for (int k = 0; k <= BODY_KEY_INTERVALS; k++) {
+        double s = (double)k / BODY_KEY_INTERVALS, s2 = s * s, s3 = s2 * s;
+        DrVec3 T = dr_v3_add(dr_v3_add(dr_v3_scale(T0, 2 * s3 - 3 * s2 + 1), dr_v3_scale(V0, h * (s3 - 2 * s2 + s))),
+                             dr_v3_add(dr_v3_scale(X1.t, 3 * s2 - 2 * s3), dr_v3_scale(V1, h * (s3 - s2))));
+        DrMat3 R = k == BODY_KEY_INTERVALS ? X1.R : dr_m3_mul(R0, skew_exp(dr_v3_scale(w, s)));
+        if (k == BODY_KEY_INTERVALS) T = X1.t;
+        e = euler_near(R, e);
+        put_key(bc->keys + 7 * k, k == BODY_KEY_INTERVALS ? t1 : t0 + s * h, T, e);
+    }
+    bc->nkeys = BODY_KEY_INTERVALS + 1;
+}
+
+/* One collider per bem_solid body for the liquid (none without a liquid), posed at t = 0, and the list of
+   colliders the liquid takes: the live colliders, then the bodies. */
+static DrStatus build_body_colliders(DrWorld *w, DrError *err)
+{
+    size_t n = w->bem && dr_scene_count_type(w->scene, "liquid") > 0 ? (size_t)w->bem->nbodies : 0;
+    DR_TRY(dr_calloc((size_t)w->nlive + n + 1, sizeof(DrCollider *), &w->liquid_colliders, err));
+    for (int i = 0; i < w->nlive; i++) w->liquid_colliders[i] = w->collider_ptrs[i];
+    w->nliquid_colliders = w->nlive;
+    if (n == 0) return DR_OK;
+    DR_TRY(dr_calloc(n, sizeof(WorldBodyCollider), &w->body_colliders, err));
+    double dx = smallest_grid_dx(w->scene) * 0.5; /* as the colliders' SDFs */
+    for (size_t i = 0; i < n; i++) {
+        WorldBodyCollider *bc = &w->body_colliders[w->nbody_colliders++];
+        bc->body = &w->bem->bodies[i];
+        const DrBemSolid *solid = bc->body->solid;
+        const DrBemMatrices *m = dr_bem_solid_matrices(solid);
+        DrTriMesh rest = {.nv = m->nv, .nt = m->nt, .tri = m->tri};
+        DR_TRY(dr_calloc(3 * (size_t)m->nv, sizeof(double), &rest.v, err));
+        memcpy(rest.v, dr_bem_solid_reference(solid), 3 * (size_t)m->nv * sizeof(double));
+        DrDenseSdf sdf = {0};
+        DrStatus s = dr_vdb_mesh_to_sdf(&rest, dx, 4, &sdf, err);
+        free(rest.v);
+        DR_TRY(dr_world_asset_context_(s, bc->body->element->name, "Mesh.file", err));
+        bc->phi = sdf.phi; /* owned from here */
+        bc->nx = sdf.nx;
+        bc->ny = sdf.ny;
+        bc->nz = sdf.nz;
+        bc->origin = sdf.origin;
+        bc->dx = sdf.dx;
+        DR_TRY(dr_calloc(7 * (BODY_KEY_INTERVALS + 1), sizeof(double), &bc->keys, err));
+        body_frame(solid, &bc->start, &bc->start_velocity);
+        put_key(bc->keys, 0.0, bc->start.t, euler_near(bc->start.R, dr_v3(0, 0, 0)));
+        bc->nkeys = 1; /* at rest where the Transform put it: no liquid is seeded inside it */
+        DR_TRY(pose_body_collider(bc, err));
+        w->liquid_colliders[w->nliquid_colliders++] = bc->collider;
+    }
+    dr_log_info("world: the liquid sees %d bem_solid bod%s as moving collider(s) (rest-shape SDF, rigid frame only)",
+                w->nbody_colliders, w->nbody_colliders == 1 ? "y" : "ies");
+    return DR_OK;
+}
+
+/* Before the bodies' frame: remember where each starts. */
+static void body_colliders_begin(DrWorld *w)
+{
+    for (int i = 0; i < w->nbody_colliders; i++) {
+        WorldBodyCollider *bc = &w->body_colliders[i];
+        body_frame(bc->body->solid, &bc->start, &bc->start_velocity);
+    }
+}
+
+/* After it: the keys from t0 to t1 and the colliders the liquid takes for the frame. */
+static DrStatus body_colliders_end(DrWorld *w, double t0, double t1, DrError *err)
+{
+    for (int i = 0; i < w->nbody_colliders; i++) {
+        WorldBodyCollider *bc = &w->body_colliders[i];
+        body_keys(bc, t0, t1);
+        DR_TRY(dr_world_asset_context_(pose_body_collider(bc, err), bc->body->element->name, "BemSolver", err));
+        w->liquid_colliders[w->nlive + i] = bc->collider;
+    }
+    return DR_OK;
+}
+
 static void box_of(const DrComponent *c, const char *field, DrVec3 *lo, DrVec3 *hi) { dr_component_box(c, field, lo, hi); }
 
 static DrStatus build_liquid(DrWorld *w, const DrElement *e, WorldLiquid *wl, DrError *err)
@@ -241,7 +438,7 @@ static DrStatus build_liquid(DrWorld *w, const DrElement *e, WorldLiquid *wl, Dr
         d.kill_lo = &kill_lo;
         d.kill_hi = &kill_hi;
     }
-    return dr_liquid_create(&d, w->collider_ptrs, w->nlive, &wl->liquid, err);
+    return dr_liquid_create(&d, w->liquid_colliders, w->nliquid_colliders, &wl->liquid, err);
 }
 
 void dr_world_desc_default(DrWorldDesc *d) { *d = (DrWorldDesc){.cache_root = "cache"}; }
@@ -268,6 +465,9 @@ DrStatus dr_world_create_desc(const DrScene *scene, const DrWorldDesc *desc, DrW
     w->gravity = dr_component_vec3(shot, "gravity");
     DrStatus s = dr_vdb_init(err);
     if (s == DR_OK) s = build_colliders(w, err);
+    /* the bodies before the liquid: it seeds no particle inside them */
+    if (s == DR_OK) s = dr_world_bem_create_(w, desc->cache_root, err);
+    if (s == DR_OK) s = build_body_colliders(w, err);
     int nl = dr_scene_count_type(scene, "liquid");
     if (s == DR_OK) s = dr_calloc((size_t)nl + 1, sizeof(WorldLiquid), &w->liquids, err);
     for (int i = 0; s == DR_OK && i < dr_scene_element_count(scene); i++) {
@@ -276,7 +476,6 @@ DrStatus dr_world_create_desc(const DrScene *scene, const DrWorldDesc *desc, DrW
     }
     if (s == DR_OK) s = dr_world_mpm_create_(w, err);
     if (s == DR_OK) s = dr_world_hair_create_(w, err);
-    if (s == DR_OK) s = dr_world_bem_create_(w, desc->cache_root, err);
     if (s < 0) {
         dr_world_destroy(&w);
         return s;
@@ -316,6 +515,13 @@ void dr_world_destroy(DrWorld **world)
     }
     dr_world_mpm_destroy_(&w->mpm);
     dr_world_hair_destroy_(&w->hair);
+    for (int i = 0; i < w->nbody_colliders; i++) {
+        dr_collider_destroy(&w->body_colliders[i].collider);
+        free(w->body_colliders[i].phi);
+        free(w->body_colliders[i].keys);
+    }
+    free(w->body_colliders);
+    free(w->liquid_colliders);
     dr_world_bem_destroy_(&w->bem);
     for (int i = 0; i < w->ncolliders; i++) dr_collider_destroy(&w->colliders[i].collider);
     free(w->liquids);
@@ -341,11 +547,16 @@ DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrError *err)
     memset(stats, 0, sizeof *stats);
     stats->frame = frame;
     stats->time = t1;
+    /* The BEM bodies first, over the whole frame: the liquid then sees each body's frame at its own substep times,
+       interpolated between the frame's start and end (one-way: nothing of the liquid acts on the bodies). */
+    body_colliders_begin(w);
+    DR_TRY(dr_world_bem_step_(w, frame, stats, err));
+    DR_TRY(body_colliders_end(w, t0, t1, err));
     double volume = 0.0, volume0 = 0.0;
     for (int i = 0; i < w->nliquids; i++) {
         WorldLiquid *wl = &w->liquids[i];
         DrLiquidStats ls;
-        DR_TRY(dr_liquid_advance(wl->liquid, w->collider_ptrs, w->nlive, t0, t1, &ls, err));
+        DR_TRY(dr_liquid_advance(wl->liquid, w->liquid_colliders, w->nliquid_colliders, t0, t1, &ls, err));
         const DrLiquidState *st = dr_liquid_state(wl->liquid);
         if (!all_finite(st->x, 3 * st->n) || !all_finite(st->v, 3 * st->n))
             return dr_error_set(err, DR_ERR_RUNTIME, NULL, 0, 0,
@@ -377,7 +588,6 @@ DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrError *err)
     stats->volume_drift = volume0 > 0 ? volume / volume0 - 1.0 : 0.0;
     DR_TRY(dr_world_mpm_step_(w, t0, t1, stats, err));
     DR_TRY(dr_world_hair_step_(w, t0, t1, stats, err));
-    DR_TRY(dr_world_bem_step_(w, frame, stats, err));
     w->frame = frame;
     stats->seconds = dr_time_now() - t_start;
     return DR_OK;

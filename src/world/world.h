@@ -56,6 +56,12 @@ typedef struct DrFrameStats {
     double bem_max_displacement;      /* m: the largest |u| of any body's vertex */
     double bem_translation_error, bem_rotation_error; /* m, rad: the largest drift error correction moved in a step */
     double seconds_bem_history, seconds_bem_solve, seconds_bem_correction;
+    /* their constraints (BEM §3.4; all zero when no group of bodies has any): counts of the frame's last step */
+    int bem_contacts, bem_body_contacts, bem_fixed, bem_joints;
+    long bem_pgs_iterations;          /* PGS sweeps, summed over the frame's steps */
+    double bem_residual;              /* m: the largest after a step */
+    int bem_not_converged;            /* steps kept above the tolerance (a warning) */
+    double seconds_bem_trial, seconds_bem_detect, seconds_bem_assembly, seconds_bem_pgs, seconds_bem_final;
     double seconds;          /* wall time of the frame */
 } DrFrameStats;
 

@@ -1,8 +1,17 @@
 /* The world's boundary-element bodies (seed sugimoto_surface_only_bem, "BEM"). Each bem_solid element is one
  * DrBemSolid on the matrices precompute left in the cache (bodies with one key share one set), posed by its
  * Transform, launched by its InitialVelocity, pulled by the shot's gravity, and advanced by whole steps of its own
- * Δt, BemSolver.time_step, every frame. The bodies do not touch anything yet (contact comes with constraints), so
- * each is stepped on its own, one after the other.
+ * Δt, BemSolver.time_step, every frame.
+ *
+ * Contact (BEM §3.4): the bodies with one Δt form a group that dr_bem_solids_step advances together, each step with
+ * the constraints the scene gives them: every collider element (its SDF posed at the end time of the step, its
+ * keyframed surface velocity for friction), the group's FixedVertices, its bem_joint elements, and contact between
+ * its bodies. Bodies of different Δt are never at the same time between steps, so they do not meet each other (the
+ * scene refuses a joint between them); each still meets every collider. The solver takes one contact offset, one
+ * body-body switch and one friction per collider for a whole group, so a group uses the largest Collider.thickness
+ * and Collider.friction of its bodies (against a collider: the larger of that and the collider element's friction),
+ * and body contact only when every body of it keeps Collider.body_contact. A group with nothing to solve steps each
+ * body alone, as before contact existed.
  *
  * Also the one preparation of a bem_solid element (mesh, build parameters, cache key) that precompute and the
  * world share. */
@@ -89,6 +98,19 @@ void dr_world_bem_destroy_(WorldBem **bp)
 {
     if (!bp || !*bp) return;
     WorldBem *b = *bp;
+    for (int g = 0; g < b->ngroups; g++) {
+        WorldBemGroup *gr = &b->groups[g];
+        free(gr->members);
+        free(gr->solids);
+        free(gr->colliders);
+        free(gr->fixed);
+        free(gr->joints);
+    }
+    free(b->groups);
+    if (b->own)
+        for (int c = 0; c < b->ncolliders; c++) dr_collider_destroy(&b->own[c]);
+    free(b->own);
+    free(b->posed);
     for (int i = 0; i < b->nbodies; i++) {
         dr_bem_solid_destroy(&b->bodies[i].solid);
         free(b->bodies[i].state);
@@ -202,6 +224,306 @@ static DrStatus add_body(DrWorld *w, WorldBem *b, const DrElement *e, const char
     return DR_OK;
 }
 
+/* ---- contact: colliders, groups, fixed vertices, joints ------------------------------------------------------ */
+
+/* The adapters between the BEM's callbacks (arrays) and the posed colliders (DrVec3). */
+static double posed_sdf(const double x[3], double grad[3], void *ctx)
+{
+    DrVec3 n;
+    double d = dr_world_posed_sdf_(dr_v3(x[0], x[1], x[2]), grad ? &n : NULL, ctx);
+    if (grad) grad[0] = n.x, grad[1] = n.y, grad[2] = n.z;
+    return d;
+}
+
+static void posed_velocity(const double x[3], double v[3], void *ctx)
+{
+    DrVec3 u = dr_world_posed_velocity_(dr_v3(x[0], x[1], x[2]), ctx);
+    v[0] = u.x, v[1] = u.y, v[2] = u.z;
+}
+
+/* The SDF cell of colliders built for the bodies alone: half the smallest mean edge length of any body, so that a
+   vertex resting on a face sees its plane exactly (trilinear interpolation of a plane is exact) and an edge or corner
+   is resolved at the scale the body's vertices sample it. Coarsened if the collider's box would need more than
+   2^25 nodes (128 MiB of floats). */
+#define OWN_SDF_NODES_MAX 33554432.0
+
+static double mean_edge(const DrBemMatrices *m)
+{
+    double sum = 0.0;
+    for (int t = 0; t < m->nt; t++)
+        for (int k = 0; k < 3; k++) {
+            const double *a = &m->x[3 * m->tri[3 * t + k]], *c = &m->x[3 * m->tri[3 * t + (k + 1) % 3]];
+            sum += sqrt((a[0] - c[0]) * (a[0] - c[0]) + (a[1] - c[1]) * (a[1] - c[1]) + (a[2] - c[2]) * (a[2] - c[2]));
+        }
+    return sum / (3.0 * m->nt);
+}
+
+static DrStatus own_collider(const DrWorld *w, const WorldBem *b, const DrElement *e, DrCollider **out, DrError *err)
+{
+    double dx = INFINITY;
+    for (int i = 0; i < b->nbodies; i++) dx = fmin(dx, 0.5 * mean_edge(dr_bem_solid_matrices(b->bodies[i].solid)));
+    DrTriMesh mesh = {0};
+    DR_TRY(dr_world_load_collider_mesh(e, &mesh, err));
+    DrVec3 lo, hi;
+    if (dr_trimesh_bounds(&mesh, &lo, &hi)) {
+        DrVec3 ext = dr_v3_sub(hi, lo);
+        double pad = 8.0 * dx; /* the SDF's band on both sides */
+        double nodes = (ext.x / dx + pad / dx + 1) * (ext.y / dx + pad / dx + 1) * (ext.z / dx + pad / dx + 1);
+        if (nodes > OWN_SDF_NODES_MAX) dx *= cbrt(nodes / OWN_SDF_NODES_MAX);
+    }
+    const DrComponent *c = dr_element_component(e, "Collider");
+    const double *rows = NULL;
+    int nrows = dr_component_table(dr_element_component(e, "Motion"), "keys", &rows);
+    double *keys = NULL;
+    DrStatus s = dr_calloc((size_t)nrows * 7 + 1, sizeof(double), &keys, err);
+    for (int k = 0; s == DR_OK && k < nrows; k++) { /* as the world's colliders: frames to seconds, degrees to radians */
+        keys[7 * k] = (rows[7 * k] - w->first_frame + 1) / w->fps;
+        for (int j = 1; j < 4; j++) keys[7 * k + j] = rows[7 * k + j];
+        for (int j = 4; j < 7; j++) keys[7 * k + j] = rows[7 * k + j] * DR_PI / 180.0;
+    }
+    if (s == DR_OK)
+        s = dr_world_make_collider_(&mesh, dx, dr_component_num(c, "friction"),
+                                    strcmp(dr_component_str(c, "boundary"), "no_slip") == 0,
+                                    dr_component_num(c, "thickness"), nrows, keys, out, err);
+    free(keys);
+    dr_trimesh_free(&mesh);
+    return dr_world_asset_context_(s, e->name, "Mesh.file", err);
+}
+
+/* Every scene collider as the bodies see it: the world's SDF when it built one, else one built here. */
+static DrStatus build_colliders(DrWorld *w, WorldBem *b, DrError *err)
+{
+    b->ncolliders = w->ncolliders;
+    if (b->ncolliders == 0) return DR_OK;
+    DR_TRY(dr_calloc((size_t)b->ncolliders, sizeof *b->posed, &b->posed, err));
+    for (int i = 0; i < w->ncolliders; i++) {
+        const WorldCollider *wc = &w->colliders[i];
+        const DrCollider *c = wc->collider;
+        if (!c) {
+            if (!b->own) DR_TRY(dr_calloc((size_t)b->ncolliders, sizeof *b->own, &b->own, err));
+            DR_TRY(own_collider(w, b, wc->element, &b->own[i], err));
+            c = b->own[i];
+        }
+        const double *rows;
+        b->posed[i].collider = c;
+        b->posed[i].frame = dr_collider_frame(c, 0.0);
+        b->posed[i].moving = dr_component_table(dr_element_component(wc->element, "Motion"), "keys", &rows) > 0;
+    }
+    return DR_OK;
+}
+
+static const char *member_name(const WorldBem *b, const WorldBemGroup *g, int k)
+{
+    return b->bodies[g->members[k]].element->name;
+}
+
+/* The members' vertices held by their FixedVertices: every vertex inside the box at t = 0 (the placed rest pose). An
+   empty selection is bad input. */
+static DrStatus add_fixed(const DrWorld *w, const WorldBem *b, WorldBemGroup *g, DrError *err)
+{
+    int n = 0, cap = 0;
+    for (int k = 0; k < g->count; k++)
+        if (dr_component_present(dr_element_component(b->bodies[g->members[k]].element, "FixedVertices")))
+            cap += dr_bem_solid_matrices(g->solids[k])->nv;
+    if (cap == 0) return DR_OK;
+    DR_TRY(dr_calloc((size_t)cap, sizeof *g->fixed, &g->fixed, err));
+    for (int k = 0; k < g->count; k++) {
+        const DrComponent *fv = dr_element_component(b->bodies[g->members[k]].element, "FixedVertices");
+        if (!dr_component_present(fv)) continue;
+        DrVec3 lo, hi;
+        dr_component_box(fv, "box", &lo, &hi);
+        const DrBemMatrices *m = dr_bem_solid_matrices(g->solids[k]);
+        double *V = NULL;
+        DR_TRY(dr_calloc((size_t)m->n, sizeof *V, &V, err));
+        dr_bem_solid_positions(g->solids[k], V);
+        int held = 0;
+        DrVec3 vlo = dr_v3(INFINITY, INFINITY, INFINITY), vhi = dr_v3(-INFINITY, -INFINITY, -INFINITY);
+        for (int v = 0; v < m->nv; v++) {
+            DrVec3 p = dr_v3(V[3 * v], V[3 * v + 1], V[3 * v + 2]);
+            vlo = dr_v3_min(vlo, p);
+            vhi = dr_v3_max(vhi, p);
+            if (p.x < lo.x || p.x > hi.x || p.y < lo.y || p.y > hi.y || p.z < lo.z || p.z > hi.z) continue;
+            g->fixed[n++] = (DrBemFixed){.body = k, .vertex = v, .target = {p.x, p.y, p.z}};
+            held++;
+        }
+        free(V);
+        if (held == 0) {
+            const char *name = member_name(b, g, k);
+            return dr_error_set(err, DR_ERR_INPUT, dr_scene_path(w->scene), 0, 0,
+                                "%s.FixedVertices.box = [[%.6g, %.6g, %.6g], [%.6g, %.6g, %.6g]] holds none of the "
+                                "body's %d vertices, which span [[%.6g, %.6g, %.6g], [%.6g, %.6g, %.6g]] in the placed "
+                                "rest pose (after Transform); move the box onto the vertices to hold, or remove "
+                                "FixedVertices",
+                                name, lo.x, lo.y, lo.z, hi.x, hi.y, hi.z, m->nv, vlo.x, vlo.y, vlo.z, vhi.x, vhi.y,
+                                vhi.z);
+        }
+        dr_log_info("bem: %s: %d of %d vertices fixed", member_name(b, g, k), held, m->nv);
+    }
+    g->constraints.fixed = g->fixed;
+    g->constraints.fixed_count = n;
+    return DR_OK;
+}
+
+static int member_index(const WorldBem *b, const WorldBemGroup *g, const DrElement *e)
+{
+    for (int k = 0; k < g->count; k++)
+        if (b->bodies[g->members[k]].element == e) return k;
+    return -1;
+}
+
+/* The vertex of V (nv vertices) nearest to p; the lowest index among equals. */
+static int nearest_vertex(const double *V, int nv, DrVec3 p, double *dist)
+{
+    int best = 0;
+    double bd = INFINITY;
+    for (int v = 0; v < nv; v++) {
+        double d = dr_v3_norm(dr_v3_sub(dr_v3(V[3 * v], V[3 * v + 1], V[3 * v + 2]), p));
+        if (d < bd) bd = d, best = v;
+    }
+    *dist = bd;
+    return best;
+}
+
+/* One bem_joint element whose bodies are members a and b of the group: its vertex pairs appended to *joints. */
+static DrStatus add_joint(const DrWorld *w, const DrElement *e, WorldBemGroup *g, int a, int bb, DrBemJoint **joints,
+                          int *n, int *cap, DrError *err)
+{
+    const DrComponent *j = dr_element_component(e, "Joint");
+    const DrBemMatrices *ma = dr_bem_solid_matrices(g->solids[a]), *mb = dr_bem_solid_matrices(g->solids[bb]);
+    double *Va = NULL, *Vb = NULL;
+    DrStatus s = dr_calloc((size_t)ma->n, sizeof *Va, &Va, err);
+    if (s == DR_OK) s = dr_calloc((size_t)mb->n, sizeof *Vb, &Vb, err);
+    if (s != DR_OK) {
+        free(Va);
+        return s;
+    }
+    dr_bem_solid_positions(g->solids[a], Va);
+    dr_bem_solid_positions(g->solids[bb], Vb);
+    int added = 0;
+    double closest = INFINITY;
+    bool point = strcmp(dr_component_str(j, "mode"), "point") == 0;
+    if (point) {
+        DrVec3 p = dr_component_vec3(j, "point");
+        double da, db;
+        int va = nearest_vertex(Va, ma->nv, p, &da), vb = nearest_vertex(Vb, mb->nv, p, &db);
+        if (*n == *cap) {
+            *cap = 2 * *cap + 8;
+            s = dr_realloc((size_t)*cap, sizeof **joints, joints, err);
+        }
+        if (s == DR_OK) (*joints)[(*n)++] = (DrBemJoint){.body = {a, bb}, .vertex = {va, vb}};
+        added = 1;
+        double gap = dr_v3_norm(dr_v3_sub(dr_v3(Va[3 * va], Va[3 * va + 1], Va[3 * va + 2]),
+                                          dr_v3(Vb[3 * vb], Vb[3 * vb + 1], Vb[3 * vb + 2])));
+        if (s == DR_OK)
+            dr_log_info("bem: %s: joins vertex %d of %s and vertex %d of %s (%.3g m and %.3g m from the point, %.3g m "
+                        "apart at rest)", e->name, va, dr_component_str(j, "body_a"), vb, dr_component_str(j, "body_b"),
+                        da, db, gap);
+    } else {
+        double tol = dr_component_num(j, "tolerance");
+        for (int va = 0; s == DR_OK && va < ma->nv; va++)
+            for (int vb = 0; s == DR_OK && vb < mb->nv; vb++) {
+                double d = dr_v3_norm(dr_v3_sub(dr_v3(Va[3 * va], Va[3 * va + 1], Va[3 * va + 2]),
+                                                dr_v3(Vb[3 * vb], Vb[3 * vb + 1], Vb[3 * vb + 2])));
+                closest = fmin(closest, d);
+                if (d > tol) continue;
+                if (*n == *cap) {
+                    *cap = 2 * *cap + 8;
+                    s = dr_realloc((size_t)*cap, sizeof **joints, joints, err);
+                    if (s != DR_OK) break;
+                }
+                (*joints)[(*n)++] = (DrBemJoint){.body = {a, bb}, .vertex = {va, vb}};
+                added++;
+            }
+        if (s == DR_OK && added == 0)
+            s = dr_error_set(err, DR_ERR_INPUT, dr_scene_path(w->scene), 0, 0,
+                             "%s.Joint.tolerance = %.6g m: no vertex of %s lies that close to a vertex of %s in the "
+                             "placed rest pose (the closest pair is %.6g m apart); raise the tolerance, move the bodies "
+                             "with their Transform so that their surfaces share vertices, or use mode \"point\"",
+                             e->name, tol, dr_component_str(j, "body_a"), dr_component_str(j, "body_b"), closest);
+        if (s == DR_OK) dr_log_info("bem: %s: joins %d vertex pair(s)", e->name, added);
+    }
+    free(Va);
+    free(Vb);
+    return s;
+}
+
+static DrStatus add_joints(const DrWorld *w, const WorldBem *b, WorldBemGroup *g, DrError *err)
+{
+    int n = 0, cap = 0;
+    for (int i = 0; i < dr_scene_element_count(w->scene); i++) {
+        const DrElement *e = dr_scene_element(w->scene, i);
+        if (strcmp(e->type, "bem_joint") != 0) continue;
+        const DrComponent *j = dr_element_component(e, "Joint");
+        int a = member_index(b, g, dr_scene_find(w->scene, dr_component_str(j, "body_a")));
+        int c = member_index(b, g, dr_scene_find(w->scene, dr_component_str(j, "body_b")));
+        if (a < 0 && c < 0) continue;
+        assert(a >= 0 && c >= 0); /* the scene refuses a joint between bodies of different time steps */
+        DR_TRY(add_joint(w, e, g, a, c, &g->joints, &n, &cap, err));
+    }
+    g->constraints.joints = g->joints;
+    g->constraints.joint_count = n;
+    return DR_OK;
+}
+
+/* The groups of bodies with one Δt, in the order of their first body, and their constraints. */
+static DrStatus build_groups(DrWorld *w, WorldBem *b, DrError *err)
+{
+    DR_TRY(dr_calloc((size_t)b->nbodies, sizeof *b->groups, &b->groups, err));
+    for (int i = 0; i < b->nbodies; i++) {
+        double dt = dr_bem_solid_matrices(b->bodies[i].solid)->desc.dt;
+        int g = 0;
+        while (g < b->ngroups && b->groups[g].dt != dt) g++;
+        WorldBemGroup *gr = &b->groups[g];
+        if (g == b->ngroups) {
+            b->ngroups++;
+            gr->dt = dt;
+            gr->steps_per_frame = b->bodies[i].steps_per_frame;
+            DR_TRY(dr_calloc((size_t)b->nbodies, sizeof *gr->members, &gr->members, err));
+            DR_TRY(dr_calloc((size_t)b->nbodies, sizeof *gr->solids, &gr->solids, err));
+        }
+        gr->members[gr->count] = i;
+        gr->solids[gr->count++] = b->bodies[i].solid;
+    }
+    for (int g = 0; g < b->ngroups; g++) {
+        WorldBemGroup *gr = &b->groups[g];
+        DrBemConstraints *c = &gr->constraints;
+        dr_bem_constraints_default(c);
+        double friction = 0.0, thickness = 0.0;
+        bool body_contact = true;
+        for (int k = 0; k < gr->count; k++) {
+            const DrComponent *col = dr_element_component(b->bodies[gr->members[k]].element, "Collider");
+            friction = fmax(friction, dr_component_num(col, "friction"));
+            thickness = fmax(thickness, dr_component_num(col, "thickness"));
+            body_contact = body_contact && dr_component_bool(col, "body_contact");
+        }
+        c->thickness = thickness;
+        c->body_contact = body_contact;
+        c->body_friction = friction;
+        if (b->ncolliders > 0) {
+            DR_TRY(dr_calloc((size_t)b->ncolliders, sizeof *gr->colliders, &gr->colliders, err));
+            for (int k = 0; k < b->ncolliders; k++) {
+                const DrComponent *cc = dr_element_component(w->colliders[k].element, "Collider");
+                gr->colliders[k] = (DrBemCollider){.sdf = posed_sdf,
+                                                   .velocity = b->posed[k].moving ? posed_velocity : NULL,
+                                                   .ctx = &b->posed[k],
+                                                   .friction = fmax(friction, dr_component_num(cc, "friction"))};
+            }
+        }
+        c->colliders = gr->colliders;
+        c->collider_count = b->ncolliders;
+        DR_TRY(add_fixed(w, b, gr, err));
+        DR_TRY(add_joints(w, b, gr, err));
+        gr->constrained = c->collider_count > 0 || c->fixed_count > 0 || c->joint_count > 0 ||
+                          (c->body_contact && gr->count > 1);
+        if (gr->constrained)
+            dr_log_info("bem: %d bod%s with steps of %.6g s stepped together: %d collider(s), %d fixed vertices, %d "
+                        "joint pair(s), body contact %s, thickness %.6g m, friction %.6g", gr->count,
+                        gr->count == 1 ? "y" : "ies", gr->dt, c->collider_count, c->fixed_count, c->joint_count,
+                        c->body_contact && gr->count > 1 ? "on" : "off", c->thickness, friction);
+    }
+    return DR_OK;
+}
+
 DrStatus dr_world_bem_create_(DrWorld *w, const char *cache_root, DrError *err)
 {
     int n = dr_scene_count_type(w->scene, "bem_solid");
@@ -217,7 +539,8 @@ DrStatus dr_world_bem_create_(DrWorld *w, const char *cache_root, DrError *err)
         if (strcmp(e->type, "bem_solid") != 0) continue;
         DR_TRY(add_body(w, b, e, cache_root, &b->bodies[b->nbodies++], err));
     }
-    return DR_OK;
+    DR_TRY(build_colliders(w, b, err));
+    return build_groups(w, b, err);
 }
 
 static bool finite_array(const double *a, size_t n)
@@ -227,18 +550,26 @@ static bool finite_array(const double *a, size_t n)
     return true;
 }
 
-DrStatus dr_world_bem_step_(DrWorld *w, int frame, DrFrameStats *stats, DrError *err)
+/* A group's members as "'a'" or "'a', 'b', ..." for messages. */
+static void group_names(const WorldBem *b, const WorldBemGroup *g, char *buf, size_t size)
 {
-    WorldBem *b = w->bem;
-    if (!b) return DR_OK;
-    stats->bem = true;
-    stats->bem_bodies = b->nbodies;
-    for (int i = 0; i < b->nbodies; i++) {
-        WorldBemBody *wb = &b->bodies[i];
+    size_t used = 0;
+    buf[0] = '\0';
+    for (int k = 0; k < g->count && used < size; k++) {
+        int n = snprintf(buf + used, size - used, "%s'%s'", k ? ", " : "", member_name(b, g, k));
+        if (n < 0) break;
+        used += (size_t)n;
+    }
+}
+
+/* One frame of a group without anything to solve: each member alone, with its step figures. */
+static DrStatus step_alone(WorldBem *b, WorldBemGroup *g, int frame, DrError *err)
+{
+    for (int k = 0; k < g->count; k++) {
+        WorldBemBody *wb = &b->bodies[g->members[k]];
         const char *name = wb->element->name;
         DrBemStepStats sum = {0};
-        wb->last_steps = 0;
-        for (int k = 0; k < wb->steps_per_frame; k++) {
+        for (int n = 0; n < g->steps_per_frame; n++) {
             DrBemStepStats st;
             DrStatus s = dr_bem_solid_step(wb->solid, NULL, &st, err);
             if (s < 0) {
@@ -255,6 +586,98 @@ DrStatus dr_world_bem_step_(DrWorld *w, int frame, DrFrameStats *stats, DrError 
             wb->last_steps++;
         }
         wb->last = sum;
+    }
+    return DR_OK;
+}
+
+/* One frame of a group with constraints: every step poses the colliders at the step's end time (the constraints hold
+   positions at the end of the step) and advances all members together. A step that stops above the tolerance is a
+   warning: the bodies are stepped with the forces found. */
+static DrStatus step_together(WorldBem *b, WorldBemGroup *g, double t0, int frame, DrError *err)
+{
+    for (int n = 0; n < g->steps_per_frame; n++) {
+        double t = t0 + (n + 1) * g->dt;
+        for (int c = 0; c < b->ncolliders; c++)
+            if (b->posed[c].moving) b->posed[c].frame = dr_collider_frame(b->posed[c].collider, t);
+        DrBemConstraintStats st;
+        DrStatus s = dr_bem_solids_step(g->solids, g->count, &g->constraints, &st, err);
+        if (s < 0) {
+            char names[256];
+            group_names(b, g, names, sizeof names);
+            char msg[sizeof err->message];
+            int len = snprintf(msg, sizeof msg, "bem_solid %s failed with contact in frame %d (step %d of %d): %s", names,
+                               frame, n + 1, g->steps_per_frame, err->message);
+            if (len >= (int)sizeof msg) msg[sizeof msg - 2] = '.';
+            memcpy(err->message, msg, sizeof msg);
+            return s;
+        }
+        if (s > 0) {
+            char names[256];
+            group_names(b, g, names, sizeof names);
+            dr_log_warn("bem: %s: frame %d, step %d: constraints not converged (residual %.3g m after %d passes, %d "
+                        "sweeps); the step is kept: %s", names, frame, n + 1, st.residual, st.passes, st.iterations,
+                        err->message);
+            b->not_converged++;
+        }
+        DrBemConstraintStats *sum = &b->contact;
+        if (n + 1 == g->steps_per_frame) { /* counts: of the frame's last step */
+            sum->fixed += st.fixed;
+            sum->contacts += st.contacts;
+            sum->joints += st.joints;
+            sum->body_contacts += st.body_contacts;
+            sum->sticking += st.sticking;
+        }
+        sum->iterations += st.iterations;
+        sum->passes += st.passes;
+        sum->residual = fmax(sum->residual, st.residual);
+        sum->seconds_trial += st.seconds_trial;
+        sum->seconds_detect += st.seconds_detect;
+        sum->seconds_assembly += st.seconds_assembly;
+        sum->seconds_pgs += st.seconds_pgs;
+        sum->seconds_final += st.seconds_final;
+        for (int k = 0; k < g->count; k++) b->bodies[g->members[k]].last_steps++;
+    }
+    for (int k = 0; k < g->count; k++) memset(&b->bodies[g->members[k]].last, 0, sizeof(DrBemStepStats));
+    return DR_OK;
+}
+
+DrStatus dr_world_bem_step_(DrWorld *w, int frame, DrFrameStats *stats, DrError *err)
+{
+    WorldBem *b = w->bem;
+    if (!b) return DR_OK;
+    stats->bem = true;
+    stats->bem_bodies = b->nbodies;
+    memset(&b->contact, 0, sizeof b->contact);
+    b->not_converged = 0;
+    for (int i = 0; i < b->nbodies; i++) b->bodies[i].last_steps = 0;
+    double t0 = dr_world_frame_time(w, frame - 1);
+    for (int g = 0; g < b->ngroups; g++) {
+        WorldBemGroup *gr = &b->groups[g];
+        DR_TRY(gr->constrained ? step_together(b, gr, t0, frame, err) : step_alone(b, gr, frame, err));
+    }
+    const DrBemConstraintStats *cs = &b->contact;
+    stats->bem_contacts = cs->contacts;
+    stats->bem_body_contacts = cs->body_contacts;
+    stats->bem_fixed = cs->fixed;
+    stats->bem_joints = cs->joints;
+    stats->bem_pgs_iterations = cs->iterations;
+    stats->bem_residual = cs->residual;
+    stats->bem_not_converged = b->not_converged;
+    stats->seconds_bem_trial = cs->seconds_trial;
+    stats->seconds_bem_detect = cs->seconds_detect;
+    stats->seconds_bem_assembly = cs->seconds_assembly;
+    stats->seconds_bem_pgs = cs->seconds_pgs;
+    stats->seconds_bem_final = cs->seconds_final;
+    if (cs->passes > 0)
+        dr_log_debug("bem: frame %d: %d collider contact(s), %d body contact(s), %d fixed, %d joint(s), %d PGS sweep(s) "
+                     "in %d pass(es), residual %.3g m; seconds trial %.3f detect %.3f assembly %.3f pgs %.3f final %.3f",
+                     frame, cs->contacts, cs->body_contacts, cs->fixed, cs->joints, cs->iterations, cs->passes,
+                     cs->residual, cs->seconds_trial, cs->seconds_detect, cs->seconds_assembly, cs->seconds_pgs,
+                     cs->seconds_final);
+    for (int i = 0; i < b->nbodies; i++) {
+        WorldBemBody *wb = &b->bodies[i];
+        const char *name = wb->element->name;
+        const DrBemStepStats sum = wb->last;
         /* the runtime refuses a non-finite step; the pose is checked here as well because everything downstream
            (frame cache, mesh, render) is built from it */
         double R[9], T[3];
@@ -382,6 +805,18 @@ static DrStatus write_frame(const WorldBem *b, DrH5 *h, DrError *err)
     DR_TRY(dr_world_write_scalar_(h, g, "bem_total_energy", tot.kinetic + tot.potential, "J", err));
     DR_TRY(dr_world_write_scalar_(h, g, "bem_volume", tot.volume, "m^3", err));
     DR_TRY(dr_world_write_scalar_(h, g, "bem_max_displacement", tot.max_displacement, "m", err));
+    /* constraints (BEM §3.4): counts of the frame's last step, sweeps and passes of all its steps, the largest
+       residual; the seconds per phase are wall clock and stay out */
+    const DrBemConstraintStats *c = &b->contact;
+    DR_TRY(dr_world_write_scalar_(h, g, "bem_contacts", c->contacts, "1", err));
+    DR_TRY(dr_world_write_scalar_(h, g, "bem_body_contacts", c->body_contacts, "1", err));
+    DR_TRY(dr_world_write_scalar_(h, g, "bem_sticking", c->sticking, "1", err));
+    DR_TRY(dr_world_write_scalar_(h, g, "bem_fixed", c->fixed, "1", err));
+    DR_TRY(dr_world_write_scalar_(h, g, "bem_joints", c->joints, "1", err));
+    DR_TRY(dr_world_write_scalar_(h, g, "bem_pgs_iterations", c->iterations, "1", err));
+    DR_TRY(dr_world_write_scalar_(h, g, "bem_passes", c->passes, "1", err));
+    DR_TRY(dr_world_write_scalar_(h, g, "bem_residual", c->residual, "m", err));
+    DR_TRY(dr_world_write_scalar_(h, g, "bem_not_converged", b->not_converged, "1", err));
     return DR_OK;
 }
 

@@ -97,6 +97,21 @@ typedef struct WorldBemBody {
     DrBemStepStats last;     /* the last frame's: seconds summed, errors the largest of its steps */
 } WorldBemBody;
 
+/* The bem_solid bodies with one BemSolver.time_step, stepped together by dr_bem_solids_step with the constraints the
+   scene gives them (bodies of different steps never meet each other; each group meets every collider). */
+typedef struct WorldBemGroup {
+    int *members;            /* indices into WorldBem.bodies, in element order: the constraints' body indices */
+    DrBemSolid **solids;     /* the members' solids, in that order */
+    int count;
+    double dt;               /* s */
+    int steps_per_frame;
+    DrBemConstraints constraints; /* points into colliders, fixed and joints */
+    DrBemCollider *colliders;     /* one per scene collider, on WorldBem.posed */
+    DrBemFixed *fixed;
+    DrBemJoint *joints;
+    bool constrained;        /* anything to solve; else each member is stepped alone, as without contact */
+} WorldBemGroup;
+
 /* Everything BEM; NULL in a world whose scene has no bem_solid. */
 typedef struct WorldBem {
     WorldBemBody *bodies;
@@ -104,7 +119,31 @@ typedef struct WorldBem {
     DrBemMatrices **sets;    /* one per distinct cache key, read once */
     char (*keys)[33];
     int nsets;
+    WorldBemGroup *groups;
+    int ngroups;
+    WorldPosedCollider *posed; /* every scene collider, posed at the end time of the step being taken */
+    DrCollider **own;        /* SDFs built here when the world built none (no liquid, MPM or hair); else NULL */
+    int ncolliders;
+    DrBemConstraintStats contact; /* the last frame's, all groups: counts of its last step, iterations and passes
+                                     summed, residual the largest, seconds summed */
+    int not_converged;       /* steps of the last frame that returned DR_WARN_NOT_CONVERGED */
 } WorldBem;
+
+/* A bem_solid body as the liquid sees it (one-way: the liquid does not push back). The signed distance of its rest
+   shape x − x̄ (the reference of V = R(x − x̄ + u) + T, without u) is built once; every frame it becomes a DrCollider
+   whose motion keys carry the body's rigid frame R, T through that frame (world.c, body_keys). */
+typedef struct WorldBodyCollider {
+    const WorldBemBody *body;
+    float *phi;              /* rest-frame SDF nodes, x fastest */
+    int nx, ny, nz;
+    DrVec3 origin;
+    double dx;
+    DrXform start;           /* the body's frame (R, T) at the start of the frame being advanced */
+    DrVec3 start_velocity;   /* and its Ṫ */
+    double *keys;            /* the frame's key rows (7 each) */
+    int nkeys;
+    DrCollider *collider;    /* the SDF posed by keys; rebuilt every frame */
+} WorldBodyCollider;
 
 struct DrWorld {
     const DrScene *scene;
@@ -120,6 +159,10 @@ struct DrWorld {
     WorldMpm *mpm;
     WorldHair *hair;
     WorldBem *bem;
+    WorldBodyCollider *body_colliders; /* one per bem_solid when the scene has a liquid, else none */
+    int nbody_colliders;
+    const DrCollider **liquid_colliders; /* what the liquid sees: the live colliders, then the bodies */
+    int nliquid_colliders;
 };
 
 /* Prefixes an asset error with the element and field it came from ("jelly.MpmShape.mesh: ..."), keeping the

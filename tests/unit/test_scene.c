@@ -1014,6 +1014,98 @@ static void test_bem_solid_bad_input(void **state)
     assert_contains(err.message, "did you mean 'bem_solid'?");
 }
 
+/* Contact of bem_solid bodies: Collider (friction, thickness, body_contact) and FixedVertices on a body, bem_joint
+   elements naming two bodies. */
+static void test_bem_contact_components(void **state)
+{
+    (void)state;
+    write_tri();
+    const char *body = "{\"name\":\"%s\",\"type\":\"bem_solid\",\"components\":{\"Mesh\":{\"file\":\"meshes/tri.obj\"}%s}}";
+    char a[512], b[512], text[4096];
+    snprintf(a, sizeof a, body, "left",
+             ",\"Collider\":{\"friction\":0.3,\"thickness\":0.002,\"body_contact\":false},"
+             "\"FixedVertices\":{\"box\":[[0,0,0],[1,1,1]]}");
+    snprintf(b, sizeof b, body, "right", "");
+    snprintf(text, sizeof text,
+             "{\"elements\":[{\"name\":\"hinge\",\"type\":\"bem_joint\",\"components\":{\"Joint\":{\"body_a\":"
+             "\"left\",\"body_b\":\"right\"}}},%s,%s]}", a, b);
+    DrScene *s = load_text(text);
+    const DrElement *l = dr_scene_find(s, "left"), *r = dr_scene_find(s, "right"), *j = dr_scene_find(s, "hinge");
+    assert_non_null(l);
+    const DrComponent *col = dr_element_component(l, "Collider");
+    assert_true(dr_component_num(col, "friction") == 0.3);
+    assert_true(dr_component_num(col, "thickness") == 0.002);
+    assert_false(dr_component_bool(col, "body_contact"));
+    assert_true(dr_component_present(dr_element_component(l, "FixedVertices")));
+    /* a body without them: no friction, no offset, contact with other bodies on, nothing fixed */
+    col = dr_element_component(r, "Collider");
+    assert_true(dr_component_num(col, "friction") == 0.0);
+    assert_true(dr_component_num(col, "thickness") == 0.0);
+    assert_true(dr_component_bool(col, "body_contact"));
+    assert_false(dr_component_present(dr_element_component(r, "FixedVertices")));
+    /* a joint joins coincident vertices within 1e-6 m unless told otherwise */
+    const DrComponent *jc = dr_element_component(j, "Joint");
+    assert_string_equal(dr_component_str(jc, "mode"), "coincident");
+    assert_true(dr_component_num(jc, "tolerance") == 1e-6);
+    assert_false(dr_component_is_set(jc, "point"));
+    assert_int_equal(dr_scene_count_type(s, "bem_joint"), 1);
+    assert_false(dr_scene_element_spec("bem_joint")->needs_precompute);
+    dr_scene_destroy(&s);
+
+    /* bad input: exit 2 material, each naming element.Component.field, located in the file */
+    struct {
+        const char *left, *right, *joint;
+        const char *expect[2];
+    } cases[] = {
+        {",\"Collider\":{\"boundary\":\"no_slip\"}", "", NULL,
+         {"left.Collider.boundary is the velocity condition of liquid", "does not apply to a bem_solid"}},
+        {",\"FixedVertices\":{}", "", NULL, {"left.FixedVertices: missing required field 'box'"}},
+        {",\"FixedVertices\":{\"box\":[[0,0,0],[0,1,1]]}", "", NULL, {"left.FixedVertices.box"}},
+        {"", "", "\"body_a\":\"left\",\"body_b\":\"rigth\"",
+         {"hinge.Joint.body_b = 'rigth': no bem_solid element has this name; did you mean 'right'?",
+          "bem_solid elements: left, right"}},
+        {"", "", "\"body_a\":\"floor\",\"body_b\":\"right\"",
+         {"hinge.Joint.body_a = 'floor' is a collider element, not a bem_solid"}},
+        {"", "", "\"body_a\":\"left\",\"body_b\":\"left\"",
+         {"hinge.Joint.body_b = 'left' is body_a as well"}},
+        {"", "", "\"body_a\":\"left\"", {"hinge.Joint: missing required field 'body_b'"}},
+        {"", "", "\"body_a\":\"left\",\"body_b\":\"right\",\"mode\":\"point\"",
+         {"hinge.Joint.point is required with mode \"point\""}},
+        {"", "", "\"body_a\":\"left\",\"body_b\":\"right\",\"mode\":\"pont\"", {"did you mean 'point'?"}},
+        {"", "", "\"body_a\":\"left\",\"body_b\":\"right\",\"tolerance\":0",
+         {"hinge.Joint.tolerance = 0 is out of range (0, 1] m"}},
+        /* bodies of different steps are never stepped together */
+        {",\"BemSolver\":{\"time_step\":0.008333333333333333}", "", "\"body_a\":\"left\",\"body_b\":\"right\"",
+         {"hinge.Joint joins left and right, but right.BemSolver.time_step = 0.00416666666666667 s differs from "
+          "left.BemSolver.time_step = 0.00833333333333333 s", "give both the same BemSolver.time_step"}},
+    };
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+        char joint[512] = "";
+        if (cases[i].joint)
+            snprintf(joint, sizeof joint,
+                     "{\"name\":\"hinge\",\"type\":\"bem_joint\",\"components\":{\"Joint\":{%s}}},", cases[i].joint);
+        snprintf(a, sizeof a, body, "left", cases[i].left);
+        snprintf(b, sizeof b, body, "right", cases[i].right);
+        snprintf(text, sizeof text,
+                 "{\"elements\":[%s%s,%s,{\"name\":\"floor\",\"type\":\"collider\",\"components\":{\"Mesh\":"
+                 "{\"file\":\"meshes/tri.obj\"}}}]}", joint, a, b);
+        DrError err;
+        DrStatus st = load_bad(text, &err);
+        if (st != DR_ERR_INPUT) fail_msg("case %zu: status %d for %s", i, (int)st, text);
+        for (int k = 0; k < 2 && cases[i].expect[k]; k++)
+            if (!strstr(err.message, cases[i].expect[k]))
+                fail_msg("case %zu: expected \"%s\" in \"%s\"", i, cases[i].expect[k], err.message);
+        if (err.line < 1 || err.col < 1) fail_msg("case %zu: no position for %s", i, err.message);
+    }
+    /* body_contact is between bem_solid bodies only */
+    DrError err;
+    assert_int_equal(load_bad("{\"elements\":[{\"name\":\"floor\",\"type\":\"collider\",\"components\":{\"Mesh\":"
+                              "{\"file\":\"meshes/tri.obj\"},\"Collider\":{\"body_contact\":true}}}]}", &err),
+                     DR_ERR_INPUT);
+    assert_contains(err.message, "floor.Collider.body_contact is contact between bem_solid bodies and does not apply to "
+                                 "a collider element");
+}
+
 /* The precompute key follows the bem_solid elements (their canonical JSON and mesh bytes) and nothing else; every
  * later key follows it. */
 static void test_bem_solid_keys(void **state)
@@ -1226,8 +1318,8 @@ static void test_reference_lists_everything(void **state)
             assert_contains(md, row);
         }
     }
-    const char *types[] = {"liquid", "collider", "mpm_solid", "hair", "bem_solid"};
-    for (int i = 0; i < 5; i++) {
+    const char *types[] = {"liquid", "collider", "mpm_solid", "hair", "bem_solid", "bem_joint"};
+    for (int i = 0; i < 6; i++) {
         const DrElementSpec *t = dr_scene_element_spec(types[i]);
         assert_non_null(t);
         char head[128];
@@ -1269,7 +1361,11 @@ static void test_reference_lists_everything(void **state)
     assert_contains(md, "| `frame_update` | bool | - | `true` | - | move a rigid frame with the body (BEM eqs. 10-11)");
     assert_contains(md, "| `error_correction` | bool | - | `true` | - |");
     assert_contains(text, "components: Mesh (required), LinearElastic, Compression, BemSolver, Transform, "
-                          "InitialVelocity\n");
+                          "InitialVelocity, Collider, FixedVertices\n");
+    assert_contains(text, "components: Joint (required)\n");
+    assert_contains(md, "### Element type `bem_joint`");
+    assert_contains(md, "| `mode` | one of coincident, point | - | `\"coincident\"` | - |");
+    assert_contains(md, "| `body_contact` | bool | - | `true` | - |");
     free(text);
     free(md);
 }
@@ -1292,7 +1388,7 @@ static void test_spec_lookups(void **state)
     assert_false(hair->needs_precompute);
     const DrElementSpec *bem = dr_scene_element_spec("bem_solid");
     assert_non_null(bem);
-    assert_int_equal(bem->component_count, 6);
+    assert_int_equal(bem->component_count, 8);
     assert_int_equal(bem->required_count, 1);
     assert_string_equal(bem->required_components[0], "Mesh");
     assert_true(bem->needs_precompute);
@@ -1324,6 +1420,7 @@ int main(void)
         cmocka_unit_test(test_bem_solid_defaults),
         cmocka_unit_test(test_bem_solid_bad_input),
         cmocka_unit_test(test_bem_solid_keys),
+        cmocka_unit_test(test_bem_contact_components),
         cmocka_unit_test(test_canonical_json),
         cmocka_unit_test(test_keys_survive_reformatting),
         cmocka_unit_test(test_keys_invalidate_what_changed),
