@@ -49,49 +49,6 @@ void dr_bem_constraints_default(DrBemConstraints *c)
 
 static double dot3(const double *a, const double *b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
 
-static void mat3_vec(const double *A, const double *x, double *y)
-{
-    double t[3];
-    for (int i = 0; i < 3; i++) t[i] = A[3 * i] * x[0] + A[3 * i + 1] * x[1] + A[3 * i + 2] * x[2];
-    memcpy(y, t, sizeof t);
-}
-
-static void mat3_mul(const double *A, const double *B, double *C)
-{
-    double t[9];
-    for (int i = 0; i < 3; i++)
-        for (int j = 0; j < 3; j++) t[3 * i + j] = A[3 * i] * B[j] + A[3 * i + 1] * B[3 + j] + A[3 * i + 2] * B[6 + j];
-    memcpy(C, t, sizeof t);
-}
-
-static bool mat3_inv(const double *A, double *inv)
-{
-    double det = A[0] * (A[4] * A[8] - A[5] * A[7]) - A[1] * (A[3] * A[8] - A[5] * A[6]) +
-                 A[2] * (A[3] * A[7] - A[4] * A[6]);
-    if (!(fabs(det) > 0) || !isfinite(det)) return false;
-    inv[0] = (A[4] * A[8] - A[5] * A[7]) / det;
-    inv[1] = (A[2] * A[7] - A[1] * A[8]) / det;
-    inv[2] = (A[1] * A[5] - A[2] * A[4]) / det;
-    inv[3] = (A[5] * A[6] - A[3] * A[8]) / det;
-    inv[4] = (A[0] * A[8] - A[2] * A[6]) / det;
-    inv[5] = (A[2] * A[3] - A[0] * A[5]) / det;
-    inv[6] = (A[3] * A[7] - A[4] * A[6]) / det;
-    inv[7] = (A[1] * A[6] - A[0] * A[7]) / det;
-    inv[8] = (A[0] * A[4] - A[1] * A[3]) / det;
-    return true;
-}
-
-/* e^{[v]×} by Rodrigues' formula (eq. 11g). */
-static void rotation_exp(const double v[3], double *Rm)
-{
-    double th = sqrt(dot3(v, v));
-    double a = th > 1e-8 ? sin(th) / th : 1.0 - th * th / 6.0;
-    double b = th > 1e-8 ? (1.0 - cos(th)) / (th * th) : 0.5 - th * th / 24.0;
-    double K[9] = {0, -v[2], v[1], v[2], 0, -v[0], -v[1], v[0], 0}, K2[9];
-    mat3_mul(K, K, K2);
-    for (int q = 0; q < 9; q++) Rm[q] = (q % 4 == 0 ? 1.0 : 0.0) + a * K[q] + b * K2[q];
-}
-
 /* Two unit tangents completing the unit normal n to an orthonormal basis. */
 static void tangent_basis(const double n[3], double t1[3], double t2[3])
 {
@@ -175,8 +132,8 @@ static DrStatus body_assemble(Body *b, DrError *err)
         for (int j = 0; j < 3; j++) Rt_[3 * i + j] = R[3 * j + i];
     if (frame) {
         double dv[3] = {dt * s->omega[0], dt * s->omega[1], dt * s->omega[2]}, E[9];
-        rotation_exp(dv, E);
-        mat3_mul(E, R, Rtil);
+        bem_rotation_exp(dv, E);
+        bem_m3_mul(E, R, Rtil);
         for (int c = 0; c < 3; c++) Ttil[c] = s->T[c] + dt * (s->Tdot[c] + dt * s->d.gravity[c]);
     } else {
         memcpy(Rtil, R, sizeof Rtil);
@@ -219,22 +176,22 @@ static DrStatus body_assemble(Body *b, DrError *err)
                 Aj[3 * q + c] = m->A[(size_t)q * n + 3 * j + c];
                 Cj[3 * q + c] = m->C[(size_t)q * n + 3 * j + c];
             }
-        mat3_mul(R, Aj, RA);
-        mat3_mul(R, Cj, RC);
+        bem_m3_mul(R, Aj, RA);
+        bem_m3_mul(R, Cj, RC);
         for (int ii = 0; ii < na; ii++) {
             int i = b->act[ii];
             double blk[9], tmp[9];
             for (int r = 0; r < 3; r++)
                 for (int c = 0; c < 3; c++) tmp[3 * r + c] = Mblk[(3 * ii + r) * 3 + c];
-            mat3_mul(Rtil, tmp, blk); /* R̃ M_ij */
+            bem_m3_mul(Rtil, tmp, blk); /* R̃ M_ij */
             if (frame) {
                 double q[3], Q[9];
                 for (int c = 0; c < 3; c++) q[c] = b->V0[3 * i + c] - Ttil[c];
                 double X[9] = {0, -q[2], q[1], q[2], 0, -q[0], -q[1], q[0], 0};
-                mat3_mul(X, RC, Q); /* Δω × q = −[q]× Δω */
+                bem_m3_mul(X, RC, Q); /* Δω × q = −[q]× Δω */
                 for (int t = 0; t < 9; t++) blk[t] += dt * dt * (RA[t] - Q[t]);
             }
-            mat3_mul(blk, Rt_, tmp); /* f (world) → p = Rᵀ f / area */
+            bem_m3_mul(blk, Rt_, tmp); /* f (world) → p = Rᵀ f / area */
             for (int r = 0; r < 3; r++)
                 for (int c = 0; c < 3; c++) b->W[(size_t)(3 * ii + r) * k3 + 3 * jj + c] = tmp[3 * r + c] * inv_area;
         }
@@ -302,13 +259,13 @@ static void contact_prepare(const Body *bodies, Con *k)
 {
     double K[9], Kn[3], Kt[4];
     con_block(bodies, k, K);
-    mat3_vec(K, k->n, Kn);
+    bem_m3_vec(K, k->n, Kn);
     k->knn = dot3(k->n, Kn);
     const double *ts[2] = {k->t1, k->t2};
     for (int a = 0; a < 2; a++)
         for (int c = 0; c < 2; c++) {
             double Kc[3];
-            mat3_vec(K, ts[c], Kc);
+            bem_m3_vec(K, ts[c], Kc);
             Kt[2 * a + c] = dot3(ts[a], Kc);
         }
     double det = Kt[0] * Kt[3] - Kt[1] * Kt[2];
@@ -330,7 +287,7 @@ static double pgs_sweep(Body *bodies, Con *cons, int nc, double thickness, doubl
             double r[3];
             for (int c = 0; c < 3; c++) r[c] = k->target[c] - y[c];
             vmax = fmax(vmax, sqrt(dot3(r, r)));
-            mat3_vec(k->Kinv, r, d);
+            bem_m3_vec(k->Kinv, r, d);
             for (int c = 0; c < 3; c++) k->f[c] += d[c];
             apply_force(bodies, k, d);
             dmax = fmax(dmax, sqrt(dot3(d, d)));
@@ -770,7 +727,7 @@ DrStatus dr_bem_solids_step(DrBemSolid *const *solids, int count, const DrBemCon
         } else {
             double K[9];
             con_block(bodies, k, K);
-            if (!mat3_inv(K, k->Kinv))
+            if (!bem_m3_inv(K, k->Kinv))
                 status = dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
                                       "BEM constraints: %s %d has a singular response (the same vertex joined to "
                                       "itself?); %s",

@@ -48,6 +48,13 @@ bool bem_cmat_compact(const DrBemCMat *m, BemCMatF *out);
 void bem_cmatf_free(BemCMatF *m);
 void bem_cmatf_matvec_acc(const BemCMatF *m, const double *x, double sign, double *y); /* y += sign·M̃x */
 
+/* Row-major 3×3 helpers shared by the runtime and the constraint solver (bem_solid.c): C = AB, y = Ax, the inverse
+ * (false when singular), and e^{[v]×} by Rodrigues' formula (eq. 11g). */
+void bem_m3_mul(const double *A, const double *B, double *C);
+void bem_m3_vec(const double *A, const double *x, double *y);
+bool bem_m3_inv(const double *A, double *inv);
+void bem_rotation_exp(const double v[3], double *Rm);
+
 /* A body in a shot (bem_solid.c); the constraint solver reads its frame and matrices. */
 struct DrBemSolid {
     const DrBemMatrices *m;

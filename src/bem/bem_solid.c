@@ -28,7 +28,7 @@ void dr_bem_solid_desc_default(DrBemSolidDesc *d)
 
 /* ---- small 3×3 helpers ------------------------------------------------------------------------------------ */
 
-static void m3_mul(const double *A, const double *B, double *C)
+void bem_m3_mul(const double *A, const double *B, double *C)
 {
     double t[9];
     for (int i = 0; i < 3; i++)
@@ -36,7 +36,7 @@ static void m3_mul(const double *A, const double *B, double *C)
     memcpy(C, t, sizeof t);
 }
 
-static void m3_vec(const double *A, const double *x, double *y)
+void bem_m3_vec(const double *A, const double *x, double *y)
 {
     double t[3];
     for (int i = 0; i < 3; i++) t[i] = A[3 * i] * x[0] + A[3 * i + 1] * x[1] + A[3 * i + 2] * x[2];
@@ -55,7 +55,7 @@ static double m3_det(const double *A)
     return A[0] * (A[4] * A[8] - A[5] * A[7]) - A[1] * (A[3] * A[8] - A[5] * A[6]) + A[2] * (A[3] * A[7] - A[4] * A[6]);
 }
 
-static bool m3_inv(const double *A, double *inv)
+bool bem_m3_inv(const double *A, double *inv)
 {
     double det = m3_det(A);
     if (!(fabs(det) > 0) || !isfinite(det)) return false;
@@ -72,14 +72,14 @@ static bool m3_inv(const double *A, double *inv)
 }
 
 /* e^{θ[k]×} by Rodrigues' formula for the rotation vector v = θk (eq. 11g). */
-static void rodrigues(const double v[3], double *Rm)
+void bem_rotation_exp(const double v[3], double *Rm)
 {
     double th = sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
     double a = th > 1e-8 ? sin(th) / th : 1.0 - th * th / 6.0;
     double b = th > 1e-8 ? (1.0 - cos(th)) / (th * th) : 0.5 - th * th / 24.0;
     double K[9] = {0, -v[2], v[1], v[2], 0, -v[0], -v[1], v[0], 0};
     double K2[9];
-    m3_mul(K, K, K2);
+    bem_m3_mul(K, K, K2);
     for (int q = 0; q < 9; q++) Rm[q] = (q % 4 == 0 ? 1.0 : 0.0) + a * K[q] + b * K2[q];
 }
 
@@ -91,7 +91,7 @@ static void polar_rotation(const double *A, double *Rm)
     memcpy(X, A, sizeof X);
     for (int it = 0; it < 30; it++) {
         double Xi[9];
-        if (!m3_inv(X, Xi)) {
+        if (!bem_m3_inv(X, Xi)) {
             memcpy(Rm, (double[9]){1, 0, 0, 0, 1, 0, 0, 0, 1}, sizeof X);
             return;
         }
@@ -114,7 +114,7 @@ static bool pinv_n3(const double *M, int n, double *P)
     for (int r = 0; r < n; r++)
         for (int i = 0; i < 3; i++)
             for (int j = 0; j < 3; j++) G[3 * i + j] += M[3 * r + i] * M[3 * r + j];
-    if (!m3_inv(G, Gi)) return false;
+    if (!bem_m3_inv(G, Gi)) return false;
     for (int r = 0; r < n; r++)
         for (int i = 0; i < 3; i++)
             P[(size_t)i * n + r] = Gi[3 * i] * M[3 * r] + Gi[3 * i + 1] * M[3 * r + 1] + Gi[3 * i + 2] * M[3 * r + 2];
@@ -403,16 +403,16 @@ DrStatus bem_solid_advance(DrBemSolid *s, const double *traction, bool commit, D
     memcpy(omega, s->omega, sizeof omega);
     if (s->d.frame_update) {
         double a[3] = {gp[0] + b[0], gp[1] + b[1], gp[2] + b[2]}, Ra[3], Ral[3], rot[9], dv[3];
-        m3_vec(s->R, a, Ra);
-        m3_vec(s->R, al, Ral);
+        bem_m3_vec(s->R, a, Ra);
+        bem_m3_vec(s->R, al, Ral);
         for (int c = 0; c < 3; c++) {
             Tdot[c] += dt * Ra[c];
             omega[c] += dt * Ral[c];
             T[c] += dt * Tdot[c];
             dv[c] = dt * omega[c];
         }
-        rodrigues(dv, rot);
-        m3_mul(rot, s->R, R);
+        bem_rotation_exp(dv, rot);
+        bem_m3_mul(rot, s->R, R);
     }
     bool finite = true;
     for (int i = 0; i < n && finite; i++) finite = isfinite(u[i]);
@@ -428,7 +428,7 @@ DrStatus bem_solid_advance(DrBemSolid *s, const double *traction, bool commit, D
         for (int v = 0; v < s->nv; v++) {
             double y[3];
             for (int c = 0; c < 3; c++) y[c] = s->ref[3 * v + c] + u[3 * v + c];
-            m3_vec(R, y, &V_out[3 * v]);
+            bem_m3_vec(R, y, &V_out[3 * v]);
             for (int c = 0; c < 3; c++) V_out[3 * v + c] += T[c];
         }
         if (st) *st = stats;
@@ -475,7 +475,7 @@ void dr_bem_solid_positions(const DrBemSolid *s, double *V)
     for (int v = 0; v < s->nv; v++) {
         double y[3];
         for (int c = 0; c < 3; c++) y[c] = s->ref[3 * v + c] + s->u[3 * v + c];
-        m3_vec(s->R, y, &V[3 * v]);
+        bem_m3_vec(s->R, y, &V[3 * v]);
         for (int c = 0; c < 3; c++) V[3 * v + c] += s->T[c];
     }
 }
@@ -486,9 +486,9 @@ void dr_bem_solid_diagnostics(const DrBemSolid *s, DrBemSolidDiag *out)
     double mass = m->body.mass, Iw[9], tmp[9], Rt[9], Lw[3];
     for (int i = 0; i < 3; i++)
         for (int j = 0; j < 3; j++) Rt[3 * i + j] = s->R[3 * j + i];
-    m3_mul(s->R, m->body.inertia, tmp);
-    m3_mul(tmp, Rt, Iw);
-    m3_vec(Iw, s->omega, Lw);
+    bem_m3_mul(s->R, m->body.inertia, tmp);
+    bem_m3_mul(tmp, Rt, Iw);
+    bem_m3_vec(Iw, s->omega, Lw);
     double v2 = 0, gT = 0;
     for (int c = 0; c < 3; c++) {
         out->momentum[c] = mass * s->Tdot[c];
