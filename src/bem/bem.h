@@ -1,17 +1,16 @@
 /* drench bem: surface-only elastic bodies by the convolution-quadrature boundary element method
  * (seed sugimoto_surface_only_bem, "BEM" below; PHYSICS.md §7).
  *
- * This header is the precompute side: Laplace-domain kernels (BEM App. A), convolution-quadrature
- * weights (BEM eq. 15), the assembled time-domain matrices H_k, G_k, D_k, Q_k of eq. (9), the rigid
- * frame's operators A and C (eq. 10), H₀⁻¹ and H₀⁻¹G′ (eq. 12), their wavelet compression (§3.3) and
- * the content-keyed cache under cache/bem/.
+ * Public: the assembled time-domain matrices H_k, G_k, D_k, Q_k of eq. (9), the rigid frame's operators A and C
+ * (eq. 10), H₀⁻¹ and H₀⁻¹G′ (eq. 12), their wavelet compression (§3.3) and
+ * the content-keyed cache under cache/bem/, and the runtime of a body in a shot with its constraints. The
+ * complex-valued Laplace-domain kernels and convolution-quadrature weights are private (bem_internal.h).
  *
  * Conventions: SI units; a body's unknowns are the 3N nodal displacements and tractions in the
  * natural interleaved order 3·vertex + axis of the input mesh; dense matrices are row-major. */
 #ifndef DR_BEM_H
 #define DR_BEM_H
 
-#include <complex.h>
 #include <stdint.h>
 
 #include "core/core.h"
@@ -30,49 +29,6 @@ typedef struct DrBemWave {
     double c1, c2;              /* longitudinal and shear wave speeds, BEM eq. (18) */
 } DrBemWave;
 void dr_bem_wave_init(const DrBemMaterial *m, DrBemWave *out);
-
-/* ---- Laplace-domain kernels (BEM App. A) ---------------------------------------------------------
- * r = y − x (field point y minus collocation point x), n = unit outward normal at y, s the Laplace
- * variable (Re s > 0). Outputs are 3×3 row-major, out[3i+j] = kernel_ij: row i is the direction of the
- * unit point load at x, column j the component at y, so that the boundary integral equation reads
- * c_ij u_j(x) + ∫ p*_ij u_j dΓ = ∫ u*_ij p_j dΓ + body terms. All four are evaluated without the
- * cancellation of their 1/s² forms when |s r/c| is small (a series for ((1+z)e^{−z} − 1)/z²). */
-void dr_bem_kernel_u(const DrBemWave *w, const double r[3], double complex s, double complex u[9]); /* eq. 16 */
-void dr_bem_kernel_p(const DrBemWave *w, const double r[3], const double n[3], double complex s,
-                     double complex p[9]); /* eq. 17 */
-void dr_bem_kernel_d(const DrBemWave *w, const double r[3], const double n[3], double complex s,
-                     double complex d[9]); /* eq. 19 */
-/* l̂* of eq. (21); q̂* = l̂* + d̂*·[x − x̄]×ᵀ (eq. 20) is formed by the caller, which knows x − x̄. */
-void dr_bem_kernel_l(const DrBemWave *w, const double r[3], const double n[3], double complex s,
-                     double complex l[9]);
-/* The elastostatic (Kelvin) limits s → 0 of û* and p̂*, closed form. */
-void dr_bem_kernel_u_static(const DrBemWave *w, const double r[3], double u[9]);
-void dr_bem_kernel_p_static(const DrBemWave *w, const double r[3], const double n[3], double p[9]);
-
-/* Every kernel at one point for ns Laplace variables at once (the geometry is shared), the assembly's
- * inner loop. Any output pointer may be NULL to skip that kernel. Layout: out[k*9 + 3i + j] for s[k].
- * p_dyn, if not NULL, receives p̂*(s) − p*_static (bounded near r = 0: of order |s r/c|² times the static kernel),
- * for the singular triangles; each wave's s = 0 value is removed analytically, not by subtraction. */
-typedef struct DrBemKernelOut {
-    double complex *u, *p, *p_dyn, *d, *l;
-} DrBemKernelOut;
-void dr_bem_kernel_batch(const DrBemWave *w, const double r[3], const double n[3], int ns, const double complex *s,
-                         const DrBemKernelOut *out);
-
-/* ---- convolution quadrature (BEM eq. 15, BDF1) --------------------------------------------------
- * s_l = γ(R e^{2πil/L})/Δt with γ(ζ) = 1 − ζ, and ψ_k(f̂) = R^{−k}/L Σ_l f̂(s_l) e^{−2πikl/L} for
- * k = 0..L−1. s_{L−l} = conj(s_l), so a real time function needs f̂ at l = 0..⌊L/2⌋ only. */
-typedef struct DrBemCq {
-    int L;              /* number of frequencies = number of weights */
-    double R, dt;       /* R = ε^{1/(2L)}, time step */
-    double complex *s;  /* L Laplace variables, owned */
-} DrBemCq;
-DR_NODISCARD DrStatus dr_bem_cq_init(int L, double eps, double dt, DrBemCq *out, DrError *err);
-void dr_bem_cq_free(DrBemCq *cq);
-/* psi[k], k = 0..L−1, from fhat[l] = f̂(s_l) for all l (complex input, real part of the result). */
-void dr_bem_cq_weights(const DrBemCq *cq, const double complex *fhat, double *psi);
-/* Same from l = 0..⌊L/2⌋ only, using f̂(conj s) = conj f̂(s). */
-void dr_bem_cq_weights_half(const DrBemCq *cq, const double complex *fhat_half, double *psi);
 
 /* ---- surface meshes: checks, mass properties, frame operators, orderings ------------------------ */
 

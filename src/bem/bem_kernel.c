@@ -34,7 +34,7 @@
  *     E = φ_0,  F = φ_2 − φ_1,  G1 = z²(6φ_4 − 6φ_3 + 4φ_2 − 2φ_1),  G3 = z²(6φ_4 − 6φ_3 + 2φ_2),
  *     G4 = z²(−6φ_4 + 6φ_3 − 3φ_2 + φ_1),  G5 = z²(−30φ_4 + 30φ_3 − 12φ_2 + 2φ_1),
  * one truncated series for φ_4 and the (cancellation-free) downward recurrence for the rest. */
-#include "bem/bem.h"
+#include "bem_internal.h"
 
 #include <math.h>
 #include <stdlib.h>

@@ -15,6 +15,7 @@
 #include <cmocka.h>
 
 #include "bem/bem.h"
+#include "bem/bem_internal.h"
 #include "core/core.h"
 
 /* ---- helpers ----------------------------------------------------------------------------------- */
