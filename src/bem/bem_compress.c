@@ -587,6 +587,13 @@ static int row_at(const int64_t *row_ptr, int n, int64_t target)
     return lo;
 }
 
+/* Rows [r0, r1) of part p of `parts`, each part holding about the same number of coefficients. */
+static void row_range(const int64_t *row_ptr, int n, int64_t nnz, int p, int parts, int *r0, int *r1)
+{
+    *r0 = p == 0 ? 0 : row_at(row_ptr, n, nnz * p / parts);
+    *r1 = p == parts - 1 ? n : row_at(row_ptr, n, nnz * (p + 1) / parts);
+}
+
 /* The coarse-level rows of M̃ hold far more coefficients than the fine ones, so the rows are split into one
  * range per thread of equal coefficient count. Each row is summed by one thread in a fixed order, so the
  * split does not change the result. */
@@ -598,8 +605,8 @@ static void csr_matvec(const DrBemCMat *m, const double *restrict x, double *res
     const double *val = m->val;
 #pragma omp parallel for schedule(static) num_threads(parts) if (parts > 1)
     for (int p = 0; p < parts; p++) {
-        int r0 = p == 0 ? 0 : row_at(row_ptr, n, m->nnz * p / parts);
-        int r1 = p == parts - 1 ? n : row_at(row_ptr, n, m->nnz * (p + 1) / parts);
+        int r0, r1;
+        row_range(row_ptr, n, m->nnz, p, parts, &r0, &r1);
         for (int i = r0; i < r1; i++) {
             int64_t k = row_ptr[i], end = row_ptr[i + 1];
             double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0;
@@ -657,8 +664,8 @@ void bem_cmatf_matvec_acc(const BemCMatF *m, const double *restrict x, double si
     const float *val = m->val;
 #pragma omp parallel for schedule(static) num_threads(parts) if (parts > 1)
     for (int p = 0; p < parts; p++) {
-        int r0 = p == 0 ? 0 : row_at(row_ptr, n, m->nnz * p / parts);
-        int r1 = p == parts - 1 ? n : row_at(row_ptr, n, m->nnz * (p + 1) / parts);
+        int r0, r1;
+        row_range(row_ptr, n, m->nnz, p, parts, &r0, &r1);
         for (int i = r0; i < r1; i++) {
             int64_t k = row_ptr[i], end = row_ptr[i + 1];
             double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0;

@@ -2,6 +2,7 @@
  * operators of BEM eq. (10), shape-matching weights (BEM §3.2.1), a spatially coherent vertex order
  * (BEM §3.3) and generated test meshes. */
 #include "bem/bem.h"
+#include "bem_internal.h"
 
 #include <limits.h>
 #include <stdlib.h>
@@ -604,25 +605,6 @@ void dr_bem_body_compute(const DrTriMesh *m, double density, DrBemBody *out)
 
 /* ---- frame operators and vertex areas ------------------------------------------------------------- */
 
-/* Inverse of a 3×3 matrix by its adjugate; false when singular. */
-static bool invert3(const double *M, double *inv)
-{
-    double c[9];
-    c[0] = M[4] * M[8] - M[5] * M[7];
-    c[1] = M[2] * M[7] - M[1] * M[8];
-    c[2] = M[1] * M[5] - M[2] * M[4];
-    c[3] = M[5] * M[6] - M[3] * M[8];
-    c[4] = M[0] * M[8] - M[2] * M[6];
-    c[5] = M[2] * M[3] - M[0] * M[5];
-    c[6] = M[3] * M[7] - M[4] * M[6];
-    c[7] = M[1] * M[6] - M[0] * M[7];
-    c[8] = M[0] * M[4] - M[1] * M[3];
-    double det = M[0] * c[0] + M[1] * c[3] + M[2] * c[6];
-    if (!(det != 0.0) || !isfinite(det)) return false;
-    for (int i = 0; i < 9; i++) inv[i] = c[i] / det;
-    return true;
-}
-
 /* Exact integrals over a linear triangle T of area A_T with corners y_a, y_b, y_c:
  *   ∫_T Φ_a dΓ = A_T/3,   ∫_T y Φ_a dΓ = A_T/12 (2 y_a + y_b + y_c).
  * Positions are taken relative to x̄ throughout. For C this is the definition (y − x̄); for w it makes the
@@ -658,7 +640,7 @@ void dr_bem_frame_operators(const DrTriMesh *m, const DrBemBody *b, double *A, d
         }
     }
     double Iinv[9];
-    bool ok = invert3(b->inertia, Iinv);
+    bool ok = bem_m3_inv(b->inertia, Iinv);
     assert(ok && "dr_bem_frame_operators: singular inertia; the body was not computed from a checked mesh");
     (void)ok;
     const double inv_mass = 1.0 / b->mass;
