@@ -45,6 +45,86 @@ void dr_bem_constraints_default(DrBemConstraints *c)
     };
 }
 
+/* ---- columns of H₀⁻¹G′ ------------------------------------------------------------------------------------
+ * The compressed H₀⁻¹G′ stands for y = Pᵀ Wᵀ M̃ W P x (bem.h). For a unit vector x = e_i, W P e_i is nonzero only
+ * in the Haar segment that holds the permuted index, at one place per level (about log₂ N + 1 values), so the
+ * column is Pᵀ Wᵀ Σ_q x̃_q M̃_{·q}: a few columns of M̃ and one inverse transform, where a product with all of
+ * M̃ would read every kept coefficient (2.4 M of them for 2906 vertices at 32×) for each column. The assembly needs
+ * 3 columns per active vertex, so M̃ is kept by column as well (12 bytes per coefficient). */
+struct BemColumns {
+    int n;            /* 3N */
+    int64_t *col_ptr; /* n + 1 */
+    int32_t *row;     /* kept coefficients by column, rows ascending within a column */
+    double *val;
+    int *pos;         /* n: perm⁻¹, the coefficient-order position of each natural index */
+};
+
+void bem_columns_free(BemColumns **c)
+{
+    if (!c || !*c) return;
+    free((*c)->col_ptr);
+    free((*c)->row);
+    free((*c)->val);
+    free((*c)->pos);
+    free(*c);
+    *c = NULL;
+}
+
+/* The column copy of a compressed (not dense) matrix: a counting pass, then the rows in order, so the copy does
+   not depend on the thread count. */
+static DrStatus columns_build(const DrBemLayout *l, const DrBemCMat *m, BemColumns **out, DrError *err)
+{
+    assert(!m->dense && m->n == 3 * l->nv);
+    int n = m->n;
+    size_t nnz = (size_t)m->nnz, cap = nnz > 0 ? nnz : 1;
+    BemColumns *g = NULL;
+    int64_t *next = NULL;
+    DR_TRY(dr_calloc(1, sizeof *g, &g, err));
+    g->n = n;
+    DrStatus st = dr_calloc((size_t)n + 1, sizeof(int64_t), &g->col_ptr, err);
+    if (st == DR_OK) st = dr_calloc(cap, sizeof(int32_t), &g->row, err);
+    if (st == DR_OK) st = dr_calloc(cap, sizeof(double), &g->val, err);
+    if (st == DR_OK) st = dr_calloc((size_t)n, sizeof(int), &g->pos, err);
+    if (st == DR_OK) st = dr_calloc((size_t)n, sizeof(int64_t), &next, err);
+    if (st != DR_OK) {
+        bem_columns_free(&g);
+        return st;
+    }
+    for (int64_t k = 0; k < m->nnz; k++) g->col_ptr[m->col[k] + 1]++;
+    for (int q = 0; q < n; q++) g->col_ptr[q + 1] += g->col_ptr[q];
+    memcpy(next, g->col_ptr, sizeof(int64_t) * (size_t)n);
+    for (int i = 0; i < n; i++)
+        for (int64_t k = m->row_ptr[i]; k < m->row_ptr[i + 1]; k++) {
+            int64_t d = next[m->col[k]]++;
+            g->row[d] = i;
+            g->val[d] = m->val[k];
+        }
+    for (int i = 0; i < n; i++) g->pos[l->perm[i]] = i;
+    free(next);
+    *out = g;
+    return DR_OK;
+}
+
+/* y = H₀⁻¹G′ e_i (natural order) for the compressed matrix m with column copy g; work holds 4n doubles. The
+   Haar segments are those of bem.h: the coordinate blocks of length N in the xyz orders, all 3N otherwise. */
+static void columns_unit_product(const DrBemLayout *l, const BemColumns *g, int i, double *y, double *work)
+{
+    int n = g->n, p = g->pos[i];
+    int seglen = l->ordering != DR_BEM_ORDER_NONE ? l->nv : n;
+    int q0 = l->wavelet ? p - p % seglen : p, len = l->wavelet ? seglen : 1; /* where x̃ = W P e_i may be nonzero */
+    double *xt = work, *yt = work + n, *scratch = work + 2 * n;
+    memset(xt + q0, 0, sizeof(double) * (size_t)len);
+    xt[p] = 1;
+    if (l->wavelet) dr_bem_haar_forward(xt + q0, seglen, scratch);
+    memset(yt, 0, sizeof(double) * (size_t)n);
+    for (int q = q0; q < q0 + len; q++) {
+        double x = xt[q];
+        if (x == 0) continue;
+        for (int64_t k = g->col_ptr[q]; k < g->col_ptr[q + 1]; k++) yt[g->row[k]] += x * g->val[k];
+    }
+    dr_bem_layout_from_coeff(l, false, yt, y, scratch);
+}
+
 /* ---- small 3-vector and 3×3 helpers ----------------------------------------------------------------------- */
 
 static double dot3(const double *a, const double *b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
@@ -81,6 +161,7 @@ typedef struct Con {
     double slip0[3];       /* contact: where a sticking vertex ends the step (start position + collider motion) */
     double f[3];           /* world force, N */
     double Kinv[9];        /* fixed/joint: inverse of the 3 × 3 diagonal block of the response */
+    double K[9];           /* contact: the 3 × 3 diagonal block of the response */
     double knn, Ktt[4];    /* contact: nᵀKn and the tangential 2 × 2 block's inverse */
 } Con;
 
@@ -93,10 +174,9 @@ typedef struct Body {
     double *Vstart;   /* 3N positions at the start of the step */
     double *Vt;       /* 3N positions of the latest trial */
     double *p;        /* 3N tractions, body frame */
-    double *W;        /* (3·na)², row-major: ΔV_active = W F_active */
+    double *W;        /* (3·na)², by column: ΔV_active = W F_active, element (r, c) at W[c·3·na + r] */
     double *F;        /* 3·na summed vertex forces, world */
     double *P;        /* 3·na predicted positions of the active vertices */
-    double *col, *scratch; /* 2n each: a unit vector and its response; transform scratch */
 } Body;
 
 static DrStatus body_add_active(Body *b, int v, DrError *err)
@@ -112,10 +192,94 @@ static DrStatus body_add_active(Body *b, int v, DrError *err)
     return DR_OK;
 }
 
-/* The response blocks W of the active vertices (step 3 of the banner). */
+/* What the response blocks of one body's active vertices share (step 3 of the banner). */
+typedef struct Assembly {
+    Body *b;
+    bool frame;
+    double Rt_[9], Rtil[9], Ttil[3]; /* Rᵀ_{k−1}, R̃ and T̃ */
+    int slots;                       /* ranges of active vertices, one per thread */
+    size_t stride;                   /* doubles of work per slot: 3·k3 for a block column, 5n for a column of H₀⁻¹G′ */
+    double *work;
+} Assembly;
+
+/* Columns 3jj..3jj+2 of W: the response of every active vertex to a force at active vertex jj. */
+static void assemble_vertex(const Assembly *as, int jj, double *work)
+{
+    const Body *b = as->b;
+    const DrBemSolid *s = b->s;
+    const DrBemMatrices *m = s->m;
+    int n = s->n, na = b->na, k3 = 3 * na, j = b->act[jj];
+    double dt = m->desc.dt;
+    double *Mblk = work, *y = work + (size_t)3 * k3; /* Mblk: 3·na × 3, rows = active vertices */
+    /* column j·3+c of the displacement response to body-frame tractions: H₀⁻¹G′ with the frame, and
+       H₀⁻¹G′ − E A − F C without it (u = z + E b + F α with b, α independent of p, bem_solid.c step 2) */
+    for (int c = 0; c < 3; c++) {
+        int cj = 3 * j + c;
+        if (m->H0inv_Gp.dense) {
+            for (int ii = 0; ii < na; ii++)
+                for (int r = 0; r < 3; r++)
+                    Mblk[(3 * ii + r) * 3 + c] = m->H0inv_Gp.val[(size_t)(3 * b->act[ii] + r) * n + cj];
+        } else {
+            columns_unit_product(&m->layout, s->gp_cols, cj, y, y + n);
+            for (int ii = 0; ii < na; ii++)
+                for (int r = 0; r < 3; r++) Mblk[(3 * ii + r) * 3 + c] = y[3 * b->act[ii] + r];
+        }
+        if (!as->frame)
+            for (int ii = 0; ii < na; ii++)
+                for (int r = 0; r < 3; r++) {
+                    int row = 3 * b->act[ii] + r;
+                    double ea = 0;
+                    for (int q = 0; q < 3; q++)
+                        ea += s->E[3 * row + q] * m->A[(size_t)q * n + cj] +
+                              s->F[3 * row + q] * m->C[(size_t)q * n + cj];
+                    Mblk[(3 * ii + r) * 3 + c] -= ea;
+                }
+    }
+    double inv_area = 1.0 / m->area[j];
+    double Aj[9], Cj[9], RA[9], RC[9];
+    for (int q = 0; q < 3; q++)
+        for (int c = 0; c < 3; c++) {
+            Aj[3 * q + c] = m->A[(size_t)q * n + 3 * j + c];
+            Cj[3 * q + c] = m->C[(size_t)q * n + 3 * j + c];
+        }
+    bem_m3_mul(s->R, Aj, RA);
+    bem_m3_mul(s->R, Cj, RC);
+    double *W0 = &b->W[(size_t)(3 * jj) * k3];
+    for (int ii = 0; ii < na; ii++) {
+        int i = b->act[ii];
+        double blk[9], tmp[9];
+        for (int r = 0; r < 3; r++)
+            for (int c = 0; c < 3; c++) tmp[3 * r + c] = Mblk[(3 * ii + r) * 3 + c];
+        bem_m3_mul(as->Rtil, tmp, blk); /* R̃ M_ij */
+        if (as->frame) {
+            double q[3], Q[9];
+            for (int c = 0; c < 3; c++) q[c] = b->V0[3 * i + c] - as->Ttil[c];
+            double X[9] = {0, -q[2], q[1], q[2], 0, -q[0], -q[1], q[0], 0};
+            bem_m3_mul(X, RC, Q); /* Δω × q = −[q]× Δω */
+            for (int t = 0; t < 9; t++) blk[t] += dt * dt * (RA[t] - Q[t]);
+        }
+        bem_m3_mul(blk, as->Rt_, tmp); /* f (world) → p = Rᵀ f / area */
+        for (int r = 0; r < 3; r++)
+            for (int c = 0; c < 3; c++) W0[(size_t)c * k3 + 3 * ii + r] = tmp[3 * r + c] * inv_area;
+    }
+}
+
+/* Slots [begin, end): each works through its own range of active vertices with its own work space, so every column
+   of W is computed by one thread in a fixed order and W does not depend on the thread count. */
+static void assemble_slots(long begin, long end, void *ctx)
+{
+    const Assembly *as = ctx;
+    long na = as->b->na;
+    for (long t = begin; t < end; t++)
+        for (long jj = na * t / as->slots; jj < na * (t + 1) / as->slots; jj++)
+            assemble_vertex(as, (int)jj, as->work + (size_t)t * as->stride);
+}
+
+/* The response blocks W of the active vertices (step 3 of the banner), stored by column: element (r, c) of the
+   k3 × k3 matrix at W[c·k3 + r], so a force at one vertex updates the predictions from 3 contiguous columns. */
 static DrStatus body_assemble(Body *b, DrError *err)
 {
-    const DrBemSolid *s = b->s;
+    DrBemSolid *s = b->s;
     const DrBemMatrices *m = s->m;
     int n = s->n, na = b->na, k3 = 3 * na;
     double dt = m->desc.dt;
@@ -125,78 +289,25 @@ static DrStatus body_assemble(Body *b, DrError *err)
     DR_TRY(dr_calloc((size_t)k3, sizeof(double), &b->F, err));
     DR_TRY(dr_calloc((size_t)k3, sizeof(double), &b->P, err));
     if (na == 0) return DR_OK;
-    bool frame = s->d.frame_update;
-    double Rt_[9], Rtil[9], Ttil[3];
+    if (!m->H0inv_Gp.dense && !s->gp_cols) DR_TRY(columns_build(&m->layout, &m->H0inv_Gp, &s->gp_cols, err));
+    Assembly as = {.b = b, .frame = s->d.frame_update};
     const double *R = s->R;
     for (int i = 0; i < 3; i++)
-        for (int j = 0; j < 3; j++) Rt_[3 * i + j] = R[3 * j + i];
-    if (frame) {
+        for (int j = 0; j < 3; j++) as.Rt_[3 * i + j] = R[3 * j + i];
+    if (as.frame) {
         double dv[3] = {dt * s->omega[0], dt * s->omega[1], dt * s->omega[2]}, E[9];
         bem_rotation_exp(dv, E);
-        bem_m3_mul(E, R, Rtil);
-        for (int c = 0; c < 3; c++) Ttil[c] = s->T[c] + dt * (s->Tdot[c] + dt * s->d.gravity[c]);
+        bem_m3_mul(E, R, as.Rtil);
+        for (int c = 0; c < 3; c++) as.Ttil[c] = s->T[c] + dt * (s->Tdot[c] + dt * s->d.gravity[c]);
     } else {
-        memcpy(Rtil, R, sizeof Rtil);
+        memcpy(as.Rtil, R, sizeof as.Rtil);
     }
-    /* column j·3+c of the displacement response to body-frame tractions: H₀⁻¹G′ with the frame, and
-       H₀⁻¹G′ − E A − F C without it (u = z + E b + F α with b, α independent of p, bem_solid.c step 2) */
-    double *Mblk = NULL; /* 3·na × 3 block column for one active vertex: rows = active vertices */
-    DR_TRY(dr_calloc((size_t)k3 * 3, sizeof(double), &Mblk, err));
-    for (int jj = 0; jj < na; jj++) {
-        int j = b->act[jj];
-        for (int c = 0; c < 3; c++) {
-            int cj = 3 * j + c;
-            if (m->H0inv_Gp.dense) {
-                for (int ii = 0; ii < na; ii++)
-                    for (int r = 0; r < 3; r++)
-                        Mblk[(3 * ii + r) * 3 + c] = m->H0inv_Gp.val[(size_t)(3 * b->act[ii] + r) * n + cj];
-            } else { /* H₀⁻¹G′ e_cj through the compressed product */
-                double *e = b->col, *y = b->col + n;
-                memset(e, 0, sizeof(double) * n);
-                e[cj] = 1;
-                dr_bem_cmat_matvec(&m->layout, &m->H0inv_Gp, e, y, b->scratch);
-                for (int ii = 0; ii < na; ii++)
-                    for (int r = 0; r < 3; r++) Mblk[(3 * ii + r) * 3 + c] = y[3 * b->act[ii] + r];
-            }
-            if (!frame)
-                for (int ii = 0; ii < na; ii++)
-                    for (int r = 0; r < 3; r++) {
-                        int row = 3 * b->act[ii] + r;
-                        double ea = 0;
-                        for (int q = 0; q < 3; q++)
-                            ea += s->E[3 * row + q] * m->A[(size_t)q * n + cj] +
-                                  s->F[3 * row + q] * m->C[(size_t)q * n + cj];
-                        Mblk[(3 * ii + r) * 3 + c] -= ea;
-                    }
-        }
-        double inv_area = 1.0 / m->area[j];
-        double Aj[9], Cj[9], RA[9], RC[9];
-        for (int q = 0; q < 3; q++)
-            for (int c = 0; c < 3; c++) {
-                Aj[3 * q + c] = m->A[(size_t)q * n + 3 * j + c];
-                Cj[3 * q + c] = m->C[(size_t)q * n + 3 * j + c];
-            }
-        bem_m3_mul(R, Aj, RA);
-        bem_m3_mul(R, Cj, RC);
-        for (int ii = 0; ii < na; ii++) {
-            int i = b->act[ii];
-            double blk[9], tmp[9];
-            for (int r = 0; r < 3; r++)
-                for (int c = 0; c < 3; c++) tmp[3 * r + c] = Mblk[(3 * ii + r) * 3 + c];
-            bem_m3_mul(Rtil, tmp, blk); /* R̃ M_ij */
-            if (frame) {
-                double q[3], Q[9];
-                for (int c = 0; c < 3; c++) q[c] = b->V0[3 * i + c] - Ttil[c];
-                double X[9] = {0, -q[2], q[1], q[2], 0, -q[0], -q[1], q[0], 0};
-                bem_m3_mul(X, RC, Q); /* Δω × q = −[q]× Δω */
-                for (int t = 0; t < 9; t++) blk[t] += dt * dt * (RA[t] - Q[t]);
-            }
-            bem_m3_mul(blk, Rt_, tmp); /* f (world) → p = Rᵀ f / area */
-            for (int r = 0; r < 3; r++)
-                for (int c = 0; c < 3; c++) b->W[(size_t)(3 * ii + r) * k3 + 3 * jj + c] = tmp[3 * r + c] * inv_area;
-        }
-    }
-    free(Mblk);
+    int threads = dr_threads();
+    as.slots = threads < 1 ? 1 : (threads < na ? threads : na);
+    as.stride = (size_t)3 * k3 + (m->H0inv_Gp.dense ? 0 : (size_t)5 * n);
+    DR_TRY(dr_calloc((size_t)as.slots, as.stride * sizeof(double), &as.work, err));
+    dr_parallel_for(as.slots, 1, assemble_slots, &as);
+    free(as.work);
     return DR_OK;
 }
 
@@ -215,28 +326,164 @@ static void body_tractions(Body *b)
     }
 }
 
-/* Apply a force change δ at end e of constraint k: the summed vertex force and the predicted positions. */
-static void apply_force(Body *bodies, const Con *k, const double d[3])
+/* ---- the predictions during a sweep ---------------------------------------------------------------------------
+ * A force change at active vertex a moves every prediction, P += W[:, 3a..3a+2] δ: a pass over 3 columns of W, and
+ * a sweep passes over all of W (20 MB for 529 active vertices), which memory bandwidth bounds. The changes of a
+ * block of consecutive constraints (at most PGS_BLOCK ends) are therefore collected and applied to P together, split
+ * over threads by rows. A constraint inside the block sees the block's earlier changes through the 3 × 3 blocks of W
+ * that couple its ends to theirs, copied once per step into a panel in the order the sweep reads them (picked out of
+ * W in every sweep they would cost a cache miss each). Every entry of P and every constraint value receives the same
+ * terms in the same order as when each change is applied at once, so the result depends on neither the blocking nor
+ * the thread count. */
+#define PGS_BLOCK 64
+_Static_assert(PGS_BLOCK >= 4, "a block holds the ends of at least one constraint");
+
+/* Values of W a range of rows must hold to be worth a thread (a team start costs some microseconds, a pass over
+   64 K doubles some tens). */
+#define PAR_VALUES 65536
+
+typedef struct Update {
+    int body, a;  /* active vertex a of body */
+    double de[3]; /* force change, world */
+} Update;
+
+typedef struct Block {
+    int n;
+    Update upd[PGS_BLOCK];
+} Block;
+
+/* The blocks of a step's constraints and their panel. */
+typedef struct Sweep {
+    int nblocks;
+    int *start;      /* nblocks + 1: the first constraint of each block */
+    int64_t *offset; /* nc: where each constraint's part of the panel begins */
+    double *panel;   /* per constraint, end e, earlier end f of the block on the same body: W(rows of e, columns of f),
+                        3 × 3 row-major */
+} Sweep;
+
+static void sweep_free(Sweep *sw)
+{
+    free(sw->start);
+    free(sw->offset);
+    free(sw->panel);
+    memset(sw, 0, sizeof *sw);
+}
+
+/* The blocks and the panel for the assembled W (step 3). Blocks pay only where a block's changes are split over
+   threads; elsewhere each constraint is a block of its own and the panel is empty. */
+static DrStatus sweep_init(const Body *bodies, int count, const Con *cons, int nc, Sweep *sw, DrError *err)
+{
+    memset(sw, 0, sizeof *sw);
+    long rows = 0;
+    for (int i = 0; i < count; i++) rows = bodies[i].na > rows ? bodies[i].na : rows;
+    rows *= 3;
+    int max_ends = dr_threads() > 1 && 3 * PGS_BLOCK * rows >= 2 * PAR_VALUES ? PGS_BLOCK : 1;
+    DR_TRY(dr_calloc((size_t)nc + 1, sizeof(int), &sw->start, err));
+    for (int i = 0, ends = max_ends; i < nc; i++) {
+        if (ends + cons[i].ne > max_ends) {
+            sw->start[sw->nblocks++] = i;
+            ends = 0;
+        }
+        ends += cons[i].ne;
+    }
+    sw->start[sw->nblocks] = nc;
+    DR_TRY(dr_calloc((size_t)nc + 1, sizeof(int64_t), &sw->offset, err));
+    int64_t len = 0;
+    for (int bl = 0; bl < sw->nblocks; bl++)
+        for (int i = sw->start[bl]; i < sw->start[bl + 1]; i++) {
+            sw->offset[i] = len;
+            for (int e = 0; e < cons[i].ne; e++)
+                for (int j = sw->start[bl]; j < i; j++)
+                    for (int f = 0; f < cons[j].ne; f++) len += 9 * (cons[j].body[f] == cons[i].body[e]);
+        }
+    sw->offset[nc] = len;
+    DR_TRY(dr_calloc(len > 0 ? (size_t)len : 1, sizeof(double), &sw->panel, err));
+    for (int bl = 0; bl < sw->nblocks; bl++)
+        for (int i = sw->start[bl]; i < sw->start[bl + 1]; i++) {
+            double *pn = &sw->panel[sw->offset[i]];
+            for (int e = 0; e < cons[i].ne; e++) {
+                const Body *b = &bodies[cons[i].body[e]];
+                int row = 3 * cons[i].local[e], k3 = 3 * b->na;
+                for (int j = sw->start[bl]; j < i; j++)
+                    for (int f = 0; f < cons[j].ne; f++) {
+                        if (cons[j].body[f] != cons[i].body[e]) continue;
+                        const double *w = &b->W[(size_t)(3 * cons[j].local[f]) * k3 + row];
+                        for (int r = 0; r < 3; r++)
+                            for (int c = 0; c < 3; c++) pn[3 * r + c] = w[(size_t)c * k3 + r];
+                        pn += 9;
+                    }
+            }
+        }
+    return DR_OK;
+}
+
+/* Record a force change δ of constraint k (w_e δ at end e) and add it to the summed vertex forces. */
+static void block_add(Body *bodies, Block *blk, const Con *k, const double d[3])
 {
     for (int e = 0; e < k->ne; e++) {
         Body *b = &bodies[k->body[e]];
-        int a = k->local[e], k3 = 3 * b->na;
-        double de[3] = {k->wt[e] * d[0], k->wt[e] * d[1], k->wt[e] * d[2]};
-        for (int c = 0; c < 3; c++) b->F[3 * a + c] += de[c];
-        for (int r = 0; r < k3; r++) {
-            const double *w = &b->W[(size_t)r * k3 + 3 * a];
-            b->P[r] += w[0] * de[0] + w[1] * de[1] + w[2] * de[2];
-        }
+        int a = k->local[e];
+        Update *u = &blk->upd[blk->n++];
+        *u = (Update){.body = k->body[e], .a = a, .de = {k->wt[e] * d[0], k->wt[e] * d[1], k->wt[e] * d[2]}};
+        for (int c = 0; c < 3; c++) b->F[3 * a + c] += u->de[c];
     }
 }
 
-static void con_value(const Body *bodies, const Con *k, double y[3])
+/* y = Σ_e w_e P_e for constraint i, with the block's changes so far added to P_e. */
+static void block_value(const Body *bodies, const Sweep *sw, const Block *blk, const Con *cons, int i, double y[3])
 {
+    const Con *k = &cons[i];
+    const double *pn = &sw->panel[sw->offset[i]];
     y[0] = y[1] = y[2] = 0;
     for (int e = 0; e < k->ne; e++) {
-        const Body *b = &bodies[k->body[e]];
-        for (int c = 0; c < 3; c++) y[c] += k->wt[e] * b->P[3 * k->local[e] + c];
+        const double *P = &bodies[k->body[e]].P[3 * k->local[e]];
+        double p[3] = {P[0], P[1], P[2]};
+        for (int q = 0; q < blk->n; q++) {
+            const Update *u = &blk->upd[q];
+            if (u->body != k->body[e]) continue;
+            for (int r = 0; r < 3; r++)
+                p[r] += pn[3 * r] * u->de[0] + pn[3 * r + 1] * u->de[1] + pn[3 * r + 2] * u->de[2];
+            pn += 9;
+        }
+        for (int c = 0; c < 3; c++) y[c] += k->wt[e] * p[c];
     }
+}
+
+typedef struct Flush {
+    Body *b;
+    int body;
+    const Block *blk;
+} Flush;
+
+/* Rows [8·begin, 8·end) of one body's predictions take the block's changes (ranges of whole cache lines). */
+static void flush_rows(long begin, long end, void *ctx)
+{
+    const Flush *f = ctx;
+    int k3 = 3 * f->b->na, r0 = (int)(8 * begin), r1 = (int)(8 * end < k3 ? 8 * end : k3);
+    double *restrict P = f->b->P;
+    for (int i = 0; i < f->blk->n; i++) {
+        const Update *u = &f->blk->upd[i];
+        if (u->body != f->body) continue;
+        const double *restrict w0 = &f->b->W[(size_t)(3 * u->a) * k3], *restrict w1 = w0 + k3,
+                               *restrict w2 = w1 + k3;
+        double d0 = u->de[0], d1 = u->de[1], d2 = u->de[2];
+#pragma omp simd
+        for (int r = r0; r < r1; r++) P[r] += w0[r] * d0 + w1[r] * d1 + w2[r] * d2;
+    }
+}
+
+/* Apply the block's changes to the predictions of every body and empty it. */
+static void block_flush(Body *bodies, int count, Block *blk)
+{
+    for (int i = 0; i < count; i++) {
+        int nu = 0;
+        for (int q = 0; q < blk->n; q++) nu += blk->upd[q].body == i;
+        if (nu == 0) continue;
+        Flush f = {.b = &bodies[i], .body = i, .blk = blk};
+        long lines = (3L * bodies[i].na + 7) / 8, grain = PAR_VALUES / (8 * 3 * (long)nu) + 1;
+        dr_parallel_for(lines, grain, flush_rows, &f);
+    }
+    blk->n = 0;
 }
 
 /* The 3 × 3 diagonal block of the constraint response: Σ_e Σ_e' s_e s_e' W(e, e') over ends on one body. */
@@ -251,13 +498,13 @@ static void con_block(const Body *bodies, const Con *k, double K[9])
             for (int r = 0; r < 3; r++)
                 for (int c = 0; c < 3; c++)
                     K[3 * r + c] +=
-                        k->wt[e] * k->wt[f] * b->W[(size_t)(3 * k->local[e] + r) * k3 + 3 * k->local[f] + c];
+                        k->wt[e] * k->wt[f] * b->W[(size_t)(3 * k->local[f] + c) * k3 + 3 * k->local[e] + r];
         }
 }
 
 static void contact_prepare(const Body *bodies, Con *k)
 {
-    double K[9], Kn[3], Kt[4];
+    double *K = k->K, Kn[3], Kt[4];
     con_block(bodies, k, K);
     bem_m3_vec(K, k->n, Kn);
     k->knn = dot3(k->n, Kn);
@@ -276,20 +523,26 @@ static void contact_prepare(const Body *bodies, Con *k)
 }
 
 /* One projected Gauss–Seidel sweep. Returns the largest force change; *viol the largest linearised violation met. */
-static double pgs_sweep(Body *bodies, Con *cons, int nc, double thickness, double *viol)
+static double pgs_sweep(Body *bodies, int count, Con *cons, const Sweep *sw, double thickness, double *viol)
 {
     double dmax = 0, vmax = 0;
-    for (int i = 0; i < nc; i++) {
+    int nc = sw->start[sw->nblocks];
+    Block blk = {0};
+    for (int i = 0, bl = 0; i < nc; i++) {
+        if (i == sw->start[bl + 1]) {
+            block_flush(bodies, count, &blk);
+            bl++;
+        }
         Con *k = &cons[i];
         double y[3], d[3];
-        con_value(bodies, k, y);
+        block_value(bodies, sw, &blk, cons, i, y);
         if (k->type == CON_FIXED || k->type == CON_JOINT) {
             double r[3];
             for (int c = 0; c < 3; c++) r[c] = k->target[c] - y[c];
             vmax = fmax(vmax, sqrt(dot3(r, r)));
             bem_m3_vec(k->Kinv, r, d);
             for (int c = 0; c < 3; c++) k->f[c] += d[c];
-            apply_force(bodies, k, d);
+            block_add(bodies, &blk, k, d);
             dmax = fmax(dmax, sqrt(dot3(d, d)));
             continue;
         }
@@ -299,11 +552,14 @@ static double pgs_sweep(Body *bodies, Con *cons, int nc, double thickness, doubl
         double fn = dot3(k->f, k->n);
         if (fn > 0 || gap < 0) vmax = fmax(vmax, fmax(-gap, 0));
         double fn_new = fmax(0.0, fn - gap / k->knn), dfn = fn_new - fn;
-        for (int c = 0; c < 3; c++) d[c] = dfn * k->n[c];
-        apply_force(bodies, k, d);
+        double dn[3], Kdn[3];
+        for (int c = 0; c < 3; c++) dn[c] = dfn * k->n[c];
         double change = fabs(dfn);
-        /* friction: drive the slip y − slip0 in the tangent plane to zero, then project on |f_t| ≤ μ f_n */
-        con_value(bodies, k, y);
+        /* friction: drive the slip y − slip0 in the tangent plane to zero, then project on |f_t| ≤ μ f_n. The value
+           after the normal update is y + K δn (K this constraint's own block), so both updates reach the predictions
+           as one change and a sweep reads W once, not twice */
+        bem_m3_vec(k->K, dn, Kdn);
+        for (int c = 0; c < 3; c++) y[c] += Kdn[c];
         double sl[3] = {y[0] - k->slip0[0], y[1] - k->slip0[1], y[2] - k->slip0[2]};
         double s1 = dot3(sl, k->t1), s2 = dot3(sl, k->t2);
         double ft1 = dot3(k->f, k->t1) , ft2 = dot3(k->f, k->t2);
@@ -315,10 +571,12 @@ static double pgs_sweep(Body *bodies, Con *cons, int nc, double thickness, doubl
             n2 *= sc;
         }
         for (int c = 0; c < 3; c++) d[c] = (n1 - ft1) * k->t1[c] + (n2 - ft2) * k->t2[c];
-        apply_force(bodies, k, d);
+        double dsum[3] = {dn[0] + d[0], dn[1] + d[1], dn[2] + d[2]};
+        block_add(bodies, &blk, k, dsum);
         for (int c = 0; c < 3; c++) k->f[c] += d[c] + dfn * k->n[c];
         dmax = fmax(dmax, fmax(change, sqrt(dot3(d, d))));
     }
+    block_flush(bodies, count, &blk);
     *viol = vmax;
     return dmax;
 }
@@ -334,8 +592,6 @@ static void body_free(Body *b)
     free(b->W);
     free(b->F);
     free(b->P);
-    free(b->col);
-    free(b->scratch);
 }
 
 static DrStatus check_input(DrBemSolid *const *solids, int count, const DrBemConstraints *c, DrError *err)
@@ -647,8 +903,6 @@ DrStatus dr_bem_solids_step(DrBemSolid *const *solids, int count, const DrBemCon
         status = dr_calloc((size_t)b->s->nv, sizeof(int), &b->map, err);
         double **arr[] = {&b->V0, &b->Vstart, &b->Vt, &b->p};
         for (int a = 0; status == DR_OK && a < 4; a++) status = dr_calloc(n, sizeof(double), arr[a], err);
-        if (status == DR_OK) status = dr_calloc(2 * n, sizeof(double), &b->col, err);
-        if (status == DR_OK) status = dr_calloc(2 * n, sizeof(double), &b->scratch, err);
         if (status != DR_OK) break;
         for (int v = 0; v < b->s->nv; v++) b->map[v] = -1;
         V0s[i] = b->V0, Vts[i] = b->Vt, Vss[i] = b->Vstart;
@@ -735,6 +989,8 @@ DrStatus dr_bem_solids_step(DrBemSolid *const *solids, int count, const DrBemCon
                                       k->type == CON_FIXED ? i : i - c->fixed_count, "fix the constraint description");
         }
     }
+    Sweep sweep = {0};
+    if (status == DR_OK && nc > 0) status = sweep_init(bodies, count, cons, nc, &sweep, err);
     stats.seconds_assembly = dr_time_now() - t_as;
 
     /* 4–5. Gauss–Seidel, then trial steps with the forces found until the measured error is within tolerance */
@@ -742,7 +998,7 @@ DrStatus dr_bem_solids_step(DrBemSolid *const *solids, int count, const DrBemCon
     for (int pass = 0; pass < c->max_passes && status == DR_OK && nc > 0; pass++) {
         double t_p = dr_time_now();
         for (int it = 0; it < c->max_iterations; it++) {
-            double viol, dmax = pgs_sweep(bodies, cons, nc, c->thickness, &viol);
+            double viol, dmax = pgs_sweep(bodies, count, cons, &sweep, c->thickness, &viol);
             stats.iterations++;
             double fmax_ = 0;
             for (int i = 0; i < nc; i++) fmax_ = fmax(fmax_, sqrt(dot3(cons[i].f, cons[i].f)));
@@ -795,6 +1051,7 @@ DrStatus dr_bem_solids_step(DrBemSolid *const *solids, int count, const DrBemCon
                               "BEM constraints: the constraint error is %.3g m after %d passes (tolerance %.3g m); "
                               "raise max_passes or max_iterations, or take a smaller time step",
                               residual, stats.passes, c->tolerance);
+    sweep_free(&sweep);
     for (int i = 0; i < count; i++) body_free(&bodies[i]);
     free(bodies);
     free(cons);

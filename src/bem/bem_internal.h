@@ -101,6 +101,11 @@ void bem_m3_vec(const double *A, const double *x, double *y);
 bool bem_m3_inv(const double *A, double *inv);
 void bem_rotation_exp(const double v[3], double *Rm);
 
+/* The kept coefficients of H₀⁻¹G′ by column, built on a body's first constrained step by the constraint solver
+ * (bem_constraint.c), which needs single columns of the response; freed with the body. */
+typedef struct BemColumns BemColumns;
+void bem_columns_free(BemColumns **c);
+
 /* A body in a shot (bem_solid.c); the constraint solver reads its frame and matrices. */
 struct DrBemSolid {
     const DrBemMatrices *m;
@@ -120,6 +125,7 @@ struct DrBemSolid {
     BemCMatF *Hf, *Gf;      /* compact copies of H_k, G_k (k ≥ 1; index k) for the history sums, or NULL */
     double *hz;             /* H₀⁻¹h of the history sum for step hz_step: trial steps of one step share it */
     long hz_step;           /* 0: none */
+    BemColumns *gp_cols;    /* NULL until the first constrained step */
 };
 
 /* dr_bem_solid_step with commit = true; with commit = false a trial step: V_out (3N) receives the world positions

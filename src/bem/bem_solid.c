@@ -151,6 +151,7 @@ void dr_bem_solid_destroy(DrBemSolid **ps)
     free(s->s_z);
     free(s->s_r);
     free(s->s_coeff);
+    bem_columns_free(&s->gp_cols);
     free(s);
     *ps = NULL;
 }
