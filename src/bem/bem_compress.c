@@ -5,11 +5,15 @@
 #include "bem_internal.h"
 
 #include <limits.h>
+#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/mman.h>
 #ifdef _OPENMP
 #include <omp.h>
+#endif
+#if defined(__x86_64__) || defined(__i386__)
+#include <immintrin.h>
 #endif
 
 /* 1/√2, the weight of both taps of the orthonormal Haar pair. */
@@ -622,63 +626,182 @@ static void csr_matvec(const DrBemCMat *m, const double *restrict x, double *res
     }
 }
 
-/* ---- compact copies for the runtime's history products ------------------------------------------------------
- * A step's history sum reads every kept coefficient of 2·n_max matrices once: memory traffic, not arithmetic, sets
- * its cost. Single-precision values and 16-bit columns halve the bytes per coefficient (12 → 6); the rounding
- * (6e-8 relative) is far below the compression error it rides on (1e-2 to 1e-1 at 8–32×). */
-bool bem_cmat_compact(const DrBemCMat *m, BemCMatF *out)
+/* ---- the runtime's compact copies ------------------------------------------------------------------------------
+ * A body's step reads every kept coefficient of 2·n_max + 2 matrices once. Stored as 12 bytes (double, int32 column)
+ * that is memory traffic at the machine's bandwidth; the compact copy holds 4 bytes: a 16-bit fixed-point value with
+ * one scale per row (row maximum / 32767) and a 16-bit column. The rounding, at most 1.5e-5 of the row's largest
+ * coefficient, gives products within about 2e-4 of the double ones, far below the compression error it rides on
+ * (1e-2 to 1e-1 at 8–32×). With 4 bytes the product is bound by arithmetic instead, so on x86 with AVX2 a row is
+ * summed eight coefficients at a time in two vector registers whose lanes are exactly the scalar loop's eight
+ * accumulators: both give the same bits. */
+bool bem_cmat_compact(const DrBemCMat *m, BemCMatQ *out)
 {
     memset(out, 0, sizeof *out);
     if (m->dense || m->n > 65535) return false;
     out->n = m->n;
     out->nnz = m->nnz;
+    size_t nz = (size_t)(m->nnz > 0 ? m->nnz : 1);
+    DrError err; /* no room for the copy only means the double products serve */
     out->row_ptr = malloc(sizeof(int64_t) * ((size_t)m->n + 1));
-    out->col = malloc(sizeof(uint16_t) * (size_t)(m->nnz > 0 ? m->nnz : 1));
-    out->val = malloc(sizeof(float) * (size_t)(m->nnz > 0 ? m->nnz : 1));
-    if (!out->row_ptr || !out->col || !out->val) {
-        bem_cmatf_free(out);
+    out->scale = malloc(sizeof(double) * (size_t)(m->n > 0 ? m->n : 1));
+    /* huge pages where offered: every step streams these arrays once */
+    if (alloc_aligned(nz, sizeof(uint16_t), &out->col, &err) != DR_OK) out->col = NULL;
+    if (alloc_aligned(nz, sizeof(int16_t), &out->val, &err) != DR_OK) out->val = NULL;
+    if (!out->row_ptr || !out->col || !out->val || !out->scale) {
+        bem_cmatq_free(out);
         return false;
     }
     memcpy(out->row_ptr, m->row_ptr, sizeof(int64_t) * ((size_t)m->n + 1));
-    for (int64_t k = 0; k < m->nnz; k++) {
-        out->col[k] = (uint16_t)m->col[k];
-        out->val[k] = (float)m->val[k];
+    for (int i = 0; i < m->n; i++) {
+        double big = 0;
+        for (int64_t k = m->row_ptr[i]; k < m->row_ptr[i + 1]; k++) big = fmax(big, fabs(m->val[k]));
+        double scale = big > 0 ? big / 32767.0 : 1.0;
+        out->scale[i] = scale;
+        for (int64_t k = m->row_ptr[i]; k < m->row_ptr[i + 1]; k++) {
+            long q = lrint(m->val[k] / scale);
+            out->val[k] = (int16_t)(q > 32767 ? 32767 : q < -32767 ? -32767 : q);
+            out->col[k] = (uint16_t)m->col[k];
+        }
     }
     return true;
 }
 
-void bem_cmatf_free(BemCMatF *m)
+void bem_cmatq_free(BemCMatQ *m)
 {
     free(m->row_ptr);
     free(m->col);
     free(m->val);
+    free(m->scale);
     memset(m, 0, sizeof *m);
 }
 
-/* y += sign·M̃ x in the coefficient domain; rows split as in csr_matvec, each summed in a fixed order. */
-void bem_cmatf_matvec_acc(const BemCMatF *m, const double *restrict x, double sign, double *restrict y)
+static bool cmatq_scalar_only;
+
+void bem_cmatq_scalar_only(bool on) { cmatq_scalar_only = on; }
+
+/* A row's sum in a fixed order: accumulator j (0..7) takes the coefficients j, j + 8, …; the last (fewer than 8)
+   go to accumulators 0, 1, … in turn; then ((s0 + s4) + (s1 + s5)) + ((s2 + s6) + (s3 + s7)). Eight independent
+   sums keep the adds from waiting on each other. */
+static double cmatq_row_sum(double s[8])
 {
-    int n = m->n, parts = m->nnz >= PAR_MIN ? max_threads() : 1;
+    return ((s[0] + s[4]) + (s[1] + s[5])) + ((s[2] + s[6]) + (s[3] + s[7]));
+}
+
+static void cmatq_rows(const BemCMatQ *m, int r0, int r1, const double *restrict x, double sign, double *restrict y)
+{
     const int64_t *row_ptr = m->row_ptr;
     const uint16_t *col = m->col;
-    const float *val = m->val;
+    const int16_t *val = m->val;
+    for (int i = r0; i < r1; i++) {
+        int64_t k = row_ptr[i], end = row_ptr[i + 1];
+        double s[8] = {0, 0, 0, 0, 0, 0, 0, 0};
+        for (; k + 8 <= end; k += 8)
+            for (int j = 0; j < 8; j++) s[j] += (double)val[k + j] * x[col[k + j]];
+        for (int j = 0; k < end; k++, j++) s[j] += (double)val[k] * x[col[k]];
+        y[i] += sign * m->scale[i] * cmatq_row_sum(s);
+    }
+}
+
+#if defined(__x86_64__) || defined(__i386__)
+#define CMATQ_AVX2 1
+/* The same sums with accumulators 0–3 and 4–7 as the lanes of two vector registers. */
+__attribute__((target("avx2"))) static void cmatq_rows_avx2(const BemCMatQ *m, int r0, int r1,
+                                                             const double *restrict x, double sign,
+                                                             double *restrict y)
+{
+    const int64_t *row_ptr = m->row_ptr;
+    const uint16_t *col = m->col;
+    const int16_t *val = m->val;
+    for (int i = r0; i < r1; i++) {
+        int64_t k = row_ptr[i], end = row_ptr[i + 1];
+        __m256d a0 = _mm256_setzero_pd(), a1 = _mm256_setzero_pd();
+        for (; k + 8 <= end; k += 8) {
+            const uint16_t *c = col + k;
+            __m128d l0 = _mm_loadh_pd(_mm_load_sd(x + c[0]), x + c[1]);
+            __m128d h0 = _mm_loadh_pd(_mm_load_sd(x + c[2]), x + c[3]);
+            __m128d l1 = _mm_loadh_pd(_mm_load_sd(x + c[4]), x + c[5]);
+            __m128d h1 = _mm_loadh_pd(_mm_load_sd(x + c[6]), x + c[7]);
+            __m256d x0 = _mm256_insertf128_pd(_mm256_castpd128_pd256(l0), h0, 1);
+            __m256d x1 = _mm256_insertf128_pd(_mm256_castpd128_pd256(l1), h1, 1);
+            __m128i q = _mm_loadu_si128((const __m128i *)(val + k));
+            __m256d v0 = _mm256_cvtepi32_pd(_mm_cvtepi16_epi32(q));
+            __m256d v1 = _mm256_cvtepi32_pd(_mm_cvtepi16_epi32(_mm_srli_si128(q, 8)));
+            a0 = _mm256_add_pd(a0, _mm256_mul_pd(v0, x0));
+            a1 = _mm256_add_pd(a1, _mm256_mul_pd(v1, x1));
+        }
+        double s[8];
+        _mm256_storeu_pd(s, a0);
+        _mm256_storeu_pd(s + 4, a1);
+        for (int j = 0; k < end; k++, j++) s[j] += (double)val[k] * x[col[k]];
+        y[i] += sign * m->scale[i] * cmatq_row_sum(s);
+    }
+}
+#endif
+
+/* Cost of the first r rows of the products in a sum, in coefficients: the kept coefficients plus a row's fixed
+   work (its sum's setup and reduction, about eight coefficients' worth) per matrix. */
+#define CMATQ_ROW_COST 8
+
+static int64_t cmatq_cost(const BemCMatQ *const *mats, int count, int r)
+{
+    int64_t c = 0;
+    for (int j = 0; j < count; j++) c += mats[j]->row_ptr[r] + (int64_t)CMATQ_ROW_COST * r;
+    return c;
+}
+
+/* y += Σ_j sign_j·M̃_j x̃_j in the coefficient domain, for matrices of one size. One row range per thread, of equal
+ * cost over all the matrices, serves every product, so the threads go through the whole sum without waiting on
+ * each other between matrices; each row is summed by one thread, matrix after matrix in the order given, so the
+ * result does not depend on the thread count. */
+void bem_cmatq_sum(const BemCMatQ *const *mats, const double *const *x, const double *sign, int count, double *y)
+{
+    if (count == 0) return;
+    int n = mats[0]->n;
+    int64_t total = cmatq_cost(mats, count, n);
+    int parts = total >= PAR_MIN ? max_threads() : 1;
+#ifdef CMATQ_AVX2
+    bool avx2 = !cmatq_scalar_only && __builtin_cpu_supports("avx2");
+#endif
 #pragma omp parallel for schedule(static) num_threads(parts) if (parts > 1)
     for (int p = 0; p < parts; p++) {
-        int r0, r1;
-        row_range(row_ptr, n, m->nnz, p, parts, &r0, &r1);
-        for (int i = r0; i < r1; i++) {
-            int64_t k = row_ptr[i], end = row_ptr[i + 1];
-            double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0;
-            for (; k + 4 <= end; k += 4) {
-                s0 += (double)val[k] * x[col[k]];
-                s1 += (double)val[k + 1] * x[col[k + 1]];
-                s2 += (double)val[k + 2] * x[col[k + 2]];
-                s3 += (double)val[k + 3] * x[col[k + 3]];
+        int bound[2];
+        for (int e = 0; e < 2; e++) { /* the first row whose cost reaches total·(p + e)/parts */
+            int64_t target = total * (p + e) / parts;
+            int lo = 0, hi = n;
+            while (lo < hi) {
+                int mid = lo + (hi - lo) / 2;
+                if (cmatq_cost(mats, count, mid) < target)
+                    lo = mid + 1;
+                else
+                    hi = mid;
             }
-            for (; k < end; k++) s0 += (double)val[k] * x[col[k]];
-            y[i] += sign * ((s0 + s1) + (s2 + s3));
+            bound[e] = e == 1 && p == parts - 1 ? n : lo;
+        }
+        for (int j = 0; j < count; j++) {
+#ifdef CMATQ_AVX2
+            if (avx2) {
+                cmatq_rows_avx2(mats[j], bound[0], bound[1], x[j], sign[j], y);
+                continue;
+            }
+#endif
+            cmatq_rows(mats[j], bound[0], bound[1], x[j], sign[j], y);
         }
     }
+}
+
+void bem_cmatq_matvec_acc(const BemCMatQ *m, const double *x, double sign, double *y)
+{
+    bem_cmatq_sum(&m, &x, &sign, 1, y);
+}
+
+void bem_cmatq_matvec(const DrBemLayout *l, const BemCMatQ *m, const double *x, double *y, double *scratch)
+{
+    int n = m->n;
+    double *xt = scratch, *yt = scratch + n;
+    dr_bem_layout_to_coeff(l, false, x, xt, yt);
+    memset(yt, 0, sizeof(double) * (size_t)n);
+    bem_cmatq_matvec_acc(m, xt, 1.0, yt);
+    dr_bem_layout_from_coeff(l, false, yt, y, scratch + 2 * (size_t)n);
 }
 
 void dr_bem_cmat_matvec(const DrBemLayout *l, const DrBemCMat *m, const double *x, double *y, double *scratch)

@@ -81,18 +81,26 @@ DR_NODISCARD DrStatus bem_laplace_matrices(const DrTriMesh *mesh, const DrBemDes
                                            double complex *H, double complex *G, double complex *D,
                                            double complex *Q, DrError *err);
 
-/* A compressed matrix's coefficients in single precision with 16-bit columns (3N ≤ 65535), for the history sums
- * of a body's step (bem_compress.c). bem_cmat_compact is false for dense matrices, larger ones, or no memory. */
-typedef struct BemCMatF {
+/* A compressed matrix's coefficients in the runtime's compact form (bem_compress.c): 16-bit fixed-point values
+ * with one scale per row and 16-bit columns (3N ≤ 65535), 4 bytes per coefficient against 12; products within
+ * about 2e-4 of the double ones. bem_cmat_compact is false for dense matrices, larger ones, or no memory. */
+typedef struct BemCMatQ {
     int n;
     int64_t nnz;
     int64_t *row_ptr;
     uint16_t *col;
-    float *val;
-} BemCMatF;
-bool bem_cmat_compact(const DrBemCMat *m, BemCMatF *out);
-void bem_cmatf_free(BemCMatF *m);
-void bem_cmatf_matvec_acc(const BemCMatF *m, const double *x, double sign, double *y); /* y += sign·M̃x */
+    int16_t *val;
+    double *scale; /* row i's coefficients are scale[i]·val */
+} BemCMatQ;
+bool bem_cmat_compact(const DrBemCMat *m, BemCMatQ *out);
+void bem_cmatq_free(BemCMatQ *m);
+void bem_cmatq_matvec_acc(const BemCMatQ *m, const double *x, double sign, double *y); /* ỹ += sign·M̃x̃ */
+/* ỹ += Σ_j sign_j·M̃_j x̃_j over `count` matrices of one size, in one pass of the threads (the history sum). */
+void bem_cmatq_sum(const BemCMatQ *const *mats, const double *const *x, const double *sign, int count, double *y);
+/* y = M x in natural order (a compressed set's layout); scratch holds 4·3N doubles. */
+void bem_cmatq_matvec(const DrBemLayout *l, const BemCMatQ *m, const double *x, double *y, double *scratch);
+/* Tests: true forces the scalar loop where the vector one would run (both give the same bits). */
+void bem_cmatq_scalar_only(bool on);
 
 /* Row-major 3×3 helpers shared by the runtime and the constraint solver (bem_solid.c): C = AB, y = Ax, the inverse
  * (false when singular), and e^{[v]×} by Rodrigues' formula (eq. 11g). */
@@ -121,8 +129,13 @@ struct DrBemSolid {
     double c0[3], wsum;     /* w-weighted centroid of ref, Σw (§3.2.1) */
     double *E, *F;          /* H₀⁻¹D₀ and H₀⁻¹Q₀, 3N × 3: u = z + E b + F α solves eq. (9) for given b, α */
     double *Epinv, *Fpinv;  /* 3 × 3N least-squares inverses of E and F (§3.2.1) */
-    double *s_ht, *s_tmp, *s_h, *s_p, *s_u, *s_z, *s_r, *s_coeff; /* scratch, 3N each (coeff: 2·3N) */
-    BemCMatF *Hf, *Gf;      /* compact copies of H_k, G_k (k ≥ 1; index k) for the history sums, or NULL */
+    double *s_ht, *s_tmp, *s_h, *s_p, *s_u, *s_z, *s_r, *s_coeff; /* scratch, 3N each (coeff: 4·3N) */
+    bool compact;           /* the products below serve every step (not for dense sets or 3N > 65535) */
+    BemCMatQ *Hq, *Gq;      /* compact copies of H_k, G_k (k ≥ 1; index k), or NULL */
+    BemCMatQ H0q, Gpq;      /* compact copies of H₀⁻¹ and H₀⁻¹G′ */
+    const BemCMatQ **sum_mats; /* 2·nmax: the history sum's matrices, vectors and signs (bem_cmatq_sum) */
+    const double **sum_x;
+    double *sum_sign;
     double *hz;             /* H₀⁻¹h of the history sum for step hz_step: trial steps of one step share it */
     long hz_step;           /* 0: none */
     BemColumns *gp_cols;    /* NULL until the first constrained step */

@@ -121,6 +121,32 @@ static bool pinv_n3(const double *M, int n, double *P)
     return true;
 }
 
+static void compact_free(DrBemSolid *s)
+{
+    if (s->Hq)
+        for (int k = 1; k <= s->nmax; k++) {
+            bem_cmatq_free(&s->Hq[k]);
+            bem_cmatq_free(&s->Gq[k]);
+        }
+    free(s->Hq);
+    free(s->Gq);
+    s->Hq = s->Gq = NULL;
+    bem_cmatq_free(&s->H0q);
+    bem_cmatq_free(&s->Gpq);
+}
+
+/* The compact copies every product of a step reads (bem_compress.c); false leaves the double products in use. */
+static bool compact_make(DrBemSolid *s)
+{
+    const DrBemMatrices *m = s->m;
+    s->Hq = calloc((size_t)s->nmax + 1, sizeof(BemCMatQ));
+    s->Gq = calloc((size_t)s->nmax + 1, sizeof(BemCMatQ));
+    bool ok = s->Hq && s->Gq && bem_cmat_compact(&m->H0inv, &s->H0q) && bem_cmat_compact(&m->H0inv_Gp, &s->Gpq);
+    for (int k = 1; ok && k <= s->nmax; k++) ok = bem_cmat_compact(&m->H[k], &s->Hq[k]) && bem_cmat_compact(&m->G[k], &s->Gq[k]);
+    if (!ok) compact_free(s);
+    return ok;
+}
+
 void dr_bem_solid_destroy(DrBemSolid **ps)
 {
     DrBemSolid *s = ps ? *ps : NULL;
@@ -139,13 +165,10 @@ void dr_bem_solid_destroy(DrBemSolid **ps)
     free(s->s_tmp);
     free(s->s_h);
     free(s->hz);
-    if (s->Hf)
-        for (int k = 1; k <= s->nmax; k++) {
-            bem_cmatf_free(&s->Hf[k]);
-            bem_cmatf_free(&s->Gf[k]);
-        }
-    free(s->Hf);
-    free(s->Gf);
+    compact_free(s);
+    free(s->sum_mats);
+    free(s->sum_x);
+    free(s->sum_sign);
     free(s->s_p);
     free(s->s_u);
     free(s->s_z);
@@ -154,6 +177,21 @@ void dr_bem_solid_destroy(DrBemSolid **ps)
     bem_columns_free(&s->gp_cols);
     free(s);
     *ps = NULL;
+}
+
+/* y = M x (natural order) through M's compact copy Mq when the solid has them, using the solid's transform
+   scratch. */
+static void apply(const DrBemSolid *s, const DrBemCMat *M, const BemCMatQ *Mq, const double *x, double *y)
+{
+    if (s->compact) bem_cmatq_matvec(&s->m->layout, Mq, x, y, s->s_coeff);
+    else dr_bem_cmat_matvec(&s->m->layout, M, x, y, s->s_coeff);
+}
+
+static bool nonzero(const double *x, int n)
+{
+    for (int i = 0; i < n; i++)
+        if (x[i] != 0.0) return true;
+    return false;
 }
 
 DrStatus dr_bem_solid_create(const DrBemMatrices *m, const DrBemSolidDesc *d, DrBemSolid **out, DrError *err)
@@ -178,29 +216,17 @@ DrStatus dr_bem_solid_create(const DrBemMatrices *m, const DrBemSolidDesc *d, Dr
     for (int i = 0; st == DR_OK && i < 4; i++) st = dr_calloc(3 * n, sizeof(double), n3[i], err);
     double **scratch[] = {&s->s_ht, &s->s_tmp, &s->s_h, &s->s_p, &s->s_u, &s->s_z, &s->s_r};
     for (int i = 0; st == DR_OK && i < 7; i++) st = dr_calloc(n, sizeof(double), scratch[i], err);
-    if (st == DR_OK) st = dr_calloc(2 * n, sizeof(double), &s->s_coeff, err);
+    if (st == DR_OK) st = dr_calloc(4 * n, sizeof(double), &s->s_coeff, err);
     if (st == DR_OK) st = dr_calloc(n, sizeof(double), &s->hz, err);
+    if (st == DR_OK) st = dr_calloc(2 * nh, sizeof *s->sum_mats, &s->sum_mats, err);
+    if (st == DR_OK) st = dr_calloc(2 * nh, sizeof *s->sum_x, &s->sum_x, err);
+    if (st == DR_OK) st = dr_calloc(2 * nh, sizeof *s->sum_sign, &s->sum_sign, err);
     if (st != DR_OK) {
         dr_bem_solid_destroy(&s);
         return st;
     }
-    /* compact copies of the history matrices: half the bytes a step reads (see bem_cmatf_matvec_acc) */
-    if (!s->dense) {
-        s->Hf = calloc((size_t)s->nmax + 1, sizeof(BemCMatF));
-        s->Gf = calloc((size_t)s->nmax + 1, sizeof(BemCMatF));
-        bool ok = s->Hf && s->Gf;
-        for (int k = 1; ok && k <= s->nmax; k++) ok = bem_cmat_compact(&m->H[k], &s->Hf[k]) && bem_cmat_compact(&m->G[k], &s->Gf[k]);
-        if (!ok) { /* the double-precision products serve instead */
-            if (s->Hf && s->Gf)
-                for (int k = 1; k <= s->nmax; k++) {
-                    bem_cmatf_free(&s->Hf[k]);
-                    bem_cmatf_free(&s->Gf[k]);
-                }
-            free(s->Hf);
-            free(s->Gf);
-            s->Hf = s->Gf = NULL;
-        }
-    }
+    /* compact copies of every matrix a step multiplies by: a third of the bytes a step reads (bem_compress.c) */
+    if (!s->dense) s->compact = compact_make(s);
     const double *xb = m->body.centroid;
     for (int v = 0; v < s->nv; v++)
         for (int c = 0; c < 3; c++) s->ref[3 * v + c] = m->x[3 * v + c] - xb[c];
@@ -213,10 +239,10 @@ DrStatus dr_bem_solid_create(const DrBemMatrices *m, const DrBemSolidDesc *d, Dr
     /* E = H₀⁻¹D₀ and F = H₀⁻¹Q₀ with the same (compressed) H₀⁻¹ the steps use */
     for (int c = 0; c < 3; c++) {
         for (int r = 0; r < s->n; r++) s->s_tmp[r] = m->D[3 * r + c];
-        dr_bem_cmat_matvec(&m->layout, &m->H0inv, s->s_tmp, s->s_u, s->s_coeff);
+        apply(s, &m->H0inv, &s->H0q, s->s_tmp, s->s_u);
         for (int r = 0; r < s->n; r++) s->E[3 * r + c] = s->s_u[r];
         for (int r = 0; r < s->n; r++) s->s_tmp[r] = m->Q[3 * r + c];
-        dr_bem_cmat_matvec(&m->layout, &m->H0inv, s->s_tmp, s->s_u, s->s_coeff);
+        apply(s, &m->H0inv, &s->H0q, s->s_tmp, s->s_u);
         for (int r = 0; r < s->n; r++) s->F[3 * r + c] = s->s_u[r];
     }
     if (!pinv_n3(s->E, s->n, s->Epinv) || !pinv_n3(s->F, s->n, s->Fpinv)) {
@@ -239,11 +265,6 @@ DrStatus dr_bem_solid_create(const DrBemMatrices *m, const DrBemSolidDesc *d, Dr
 
 static int slot(const DrBemSolid *s, long j) { return (int)((j - 1) % s->nmax); } /* step j ≥ 1 */
 
-/* y = M x (natural order), using the solid's transform scratch. */
-static void apply(const DrBemSolid *s, const DrBemCMat *M, const double *x, double *y)
-{
-    dr_bem_cmat_matvec(&s->m->layout, M, x, y, s->s_coeff);
-}
 
 /* out += Σ_c M[r][c] v[c] for an n × 3 row-major M. */
 static void add_n3(const double *M, int n, const double v[3], double *out)
@@ -283,26 +304,33 @@ DrStatus bem_solid_advance(DrBemSolid *s, const double *traction, bool commit, D
         double *ht = s->s_ht, *h = s->s_h;
         memset(ht, 0, nb);
         memset(h, 0, nb);
+        const BemCMatQ **mats = s->sum_mats;
+        const double **xs = s->sum_x;
+        double *signs = s->sum_sign;
+        int count = 0;
         for (int k = 1; k <= s->nmax && k < step; k++) {
             int sl = slot(s, step - k);
             const double *uk = s->ut_hist + (size_t)sl * n, *pk = s->pt_hist + (size_t)sl * n;
-            if (s->Hf) {
-                bem_cmatf_matvec_acc(&s->Hf[k], uk, -1.0, ht);
-                bem_cmatf_matvec_acc(&s->Gf[k], pk, 1.0, ht);
+            bool loaded_k = nonzero(pk, n); /* a traction-free past step adds nothing through G_k */
+            if (s->compact) {
+                mats[count] = &s->Hq[k], xs[count] = uk, signs[count++] = -1.0;
+                if (loaded_k) mats[count] = &s->Gq[k], xs[count] = pk, signs[count++] = 1.0;
                 continue;
             }
             dr_bem_cmat_matvec_coeff(&m->H[k], uk, tmp);
             for (int i = 0; i < n; i++) ht[i] -= tmp[i];
+            if (!loaded_k) continue;
             dr_bem_cmat_matvec_coeff(&m->G[k], pk, tmp);
             for (int i = 0; i < n; i++) ht[i] += tmp[i];
         }
+        bem_cmatq_sum(mats, xs, signs, count, ht);
         if (step > 1) dr_bem_layout_from_coeff(&m->layout, s->dense, ht, h, s->s_coeff);
         for (int k = 1; k <= s->nmax && k < step; k++) {
             int sl = slot(s, step - k);
             add_n3(m->D + (size_t)k * n * 3, n, s->b_hist + 3 * sl, h);
             add_n3(m->Q + (size_t)k * n * 3, n, s->al_hist + 3 * sl, h);
         }
-        if (step > 1) apply(s, &m->H0inv, h, s->hz);
+        if (step > 1) apply(s, &m->H0inv, &s->H0q, h, s->hz);
         else memset(s->hz, 0, nb);
         s->hz_step = step;
     }
@@ -329,7 +357,7 @@ DrStatus bem_solid_advance(DrBemSolid *s, const double *traction, bool commit, D
                 b0[i] += m->A[(size_t)i * n + c] * p[c]; /* a_ext = A p, α = C p (eq. 10) */
                 al0[i] += m->C[(size_t)i * n + c] * p[c];
             }
-        apply(s, &m->H0inv_Gp, p, z);
+        apply(s, &m->H0inv_Gp, &s->Gpq, p, z);
         double nb0[3] = {-b0[0], -b0[1], -b0[2]}, nal0[3] = {-al0[0], -al0[1], -al0[2]};
         add_n3(s->E, n, nb0, z);
         add_n3(s->F, n, nal0, z);

@@ -37,5 +37,6 @@ plot "< awk -F, 'NR>1 && $8==1' bem_compression.csv" using 1:9 with linespoints 
      "< awk -F, 'NR>1 && $8==1' bem_compression.csv" using 1:10 with linespoints title "12 products, 1 thread", \
      "< awk -F, 'NR>1 && $8==2' bem_compression.csv" using 1:10 with linespoints title "12 products, 2 threads", \
      "< awk -F, 'NR>1 && $8==1' bem_compression.csv" using 1:11 with linespoints lw 2 title "body step, 1 thread", \
-     "< awk -F, 'NR>1 && $8==2' bem_compression.csv" using 1:11 with linespoints lw 2 title "body step, 2 threads"
+     "< awk -F, 'NR>1 && $8==2' bem_compression.csv" using 1:11 with linespoints lw 2 title "body step, 2 threads", \
+     "< awk -F, 'NR>1 && $8==2' bem_compression.csv" using 1:15 with linespoints lw 2 title "traction-free step, 2 threads"
 unset multiplot

@@ -56,9 +56,17 @@ static DrTriMesh box_mesh(int seg)
 }
 
 
-/* Mean seconds per unconstrained step (history, solve, error correction) of a body under an uneven load, over
-   `steps` steps after as many warm-up steps, on `threads` threads. */
-static void time_steps(const DrBemMatrices *bm, int threads, int steps, double out[4])
+/* Seconds per unconstrained step of a body, on `threads` threads, over `steps` steps after as many warm-up steps
+   (the history window fills): out = {median total, mean history, mean solve, mean error correction}. The median
+   keeps a step disturbed by other work on the machine out of the figure. Loaded: an uneven traction on every third
+   vertex, so every history matrix is multiplied; traction-free (free flight): the G_k products are skipped. */
+static int cmp_double(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+static void time_steps(const DrBemMatrices *bm, int threads, int steps, bool loaded, double out[4])
 {
     omp_set_num_threads(threads);
     DrBemSolidDesc d;
@@ -69,24 +77,27 @@ static void time_steps(const DrBemMatrices *bm, int threads, int steps, double o
         fprintf(stderr, "bench_bem: %s\n", err.message);
         exit(1);
     }
-    double *p = calloc((size_t)bm->n, sizeof(double));
+    double *p = calloc((size_t)bm->n, sizeof(double)), *t = calloc((size_t)steps, sizeof(double));
     for (int v = 0; v < bm->nv; v++) p[3 * v + 1] = v % 3 == 0 ? 50.0 : 0.0;
     memset(out, 0, sizeof(double) * 4);
     for (int k = 0; k < 2 * steps; k++) {
         DrBemStepStats st;
         double t0 = dr_time_now();
-        if (dr_bem_solid_step(s, p, &st, &err) != DR_OK) {
+        if (dr_bem_solid_step(s, loaded ? p : NULL, &st, &err) != DR_OK) {
             fprintf(stderr, "bench_bem: %s\n", err.message);
             exit(1);
         }
-        double t = dr_time_now() - t0;
-        if (k < steps) continue; /* warm-up: the history window fills */
-        out[0] += t / steps;
+        double dt = dr_time_now() - t0;
+        if (k < steps) continue;
+        t[k - steps] = dt;
         out[1] += st.seconds_history / steps;
         out[2] += st.seconds_solve / steps;
         out[3] += st.seconds_correction / steps;
     }
+    qsort(t, (size_t)steps, sizeof *t, cmp_double);
+    out[0] = t[steps / 2];
     free(p);
+    free(t);
     dr_bem_solid_destroy(&s);
     omp_set_num_threads(2);
 }
@@ -155,9 +166,10 @@ static int run_one(int seg)
     struct rusage ru;
     getrusage(RUSAGE_SELF, &ru);
     int threads = omp_get_max_threads();
-    double st1[4], st2[4];
-    time_steps(bm, 1, 20, st1);
-    time_steps(bm, 2, 20, st2);
+    double st1[4], st2[4], stf[4];
+    time_steps(bm, 1, 40, true, st1);
+    time_steps(bm, 2, 40, true, st2);
+    time_steps(bm, 2, 40, false, stf);
     double ct[2][8];
     time_contact_steps(bm, 1, 3, ct[0]);
     time_contact_steps(bm, 2, 3, ct[1]);
@@ -166,12 +178,12 @@ static int run_one(int seg)
                         "PGS %.3f, final %.3f), %.0f contacts, %.0f sweeps\n",
                 m.nv, th + 1, ct[th][0], ct[th][1], ct[th][2], ct[th][3], ct[th][4], ct[th][5], ct[th][6], ct[th][7]);
     printf("%d,%d,%d,%.3f,%.3f,%.3f,%.3f,%.1f,%.1f,%.1f,%.3e,%.5f,%.5f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,"
-           "%.0f,%.0f\n",
+           "%.0f,%.0f,%.5f\n",
            m.nv, threads, bm->n_max,
            bm->stats.seconds_quadrature, bm->stats.seconds_inverse, bm->stats.seconds_compress, total,
            ru.ru_maxrss / 1024.0, bm->stats.bytes_dense / 1e6, bm->stats.bytes_compressed / 1e6,
            bm->stats.rigid_residual, st1[0], st2[0], ct[0][0], ct[1][0], ct[1][1], ct[1][2], ct[1][3], ct[1][4],
-           ct[1][5], st2[3], ct[1][6], ct[1][7]);
+           ct[1][5], st2[3], ct[1][6], ct[1][7], stf[0]);
     dr_bem_matrices_destroy(&bm);
     dr_trimesh_free(&m);
     return 0;
@@ -186,13 +198,14 @@ static void part_precompute(const char *csv)
     }
     const char *head = "vertices,threads,n_max,s_quadrature,s_inverse,s_compress,s_total,peak_mb,dense_mb,"
                        "compressed_mb,rigid_residual,s_step_1t,s_step_2t,s_contact_step_1t,s_contact_step_2t,s_trial_2t,"
-                       "s_detect_2t,s_assembly_2t,s_pgs_2t,s_final_2t,s_correction_2t,contacts,pgs_sweeps";
+                       "s_detect_2t,s_assembly_2t,s_pgs_2t,s_final_2t,s_correction_2t,contacts,pgs_sweeps,s_step_free_2t";
     fprintf(f, "%s\n", head);
     printf("### precompute against N (boxes, n_max as listed, 32x, %d threads)\n\n", omp_get_max_threads());
     printf("| vertices | n_max | quadrature s | H0 inverse s | compression s | total s | peak MB | dense MB | "
-           "kept MB | rigid residual | step s (1 / 2 threads) | step on the floor s (1 / 2 threads) | on the floor, 2 "
-           "threads: trial / detection / assembly / PGS / final / error correction s | contacts |\n"
-           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+           "kept MB | rigid residual | loaded step s (1 / 2 threads) | traction-free step s (2 threads) | step on the "
+           "floor s (1 / 2 threads) | on the floor, 2 threads: trial / detection / assembly / PGS / final / error "
+           "correction s | contacts |\n"
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
     int segs[] = {9, 13, 22};
     char self[1024];
     ssize_t len = readlink("/proc/self/exe", self, sizeof self - 1);
@@ -215,13 +228,13 @@ static void part_precompute(const char *csv)
         fputs(line, f);
         fflush(f);
         int nv, th, nmax;
-        double q, inv, comp, tot, peak, dmb, kmb, rr, s1, s2, c1, c2, tr, de, as, pg, fi, co, nc, sw;
-        if (sscanf(line, "%d,%d,%d,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf",
+        double q, inv, comp, tot, peak, dmb, kmb, rr, s1, s2, c1, c2, tr, de, as, pg, fi, co, nc, sw, sf;
+        if (sscanf(line, "%d,%d,%d,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf",
                    &nv, &th, &nmax, &q, &inv, &comp, &tot, &peak, &dmb, &kmb, &rr, &s1, &s2, &c1, &c2, &tr, &de, &as,
-                   &pg, &fi, &co, &nc, &sw) == 23)
-            printf("| %d | %d | %.1f | %.1f | %.1f | %.1f | %.0f | %.0f | %.0f | %.2e | %.4f / %.4f | %.3f / %.3f | "
-                   "%.3f / %.4f / %.3f / %.3f / %.3f / %.4f | %.0f |\n",
-                   nv, nmax, q, inv, comp, tot, peak, dmb, kmb, rr, s1, s2, c1, c2, tr, de, as, pg, fi, co, nc);
+                   &pg, &fi, &co, &nc, &sw, &sf) == 24)
+            printf("| %d | %d | %.1f | %.1f | %.1f | %.1f | %.0f | %.0f | %.0f | %.2e | %.4f / %.4f | %.4f | "
+                   "%.3f / %.3f | %.3f / %.4f / %.3f / %.3f / %.3f / %.4f | %.0f |\n",
+                   nv, nmax, q, inv, comp, tot, peak, dmb, kmb, rr, s1, s2, sf, c1, c2, tr, de, as, pg, fi, co, nc);
         fflush(stdout);
     }
     fclose(f);
@@ -283,12 +296,12 @@ static void part_compression(const char *csv)
         exit(1);
     }
     fprintf(f, "ratio,vertices,n_max,set_mb,h1_frobenius_err,matvec_err_smooth,matvec_err_random,threads,"
-               "s_matvec,s_step_history,s_step,s_step_history_part,s_step_solve,s_step_correction\n");
+               "s_matvec,s_step_history,s_step,s_step_history_part,s_step_solve,s_step_correction,s_step_free\n");
     printf("\n### compression (%d vertices, n_max %d; one product of H_1, and a step's history: %d products)\n\n",
            m.nv, bm->n_max, 2 * nk);
     printf("| ratio | set MB | H_1 Frobenius err | H_1 x err (smooth) | H_1 x err (random) | threads | s per product "
-           "| s per 12 products | s per unconstrained step (history + solve + correction) |\n"
-           "|---|---|---|---|---|---|---|---|---|\n");
+           "| s per 12 products | s per loaded step (history + solve + correction) | s per traction-free step |\n"
+           "|---|---|---|---|---|---|---|---|---|---|\n");
     double ratios[] = {1, 8, 32, 128};
     double *back = malloc(sizeof(double) * nn);
     for (int r = 0; r < 4; r++) {
@@ -321,9 +334,10 @@ static void part_compression(const char *csv)
         dr_bem_cmat_decompress(&bm->layout, &bm->H0inv_Gp, inv);
         if (dr_bem_compress(&bm->layout, inv, ratios[r], &view.H0inv_Gp, &err) != DR_OK) exit(1);
         free(inv);
-        double stp[2][4];
-        time_steps(&view, 1, 10, stp[0]);
-        time_steps(&view, 2, 10, stp[1]);
+        double stp[2][4], stfree[4];
+        time_steps(&view, 1, 30, true, stp[0]);
+        time_steps(&view, 2, 30, true, stp[1]);
+        time_steps(&view, 2, 30, false, stfree);
         dr_bem_cmat_free(&view.H0inv);
         dr_bem_cmat_free(&view.H0inv_Gp);
         free(H);
@@ -349,10 +363,11 @@ static void part_compression(const char *csv)
             for (int k = 0; k < 2 * nk; k++) dr_bem_cmat_matvec(&bm->layout, &set[k], x1, y, sc);
             double step = dr_time_now() - t0;
             const double *sp = stp[th - 1];
-            fprintf(f, "%g,%d,%d,%.1f,%.3e,%.3e,%.3e,%d,%.5f,%.5f,%.5f,%.5f,%.5f,%.5f\n", ratios[r], m.nv, bm->n_max,
-                    bytes / 1e6, fe, e1, e2, th, per, step, sp[0], sp[1], sp[2], sp[3]);
-            printf("| %g | %.0f | %.2e | %.2e | %.2e | %d | %.4f | %.4f | %.4f (%.4f + %.4f + %.4f) |\n", ratios[r],
-                   bytes / 1e6, fe, e1, e2, th, per, step, sp[0], sp[1], sp[2], sp[3]);
+            double free_step = th == 2 ? stfree[0] : NAN;
+            fprintf(f, "%g,%d,%d,%.1f,%.3e,%.3e,%.3e,%d,%.5f,%.5f,%.5f,%.5f,%.5f,%.5f,%.5f\n", ratios[r], m.nv,
+                    bm->n_max, bytes / 1e6, fe, e1, e2, th, per, step, sp[0], sp[1], sp[2], sp[3], free_step);
+            printf("| %g | %.0f | %.2e | %.2e | %.2e | %d | %.4f | %.4f | %.4f (%.4f + %.4f + %.4f) | %.4f |\n",
+                   ratios[r], bytes / 1e6, fe, e1, e2, th, per, step, sp[0], sp[1], sp[2], sp[3], free_step);
             fflush(stdout);
         }
         omp_set_num_threads(2);

@@ -1,7 +1,7 @@
 /* Unit tests for the compression of src/bem (BEM §3.3): the 1-D Haar transform, the layouts, exact
  * selection of the largest coefficients, compressed products against the reconstructed matrix, the error
  * of the full scheme against its simpler variants on a smooth kernel, thread-count determinism,
- * degenerate sizes and bad input. */
+ * the runtime's compact 16-bit copies, degenerate sizes and bad input. */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -12,6 +12,7 @@
 #include <string.h>
 
 #include "bem/bem.h"
+#include "bem/bem_internal.h"
 #include "core/core.h"
 
 /* ---- helpers ----------------------------------------------------------------------------------- */
@@ -558,6 +559,144 @@ static void test_threads_bit_identical(void **state)
     free(scratch);
 }
 
+/* ---- the runtime's compact copies ------------------------------------------------------------------------------ */
+
+/* The 16-bit copy against the double coefficients it was made from, on a 900 × 900 matrix at 8× and 32×, with
+ * rows of mixed signs, an empty row and a row of one coefficient. Each value is rounded to the nearest multiple of
+ * its row's scale (row maximum / 32767), so a row's product differs from the double one by at most
+ * ½·scale·Σ|x̃_j| over its coefficients, plus the rounding of two sums of a few hundred terms (1e-13 of the row's
+ * Σ|m̃_ij x̃_j| is far above that and far below the bound). Both kernels (vector and scalar) and both thread
+ * counts give the same bits, and so does a sum over several matrices in one pass; the natural-order product goes
+ * through the same transforms as the double one; a dense set or 3N > 65535 gets no copy. */
+static void test_compact_copy(void **state)
+{
+    (void)state;
+    const int nv = 300, n = 3 * nv;
+    DrRng rng;
+    dr_rng_seed(&rng, 33);
+    double *m = test_matrix(&rng, n);
+    for (int j = 0; j < n; j++) m[(size_t)7 * n + j] *= (j % 2 ? -1e-6 : 3e-6); /* a row of small values */
+    int *order = malloc(nv * sizeof *order);
+    random_order(&rng, nv, order);
+    double *x = malloc(n * sizeof *x), *xt = malloc(n * sizeof *x), *yd = malloc(n * sizeof *x),
+           *yq[4], *scratch = malloc(4 * n * sizeof *x);
+    fill_uniform(&rng, x, n);
+    DrBemLayout l = make_layout(nv, DR_BEM_ORDER_VERTEX_XYZ, true, order);
+    dr_bem_layout_to_coeff(&l, false, x, xt, scratch);
+    int saved = dr_threads();
+    DrError err;
+    const double ratios[] = {8.0, 32.0};
+    for (int r = 0; r < 2; r++) {
+        DrBemCMat c;
+        assert_int_equal(dr_bem_compress(&l, m, ratios[r], &c, &err), DR_OK);
+        BemCMatQ q;
+        assert_true(bem_cmat_compact(&c, &q));
+        assert_int_equal(q.nnz, c.nnz);
+        dr_bem_cmat_matvec_coeff(&c, xt, yd);
+        for (int v = 0; v < 4; v++) { /* scalar/vector × 1/2 threads */
+            yq[v] = calloc(n, sizeof *x);
+            bem_cmatq_scalar_only(v % 2 == 1);
+            dr_set_threads(v / 2 + 1);
+            bem_cmatq_matvec_acc(&q, xt, 1.0, yq[v]);
+        }
+        bem_cmatq_scalar_only(false);
+        dr_set_threads(saved);
+        for (int v = 1; v < 4; v++) assert_memory_equal(yq[0], yq[v], n * sizeof *x);
+        double err2 = 0, ref2 = 0;
+        for (int i = 0; i < n; i++) {
+            double big = 0, sx = 0, sm = 0;
+            for (int64_t k = c.row_ptr[i]; k < c.row_ptr[i + 1]; k++) {
+                big = fmax(big, fabs(c.val[k]));
+                sx += fabs(xt[c.col[k]]);
+                sm += fabs(c.val[k] * xt[c.col[k]]);
+            }
+            assert_true(fabs(yq[0][i] - yd[i]) <= 0.5 * big / 32767.0 * sx + 1e-13 * sm);
+            err2 += (yq[0][i] - yd[i]) * (yq[0][i] - yd[i]);
+            ref2 += yd[i] * yd[i];
+        }
+        assert_true(sqrt(err2 / ref2) <= 1e-4);
+        /* y += sign·M̃x accumulates */
+        bem_cmatq_matvec_acc(&q, xt, -1.0, yq[0]);
+        for (int i = 0; i < n; i++) assert_near(yq[0][i], 0.0, 1e-12 * (fabs(yd[i]) + 1));
+        /* the natural-order product */
+        double *y1 = malloc(n * sizeof *x), *y2 = malloc(n * sizeof *x);
+        dr_bem_cmat_matvec(&l, &c, x, y1, scratch);
+        bem_cmatq_matvec(&l, &q, x, y2, scratch);
+        assert_true(diff_norm2(y1, y2, n) <= 1e-4 * norm2(y1, n));
+        free(y1);
+        free(y2);
+        for (int v = 0; v < 4; v++) free(yq[v]);
+        bem_cmatq_free(&q);
+        assert_null(q.val);
+        dr_bem_cmat_free(&c);
+    }
+    /* a sum over several matrices in one pass equals the products one after the other, bit for bit, on 1 and 2
+       threads (each row is summed by one thread, matrix after matrix) */
+    {
+        DrBemCMat c[2];
+        BemCMatQ q[2];
+        double *x2 = malloc(n * sizeof *x), *yseq = calloc(n, sizeof *x), *ysum = malloc(n * sizeof *x);
+        fill_uniform(&rng, x2, n);
+        for (int r = 0; r < 2; r++) {
+            assert_int_equal(dr_bem_compress(&l, m, ratios[r], &c[r], &err), DR_OK);
+            assert_true(bem_cmat_compact(&c[r], &q[r]));
+        }
+        bem_cmatq_matvec_acc(&q[0], xt, 1.0, yseq);
+        bem_cmatq_matvec_acc(&q[1], x2, -0.5, yseq);
+        const BemCMatQ *mats[2] = {&q[0], &q[1]};
+        const double *xs[2] = {xt, x2};
+        const double signs[2] = {1.0, -0.5};
+        for (int t = 1; t <= 2; t++) {
+            dr_set_threads(t);
+            memset(ysum, 0, n * sizeof *x);
+            bem_cmatq_sum(mats, xs, signs, 2, ysum);
+            assert_memory_equal(ysum, yseq, n * sizeof *x);
+        }
+        dr_set_threads(saved);
+        for (int r = 0; r < 2; r++) {
+            bem_cmatq_free(&q[r]);
+            dr_bem_cmat_free(&c[r]);
+        }
+        free(x2);
+        free(yseq);
+        free(ysum);
+    }
+    /* by hand: an empty row, a row of one coefficient, a row of mixed signs and magnitudes */
+    {
+        int64_t rp[4] = {0, 0, 1, 4};
+        int32_t cl[4] = {2, 0, 1, 2};
+        double vl[4] = {-2.5, 4.0, -1e-3, 2.0};
+        DrBemCMat c = {.n = 3, .nnz = 4, .row_ptr = rp, .col = cl, .val = vl};
+        BemCMatQ q;
+        assert_true(bem_cmat_compact(&c, &q));
+        double xs[3] = {1.0, 2.0, 3.0}, ys[3] = {0, 0, 0};
+        bem_cmatq_matvec_acc(&q, xs, 1.0, ys);
+        assert_true(ys[0] == 0.0);
+        assert_near(ys[1], -7.5, 1e-14);
+        assert_near(ys[2], 4.0 - 2e-3 + 6.0, 0.5 * 4.0 / 32767 * 6.0 + 1e-14);
+        bem_cmatq_free(&q);
+    }
+    /* no copy for a dense set, nor past 16-bit columns */
+    {
+        DrBemCMat c;
+        BemCMatQ q;
+        assert_int_equal(dr_bem_compress(&l, m, 1.0, &c, &err), DR_OK);
+        assert_false(bem_cmat_compact(&c, &q));
+        dr_bem_cmat_free(&c);
+        DrBemCMat big = {.n = 65538, .nnz = 0};
+        big.row_ptr = calloc(65539, sizeof(int64_t));
+        assert_false(bem_cmat_compact(&big, &q));
+        free(big.row_ptr);
+    }
+    dr_bem_layout_free(&l);
+    free(m);
+    free(order);
+    free(x);
+    free(xt);
+    free(yd);
+    free(scratch);
+}
+
 /* ---- degenerate and bad input ---------------------------------------------------------------------------- */
 
 /* One vertex (n = 3) in every variant: ratio 1, 2 (⌈9/2⌉ = 5) and ratios beyond n² (one coefficient, the
@@ -651,6 +790,7 @@ int main(void)
         cmocka_unit_test(test_ties_row_major),
         cmocka_unit_test(test_smooth_kernel_error_table),
         cmocka_unit_test(test_threads_bit_identical),
+        cmocka_unit_test(test_compact_copy),
         cmocka_unit_test(test_one_vertex),
         cmocka_unit_test(test_bad_input),
     };
