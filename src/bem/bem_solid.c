@@ -281,6 +281,26 @@ static void mul_3n(const double *P, int n, const double *x, double out[3])
     }
 }
 
+/* h += Σ_{k=1}^{n_max} (D_k b_{n−k} + Q_k α_{n−k}) in one pass over the rows (each row takes the terms in the
+   order of k, so the threads do not change the result). */
+static void add_history_forces(const DrBemSolid *s, long step, double *h)
+{
+    const DrBemMatrices *m = s->m;
+    int n = s->n, kmax = step - 1 < s->nmax ? (int)(step - 1) : s->nmax;
+#pragma omp parallel for schedule(static) if (n >= 3000)
+    for (int r = 0; r < n; r++) {
+        double acc = h[r];
+        for (int k = 1; k <= kmax; k++) {
+            int sl = slot(s, step - k);
+            const double *D = m->D + ((size_t)k * n + r) * 3, *Q = m->Q + ((size_t)k * n + r) * 3;
+            const double *b = s->b_hist + 3 * sl, *al = s->al_hist + 3 * sl;
+            acc += D[0] * b[0] + D[1] * b[1] + D[2] * b[2];
+            acc += Q[0] * al[0] + Q[1] * al[1] + Q[2] * al[2];
+        }
+        h[r] = acc;
+    }
+}
+
 DrStatus dr_bem_solid_step(DrBemSolid *s, const double *traction, DrBemStepStats *st, DrError *err)
 {
     return bem_solid_advance(s, traction, true, st, NULL, err);
@@ -325,11 +345,7 @@ DrStatus bem_solid_advance(DrBemSolid *s, const double *traction, bool commit, D
         }
         bem_cmatq_sum(mats, xs, signs, count, ht);
         if (step > 1) dr_bem_layout_from_coeff(&m->layout, s->dense, ht, h, s->s_coeff);
-        for (int k = 1; k <= s->nmax && k < step; k++) {
-            int sl = slot(s, step - k);
-            add_n3(m->D + (size_t)k * n * 3, n, s->b_hist + 3 * sl, h);
-            add_n3(m->Q + (size_t)k * n * 3, n, s->al_hist + 3 * sl, h);
-        }
+        add_history_forces(s, step, h);
         if (step > 1) apply(s, &m->H0inv, &s->H0q, h, s->hz);
         else memset(s->hz, 0, nb);
         s->hz_step = step;
