@@ -342,6 +342,10 @@ _Static_assert(PGS_BLOCK >= 4, "a block holds the ends of at least one constrain
    64 K doubles some tens). */
 #define PAR_VALUES 65536
 
+static bool force_blocks;
+
+void bem_constraints_force_blocks(bool on) { force_blocks = on; }
+
 typedef struct Update {
     int body, a;  /* active vertex a of body */
     double de[3]; /* force change, world */
@@ -377,7 +381,7 @@ static DrStatus sweep_init(const Body *bodies, int count, const Con *cons, int n
     long rows = 0;
     for (int i = 0; i < count; i++) rows = bodies[i].na > rows ? bodies[i].na : rows;
     rows *= 3;
-    int max_ends = dr_threads() > 1 && 3 * PGS_BLOCK * rows >= 2 * PAR_VALUES ? PGS_BLOCK : 1;
+    int max_ends = force_blocks || (dr_threads() > 1 && 3 * PGS_BLOCK * rows >= 2 * PAR_VALUES) ? PGS_BLOCK : 1;
     DR_TRY(dr_calloc((size_t)nc + 1, sizeof(int), &sw->start, err));
     for (int i = 0, ends = max_ends; i < nc; i++) {
         if (ends + cons[i].ne > max_ends) {

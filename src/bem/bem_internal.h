@@ -141,6 +141,10 @@ struct DrBemSolid {
     BemColumns *gp_cols;    /* NULL until the first constrained step */
 };
 
+/* Tests: true makes every Gauss–Seidel sweep collect its changes in blocks (bem_constraint.c), as it does on several
+ * threads for large contact sets; the results must not change. */
+void bem_constraints_force_blocks(bool on);
+
 /* dr_bem_solid_step with commit = true; with commit = false a trial step: V_out (3N) receives the world positions
  * the step would give and the solid is left as it was (the constraint solver's linearisation, eq. 14). */
 DR_NODISCARD DrStatus bem_solid_advance(DrBemSolid *s, const double *traction, bool commit, DrBemStepStats *st,
