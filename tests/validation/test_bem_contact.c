@@ -519,6 +519,33 @@ static double depth_below_top(const DrBemMatrices *bm, const double *VA, const d
     return worst;
 }
 
+/* The stack's constraints: the floor (friction 0.5), body contact, a 1e-6 m tolerance. */
+static DrBemConstraints stack_constraints(const DrBemCollider *floor)
+{
+    DrBemConstraints c;
+    dr_bem_constraints_default(&c);
+    c.colliders = floor;
+    c.collider_count = 1;
+    c.body_contact = true;
+    c.tolerance = 1e-6;
+    return c;
+}
+
+/* Cube A resting on the floor, cube B above it at height y, 3 cm to the side, spinning at w rad/s about z. */
+static void stack_bodies(const DrBemMatrices *bm, const DrBemConstraints *c, double y, double w, DrBemSolid *s[2])
+{
+    DrBemSolidDesc da, db;
+    dr_bem_solid_desc_default(&da);
+    dr_bem_solid_desc_default(&db);
+    da.position[1] = 0.05 + c->thickness;
+    db.position[0] = 0.03;
+    db.position[1] = y;
+    db.angular_velocity[2] = w;
+    DrError err;
+    assert_int_equal(dr_bem_solid_create(bm, &da, &s[0], &err), DR_OK);
+    assert_int_equal(dr_bem_solid_create(bm, &db, &s[1], &err), DR_OK);
+}
+
 static void test_body_stack(void **state)
 {
     (void)state;
@@ -530,22 +557,10 @@ static void test_body_stack(void **state)
        both centres level on the floor. */
     DrBemMatrices *bm = small_cube(1);
     DrBemCollider floor = {.sdf = floor_sdf, .friction = 0.5};
-    DrBemConstraints c;
-    dr_bem_constraints_default(&c);
-    c.colliders = &floor;
-    c.collider_count = 1;
-    c.body_contact = true;
-    c.tolerance = 1e-6;
-    DrBemSolidDesc da, db;
-    dr_bem_solid_desc_default(&da);
-    dr_bem_solid_desc_default(&db);
-    da.position[1] = 0.05 + c.thickness;
-    db.position[0] = 0.03;
-    db.position[1] = 0.2;
+    DrBemConstraints c = stack_constraints(&floor);
     DrBemSolid *s[2] = {NULL, NULL};
+    stack_bodies(bm, &c, 0.2, 0.0, s);
     DrError err;
-    assert_int_equal(dr_bem_solid_create(bm, &da, &s[0], &err), DR_OK);
-    assert_int_equal(dr_bem_solid_create(bm, &db, &s[1], &err), DR_OK);
     double *V = malloc(sizeof(double) * bm->n), *VA = malloc(sizeof(double) * bm->n);
     double sink = 0, t0 = dr_time_now(), det = 0;
     int max_bc = 0, warns = 0, max_passes = 0;
@@ -594,12 +609,7 @@ static void test_blocked_sweeps_bit_identical(void **state)
     (void)state;
     DrBemMatrices *bm = small_cube(4);
     DrBemCollider floor = {.sdf = floor_sdf, .friction = 0.5};
-    DrBemConstraints c;
-    dr_bem_constraints_default(&c);
-    c.colliders = &floor;
-    c.collider_count = 1;
-    c.body_contact = true;
-    c.tolerance = 1e-6;
+    DrBemConstraints c = stack_constraints(&floor);
     int saved = dr_threads();
     double *ref[2] = {NULL, NULL};
     size_t size[2] = {0, 0};
@@ -608,17 +618,9 @@ static void test_blocked_sweeps_bit_identical(void **state)
         bool blocks = run % 2 == 1;
         bem_constraints_force_blocks(blocks);
         dr_set_threads(run / 2 + 1);
-        DrBemSolidDesc da, db;
-        dr_bem_solid_desc_default(&da);
-        dr_bem_solid_desc_default(&db);
-        da.position[1] = 0.05 + c.thickness;
-        db.position[0] = 0.03;
-        db.position[1] = 0.16;
-        db.angular_velocity[2] = 2.0;
         DrBemSolid *s[2] = {NULL, NULL};
+        stack_bodies(bm, &c, 0.16, 2.0, s);
         DrError err;
-        assert_int_equal(dr_bem_solid_create(bm, &da, &s[0], &err), DR_OK);
-        assert_int_equal(dr_bem_solid_create(bm, &db, &s[1], &err), DR_OK);
         int bc = 0;
         for (int t = 0; t < 60; t++) {
             DrBemConstraintStats cs;
