@@ -130,8 +130,8 @@ struct DrBemSolid {
     double *E, *F;          /* H₀⁻¹D₀ and H₀⁻¹Q₀, 3N × 3: u = z + E b + F α solves eq. (9) for given b, α */
     double *Epinv, *Fpinv;  /* 3 × 3N least-squares inverses of E and F (§3.2.1) */
     double *s_ht, *s_tmp, *s_h, *s_p, *s_u, *s_z, *s_r, *s_coeff; /* scratch, 3N each (coeff: 4·3N) */
-    bool compact;           /* the products below serve every step (not for dense sets or 3N > 65535) */
-    BemCMatQ *Hq, *Gq;      /* compact copies of H_k, G_k (k ≥ 1; index k), or NULL */
+    BemCMatQ *Hq, *Gq;      /* compact copies of H_k, G_k (k ≥ 1; index k) that serve every product of a step, or
+                               NULL (dense sets, 3N > 65535) */
     BemCMatQ H0q, Gpq;      /* compact copies of H₀⁻¹ and H₀⁻¹G′ */
     const BemCMatQ **sum_mats; /* 2·nmax: the history sum's matrices, vectors and signs (bem_cmatq_sum) */
     const double **sum_x;

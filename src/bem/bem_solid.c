@@ -135,8 +135,9 @@ static void compact_free(DrBemSolid *s)
     bem_cmatq_free(&s->Gpq);
 }
 
-/* The compact copies every product of a step reads (bem_compress.c); false leaves the double products in use. */
-static bool compact_make(DrBemSolid *s)
+/* The compact copies every product of a step reads (bem_compress.c); when one cannot be made, none are kept (Hq
+   NULL) and the double products serve. */
+static void compact_make(DrBemSolid *s)
 {
     const DrBemMatrices *m = s->m;
     s->Hq = calloc((size_t)s->nmax + 1, sizeof(BemCMatQ));
@@ -144,7 +145,6 @@ static bool compact_make(DrBemSolid *s)
     bool ok = s->Hq && s->Gq && bem_cmat_compact(&m->H0inv, &s->H0q) && bem_cmat_compact(&m->H0inv_Gp, &s->Gpq);
     for (int k = 1; ok && k <= s->nmax; k++) ok = bem_cmat_compact(&m->H[k], &s->Hq[k]) && bem_cmat_compact(&m->G[k], &s->Gq[k]);
     if (!ok) compact_free(s);
-    return ok;
 }
 
 void dr_bem_solid_destroy(DrBemSolid **ps)
@@ -183,7 +183,7 @@ void dr_bem_solid_destroy(DrBemSolid **ps)
    scratch. */
 static void apply(const DrBemSolid *s, const DrBemCMat *M, const BemCMatQ *Mq, const double *x, double *y)
 {
-    if (s->compact) bem_cmatq_matvec(&s->m->layout, Mq, x, y, s->s_coeff);
+    if (s->Hq) bem_cmatq_matvec(&s->m->layout, Mq, x, y, s->s_coeff);
     else dr_bem_cmat_matvec(&s->m->layout, M, x, y, s->s_coeff);
 }
 
@@ -225,8 +225,8 @@ DrStatus dr_bem_solid_create(const DrBemMatrices *m, const DrBemSolidDesc *d, Dr
         dr_bem_solid_destroy(&s);
         return st;
     }
-    /* compact copies of every matrix a step multiplies by: a third of the bytes a step reads (bem_compress.c) */
-    if (!s->dense) s->compact = compact_make(s);
+    /* compact copies of every matrix a step multiplies by: 4 bytes per coefficient against 12 (bem_compress.c) */
+    if (!s->dense) compact_make(s);
     const double *xb = m->body.centroid;
     for (int v = 0; v < s->nv; v++)
         for (int c = 0; c < 3; c++) s->ref[3 * v + c] = m->x[3 * v + c] - xb[c];
@@ -332,7 +332,7 @@ DrStatus bem_solid_advance(DrBemSolid *s, const double *traction, bool commit, D
             int sl = slot(s, step - k);
             const double *uk = s->ut_hist + (size_t)sl * n, *pk = s->pt_hist + (size_t)sl * n;
             bool loaded_k = nonzero(pk, n); /* a traction-free past step adds nothing through G_k */
-            if (s->compact) {
+            if (s->Hq) {
                 mats[count] = &s->Hq[k], xs[count] = uk, signs[count++] = -1.0;
                 if (loaded_k) mats[count] = &s->Gq[k], xs[count] = pk, signs[count++] = 1.0;
                 continue;

@@ -56,6 +56,20 @@ static DrTriMesh box_mesh(int seg)
 }
 
 
+/* A body at rest at the origin under gravity, on the benchmark's matrices. */
+static DrBemSolid *bench_solid(const DrBemMatrices *bm)
+{
+    DrBemSolidDesc d;
+    dr_bem_solid_desc_default(&d);
+    DrBemSolid *s = NULL;
+    DrError err;
+    if (dr_bem_solid_create(bm, &d, &s, &err) != DR_OK) {
+        fprintf(stderr, "bench_bem: %s\n", err.message);
+        exit(1);
+    }
+    return s;
+}
+
 /* Seconds per unconstrained step of a body, on `threads` threads, over `steps` steps after as many warm-up steps
    (the history window fills): out = {median total, mean history, mean solve, mean error correction}. The median
    keeps a step disturbed by other work on the machine out of the figure. Loaded: an uneven traction on every third
@@ -69,14 +83,8 @@ static int cmp_double(const void *a, const void *b)
 static void time_steps(const DrBemMatrices *bm, int threads, int steps, bool loaded, double out[4])
 {
     omp_set_num_threads(threads);
-    DrBemSolidDesc d;
-    dr_bem_solid_desc_default(&d);
-    DrBemSolid *s = NULL;
+    DrBemSolid *s = bench_solid(bm);
     DrError err;
-    if (dr_bem_solid_create(bm, &d, &s, &err) != DR_OK) {
-        fprintf(stderr, "bench_bem: %s\n", err.message);
-        exit(1);
-    }
     double *p = calloc((size_t)bm->n, sizeof(double)), *t = calloc((size_t)steps, sizeof(double));
     for (int v = 0; v < bm->nv; v++) p[3 * v + 1] = v % 3 == 0 ? 50.0 : 0.0;
     memset(out, 0, sizeof(double) * 4);
@@ -118,14 +126,8 @@ static double floor_sdf(const double x[3], double grad[3], void *ctx)
 static void time_contact_steps(const DrBemMatrices *bm, int threads, int steps, double out[8])
 {
     omp_set_num_threads(threads);
-    DrBemSolidDesc d;
-    dr_bem_solid_desc_default(&d);
-    DrBemSolid *s = NULL;
+    DrBemSolid *s = bench_solid(bm);
     DrError err;
-    if (dr_bem_solid_create(bm, &d, &s, &err) != DR_OK) {
-        fprintf(stderr, "bench_bem: %s\n", err.message);
-        exit(1);
-    }
     DrBemCollider floor = {.sdf = floor_sdf, .friction = 0.4};
     DrBemConstraints c;
     dr_bem_constraints_default(&c);

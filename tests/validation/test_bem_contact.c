@@ -25,6 +25,18 @@ static double floor_sdf(const double x[3], double grad[3], void *ctx)
     return x[1];
 }
 
+/* Contact with one collider (and, if asked, between the bodies), solved to 1e-6 m. */
+static DrBemConstraints on_collider(const DrBemCollider *col, bool body_contact)
+{
+    DrBemConstraints c;
+    dr_bem_constraints_default(&c);
+    c.colliders = col;
+    c.collider_count = 1;
+    c.body_contact = body_contact;
+    c.tolerance = 1e-6;
+    return c;
+}
+
 static DrBemMatrices *build_box(const double lo[3], const double hi[3], const int seg[3], const DrBemDesc *d)
 {
     DrTriMesh m = {0};
@@ -83,11 +95,7 @@ static void test_friction_stopping_distance(void **state)
     double *V = malloc(sizeof(double) * bm->n);
     for (int i = 0; i < 3; i++) {
         DrBemCollider floor = {.sdf = floor_sdf, .friction = mus[i]};
-        DrBemConstraints c;
-        dr_bem_constraints_default(&c);
-        c.colliders = &floor;
-        c.collider_count = 1;
-        c.tolerance = 1e-6;
+        DrBemConstraints c = on_collider(&floor, false);
         DrBemSolidDesc sd;
         dr_bem_solid_desc_default(&sd);
         sd.position[1] = 0.05 + c.thickness;
@@ -159,11 +167,7 @@ static void test_friction_moving_collider(void **state)
     DrBemMatrices *bm = small_cube(1);
     double speed = 0.5;
     DrBemCollider belt = {.sdf = floor_sdf, .velocity = belt_velocity, .ctx = &speed, .friction = 0.4};
-    DrBemConstraints c;
-    dr_bem_constraints_default(&c);
-    c.colliders = &belt;
-    c.collider_count = 1;
-    c.tolerance = 1e-6;
+    DrBemConstraints c = on_collider(&belt, false);
     DrBemSolidDesc sd;
     dr_bem_solid_desc_default(&sd);
     sd.position[1] = 0.05 + c.thickness;
@@ -342,11 +346,7 @@ static void drop_and_rest(double ratio)
     DrBemMatrices *bm = small_cube(ratio);
     const double drop = 0.05, th = 15 * M_PI / 180;
     DrBemCollider floor = {.sdf = floor_sdf, .friction = 0.5};
-    DrBemConstraints c;
-    dr_bem_constraints_default(&c);
-    c.colliders = &floor;
-    c.collider_count = 1;
-    c.tolerance = 1e-6;
+    DrBemConstraints c = on_collider(&floor, false);
     DrBemSolidDesc sd;
     dr_bem_solid_desc_default(&sd);
     double R0[9] = {cos(th), -sin(th), 0, sin(th), cos(th), 0, 0, 0, 1};
@@ -519,18 +519,6 @@ static double depth_below_top(const DrBemMatrices *bm, const double *VA, const d
     return worst;
 }
 
-/* The stack's constraints: the floor (friction 0.5), body contact, a 1e-6 m tolerance. */
-static DrBemConstraints stack_constraints(const DrBemCollider *floor)
-{
-    DrBemConstraints c;
-    dr_bem_constraints_default(&c);
-    c.colliders = floor;
-    c.collider_count = 1;
-    c.body_contact = true;
-    c.tolerance = 1e-6;
-    return c;
-}
-
 /* Cube A resting on the floor, cube B above it at height y, 3 cm to the side, spinning at w rad/s about z. */
 static void stack_bodies(const DrBemMatrices *bm, const DrBemConstraints *c, double y, double w, DrBemSolid *s[2])
 {
@@ -557,7 +545,7 @@ static void test_body_stack(void **state)
        both centres level on the floor. */
     DrBemMatrices *bm = small_cube(1);
     DrBemCollider floor = {.sdf = floor_sdf, .friction = 0.5};
-    DrBemConstraints c = stack_constraints(&floor);
+    DrBemConstraints c = on_collider(&floor, true);
     DrBemSolid *s[2] = {NULL, NULL};
     stack_bodies(bm, &c, 0.2, 0.0, s);
     DrError err;
@@ -609,7 +597,7 @@ static void test_blocked_sweeps_bit_identical(void **state)
     (void)state;
     DrBemMatrices *bm = small_cube(4);
     DrBemCollider floor = {.sdf = floor_sdf, .friction = 0.5};
-    DrBemConstraints c = stack_constraints(&floor);
+    DrBemConstraints c = on_collider(&floor, true);
     int saved = dr_threads();
     double *ref[2] = {NULL, NULL};
     size_t size[2] = {0, 0};
