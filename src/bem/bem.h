@@ -167,6 +167,7 @@ typedef struct DrBemMatrices {
     DrBemCMat H0inv_Gp;    /* H₀⁻¹G′, G′ = G₀ + D₀A + Q₀C (eq. 12) */
     double *H_dense, *G_dense; /* (n_max+1) × n × n when desc.keep_dense, else NULL */
     DrBemStats stats;
+    struct BemRuntime *runtime; /* what the bodies on the set share (bem_solid.c), owned; NULL in a set made by hand */
 } DrBemMatrices;
 
 /* Assemble everything above for a checked mesh (dr_bem_mesh_check). Parallel over collocation vertices;

@@ -77,6 +77,7 @@ void dr_bem_matrices_destroy(DrBemMatrices **pm)
     free(m->Q);
     free(m->H_dense);
     free(m->G_dense);
+    bem_runtime_free(&m->runtime);
     free(m);
     *pm = NULL;
 }
@@ -446,7 +447,7 @@ DrStatus dr_bem_matrices_build(const DrTriMesh *mesh, const DrBemDesc *d, const 
     double t0 = dr_time_now();
     DrBemMatrices *m = NULL;
     DR_TRY(dr_calloc(1, sizeof *m, &m, err));
-    DrStatus s = DR_OK;
+    DrStatus s = bem_runtime_new(&m->runtime, err);
     int nv = mesh->nv, n = 3 * nv;
     m->nv = nv;
     m->n = n;
@@ -455,6 +456,7 @@ DrStatus dr_bem_matrices_build(const DrTriMesh *mesh, const DrBemDesc *d, const 
     double *tn = NULL, *alpha = NULL, *beta = NULL;
     int *order = NULL;
     DrBemCq cq = {0};
+    if (s != DR_OK) goto fail;
 
     dr_bem_body_compute(mesh, d->material.density, &m->body);
     m->n_max = dr_bem_history_length(d, m->body.r_max);

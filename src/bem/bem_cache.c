@@ -17,6 +17,7 @@
  * One dataset per matrix (rather than all K concatenated) lets the reader hand each array it reads straight to
  * the result, so loading never holds two copies of the largest data. */
 #include "bem/bem.h"
+#include "bem_internal.h"
 
 #include <stdlib.h>
 #include <string.h>
@@ -499,6 +500,7 @@ DrStatus dr_bem_cache_read(const char *cache_root, const char *key_hex, DrBemMat
     DrError why;
     dr_error_clear(&why);
     DrStatus s = dr_calloc(1, sizeof *m, &m, &why);
+    if (s == DR_OK) s = bem_runtime_new(&m->runtime, &why);
     if (s == DR_OK) s = get_all(h, m, &why);
     if (s != DR_OK) {
         dr_bem_matrices_destroy(&m);

@@ -220,7 +220,7 @@ static void assemble_vertex(const Assembly *as, int jj, double *work)
                 for (int r = 0; r < 3; r++)
                     Mblk[(3 * ii + r) * 3 + c] = m->H0inv_Gp.val[(size_t)(3 * b->act[ii] + r) * n + cj];
         } else {
-            columns_unit_product(&m->layout, s->gp_cols, cj, y, y + n);
+            columns_unit_product(&m->layout, s->rt->gp_cols, cj, y, y + n);
             for (int ii = 0; ii < na; ii++)
                 for (int r = 0; r < 3; r++) Mblk[(3 * ii + r) * 3 + c] = y[3 * b->act[ii] + r];
         }
@@ -289,7 +289,7 @@ static DrStatus body_assemble(Body *b, DrError *err)
     DR_TRY(dr_calloc((size_t)k3, sizeof(double), &b->F, err));
     DR_TRY(dr_calloc((size_t)k3, sizeof(double), &b->P, err));
     if (na == 0) return DR_OK;
-    if (!m->H0inv_Gp.dense && !s->gp_cols) DR_TRY(columns_build(&m->layout, &m->H0inv_Gp, &s->gp_cols, err));
+    if (!m->H0inv_Gp.dense && !s->rt->gp_cols) DR_TRY(columns_build(&m->layout, &m->H0inv_Gp, &s->rt->gp_cols, err));
     Assembly as = {.b = b, .frame = s->d.frame_update};
     const double *R = s->R;
     for (int i = 0; i < 3; i++)

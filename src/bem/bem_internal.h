@@ -83,21 +83,34 @@ DR_NODISCARD DrStatus bem_laplace_matrices(const DrTriMesh *mesh, const DrBemDes
 
 /* A compressed matrix's coefficients in the runtime's compact form (bem_compress.c): 16-bit fixed-point values
  * with one scale per row and 16-bit columns (3N ≤ 65535), 4 bytes per coefficient against 12; products within
- * about 2e-4 of the double ones. bem_cmat_compact is false for dense matrices, larger ones, or no memory. */
+ * about 2e-4 of the double ones. bem_cmat_compact is false for dense matrices, larger ones, or no memory.
+ *
+ * A copy may also hold the same 16-bit values by column (bem_cmatq_add_columns). The matrices that multiply
+ * tractions have one: a traction is zero away from contacts and fixed vertices, and so are most of its Haar
+ * coefficients, so a product over the columns it touches reads a fraction of the matrix. */
+#define BEM_COLUMN_GROUPS 4 /* a column product's share-out among threads; its work holds this many 3N vectors */
 typedef struct BemCMatQ {
     int n;
     int64_t nnz;
     int64_t *row_ptr;
     uint16_t *col;
     int16_t *val;
-    double *scale; /* row i's coefficients are scale[i]·val */
+    double *scale;      /* row i's coefficients are scale[i]·val */
+    int64_t *col_ptr;   /* by column (NULL when none): column c's entries from col_ptr[c], */
+    uint32_t *centry;   /* each its row in the low 16 bits and its value in the high 16 */
 } BemCMatQ;
 bool bem_cmat_compact(const DrBemCMat *m, BemCMatQ *out);
+/* Adds the column form; false without memory (the row form then serves alone). */
+bool bem_cmatq_add_columns(BemCMatQ *m);
 void bem_cmatq_free(BemCMatQ *m);
-void bem_cmatq_matvec_acc(const BemCMatQ *m, const double *x, double sign, double *y); /* ỹ += sign·M̃x̃ */
-/* ỹ += Σ_j sign_j·M̃_j x̃_j over `count` matrices of one size, in one pass of the threads (the history sum). */
-void bem_cmatq_sum(const BemCMatQ *const *mats, const double *const *x, const double *sign, int count, double *y);
-/* y = M x in natural order (a compressed set's layout); scratch holds 4·3N doubles. */
+/* ỹ += sign·M̃x̃; work holds BEM_COLUMN_GROUPS·3N doubles, or NULL to use the row form only. */
+void bem_cmatq_matvec_acc(const BemCMatQ *m, const double *x, double sign, double *y, double *work);
+/* ỹ += Σ_j sign_j·M̃_j x̃_j over `count` matrices of one size, in one pass of the threads (the history sum). A
+   product whose vector's nonzero coefficients touch less than half of the matrix goes by columns when the copy has
+   them and work (BEM_COLUMN_GROUPS·3N doubles) is given. The result does not depend on the thread count. */
+int bem_cmatq_sum(const BemCMatQ *const *mats, const double *const *x, const double *sign, int count, double *y,
+                  double *work); /* returns how many products went by columns */
+/* y = M x in natural order (a compressed set's layout); scratch holds (2 + BEM_COLUMN_GROUPS)·3N doubles. */
 void bem_cmatq_matvec(const DrBemLayout *l, const BemCMatQ *m, const double *x, double *y, double *scratch);
 /* Tests: true forces the scalar loop where the vector one would run (both give the same bits). */
 void bem_cmatq_scalar_only(bool on);
@@ -109,10 +122,26 @@ void bem_m3_vec(const double *A, const double *x, double *y);
 bool bem_m3_inv(const double *A, double *inv);
 void bem_rotation_exp(const double v[3], double *Rm);
 
-/* The kept coefficients of H₀⁻¹G′ by column, built on a body's first constrained step by the constraint solver
- * (bem_constraint.c), which needs single columns of the response; freed with the body. */
+/* The kept coefficients of H₀⁻¹G′ by column, built on the first constrained step of a body on the set by the
+ * constraint solver (bem_constraint.c), which needs single columns of the response; shared like the copies below. */
 typedef struct BemColumns BemColumns;
 void bem_columns_free(BemColumns **c);
+
+/* What the bodies on one matrix set share, made when the first of them is created (bem_solid.c) and freed with the
+ * set: the compact copies of every matrix a step multiplies by, and the constraint solver's columns. */
+struct BemRuntime {
+    bool made;              /* the copies were attempted */
+    const void *made_for[3]; /* the set's H, G and H₀⁻¹ storage then: a copy of the set's struct holding other
+                                matrices (a view) gets its bodies their own copies */
+    int nmax;
+    BemCMatQ *Hq, *Gq;      /* compact copies of H_k, G_k (k ≥ 1; index k), or NULL (dense sets, 3N > 65535, no
+                               memory): the double products serve */
+    BemCMatQ H0q, Gpq;      /* compact copies of H₀⁻¹ and H₀⁻¹G′; G_k and H₀⁻¹G′ also by column */
+    BemColumns *gp_cols;    /* NULL until a body on the set is first constrained */
+};
+typedef struct BemRuntime BemRuntime;
+DR_NODISCARD DrStatus bem_runtime_new(BemRuntime **out, DrError *err);
+void bem_runtime_free(BemRuntime **rt);
 
 /* A body in a shot (bem_solid.c); the constraint solver reads its frame and matrices. */
 struct DrBemSolid {
@@ -129,16 +158,16 @@ struct DrBemSolid {
     double c0[3], wsum;     /* w-weighted centroid of ref, Σw (§3.2.1) */
     double *E, *F;          /* H₀⁻¹D₀ and H₀⁻¹Q₀, 3N × 3: u = z + E b + F α solves eq. (9) for given b, α */
     double *Epinv, *Fpinv;  /* 3 × 3N least-squares inverses of E and F (§3.2.1) */
-    double *s_ht, *s_tmp, *s_h, *s_p, *s_u, *s_z, *s_r, *s_coeff; /* scratch, 3N each (coeff: 4·3N) */
-    BemCMatQ *Hq, *Gq;      /* compact copies of H_k, G_k (k ≥ 1; index k) that serve every product of a step, or
-                               NULL (dense sets, 3N > 65535) */
-    BemCMatQ H0q, Gpq;      /* compact copies of H₀⁻¹ and H₀⁻¹G′ */
+    /* scratch, 3N each; s_coeff (2 + BEM_COLUMN_GROUPS)·3N */
+    double *s_ht, *s_tmp, *s_h, *s_p, *s_u, *s_z, *s_r, *s_coeff;
+    BemRuntime *rt;         /* the set's shared copies, or own_rt (a set made by hand, or a view of one) */
+    BemRuntime *own_rt;
+    const BemCMatQ *Hq, *Gq, *H0q, *Gpq; /* rt's copies, or all NULL when it has none */
     const BemCMatQ **sum_mats; /* 2·nmax: the history sum's matrices, vectors and signs (bem_cmatq_sum) */
     const double **sum_x;
     double *sum_sign;
     double *hz;             /* H₀⁻¹h of the history sum for step hz_step: trial steps of one step share it */
     long hz_step;           /* 0: none */
-    BemColumns *gp_cols;    /* NULL until the first constrained step */
 };
 
 /* Tests: true makes every Gauss–Seidel sweep collect its changes in blocks (bem_constraint.c), as it does on several

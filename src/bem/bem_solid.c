@@ -121,30 +121,56 @@ static bool pinv_n3(const double *M, int n, double *P)
     return true;
 }
 
-static void compact_free(DrBemSolid *s)
+static void runtime_copies_free(BemRuntime *rt)
 {
-    if (s->Hq)
-        for (int k = 1; k <= s->nmax; k++) {
-            bem_cmatq_free(&s->Hq[k]);
-            bem_cmatq_free(&s->Gq[k]);
+    if (rt->Hq)
+        for (int k = 1; k <= rt->nmax; k++) {
+            bem_cmatq_free(&rt->Hq[k]);
+            bem_cmatq_free(&rt->Gq[k]);
         }
-    free(s->Hq);
-    free(s->Gq);
-    s->Hq = s->Gq = NULL;
-    bem_cmatq_free(&s->H0q);
-    bem_cmatq_free(&s->Gpq);
+    free(rt->Hq);
+    free(rt->Gq);
+    rt->Hq = rt->Gq = NULL;
+    bem_cmatq_free(&rt->H0q);
+    bem_cmatq_free(&rt->Gpq);
 }
 
-/* The compact copies every product of a step reads (bem_compress.c); when one cannot be made, none are kept (Hq
-   NULL) and the double products serve. */
-static void compact_make(DrBemSolid *s)
+DrStatus bem_runtime_new(BemRuntime **out, DrError *err)
 {
-    const DrBemMatrices *m = s->m;
-    s->Hq = calloc((size_t)s->nmax + 1, sizeof(BemCMatQ));
-    s->Gq = calloc((size_t)s->nmax + 1, sizeof(BemCMatQ));
-    bool ok = s->Hq && s->Gq && bem_cmat_compact(&m->H0inv, &s->H0q) && bem_cmat_compact(&m->H0inv_Gp, &s->Gpq);
-    for (int k = 1; ok && k <= s->nmax; k++) ok = bem_cmat_compact(&m->H[k], &s->Hq[k]) && bem_cmat_compact(&m->G[k], &s->Gq[k]);
-    if (!ok) compact_free(s);
+    return dr_calloc(1, sizeof **out, out, err);
+}
+
+void bem_runtime_free(BemRuntime **prt)
+{
+    BemRuntime *rt = prt ? *prt : NULL;
+    if (!rt) return;
+    runtime_copies_free(rt);
+    bem_columns_free(&rt->gp_cols);
+    free(rt);
+    *prt = NULL;
+}
+
+/* The compact copies every product of a step reads (bem_compress.c), made once per set; when one cannot be made,
+   none are kept and the double products serve. The matrices that multiply tractions also get their column form
+   (a traction's products then read only the columns it touches); without memory for it they go by rows. */
+static void runtime_make(BemRuntime *rt, const DrBemMatrices *m)
+{
+    if (rt->made) return;
+    rt->made = true;
+    rt->made_for[0] = m->H, rt->made_for[1] = m->G, rt->made_for[2] = m->H0inv.val;
+    if (m->H0inv.dense) return;
+    rt->nmax = m->n_max;
+    rt->Hq = calloc((size_t)rt->nmax + 1, sizeof(BemCMatQ));
+    rt->Gq = calloc((size_t)rt->nmax + 1, sizeof(BemCMatQ));
+    bool ok = rt->Hq && rt->Gq && bem_cmat_compact(&m->H0inv, &rt->H0q) && bem_cmat_compact(&m->H0inv_Gp, &rt->Gpq);
+    for (int k = 1; ok && k <= rt->nmax; k++)
+        ok = bem_cmat_compact(&m->H[k], &rt->Hq[k]) && bem_cmat_compact(&m->G[k], &rt->Gq[k]);
+    if (!ok) {
+        runtime_copies_free(rt);
+        return;
+    }
+    (void)bem_cmatq_add_columns(&rt->Gpq);
+    for (int k = 1; k <= rt->nmax; k++) (void)bem_cmatq_add_columns(&rt->Gq[k]);
 }
 
 void dr_bem_solid_destroy(DrBemSolid **ps)
@@ -165,7 +191,7 @@ void dr_bem_solid_destroy(DrBemSolid **ps)
     free(s->s_tmp);
     free(s->s_h);
     free(s->hz);
-    compact_free(s);
+    bem_runtime_free(&s->own_rt);
     free(s->sum_mats);
     free(s->sum_x);
     free(s->sum_sign);
@@ -174,7 +200,6 @@ void dr_bem_solid_destroy(DrBemSolid **ps)
     free(s->s_z);
     free(s->s_r);
     free(s->s_coeff);
-    bem_columns_free(&s->gp_cols);
     free(s);
     *ps = NULL;
 }
@@ -216,7 +241,7 @@ DrStatus dr_bem_solid_create(const DrBemMatrices *m, const DrBemSolidDesc *d, Dr
     for (int i = 0; st == DR_OK && i < 4; i++) st = dr_calloc(3 * n, sizeof(double), n3[i], err);
     double **scratch[] = {&s->s_ht, &s->s_tmp, &s->s_h, &s->s_p, &s->s_u, &s->s_z, &s->s_r};
     for (int i = 0; st == DR_OK && i < 7; i++) st = dr_calloc(n, sizeof(double), scratch[i], err);
-    if (st == DR_OK) st = dr_calloc(4 * n, sizeof(double), &s->s_coeff, err);
+    if (st == DR_OK) st = dr_calloc((2 + BEM_COLUMN_GROUPS) * n, sizeof(double), &s->s_coeff, err);
     if (st == DR_OK) st = dr_calloc(n, sizeof(double), &s->hz, err);
     if (st == DR_OK) st = dr_calloc(2 * nh, sizeof *s->sum_mats, &s->sum_mats, err);
     if (st == DR_OK) st = dr_calloc(2 * nh, sizeof *s->sum_x, &s->sum_x, err);
@@ -225,8 +250,22 @@ DrStatus dr_bem_solid_create(const DrBemMatrices *m, const DrBemSolidDesc *d, Dr
         dr_bem_solid_destroy(&s);
         return st;
     }
-    /* compact copies of every matrix a step multiplies by: 4 bytes per coefficient against 12 (bem_compress.c) */
-    if (!s->dense) compact_make(s);
+    /* compact copies of every matrix a step multiplies by, 4 bytes per coefficient against 12 (bem_compress.c),
+       shared by the bodies on the set */
+    s->rt = m->runtime;
+    if (s->rt && s->rt->made &&
+        (s->rt->made_for[0] != m->H || s->rt->made_for[1] != m->G || s->rt->made_for[2] != m->H0inv.val))
+        s->rt = NULL;
+    if (!s->rt && bem_runtime_new(&s->own_rt, err) != DR_OK) {
+        dr_bem_solid_destroy(&s);
+        return DR_ERR_NOMEM;
+    }
+    if (!s->rt) s->rt = s->own_rt;
+    runtime_make(s->rt, m);
+    if (s->rt->Hq) {
+        s->Hq = s->rt->Hq, s->Gq = s->rt->Gq;
+        s->H0q = &s->rt->H0q, s->Gpq = &s->rt->Gpq;
+    }
     const double *xb = m->body.centroid;
     for (int v = 0; v < s->nv; v++)
         for (int c = 0; c < 3; c++) s->ref[3 * v + c] = m->x[3 * v + c] - xb[c];
@@ -239,10 +278,10 @@ DrStatus dr_bem_solid_create(const DrBemMatrices *m, const DrBemSolidDesc *d, Dr
     /* E = H₀⁻¹D₀ and F = H₀⁻¹Q₀ with the same (compressed) H₀⁻¹ the steps use */
     for (int c = 0; c < 3; c++) {
         for (int r = 0; r < s->n; r++) s->s_tmp[r] = m->D[3 * r + c];
-        apply(s, &m->H0inv, &s->H0q, s->s_tmp, s->s_u);
+        apply(s, &m->H0inv, s->H0q, s->s_tmp, s->s_u);
         for (int r = 0; r < s->n; r++) s->E[3 * r + c] = s->s_u[r];
         for (int r = 0; r < s->n; r++) s->s_tmp[r] = m->Q[3 * r + c];
-        apply(s, &m->H0inv, &s->H0q, s->s_tmp, s->s_u);
+        apply(s, &m->H0inv, s->H0q, s->s_tmp, s->s_u);
         for (int r = 0; r < s->n; r++) s->F[3 * r + c] = s->s_u[r];
     }
     if (!pinv_n3(s->E, s->n, s->Epinv) || !pinv_n3(s->F, s->n, s->Fpinv)) {
@@ -343,10 +382,10 @@ DrStatus bem_solid_advance(DrBemSolid *s, const double *traction, bool commit, D
             dr_bem_cmat_matvec_coeff(&m->G[k], pk, tmp);
             for (int i = 0; i < n; i++) ht[i] += tmp[i];
         }
-        bem_cmatq_sum(mats, xs, signs, count, ht);
+        (void)bem_cmatq_sum(mats, xs, signs, count, ht, s->s_coeff);
         if (step > 1) dr_bem_layout_from_coeff(&m->layout, s->dense, ht, h, s->s_coeff);
         add_history_forces(s, step, h);
-        if (step > 1) apply(s, &m->H0inv, &s->H0q, h, s->hz);
+        if (step > 1) apply(s, &m->H0inv, s->H0q, h, s->hz);
         else memset(s->hz, 0, nb);
         s->hz_step = step;
     }
@@ -373,7 +412,7 @@ DrStatus bem_solid_advance(DrBemSolid *s, const double *traction, bool commit, D
                 b0[i] += m->A[(size_t)i * n + c] * p[c]; /* a_ext = A p, α = C p (eq. 10) */
                 al0[i] += m->C[(size_t)i * n + c] * p[c];
             }
-        apply(s, &m->H0inv_Gp, &s->Gpq, p, z);
+        apply(s, &m->H0inv_Gp, s->Gpq, p, z);
         double nb0[3] = {-b0[0], -b0[1], -b0[2]}, nal0[3] = {-al0[0], -al0[1], -al0[2]};
         add_n3(s->E, n, nb0, z);
         add_n3(s->F, n, nal0, z);

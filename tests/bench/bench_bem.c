@@ -72,21 +72,30 @@ static DrBemSolid *bench_solid(const DrBemMatrices *bm)
 
 /* Seconds per unconstrained step of a body, on `threads` threads, over `steps` steps after as many warm-up steps
    (the history window fills): out = {median total, mean history, mean solve, mean error correction}. The median
-   keeps a step disturbed by other work on the machine out of the figure. Loaded: an uneven traction on every third
-   vertex, so every history matrix is multiplied; traction-free (free flight): the G_k products are skipped. */
+   keeps a step disturbed by other work on the machine out of the figure. LOAD_THIRD: a traction along y on every
+   third vertex, so every history matrix is multiplied, the traction matrices by column (a fifth of their columns
+   are touched); LOAD_DENSE: an uneven traction on every vertex and axis, which touches every column, so they go by
+   row; LOAD_FREE (free flight): the G_k products are skipped. */
+enum { LOAD_FREE, LOAD_THIRD, LOAD_DENSE };
+
 static int cmp_double(const void *a, const void *b)
 {
     double x = *(const double *)a, y = *(const double *)b;
     return (x > y) - (x < y);
 }
 
-static void time_steps(const DrBemMatrices *bm, int threads, int steps, bool loaded, double out[4])
+static void time_steps(const DrBemMatrices *bm, int threads, int steps, int load, double out[4])
 {
     omp_set_num_threads(threads);
     DrBemSolid *s = bench_solid(bm);
     DrError err;
+    bool loaded = load != LOAD_FREE;
     double *p = calloc((size_t)bm->n, sizeof(double)), *t = calloc((size_t)steps, sizeof(double));
-    for (int v = 0; v < bm->nv; v++) p[3 * v + 1] = v % 3 == 0 ? 50.0 : 0.0;
+    for (int v = 0; v < bm->nv; v++)
+        for (int c = 0; c < 3; c++)
+            p[3 * v + c] = load == LOAD_DENSE          ? 50.0 * (1.0 + 0.5 * sin(0.37 * v + c))
+                           : c == 1 && v % 3 == 0 ? 50.0
+                                                   : 0.0;
     memset(out, 0, sizeof(double) * 4);
     for (int k = 0; k < 2 * steps; k++) {
         DrBemStepStats st;
@@ -168,10 +177,11 @@ static int run_one(int seg)
     struct rusage ru;
     getrusage(RUSAGE_SELF, &ru);
     int threads = omp_get_max_threads();
-    double st1[4], st2[4], stf[4];
-    time_steps(bm, 1, 40, true, st1);
-    time_steps(bm, 2, 40, true, st2);
-    time_steps(bm, 2, 40, false, stf);
+    double st1[4], st2[4], stf[4], std2[4];
+    time_steps(bm, 1, 40, LOAD_THIRD, st1);
+    time_steps(bm, 2, 40, LOAD_THIRD, st2);
+    time_steps(bm, 2, 40, LOAD_FREE, stf);
+    time_steps(bm, 2, 40, LOAD_DENSE, std2);
     double ct[2][8];
     time_contact_steps(bm, 1, 3, ct[0]);
     time_contact_steps(bm, 2, 3, ct[1]);
@@ -180,12 +190,12 @@ static int run_one(int seg)
                         "PGS %.3f, final %.3f), %.0f contacts, %.0f sweeps\n",
                 m.nv, th + 1, ct[th][0], ct[th][1], ct[th][2], ct[th][3], ct[th][4], ct[th][5], ct[th][6], ct[th][7]);
     printf("%d,%d,%d,%.3f,%.3f,%.3f,%.3f,%.1f,%.1f,%.1f,%.3e,%.5f,%.5f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,"
-           "%.0f,%.0f,%.5f\n",
+           "%.0f,%.0f,%.5f,%.5f\n",
            m.nv, threads, bm->n_max,
            bm->stats.seconds_quadrature, bm->stats.seconds_inverse, bm->stats.seconds_compress, total,
            ru.ru_maxrss / 1024.0, bm->stats.bytes_dense / 1e6, bm->stats.bytes_compressed / 1e6,
            bm->stats.rigid_residual, st1[0], st2[0], ct[0][0], ct[1][0], ct[1][1], ct[1][2], ct[1][3], ct[1][4],
-           ct[1][5], st2[3], ct[1][6], ct[1][7], stf[0]);
+           ct[1][5], st2[3], ct[1][6], ct[1][7], stf[0], std2[0]);
     dr_bem_matrices_destroy(&bm);
     dr_trimesh_free(&m);
     return 0;
@@ -200,14 +210,15 @@ static void part_precompute(const char *csv)
     }
     const char *head = "vertices,threads,n_max,s_quadrature,s_inverse,s_compress,s_total,peak_mb,dense_mb,"
                        "compressed_mb,rigid_residual,s_step_1t,s_step_2t,s_contact_step_1t,s_contact_step_2t,s_trial_2t,"
-                       "s_detect_2t,s_assembly_2t,s_pgs_2t,s_final_2t,s_correction_2t,contacts,pgs_sweeps,s_step_free_2t";
+                       "s_detect_2t,s_assembly_2t,s_pgs_2t,s_final_2t,s_correction_2t,contacts,pgs_sweeps,s_step_free_2t,"
+                       "s_step_dense_2t";
     fprintf(f, "%s\n", head);
     printf("### precompute against N (boxes, n_max as listed, 32x, %d threads)\n\n", omp_get_max_threads());
     printf("| vertices | n_max | quadrature s | H0 inverse s | compression s | total s | peak MB | dense MB | "
-           "kept MB | rigid residual | loaded step s (1 / 2 threads) | traction-free step s (2 threads) | step on the "
-           "floor s (1 / 2 threads) | on the floor, 2 threads: trial / detection / assembly / PGS / final / error "
-           "correction s | contacts |\n"
-           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+           "kept MB | rigid residual | loaded step s (1 / 2 threads) | traction-free step s (2 threads) | dense "
+           "traction step s (2 threads) | step on the floor s (1 / 2 threads) | on the floor, 2 threads: trial / "
+           "detection / assembly / PGS / final / error correction s | contacts |\n"
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
     int segs[] = {9, 13, 22};
     char self[1024];
     ssize_t len = readlink("/proc/self/exe", self, sizeof self - 1);
@@ -230,13 +241,14 @@ static void part_precompute(const char *csv)
         fputs(line, f);
         fflush(f);
         int nv, th, nmax;
-        double q, inv, comp, tot, peak, dmb, kmb, rr, s1, s2, c1, c2, tr, de, as, pg, fi, co, nc, sw, sf;
-        if (sscanf(line, "%d,%d,%d,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf",
+        double q, inv, comp, tot, peak, dmb, kmb, rr, s1, s2, c1, c2, tr, de, as, pg, fi, co, nc, sw, sf, sd;
+        if (sscanf(line,
+                   "%d,%d,%d,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf",
                    &nv, &th, &nmax, &q, &inv, &comp, &tot, &peak, &dmb, &kmb, &rr, &s1, &s2, &c1, &c2, &tr, &de, &as,
-                   &pg, &fi, &co, &nc, &sw, &sf) == 24)
-            printf("| %d | %d | %.1f | %.1f | %.1f | %.1f | %.0f | %.0f | %.0f | %.2e | %.4f / %.4f | %.4f | "
+                   &pg, &fi, &co, &nc, &sw, &sf, &sd) == 25)
+            printf("| %d | %d | %.1f | %.1f | %.1f | %.1f | %.0f | %.0f | %.0f | %.2e | %.4f / %.4f | %.4f | %.4f | "
                    "%.3f / %.3f | %.3f / %.4f / %.3f / %.3f / %.3f / %.4f | %.0f |\n",
-                   nv, nmax, q, inv, comp, tot, peak, dmb, kmb, rr, s1, s2, sf, c1, c2, tr, de, as, pg, fi, co, nc);
+                   nv, nmax, q, inv, comp, tot, peak, dmb, kmb, rr, s1, s2, sf, sd, c1, c2, tr, de, as, pg, fi, co, nc);
         fflush(stdout);
     }
     fclose(f);
@@ -323,6 +335,7 @@ static void part_compression(const char *csv)
         const DrBemCMat *c1 = &set[2];
         /* the body's step on this set: a view of the dense build with the recompressed matrices */
         DrBemMatrices view = *bm;
+        view.runtime = NULL; /* its bodies make their own copies of these matrices */
         DrBemCMat *H = calloc((size_t)nk, sizeof(DrBemCMat)), *G = calloc((size_t)nk, sizeof(DrBemCMat));
         for (int k = 0; k < nk; k++) {
             H[k] = set[2 * k];
@@ -337,9 +350,9 @@ static void part_compression(const char *csv)
         if (dr_bem_compress(&bm->layout, inv, ratios[r], &view.H0inv_Gp, &err) != DR_OK) exit(1);
         free(inv);
         double stp[2][4], stfree[4];
-        time_steps(&view, 1, 30, true, stp[0]);
-        time_steps(&view, 2, 30, true, stp[1]);
-        time_steps(&view, 2, 30, false, stfree);
+        time_steps(&view, 1, 30, LOAD_THIRD, stp[0]);
+        time_steps(&view, 2, 30, LOAD_THIRD, stp[1]);
+        time_steps(&view, 2, 30, LOAD_FREE, stfree);
         dr_bem_cmat_free(&view.H0inv);
         dr_bem_cmat_free(&view.H0inv_Gp);
         free(H);

@@ -579,7 +579,7 @@ static void test_compact_copy(void **state)
     int *order = malloc(nv * sizeof *order);
     random_order(&rng, nv, order);
     double *x = malloc(n * sizeof *x), *xt = malloc(n * sizeof *x), *yd = malloc(n * sizeof *x),
-           *yq[4], *scratch = malloc(4 * n * sizeof *x);
+           *yq[4], *scratch = malloc((2 + BEM_COLUMN_GROUPS) * n * sizeof *x);
     fill_uniform(&rng, x, n);
     DrBemLayout l = make_layout(nv, DR_BEM_ORDER_VERTEX_XYZ, true, order);
     dr_bem_layout_to_coeff(&l, false, x, xt, scratch);
@@ -597,7 +597,7 @@ static void test_compact_copy(void **state)
             yq[v] = calloc(n, sizeof *x);
             bem_cmatq_scalar_only(v % 2 == 1);
             dr_set_threads(v / 2 + 1);
-            bem_cmatq_matvec_acc(&q, xt, 1.0, yq[v]);
+            bem_cmatq_matvec_acc(&q, xt, 1.0, yq[v], NULL);
         }
         bem_cmatq_scalar_only(false);
         dr_set_threads(saved);
@@ -616,7 +616,7 @@ static void test_compact_copy(void **state)
         }
         assert_true(sqrt(err2 / ref2) <= 1e-4);
         /* y += sign·M̃x accumulates */
-        bem_cmatq_matvec_acc(&q, xt, -1.0, yq[0]);
+        bem_cmatq_matvec_acc(&q, xt, -1.0, yq[0], NULL);
         for (int i = 0; i < n; i++) assert_near(yq[0][i], 0.0, 1e-12 * (fabs(yd[i]) + 1));
         /* the natural-order product */
         double *y1 = malloc(n * sizeof *x), *y2 = malloc(n * sizeof *x);
@@ -641,15 +641,15 @@ static void test_compact_copy(void **state)
             assert_int_equal(dr_bem_compress(&l, m, ratios[r], &c[r], &err), DR_OK);
             assert_true(bem_cmat_compact(&c[r], &q[r]));
         }
-        bem_cmatq_matvec_acc(&q[0], xt, 1.0, yseq);
-        bem_cmatq_matvec_acc(&q[1], x2, -0.5, yseq);
+        bem_cmatq_matvec_acc(&q[0], xt, 1.0, yseq, NULL);
+        bem_cmatq_matvec_acc(&q[1], x2, -0.5, yseq, NULL);
         const BemCMatQ *mats[2] = {&q[0], &q[1]};
         const double *xs[2] = {xt, x2};
         const double signs[2] = {1.0, -0.5};
         for (int t = 1; t <= 2; t++) {
             dr_set_threads(t);
             memset(ysum, 0, n * sizeof *x);
-            bem_cmatq_sum(mats, xs, signs, 2, ysum);
+            bem_cmatq_sum(mats, xs, signs, 2, ysum, NULL);
             assert_memory_equal(ysum, yseq, n * sizeof *x);
         }
         dr_set_threads(saved);
@@ -670,7 +670,7 @@ static void test_compact_copy(void **state)
         BemCMatQ q;
         assert_true(bem_cmat_compact(&c, &q));
         double xs[3] = {1.0, 2.0, 3.0}, ys[3] = {0, 0, 0};
-        bem_cmatq_matvec_acc(&q, xs, 1.0, ys);
+        bem_cmatq_matvec_acc(&q, xs, 1.0, ys, NULL);
         assert_true(ys[0] == 0.0);
         assert_near(ys[1], -7.5, 1e-14);
         assert_near(ys[2], 4.0 - 2e-3 + 6.0, 0.5 * 4.0 / 32767 * 6.0 + 1e-14);
@@ -695,6 +695,121 @@ static void test_compact_copy(void **state)
     free(xt);
     free(yd);
     free(scratch);
+}
+
+/* The column form of a compact copy (bem_cmatq_add_columns): a product with a vector whose nonzero coefficients
+ * touch few columns goes by columns and agrees with the row form up to the order of the sums; it gives the same
+ * bits with the scalar and vector loops and on 1 and 2 threads; a vector that touches most columns, or a call
+ * without work, goes by rows and gives the row form's bits; a zero vector adds nothing. */
+static void test_column_products(void **state)
+{
+    (void)state;
+    const int nv = 300, n = 3 * nv;
+    DrRng rng;
+    dr_rng_seed(&rng, 34);
+    double *m = test_matrix(&rng, n);
+    int *order = malloc(nv * sizeof *order);
+    random_order(&rng, nv, order);
+    DrBemLayout l = make_layout(nv, DR_BEM_ORDER_VERTEX_XYZ, true, order);
+    /* a traction on a patch of 20 vertices, in the coefficient domain */
+    double *p = calloc(n, sizeof *p), *pt = malloc(n * sizeof *p), *dense = malloc(n * sizeof *p),
+           *scratch = malloc((2 + BEM_COLUMN_GROUPS) * n * sizeof *p),
+           *work = malloc(BEM_COLUMN_GROUPS * n * sizeof *p);
+    for (int v = 0; v < 20; v++)
+        for (int c = 0; c < 3; c++) p[3 * order[v] + c] = dr_rng_uniform(&rng) - 0.5;
+    dr_bem_layout_to_coeff(&l, false, p, pt, scratch);
+    fill_uniform(&rng, dense, n);
+    int touched = 0;
+    for (int i = 0; i < n; i++) touched += pt[i] != 0.0;
+    assert_true(touched > 0 && touched < n / 4);
+    int saved = dr_threads();
+    DrError err;
+    DrBemCMat c;
+    assert_int_equal(dr_bem_compress(&l, m, 8.0, &c, &err), DR_OK);
+    BemCMatQ q;
+    assert_true(bem_cmat_compact(&c, &q));
+    assert_true(bem_cmatq_add_columns(&q));
+    assert_int_equal(q.col_ptr[n], q.nnz);
+    double *yr = calloc(n, sizeof *p), *yc[4];
+    const BemCMatQ *one[1] = {&q};
+    const double *xs[1] = {pt};
+    const double sg[1] = {-0.75};
+    assert_int_equal(bem_cmatq_sum(one, xs, sg, 1, yr, NULL), 0); /* no work: by rows */
+    for (int v = 0; v < 4; v++) { /* scalar/vector × 1/2 threads */
+        yc[v] = calloc(n, sizeof *p);
+        bem_cmatq_scalar_only(v % 2 == 1);
+        dr_set_threads(v / 2 + 1);
+        assert_int_equal(bem_cmatq_sum(one, xs, sg, 1, yc[v], work), 1);
+    }
+    bem_cmatq_scalar_only(false);
+    dr_set_threads(saved);
+    for (int v = 1; v < 4; v++) assert_memory_equal(yc[0], yc[v], n * sizeof *p);
+    bool differs = false;
+    for (int i = 0; i < n; i++) {
+        double terms = 0;
+        for (int64_t k = q.row_ptr[i]; k < q.row_ptr[i + 1]; k++)
+            terms += fabs(q.scale[i] * q.val[k] * pt[q.col[k]]);
+        assert_true(fabs(yc[0][i] - yr[i]) <= 1e-14 * terms);
+        differs |= yc[0][i] != yr[i];
+    }
+    assert_true(differs); /* the sums did go another way */
+    /* a dense vector goes by rows even with work */
+    double *yd = calloc(n, sizeof *p), *yd2 = calloc(n, sizeof *p);
+    const double *xd[1] = {dense};
+    assert_int_equal(bem_cmatq_sum(one, xd, sg, 1, yd, work), 0);
+    assert_int_equal(bem_cmatq_sum(one, xd, sg, 1, yd2, NULL), 0);
+    assert_memory_equal(yd, yd2, n * sizeof *p);
+    /* a zero vector adds nothing */
+    double *zero = calloc(n, sizeof *p);
+    const double *xz[1] = {zero};
+    memcpy(yd2, yd, n * sizeof *p);
+    assert_int_equal(bem_cmatq_sum(one, xz, sg, 1, yd2, work), 1);
+    assert_memory_equal(yd, yd2, n * sizeof *p);
+    /* a sum of row and column products: the same bits on 1 and 2 threads, and within round-off of the products one
+       after the other */
+    {
+        BemCMatQ r;
+        assert_true(bem_cmat_compact(&c, &r)); /* no column form */
+        const BemCMatQ *mats[3] = {&q, &r, &q};
+        const double *vx[3] = {pt, dense, pt};
+        const double signs[3] = {1.0, -0.5, 2.0};
+        double *ys[2], *yseq = calloc(n, sizeof *p);
+        for (int t = 1; t <= 2; t++) {
+            dr_set_threads(t);
+            ys[t - 1] = calloc(n, sizeof *p);
+            assert_int_equal(bem_cmatq_sum(mats, vx, signs, 3, ys[t - 1], work), 2);
+        }
+        dr_set_threads(saved);
+        assert_memory_equal(ys[0], ys[1], n * sizeof *p);
+        for (int j = 0; j < 3; j++) bem_cmatq_matvec_acc(mats[j], vx[j], signs[j], yseq, NULL);
+        assert_true(diff_norm2(ys[0], yseq, n) <= 1e-13 * norm2(yseq, n));
+        /* the natural-order product takes its work from the scratch */
+        double *y1 = malloc(n * sizeof *p), *y2 = malloc(n * sizeof *p);
+        bem_cmatq_matvec(&l, &q, p, y1, scratch);
+        bem_cmatq_matvec(&l, &r, p, y2, scratch);
+        assert_true(diff_norm2(y1, y2, n) <= 1e-13 * norm2(y2, n));
+        free(y1);
+        free(y2);
+        for (int t = 0; t < 2; t++) free(ys[t]);
+        free(yseq);
+        bem_cmatq_free(&r);
+    }
+    bem_cmatq_free(&q);
+    assert_null(q.col_ptr);
+    dr_bem_cmat_free(&c);
+    for (int v = 0; v < 4; v++) free(yc[v]);
+    free(yr);
+    free(yd);
+    free(yd2);
+    free(zero);
+    free(p);
+    free(pt);
+    free(dense);
+    free(scratch);
+    free(work);
+    free(m);
+    free(order);
+    dr_bem_layout_free(&l);
 }
 
 /* ---- degenerate and bad input ---------------------------------------------------------------------------- */
@@ -791,6 +906,7 @@ int main(void)
         cmocka_unit_test(test_smooth_kernel_error_table),
         cmocka_unit_test(test_threads_bit_identical),
         cmocka_unit_test(test_compact_copy),
+        cmocka_unit_test(test_column_products),
         cmocka_unit_test(test_one_vertex),
         cmocka_unit_test(test_bad_input),
     };

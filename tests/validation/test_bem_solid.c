@@ -1,6 +1,7 @@
 /* Validation of a boundary-element body stepping in a shot without contact (src/bem/bem_solid.c): free fall of
  * the frame, free flight with spin (momenta and the rest shape kept), a sphere under sudden pressure settling on
- * Lamé's solution through the runtime with dense and 32× compressed matrices, trial steps, and the checkpoint. */
+ * Lamé's solution through the runtime with dense and 32× compressed matrices, trial steps, the checkpoint, and
+ * the copies bodies on one set share. */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -225,6 +226,56 @@ static void test_trial_and_checkpoint(void **state)
     dr_bem_matrices_destroy(&bm);
 }
 
+static void test_shared_copies(void **state)
+{
+    (void)state;
+    /* Bodies on one set share its compact copies (the traction matrices with their column form) and outlive each
+       other; a set made by hand, without the shared part, gets the body its own copies, which step alike. */
+    DrBemMatrices *bm = build(1, 4, 5e-3, 4);
+    DrBemSolidDesc d;
+    dr_bem_solid_desc_default(&d);
+    DrBemSolid *s = NULL, *t = NULL, *u = NULL;
+    DrError err;
+    assert_int_equal(dr_bem_solid_create(bm, &d, &s, &err), DR_OK);
+    assert_int_equal(dr_bem_solid_create(bm, &d, &t, &err), DR_OK);
+    assert_non_null(s->Hq);
+    assert_ptr_equal(s->Hq, t->Hq);
+    assert_ptr_equal(s->Gpq, t->Gpq);
+    assert_ptr_equal(s->rt, bm->runtime);
+    assert_non_null(s->Gq[1].col_ptr);
+    assert_non_null(s->Gpq->col_ptr);
+    assert_null(s->Hq[1].col_ptr);
+    dr_bem_solid_destroy(&s);
+    DrBemMatrices hand = *bm;
+    hand.runtime = NULL;
+    assert_int_equal(dr_bem_solid_create(&hand, &d, &u, &err), DR_OK);
+    assert_ptr_equal(u->rt, u->own_rt);
+    assert_true(u->Hq != t->Hq);
+    /* a view of the set with other matrices (here: the same ones held elsewhere) does not take the set's copies */
+    DrBemMatrices view = *bm;
+    DrBemCMat *H = malloc(sizeof(DrBemCMat) * (bm->n_max + 1));
+    memcpy(H, bm->H, sizeof(DrBemCMat) * (bm->n_max + 1));
+    view.H = H;
+    DrBemSolid *w = NULL;
+    assert_int_equal(dr_bem_solid_create(&view, &d, &w, &err), DR_OK);
+    assert_ptr_equal(w->rt, w->own_rt);
+    dr_bem_solid_destroy(&w);
+    free(H);
+    int n = bm->n;
+    double *p = calloc(n, sizeof(double));
+    for (int c = 0; c < 3; c++) p[c] = 40.0 * (c + 1); /* one loaded vertex */
+    for (int k = 0; k < 12; k++) {
+        assert_int_equal(dr_bem_solid_step(t, p, NULL, &err), DR_OK);
+        assert_int_equal(dr_bem_solid_step(u, p, NULL, &err), DR_OK);
+    }
+    assert_memory_equal(dr_bem_solid_displacement(t), dr_bem_solid_displacement(u), sizeof(double) * n);
+    assert_true(max_abs(dr_bem_solid_displacement(t), n) > 1e-9);
+    free(p);
+    dr_bem_solid_destroy(&u);
+    dr_bem_solid_destroy(&t);
+    dr_bem_matrices_destroy(&bm);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -232,6 +283,7 @@ int main(void)
         cmocka_unit_test(test_free_flight_spin),
         cmocka_unit_test(test_sudden_pressure_runtime),
         cmocka_unit_test(test_trial_and_checkpoint),
+        cmocka_unit_test(test_shared_copies),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
