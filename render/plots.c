@@ -499,8 +499,7 @@ DrStatus plots_write(const char *progress_path, const char *out_dir, int *writte
             snprintf(png[p], sizeof png[p], "%s/%s.png", out_dir, plot_names[p]);
             dr_io_tmp_path(png[p], png_tmp[p], sizeof png_tmp[p]);
         }
-        const char *base = getenv("TMPDIR");
-        snprintf(tmpdir, sizeof tmpdir, "%s/drench-plots-XXXXXX", base && base[0] ? base : "/tmp");
+        snprintf(tmpdir, sizeof tmpdir, "%s/drench-plots-XXXXXX", dr_temp_dir());
         if (!mkdtemp(tmpdir)) {
             s = dr_error_set(err, DR_ERR_IO, tmpdir, 0, 0,
                              "cannot create a temporary directory for the plots: %s; check $TMPDIR", strerror(errno));

@@ -192,6 +192,10 @@ void dr_hash_hex(DrHash h, char out[33]);
 
 double dr_time_now(void); /* monotonic seconds */
 
+/* ---- scratch space ------------------------------------------------------------------------ */
+
+const char *dr_temp_dir(void); /* $TMPDIR when set and not empty, else /tmp (a farm's own scratch space) */
+
 /* ---- parallel for ------------------------------------------------------------------------ */
 
 /* Calls fn(begin, end, ctx) on disjoint ranges covering [0, count), in parallel over OpenMP

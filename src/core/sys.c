@@ -1,6 +1,7 @@
-/* Timers, parallel-for over OpenMP and the xoshiro256** rng. */
+/* Timers, the scratch directory, parallel-for over OpenMP and the xoshiro256** rng. */
 #include "core.h"
 
+#include <stdlib.h>
 #include <time.h>
 #ifdef _OPENMP
 #include <omp.h>
@@ -11,6 +12,12 @@ double dr_time_now(void)
     struct timespec ts;
     clock_gettime(CLOCK_MONOTONIC, &ts);
     return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+const char *dr_temp_dir(void)
+{
+    const char *t = getenv("TMPDIR");
+    return t && t[0] ? t : "/tmp";
 }
 
 void dr_set_threads(int n)

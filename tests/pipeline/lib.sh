@@ -2,7 +2,7 @@
 set -u
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
 BIN="$ROOT/bin"
-WORK=$(mktemp -d /tmp/drench-test.XXXXXX)
+WORK=$(mktemp -d "${TMPDIR:-/tmp}/drench-test.XXXXXX")
 trap 'rm -rf "$WORK"' EXIT
 export DRENCH_OUT="$WORK/out" DRENCH_CACHE="$WORK/cache" CI=1
 

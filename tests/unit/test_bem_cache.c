@@ -25,7 +25,7 @@ static int group_setup(void **state)
 {
     (void)state;
     dr_log_set_level(DR_LOG_ERROR); /* the refused files below are logged as warnings by design */
-    snprintf(g_dir, sizeof g_dir, "/tmp/drench_test_bem_cache.XXXXXX");
+    snprintf(g_dir, sizeof g_dir, "%s/drench_test_bem_cache.XXXXXX", dr_temp_dir());
     return mkdtemp(g_dir) ? 0 : -1;
 }
 

@@ -142,7 +142,8 @@ static void test_hashing(void **state)
     char hex[33];
     dr_hash_hex(h1, hex);
     assert_int_equal(strlen(hex), 32);
-    char path[] = "/tmp/drench_hash_XXXXXX";
+    char path[1024];
+    snprintf(path, sizeof path, "%s/drench_hash_XXXXXX", dr_temp_dir());
     int fd = mkstemp(path);
     assert_true(fd >= 0);
     assert_int_equal(write(fd, "drench", 6), 6);
@@ -198,6 +199,22 @@ static void test_rng(void **state)
     assert_true(dr_rng_next(&c) == dr_rng_next(&a));
 }
 
+/* The scratch directory: $TMPDIR when set and not empty, /tmp otherwise. */
+static void test_temp_dir(void **state)
+{
+    (void)state;
+    const char *saved = getenv("TMPDIR");
+    char keep[1024] = "";
+    if (saved) snprintf(keep, sizeof keep, "%s", saved);
+    setenv("TMPDIR", "/scratch/farm", 1);
+    assert_string_equal(dr_temp_dir(), "/scratch/farm");
+    setenv("TMPDIR", "", 1);
+    assert_string_equal(dr_temp_dir(), "/tmp");
+    unsetenv("TMPDIR");
+    assert_string_equal(dr_temp_dir(), "/tmp");
+    if (saved) setenv("TMPDIR", keep, 1);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -205,6 +222,7 @@ int main(void)
         cmocka_unit_test(test_math_and_xform),  cmocka_unit_test(test_trimesh_measures),
         cmocka_unit_test(test_arena),           cmocka_unit_test(test_hashing),
         cmocka_unit_test(test_parallel_for_covers_once), cmocka_unit_test(test_rng),
+        cmocka_unit_test(test_temp_dir),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

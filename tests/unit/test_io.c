@@ -33,7 +33,7 @@ static int group_setup(void **state)
         fprintf(stderr, "test_io: %scube.obj not found; run from the repository root\n", MESHES);
         return -1;
     }
-    snprintf(g_dir, sizeof g_dir, "/tmp/drench_test_io.XXXXXX");
+    snprintf(g_dir, sizeof g_dir, "%s/drench_test_io.XXXXXX", dr_temp_dir());
     return mkdtemp(g_dir) ? 0 : -1;
 }
 

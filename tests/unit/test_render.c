@@ -22,7 +22,7 @@ static char g_dir[256]; /* scratch directory of this run */
 static int group_setup(void **state)
 {
     (void)state;
-    snprintf(g_dir, sizeof g_dir, "/tmp/drench_test_render.XXXXXX");
+    snprintf(g_dir, sizeof g_dir, "%s/drench_test_render.XXXXXX", dr_temp_dir());
     return mkdtemp(g_dir) ? 0 : -1;
 }
 

@@ -41,7 +41,7 @@ static void remove_tree(const char *path)
 static int group_setup(void **state)
 {
     (void)state;
-    snprintf(g_dir, sizeof g_dir, "/tmp/drench_test_scene_XXXXXX");
+    snprintf(g_dir, sizeof g_dir, "%s/drench_test_scene_XXXXXX", dr_temp_dir());
     if (!mkdtemp(g_dir)) return -1;
     char sub[512];
     snprintf(sub, sizeof sub, "%s/meshes", g_dir);

@@ -63,7 +63,8 @@ static float sdf_at(const DrDenseSdf *s, double x, double y, double z)
 /* Runs fn(ctx) with stderr captured into buf (NUL-terminated). */
 static void capture_stderr(void (*fn)(void *), void *ctx, char *buf, size_t size)
 {
-    char path[] = "/tmp/drench_vdb_stderr_XXXXXX";
+    char path[1024];
+    snprintf(path, sizeof path, "%s/drench_vdb_stderr_XXXXXX", dr_temp_dir());
     int fd = mkstemp(path);
     assert_true(fd >= 0);
     fflush(stderr);
@@ -84,13 +85,13 @@ static void capture_stderr(void (*fn)(void *), void *ctx, char *buf, size_t size
 /* Temporary directory for written files, removed with its contents by rm_dir. */
 static void make_dir(char *dir)
 {
-    strcpy(dir, "/tmp/drench_vdb_XXXXXX");
+    snprintf(dir, 512, "%s/drench_vdb_XXXXXX", dr_temp_dir()); /* dir holds 512 */
     assert_non_null(mkdtemp(dir));
 }
 
 static void rm_dir(const char *dir)
 {
-    char cmd[512];
+    char cmd[600];
     snprintf(cmd, sizeof cmd, "rm -rf '%s'", dir);
     assert_int_equal(system(cmd), 0);
 }
@@ -449,7 +450,7 @@ static void test_write_and_read_back(void **state)
     DrError err;
     assert_int_equal(dr_vdb_surface_from_particles(pos, vel, n, &d, &s, &err), DR_OK);
 
-    char dir[64], path[128];
+    char dir[512], path[600];
     make_dir(dir);
     snprintf(path, sizeof path, "%s/liquid.0012.vdb", dir);
     DrVdbMeta meta = {12, 24.0, "0123456789abcdef0123456789abcdef"};
@@ -483,7 +484,7 @@ static void test_write_and_read_back(void **state)
 
     /* Debian's vdb_print (libopenvdb-tools), an independent reader, when installed. */
     if (system("command -v vdb_print >/dev/null 2>&1") == 0) {
-        char cmd[256], out[8192];
+        char cmd[700], out[8192];
         snprintf(cmd, sizeof cmd, "vdb_print -l -m '%s' 2>&1", path);
         FILE *p = popen(cmd, "r");
         assert_non_null(p);
@@ -521,7 +522,7 @@ static void test_zero_particles(void **state)
     assert_null(mesh.v);
     assert_null(mesh.tri);
 
-    char dir[64], path[128], names[64];
+    char dir[512], path[600], names[64];
     make_dir(dir);
     snprintf(path, sizeof path, "%s/liquid.0001.vdb", dir);
     DrVdbMeta meta = {1, 24.0, NULL};
@@ -574,7 +575,7 @@ static void test_errors_not_crashes(void **state)
     assert_int_equal(dr_vdb_file_info("/nonexistent/drench/x.vdb", names, sizeof names, &err), DR_ERR_IO);
     assert_non_null(strstr(err.message, "/nonexistent/drench/x.vdb"));
 
-    char dir[64], path[128];
+    char dir[512], path[600];
     make_dir(dir);
     snprintf(path, sizeof path, "%s/not_a.vdb", dir);
     FILE *f = fopen(path, "w");

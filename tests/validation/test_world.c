@@ -119,7 +119,8 @@ static void test_checkpoint_continuation_is_bit_identical(void **state)
     DrScene *scene = NULL, *scene_b = NULL;
     DrWorld *a = load_world("assets/scenes/small_dam.json", &scene);
     DrWorld *b = load_world("assets/scenes/small_dam.json", &scene_b);
-    char path[] = "/tmp/drench_ckpt_XXXXXX";
+    char path[1024];
+    snprintf(path, sizeof path, "%s/drench_ckpt_XXXXXX", dr_temp_dir());
     int fd = mkstemp(path);
     close(fd);
     unlink(path);
