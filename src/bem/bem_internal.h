@@ -106,7 +106,7 @@ void bem_cmatq_free(BemCMatQ *m);
 /* ỹ += sign·M̃x̃; work holds BEM_COLUMN_GROUPS·3N doubles, or NULL to use the row form only. */
 void bem_cmatq_matvec_acc(const BemCMatQ *m, const double *x, double sign, double *y, double *work);
 /* ỹ += Σ_j sign_j·M̃_j x̃_j over `count` matrices of one size, in one pass of the threads (the history sum). A
-   product whose vector's nonzero coefficients touch less than half of the matrix goes by columns when the copy has
+   product whose vector's nonzero coefficients touch less than 45 % of the matrix goes by columns when the copy has
    them and work (BEM_COLUMN_GROUPS·3N doubles) is given. The result does not depend on the thread count. */
 int bem_cmatq_sum(const BemCMatQ *const *mats, const double *const *x, const double *sign, int count, double *y,
                   double *work); /* returns how many products went by columns */
@@ -160,9 +160,9 @@ struct DrBemSolid {
     double *Epinv, *Fpinv;  /* 3 × 3N least-squares inverses of E and F (§3.2.1) */
     /* scratch, 3N each; s_coeff (2 + BEM_COLUMN_GROUPS)·3N */
     double *s_ht, *s_tmp, *s_h, *s_p, *s_u, *s_z, *s_r, *s_coeff;
-    BemRuntime *rt;         /* the set's shared copies, or own_rt (a set made by hand, or a view of one) */
+    BemRuntime *rt;         /* the set's shared copies (rt->Hq NULL: none), or own_rt (a set made by hand, or a view
+                               of one) */
     BemRuntime *own_rt;
-    const BemCMatQ *Hq, *Gq, *H0q, *Gpq; /* rt's copies, or all NULL when it has none */
     const BemCMatQ **sum_mats; /* 2·nmax: the history sum's matrices, vectors and signs (bem_cmatq_sum) */
     const double **sum_x;
     double *sum_sign;

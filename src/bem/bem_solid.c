@@ -208,7 +208,7 @@ void dr_bem_solid_destroy(DrBemSolid **ps)
    scratch. */
 static void apply(const DrBemSolid *s, const DrBemCMat *M, const BemCMatQ *Mq, const double *x, double *y)
 {
-    if (s->Hq) bem_cmatq_matvec(&s->m->layout, Mq, x, y, s->s_coeff);
+    if (s->rt->Hq) bem_cmatq_matvec(&s->m->layout, Mq, x, y, s->s_coeff);
     else dr_bem_cmat_matvec(&s->m->layout, M, x, y, s->s_coeff);
 }
 
@@ -262,10 +262,6 @@ DrStatus dr_bem_solid_create(const DrBemMatrices *m, const DrBemSolidDesc *d, Dr
     }
     if (!s->rt) s->rt = s->own_rt;
     runtime_make(s->rt, m);
-    if (s->rt->Hq) {
-        s->Hq = s->rt->Hq, s->Gq = s->rt->Gq;
-        s->H0q = &s->rt->H0q, s->Gpq = &s->rt->Gpq;
-    }
     const double *xb = m->body.centroid;
     for (int v = 0; v < s->nv; v++)
         for (int c = 0; c < 3; c++) s->ref[3 * v + c] = m->x[3 * v + c] - xb[c];
@@ -278,10 +274,10 @@ DrStatus dr_bem_solid_create(const DrBemMatrices *m, const DrBemSolidDesc *d, Dr
     /* E = H₀⁻¹D₀ and F = H₀⁻¹Q₀ with the same (compressed) H₀⁻¹ the steps use */
     for (int c = 0; c < 3; c++) {
         for (int r = 0; r < s->n; r++) s->s_tmp[r] = m->D[3 * r + c];
-        apply(s, &m->H0inv, s->H0q, s->s_tmp, s->s_u);
+        apply(s, &m->H0inv, &s->rt->H0q, s->s_tmp, s->s_u);
         for (int r = 0; r < s->n; r++) s->E[3 * r + c] = s->s_u[r];
         for (int r = 0; r < s->n; r++) s->s_tmp[r] = m->Q[3 * r + c];
-        apply(s, &m->H0inv, s->H0q, s->s_tmp, s->s_u);
+        apply(s, &m->H0inv, &s->rt->H0q, s->s_tmp, s->s_u);
         for (int r = 0; r < s->n; r++) s->F[3 * r + c] = s->s_u[r];
     }
     if (!pinv_n3(s->E, s->n, s->Epinv) || !pinv_n3(s->F, s->n, s->Fpinv)) {
@@ -371,9 +367,9 @@ DrStatus bem_solid_advance(DrBemSolid *s, const double *traction, bool commit, D
             int sl = slot(s, step - k);
             const double *uk = s->ut_hist + (size_t)sl * n, *pk = s->pt_hist + (size_t)sl * n;
             bool loaded_k = nonzero(pk, n); /* a traction-free past step adds nothing through G_k */
-            if (s->Hq) {
-                mats[count] = &s->Hq[k], xs[count] = uk, signs[count++] = -1.0;
-                if (loaded_k) mats[count] = &s->Gq[k], xs[count] = pk, signs[count++] = 1.0;
+            if (s->rt->Hq) {
+                mats[count] = &s->rt->Hq[k], xs[count] = uk, signs[count++] = -1.0;
+                if (loaded_k) mats[count] = &s->rt->Gq[k], xs[count] = pk, signs[count++] = 1.0;
                 continue;
             }
             dr_bem_cmat_matvec_coeff(&m->H[k], uk, tmp);
@@ -385,7 +381,7 @@ DrStatus bem_solid_advance(DrBemSolid *s, const double *traction, bool commit, D
         (void)bem_cmatq_sum(mats, xs, signs, count, ht, s->s_coeff);
         if (step > 1) dr_bem_layout_from_coeff(&m->layout, s->dense, ht, h, s->s_coeff);
         add_history_forces(s, step, h);
-        if (step > 1) apply(s, &m->H0inv, s->H0q, h, s->hz);
+        if (step > 1) apply(s, &m->H0inv, &s->rt->H0q, h, s->hz);
         else memset(s->hz, 0, nb);
         s->hz_step = step;
     }
@@ -412,7 +408,7 @@ DrStatus bem_solid_advance(DrBemSolid *s, const double *traction, bool commit, D
                 b0[i] += m->A[(size_t)i * n + c] * p[c]; /* a_ext = A p, α = C p (eq. 10) */
                 al0[i] += m->C[(size_t)i * n + c] * p[c];
             }
-        apply(s, &m->H0inv_Gp, s->Gpq, p, z);
+        apply(s, &m->H0inv_Gp, &s->rt->Gpq, p, z);
         double nb0[3] = {-b0[0], -b0[1], -b0[2]}, nal0[3] = {-al0[0], -al0[1], -al0[2]};
         add_n3(s->E, n, nb0, z);
         add_n3(s->F, n, nal0, z);

@@ -82,10 +82,12 @@ static void capture_stderr(void (*fn)(void *), void *ctx, char *buf, size_t size
     unlink(path);
 }
 
-/* Temporary directory for written files, removed with its contents by rm_dir. */
+#define DIR_LEN 512 /* a scratch directory's name under $TMPDIR */
+
+/* Temporary directory for written files (DIR_LEN chars), removed with its contents by rm_dir. */
 static void make_dir(char *dir)
 {
-    snprintf(dir, 512, "%s/drench_vdb_XXXXXX", dr_temp_dir()); /* dir holds 512 */
+    snprintf(dir, DIR_LEN, "%s/drench_vdb_XXXXXX", dr_temp_dir());
     assert_non_null(mkdtemp(dir));
 }
 
@@ -450,7 +452,7 @@ static void test_write_and_read_back(void **state)
     DrError err;
     assert_int_equal(dr_vdb_surface_from_particles(pos, vel, n, &d, &s, &err), DR_OK);
 
-    char dir[512], path[600];
+    char dir[DIR_LEN], path[DIR_LEN + 88];
     make_dir(dir);
     snprintf(path, sizeof path, "%s/liquid.0012.vdb", dir);
     DrVdbMeta meta = {12, 24.0, "0123456789abcdef0123456789abcdef"};
@@ -522,7 +524,7 @@ static void test_zero_particles(void **state)
     assert_null(mesh.v);
     assert_null(mesh.tri);
 
-    char dir[512], path[600], names[64];
+    char dir[DIR_LEN], path[DIR_LEN + 88], names[64];
     make_dir(dir);
     snprintf(path, sizeof path, "%s/liquid.0001.vdb", dir);
     DrVdbMeta meta = {1, 24.0, NULL};
@@ -575,7 +577,7 @@ static void test_errors_not_crashes(void **state)
     assert_int_equal(dr_vdb_file_info("/nonexistent/drench/x.vdb", names, sizeof names, &err), DR_ERR_IO);
     assert_non_null(strstr(err.message, "/nonexistent/drench/x.vdb"));
 
-    char dir[512], path[600];
+    char dir[DIR_LEN], path[DIR_LEN + 88];
     make_dir(dir);
     snprintf(path, sizeof path, "%s/not_a.vdb", dir);
     FILE *f = fopen(path, "w");

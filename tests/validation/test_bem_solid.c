@@ -238,19 +238,19 @@ static void test_shared_copies(void **state)
     DrError err;
     assert_int_equal(dr_bem_solid_create(bm, &d, &s, &err), DR_OK);
     assert_int_equal(dr_bem_solid_create(bm, &d, &t, &err), DR_OK);
-    assert_non_null(s->Hq);
-    assert_ptr_equal(s->Hq, t->Hq);
-    assert_ptr_equal(s->Gpq, t->Gpq);
+    assert_non_null(s->rt->Hq);
+    assert_ptr_equal(s->rt, t->rt);
     assert_ptr_equal(s->rt, bm->runtime);
-    assert_non_null(s->Gq[1].col_ptr);
-    assert_non_null(s->Gpq->col_ptr);
-    assert_null(s->Hq[1].col_ptr);
+    assert_non_null(s->rt->Gq[1].col_ptr);
+    assert_non_null(s->rt->Gpq.col_ptr);
+    assert_null(s->rt->Hq[1].col_ptr);
     dr_bem_solid_destroy(&s);
     DrBemMatrices hand = *bm;
     hand.runtime = NULL;
     assert_int_equal(dr_bem_solid_create(&hand, &d, &u, &err), DR_OK);
     assert_ptr_equal(u->rt, u->own_rt);
-    assert_true(u->Hq != t->Hq);
+    assert_non_null(u->rt->Hq);
+    assert_true(u->rt->Hq != t->rt->Hq);
     /* a view of the set with other matrices (here: the same ones held elsewhere) does not take the set's copies */
     DrBemMatrices view = *bm;
     DrBemCMat *H = malloc(sizeof(DrBemCMat) * (bm->n_max + 1));
