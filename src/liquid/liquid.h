@@ -1,15 +1,29 @@
 /* drench liquid: incompressible bulk liquid on a MAC grid with APIC/FLIP/PIC particles (PHYSICS §3).
  *
- * One substep: P2G (transfer.h) → gravity and explicit viscosity → boundary conditions (domain walls;
- * colliders as variational face fractions with their velocity on blocked faces) → pressure projection
- * (DrPressureFormulation below; PCG + MIC(0)) → extrapolation of the grid's velocity change into the
- * faces the projection did not update → collider velocity constraint (slip with Coulomb
- * friction, or no-slip) → G2P → x += Δt v_p^{n+1} → push out of colliders, clamp into the domain →
- * emitters, kill boxes.
+ * One substep: P2G (transfer.h) → step size (CFL, dr_liquid_advance) → gravity and explicit viscosity →
+ * boundary conditions (domain walls; colliders as variational face fractions with their velocity on
+ * blocked faces) → pressure projection (DrPressureFormulation below; PCG + MIC(0)) → extrapolation of the
+ * grid's velocity change into the faces the projection did not update → collider velocity constraint
+ * (slip with Coulomb friction, or no-slip) → G2P → x += Δt v_p^{n+1} → push out of colliders, clamp into
+ * the domain → emitters, kill boxes.
  *
- * Free surface. The liquid level set at a cell centre is φ = (½ − min(1, n_c / per_cell))·Δx from the
- * cell's particle count n_c: a full cell puts the surface on its faces (a flat, face-aligned surface is
- * exactly flat whatever the jitter), a partly filled one moves it inward. θ = φ_F/(φ_F − φ_A) ≥ 0.01.
+ * Free surface. The liquid level set at a cell centre is φ = (½ − min(1, n_c / (per_cell·ω_c)))·Δx from
+ * the cell's particle count n_c and its open fraction ω_c (the part of the cell outside every collider):
+ * a full cell puts the surface on its faces (a flat, face-aligned surface is exactly flat whatever the
+ * jitter), a partly filled one moves it inward. θ = φ_F/(φ_F − φ_A) ≥ 0.01.
+ *
+ * Colliders. A face's weight is its open fraction (from the collider phi at its corners); its blocked
+ * part moves with the collider (the variational boundary). A face that no particle reaches (no P2G mass)
+ * is closed and moves with the collider: a pool next to a collider keeps no spurious velocity on faces
+ * inside it, and a collider that carries liquid carries it at exactly its own velocity. A cell cut by a
+ * collider counts particles unreliably (where the surface crosses the seeding lattice decides how many
+ * it holds, and a small open part may hold none while liquid surrounds it: as an air cell it would put
+ * p = 0 into the liquid at depth), so its liquid phi is the liquid's around it, continued into the
+ * collider along the liquid surface (liquid.c: extend_phi_slices): still water next to a sphere, a bowl,
+ * a sloping box or a plate, or inside a tank that is a collider, stays still (to ~1e-8 m/s) and takes one
+ * substep per frame. Colliders thinner than about a cell are not resolved by the face fractions (their
+ * corners miss them): the particles are still pushed out of them, but the pressure sees them partly
+ * open.
  *
  * Units SI. Determinism: a run is bit-identical for any thread count (fixed-order reductions, coloured
  * P2G). Thread safety: one DrLiquid belongs to one thread at a time (it parallelises internally).
@@ -42,7 +56,11 @@
  *   Σ_f m_f |u_f − u*_f|² subject to the discrete divergence constraint, i.e. u_f = u*_f − Δt/ρ_f (G p)_f,
  *   ρ_f = m_f/Δx³, Poisson coefficients w_f/ρ_f, applied to EVERY face with mass (no extrapolation into
  *   them). The constraint holds on the cells holding particles and on the cells whose six faces all carry
- *   mass (the kernel's reach just outside the liquid); p = 0 at the centres of the remaining cells.
+ *   mass (the kernel's reach just outside the liquid; with the virtual liquid below, next to colliders);
+ *   p = 0 at the centres of the remaining cells. Next to a collider part of a face's P2G support lies
+ *   inside it, where no particle is: the face densities there count a virtual liquid filling the
+ *   collider's part of the cells under the liquid at the seeding lattice's points (mass only; liquid.c:
+ *   virtual_mass), so that they stay uniform as the walls' mirror nodes keep them at the domain walls.
  *   Since m_f Δu_f = −Δt Δx² (G p)_f does not depend on m_f, summation by parts turns Σ_f m_f Δu_f e_a
  *   and Σ_f x_f × m_f Δu_f e_a into sums over cells of p_c times the moments of the faces of c that carry
  *   mass: zero for every cell with six such faces, and p = 0 on the others. So, away from walls and
@@ -51,7 +69,8 @@
  *   momentum to round-off (the rotating blob: ~4e-15 of |L| per 100 steps). The price: the face densities
  *   follow the particle distribution, and a face density varying sideways is a horizontal density
  *   gradient that gravity turns into flow. Unjittered seeding (jitter 0) gives uniform face masses (walls
- *   fold the kernel back, transfer.h) and still water stays still (~5e-8 m/s); fully jittered seeding
+ *   fold the kernel back, transfer.h) and still water stays still (~5e-8 m/s, next to colliders ~5e-6
+ *   m/s after 2 s); fully jittered seeding
  *   does not (~0.24 m/s of slow circulation in the same tank). Faces with little mass get large
  *   coefficients (ρ/ρ_f), which costs PCG iterations (a small dam break: at most 74 against 18). Use it
  *   where momentum matters more than resting water (splashes, free rotating bodies of liquid); use the
@@ -124,10 +143,15 @@ typedef struct DrLiquid DrLiquid;
 DR_NODISCARD DrStatus dr_liquid_create(const DrLiquidDesc *desc, const DrCollider *const *colliders, int ncolliders,
                                        DrLiquid **out, DrError *err);
 void dr_liquid_destroy(DrLiquid **liq);
-/* Advances from t0 to t1 with adaptive substeps (CFL: dt <= cfl·dx/max(|v_p| + (6√3/dx)‖B_p‖_F +
-   √(5·dx·|g|)), also the explicit-viscosity limit dx²/(6ν); at most max_substeps — if the CFL would need
-   more, the substeps are clamped and a warning is logged once per call; viscosity then acts with the
-   largest stable coefficient). Fills *stats (zeroed first) with the sums/maxima over all substeps.
+/* Advances from t0 to t1 with adaptive substeps. CFL: dt <= cfl·dx/(U + √(5·dx·a⁺)), U the largest face
+   speed after the substep's P2G (every particle's velocity after G2P is a convex combination of face
+   values, so U bounds it; [APIC] §4.3 bounds U by max_p(|v_p| + (6√3/dx)‖B_p‖_F), which one particle
+   with a large affine matrix inflates for the whole liquid), a⁺ the largest speed gain per second of a
+   face in the previous substep (measured before a liquid's first substep by a trial of the grid phases,
+   then discarded): still water takes whole frames, falling water the steps of the usual √(5·dx·|g|)
+   term. Also the explicit-viscosity limit dx²/(6ν); at most max_substeps — if the CFL would need more,
+   the substeps are clamped and a warning is logged once per call; viscosity then acts with the largest
+   stable coefficient. Fills *stats (zeroed first) with the sums/maxima over all substeps.
    A pressure solve that does not converge is a warning (stats), never a failure. DR_ERR_RUNTIME if the
    solver breaks down (non-finite values); DR_ERR_NOMEM if growing for emitters fails. */
 DR_NODISCARD DrStatus dr_liquid_advance(DrLiquid *liq, const DrCollider *const *colliders, int ncolliders,
@@ -135,11 +159,15 @@ DR_NODISCARD DrStatus dr_liquid_advance(DrLiquid *liq, const DrCollider *const *
 const DrLiquidState *dr_liquid_state(const DrLiquid *liq);
 DrLiquidState *dr_liquid_state_mut(DrLiquid *liq);  /* for initial conditions in tests; keep arrays' length n */
 /* Checkpoint support: everything besides the particle arrays that a bit-identical continuation needs. */
-void dr_liquid_rng_state(const DrLiquid *liq, uint64_t out[4]);
-/* Replaces the particles (copies n rows of x, v, c) and the rng state. DR_ERR_INPUT for n < 0 or
-   non-finite data; DR_ERR_NOMEM. */
+typedef struct DrLiquidResume {
+    uint64_t rng[4];     /* the seeding rng (emitters) */
+    double cfl_accel;    /* a⁺ of the CFL step (dr_liquid_advance), m/s² */
+} DrLiquidResume;
+void dr_liquid_resume_state(const DrLiquid *liq, DrLiquidResume *out);
+/* Replaces the particles (copies n rows of x, v, c) and the resume state. DR_ERR_INPUT for n < 0 or
+   non-finite data (a⁺ negative or non-finite too); DR_ERR_NOMEM. */
 DR_NODISCARD DrStatus dr_liquid_restore(DrLiquid *liq, long n, const double *x, const double *v, const double *c,
-                                        const uint64_t rng[4], DrError *err);
+                                        const DrLiquidResume *resume, DrError *err);
 /* Diagnostics: total mass, linear momentum, angular momentum about the origin INCLUDING the affine part
    (APIC: L_p = x_p × m_p v_p + m_p ε:(B_pᵀ), B_p = C_p D), kinetic energy ½ Σ m |v_p|². */
 void dr_liquid_totals(const DrLiquid *liq, double *mass, DrVec3 *momentum, DrVec3 *angular, double *kinetic);

@@ -716,13 +716,15 @@ DrStatus dr_world_write_checkpoint(const DrWorld *w, const char *path, const cha
         const WorldLiquid *wl = &w->liquids[i];
         /* uncompressed: a checkpoint is written every frame and read rarely */
         s = write_liquid_arrays(h, wl, false, err);
-        uint64_t rng[4], d[1] = {4};
-        dr_liquid_rng_state(wl->liquid, rng);
+        DrLiquidResume rs;
+        dr_liquid_resume_state(wl->liquid, &rs);
+        uint64_t d[1] = {4}, d1[1] = {1};
         char p[512];
         PATHF(p, "/%s/rng", wl->element->name);
-        if (s == DR_OK) s = dr_h5_write_u64(h, p, 1, d, rng, false, err);
+        if (s == DR_OK) s = dr_h5_write_u64(h, p, 1, d, rs.rng, false, err);
+        PATHF(p, "/%s/cfl_acceleration", wl->element->name);
+        if (s == DR_OK) s = dr_h5_write_f64(h, p, 1, d1, &rs.cfl_accel, "m/s^2", false, err);
         PATHF(p, "/%s/volume0", wl->element->name);
-        uint64_t d1[1] = {1};
         if (s == DR_OK) s = dr_h5_write_f64(h, p, 1, d1, &wl->volume0, "m^3", false, err);
     }
     if (s == DR_OK) s = dr_world_mpm_write_(w, h, false, err);
@@ -740,8 +742,8 @@ static DrStatus read_liquid(DrH5 *h, const char *path, WorldLiquid *wl, DrError 
     const char *name = wl->element->name;
     char p[512];
     int rank;
-    uint64_t dx[4], dv[4], dc[4], dr[4], d0[4];
-    double *x = NULL, *v = NULL, *c = NULL, *v0 = NULL;
+    uint64_t dx[4], dv[4], dc[4], dr[4], d0[4], da[4];
+    double *x = NULL, *v = NULL, *c = NULL, *v0 = NULL, *acc = NULL;
     uint64_t *rng = NULL;
     DrStatus s;
     PATHF(p, "/%s/position", name);
@@ -754,16 +756,24 @@ static DrStatus read_liquid(DrH5 *h, const char *path, WorldLiquid *wl, DrError 
     if (s == DR_OK) s = dr_h5_read_u64(h, p, &rank, dr, &rng, err);
     PATHF(p, "/%s/volume0", name);
     if (s == DR_OK) s = dr_h5_read_f64(h, p, &rank, d0, &v0, err);
-    if (s == DR_OK && (dx[0] != dv[0] || dx[0] != dc[0] || dr[0] != 4))
+    PATHF(p, "/%s/cfl_acceleration", name);
+    if (s == DR_OK) s = dr_h5_read_f64(h, p, &rank, da, &acc, err);
+    if (s == DR_OK && (dx[0] != dv[0] || dx[0] != dc[0] || dr[0] != 4 || d0[0] != 1 || da[0] != 1))
         s = dr_error_set(err, DR_ERR_INPUT, path, 0, 0, "checkpoint arrays of '%s' disagree in size; delete the "
                          "checkpoint and bake without --resume", name);
-    if (s == DR_OK) s = dr_liquid_restore(wl->liquid, (long)dx[0], x, v, c, rng, err);
+    if (s == DR_OK) {
+        DrLiquidResume rs;
+        memcpy(rs.rng, rng, sizeof rs.rng);
+        rs.cfl_accel = acc[0];
+        s = dr_liquid_restore(wl->liquid, (long)dx[0], x, v, c, &rs, err);
+    }
     if (s == DR_OK) wl->volume0 = v0[0];
     free(x);
     free(v);
     free(c);
     free(rng);
     free(v0);
+    free(acc);
     return s;
 }
 
@@ -803,9 +813,10 @@ DrHash dr_world_state_hash(const DrWorld *w)
         dr_hasher_update(&h, st->x, 3 * sizeof(double) * (size_t)st->n);
         dr_hasher_update(&h, st->v, 3 * sizeof(double) * (size_t)st->n);
         dr_hasher_update(&h, st->c, 9 * sizeof(double) * (size_t)st->n);
-        uint64_t rng[4];
-        dr_liquid_rng_state(w->liquids[i].liquid, rng);
-        dr_hasher_update(&h, rng, sizeof rng);
+        DrLiquidResume rs;
+        dr_liquid_resume_state(w->liquids[i].liquid, &rs);
+        dr_hasher_update(&h, rs.rng, sizeof rs.rng);
+        dr_hasher_update(&h, &rs.cfl_accel, sizeof rs.cfl_accel);
     }
     dr_world_mpm_hash_(w, &h);
     dr_world_hair_hash_(w, &h);
