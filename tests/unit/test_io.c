@@ -877,6 +877,252 @@ static void test_h5_abandon_and_bad_files(void **state)
     assert_string_equal(err.file, "/nonexistent/dir/x.h5");
 }
 
+/* ---- deferred handles and the background writer ---- */
+
+/* Files' bytes equal (both must exist). */
+static bool same_bytes(const char *a, const char *b)
+{
+    char cmd[1400];
+    snprintf(cmd, sizeof cmd, "cmp -s '%s' '%s'", a, b);
+    return system(cmd) == 0;
+}
+
+/* The calls of a small frame: every writer, compressed and not, empty datasets, an attribute replaced,
+ * on the root, a group made by it and a dataset. The arrays are overwritten after each call, so a
+ * deferred handle that kept pointers instead of copies would write other bytes. */
+static void write_sample(DrH5 *h, int seed)
+{
+    enum { N = 30000 };
+    DrError err;
+    double *x = malloc(sizeof(double) * 3 * N);
+    int64_t *ids = malloc(sizeof(int64_t) * N);
+    int32_t *tri = malloc(sizeof(int32_t) * 3 * N);
+    uint64_t rng[4] = {1, UINT64_MAX, 3, (uint64_t)seed};
+    assert_non_null(x);
+    assert_non_null(ids);
+    assert_non_null(tri);
+    DrRng r;
+    dr_rng_seed(&r, (uint64_t)seed);
+    for (int i = 0; i < 3 * N; i++) x[i] = 0.001 * (i % 997) + 1e-6 * dr_rng_uniform(&r);
+    for (int i = 0; i < N; i++) ids[i] = (int64_t)i * seed - 5;
+    for (int i = 0; i < 3 * N; i++) tri[i] = i / 2;
+    uint64_t d2[2] = {N, 3}, d1[1] = {N}, d4[1] = {4}, d0[2] = {0, 3};
+    assert_int_equal(dr_h5_attr_str(h, "/", "drench_version", DR_VERSION, &err), DR_OK);
+    assert_int_equal(dr_h5_attr_i64(h, "/", "frame", seed, &err), DR_OK);
+    assert_int_equal(dr_h5_attr_f64(h, "/", "time", seed / 24.0, &err), DR_OK);
+    assert_int_equal(dr_h5_write_f64(h, "/water/position", 2, d2, x, "m", true, &err), DR_OK);
+    for (int i = 0; i < 3 * N; i++) x[i] = -1.0;
+    assert_int_equal(dr_h5_write_f64(h, "/water/velocity", 2, d2, x, "m/s", false, &err), DR_OK);
+    for (int i = 0; i < 3 * N; i++) x[i] = 2.0;
+    assert_int_equal(dr_h5_write_i64(h, "/water/ids", 1, d1, ids, NULL, true, &err), DR_OK);
+    for (int i = 0; i < N; i++) ids[i] = 0;
+    assert_int_equal(dr_h5_write_i32(h, "/body/triangles", 2, d2, tri, "1", true, &err), DR_OK);
+    for (int i = 0; i < 3 * N; i++) tri[i] = 0;
+    assert_int_equal(dr_h5_write_u64(h, "/water/rng", 1, d4, rng, false, &err), DR_OK);
+    rng[0] = 0;
+    assert_int_equal(dr_h5_write_f64(h, "/empty/position", 2, d0, NULL, "m", true, &err), DR_OK);
+    assert_int_equal(dr_h5_attr_str(h, "/water", "type", "liquid", &err), DR_OK);
+    assert_int_equal(dr_h5_attr_str(h, "/water", "type", "liquid!", &err), DR_OK); /* replaced */
+    assert_int_equal(dr_h5_attr_f64(h, "/diagnostics/water", "mass", 1.25, &err), DR_OK);
+    assert_int_equal(dr_h5_attr_i64(h, "/water/ids", "count", N, &err), DR_OK);
+    free(x);
+    free(ids);
+    free(tri);
+}
+
+static void test_h5_deferred_identical(void **state)
+{
+    (void)state;
+    DrError err;
+    char direct[512], deferred[512], background[512], tmp[600];
+    scratch_path("direct.h5", direct, sizeof direct);
+    scratch_path("deferred.h5", deferred, sizeof deferred);
+    scratch_path("background.h5", background, sizeof background);
+    DrH5 *h = NULL;
+    assert_int_equal(dr_h5_create(direct, &h, &err), DR_OK);
+    assert_false(dr_h5_deferred(h));
+    write_sample(h, 3);
+    assert_int_equal(dr_h5_commit(&h, &err), DR_OK);
+
+    /* Deferred, committed on this thread: nothing on disk until the commit. */
+    assert_int_equal(dr_h5_create_deferred(deferred, &h, &err), DR_OK);
+    assert_true(dr_h5_deferred(h));
+    assert_string_equal(dr_h5_path(h), deferred);
+    write_sample(h, 3);
+    dr_io_tmp_path(deferred, tmp, sizeof tmp);
+    assert_false(dr_io_exists(tmp));
+    assert_false(dr_io_exists(deferred));
+    assert_int_equal(dr_h5_commit(&h, &err), DR_OK);
+    assert_null(h);
+    assert_true(same_bytes(direct, deferred));
+
+    /* Deferred, committed by the writer's thread. */
+    DrH5Writer *w = NULL;
+    assert_int_equal(dr_h5_writer_create(2, &w, &err), DR_OK);
+    assert_int_equal(dr_h5_create_deferred(background, &h, &err), DR_OK);
+    write_sample(h, 3);
+    assert_int_equal(dr_h5_writer_submit(w, &h, &err), DR_OK);
+    assert_null(h);
+    assert_int_equal(dr_h5_writer_flush(w, &err), DR_OK);
+    DrH5WriterStats st;
+    dr_h5_writer_stats(w, &st);
+    assert_int_equal(st.files, 1);
+    assert_true(st.seconds > 0.0);
+    dr_h5_writer_destroy(&w);
+    assert_null(w);
+    dr_h5_writer_destroy(&w); /* NULL: no-op */
+    assert_true(same_bytes(direct, background));
+
+    /* Another seed gives another file: the comparison can tell files apart. */
+    assert_int_equal(dr_h5_create_deferred(deferred, &h, &err), DR_OK);
+    write_sample(h, 4);
+    assert_int_equal(dr_h5_commit(&h, &err), DR_OK);
+    assert_false(same_bytes(direct, deferred));
+    assert_int_equal(count_tmp_files(g_dir), 0);
+}
+
+static void test_h5_deferred_checks(void **state)
+{
+    (void)state;
+    DrError err;
+    char path[512], tmp[600];
+    scratch_path("dropped.h5", path, sizeof path);
+    dr_io_tmp_path(path, tmp, sizeof tmp);
+    DrH5 *h = NULL;
+    uint64_t d[1] = {3};
+    double v[3] = {1, 2, 3};
+    assert_int_equal(dr_h5_create_deferred(path, &h, &err), DR_OK);
+    assert_int_equal(dr_h5_write_f64(h, "/a/b", 1, d, v, NULL, true, &err), DR_OK);
+    /* the same dataset twice is refused when recorded, as on a direct handle */
+    assert_int_equal(dr_h5_write_f64(h, "/a/b", 1, d, v, NULL, true, &err), DR_ERR_INPUT);
+    assert_string_equal(err.file, path);
+    assert_non_null(strstr(err.message, "/a/b"));
+    /* closing drops the recording: no file, no temporary file */
+    dr_h5_close(&h);
+    assert_null(h);
+    assert_false(dr_io_exists(path));
+    assert_false(dr_io_exists(tmp));
+
+    /* A failure of the file itself comes from the commit, naming the file, leaving nothing. */
+    const char *missing = "/nonexistent/dir/x.h5";
+    assert_int_equal(dr_h5_create_deferred(missing, &h, &err), DR_OK);
+    assert_int_equal(dr_h5_write_f64(h, "/a", 1, d, v, NULL, false, &err), DR_OK);
+    assert_int_equal(dr_h5_commit(&h, &err), DR_ERR_IO);
+    assert_null(h);
+    assert_string_equal(err.file, missing);
+    /* A clash only the file can see (a dataset under a dataset) also comes from the commit. */
+    assert_int_equal(dr_h5_create_deferred(path, &h, &err), DR_OK);
+    assert_int_equal(dr_h5_write_f64(h, "/a", 1, d, v, NULL, false, &err), DR_OK);
+    assert_int_equal(dr_h5_write_f64(h, "/a/b", 1, d, v, NULL, false, &err), DR_OK);
+    assert_true(dr_h5_commit(&h, &err) < 0);
+    assert_string_equal(err.file, path);
+    assert_false(dr_io_exists(path));
+    assert_false(dr_io_exists(tmp));
+}
+
+/* A frame of n particles' worth of data for the writer tests. */
+static DrH5 *deferred_file(const char *path, long n)
+{
+    DrError err;
+    DrH5 *h = NULL;
+    assert_int_equal(dr_h5_create_deferred(path, &h, &err), DR_OK);
+    double *x = calloc((size_t)(3 * n), sizeof(double));
+    assert_non_null(x);
+    for (long i = 0; i < 3 * n; i++) x[i] = sin((double)i);
+    uint64_t d[2] = {(uint64_t)n, 3};
+    assert_int_equal(dr_h5_write_f64(h, "/water/position", 2, d, x, "m", true, &err), DR_OK);
+    free(x);
+    return h;
+}
+
+static void test_h5_writer_order(void **state)
+{
+    (void)state;
+    DrError err;
+    char big[512], small[512];
+    scratch_path("order_frame.h5", big, sizeof big);
+    scratch_path("order_checkpoint.h5", small, sizeof small);
+    for (int pending = 1; pending <= 2; pending++) {
+        unlink(big);
+        unlink(small);
+        DrH5Writer *w = NULL;
+        assert_int_equal(dr_h5_writer_create(pending, &w, &err), DR_OK);
+        DrH5 *h = deferred_file(big, 400000); /* takes the writer a while */
+        assert_int_equal(dr_h5_writer_submit(w, &h, &err), DR_OK);
+        h = deferred_file(small, 1);
+        assert_int_equal(dr_h5_writer_submit(w, &h, &err), DR_OK);
+        /* the file submitted second is never in place before the first: look as soon as it is */
+        for (int i = 0; i < 300000 && !dr_io_exists(small); i++) usleep(200);
+        assert_true(dr_io_exists(small));
+        assert_true(dr_io_exists(big));
+        assert_int_equal(dr_h5_writer_flush(w, &err), DR_OK);
+        DrH5WriterStats st;
+        dr_h5_writer_stats(w, &st);
+        assert_int_equal(st.files, 2);
+        dr_h5_writer_destroy(&w);
+    }
+    /* destroy finishes what is still pending */
+    unlink(big);
+    DrH5Writer *w = NULL;
+    assert_int_equal(dr_h5_writer_create(1, &w, &err), DR_OK);
+    DrH5 *h = deferred_file(big, 1000);
+    assert_int_equal(dr_h5_writer_submit(w, &h, &err), DR_OK);
+    dr_h5_writer_destroy(&w);
+    assert_true(dr_io_exists(big));
+    assert_int_equal(count_tmp_files(g_dir), 0);
+}
+
+/* A background failure: the second of three files cannot be written. It surfaces at the next submit
+ * or flush as DR_ERR_IO naming that file, its temporary file is gone, the first file is in place and
+ * the third was dropped unwritten. Disk full is real: the temporary path is made a link to /dev/full
+ * (writes fail with ENOSPC whoever runs the test, root included); without /dev/full, a missing
+ * directory. */
+static void test_h5_writer_failure(void **state)
+{
+    (void)state;
+    DrError err;
+    char first[512], second[512], third[512], tmp[600];
+    scratch_path("fail.0001.h5", first, sizeof first);
+    bool full = dr_io_exists("/dev/full");
+    if (full) {
+        scratch_path("fail.0002.h5", second, sizeof second);
+        dr_io_tmp_path(second, tmp, sizeof tmp);
+        assert_int_equal(symlink("/dev/full", tmp), 0);
+    } else {
+        snprintf(second, sizeof second, "%s/missing/fail.0002.h5", g_dir);
+        dr_io_tmp_path(second, tmp, sizeof tmp);
+    }
+    scratch_path("fail.0003.h5", third, sizeof third);
+    DrH5Writer *w = NULL;
+    assert_int_equal(dr_h5_writer_create(2, &w, &err), DR_OK);
+    DrH5 *h = deferred_file(first, 1000);
+    assert_int_equal(dr_h5_writer_submit(w, &h, &err), DR_OK);
+    h = deferred_file(second, 100000);
+    assert_int_equal(dr_h5_writer_submit(w, &h, &err), DR_OK);
+    h = deferred_file(third, 1000);
+    DrStatus s = dr_h5_writer_submit(w, &h, &err); /* may come before or after the failure */
+    assert_null(h);
+    dr_error_clear(&err);
+    assert_int_equal(dr_h5_writer_flush(w, &err), DR_ERR_IO);
+    assert_string_equal(err.file, second);
+    assert_true(s == DR_OK || s == DR_ERR_IO);
+    assert_true(dr_io_exists(first));
+    assert_false(dr_io_exists(second));
+    struct stat sb;
+    assert_true(lstat(tmp, &sb) != 0); /* the temporary file (here the link) is removed */
+    assert_false(dr_io_exists(third));
+    /* the failure sticks: later files are dropped and the same failure returned */
+    h = deferred_file(third, 10);
+    dr_error_clear(&err);
+    assert_int_equal(dr_h5_writer_submit(w, &h, &err), DR_ERR_IO);
+    assert_null(h);
+    assert_string_equal(err.file, second);
+    assert_int_equal(dr_h5_writer_flush(w, &err), DR_ERR_IO);
+    dr_h5_writer_destroy(&w);
+    assert_false(dr_io_exists(third));
+    assert_int_equal(count_tmp_files(g_dir), 0);
+}
+
 /* ---- precompute cache ---- */
 
 static void test_precache(void **state)
@@ -977,6 +1223,10 @@ int main(void)
         cmocka_unit_test(test_manifest),
         cmocka_unit_test(test_h5_round_trip),
         cmocka_unit_test(test_h5_abandon_and_bad_files),
+        cmocka_unit_test(test_h5_deferred_identical),
+        cmocka_unit_test(test_h5_deferred_checks),
+        cmocka_unit_test(test_h5_writer_order),
+        cmocka_unit_test(test_h5_writer_failure),
         cmocka_unit_test(test_precache),
     };
     return cmocka_run_group_tests(tests, group_setup, group_teardown);
