@@ -74,7 +74,8 @@ static herr_t h5_walk_cb(unsigned n, const H5E_error2_t *e, void *ctx)
     return 0;
 }
 
-/* The current thread's HDF5 error stack as "what failed (why)"; clears the stack. */
+/* The current thread's HDF5 error stack as "what failed (why)" on one line (HDF5's descriptions of
+ * failed system calls hold newlines, which become spaces); clears the stack. */
 static const char *h5_msg(char *buf, size_t size)
 {
     H5Msg m = {buf, size, 0};
@@ -82,6 +83,8 @@ static const char *h5_msg(char *buf, size_t size)
     H5Ewalk2(H5E_DEFAULT, H5E_WALK_DOWNWARD, h5_walk_cb, &m);
     H5Eclear2(H5E_DEFAULT);
     if (!buf[0]) snprintf(buf, size, "HDF5 reported no detail");
+    for (char *c = buf; *c; c++)
+        if ((unsigned char)*c < ' ') *c = ' ';
     return buf;
 }
 
