@@ -35,14 +35,32 @@ struct DrH5 {
     int nops, cap;
 };
 
-/* Shuffle groups the bytes of each significance together, which is what makes float data compress;
- * after it the deflate level barely matters for the ratio but does for the time. Measured on 300k
- * jittered particle positions (7.2 MB): level 1 gives 78.2% of the raw size in 0.18 s, level 4
- * 77.5% in 0.28 s, level 9 77.4% in 0.30 s. Frame writing must not dominate a bake: level 1. */
+/* Frame storage, chosen by measurement (tests/bench/bench_io, part 2) on the particle arrays of a
+ * dam break's 12th frame, 2 cores, best of 3 writes, seconds to write through H5Fclose / size:
+ *
+ *                                  72k particles (8.6 MB)   120k (14.4 MB)   72k, zero affine
+ *   contiguous                        0.003 s  100.1%       0.006 s  100.0%   0.004 s  100.1%
+ *   256 KiB chunks, deflate 1         0.327 s   96.5%       0.516 s   96.3%   0.133 s   38.6%
+ *   64 KiB, shuffle + deflate 1       0.213 s   87.5%       0.349 s   87.9%   0.084 s   34.6%
+ *   256 KiB, shuffle + deflate 1      0.188 s   87.4%       0.278 s   87.7%   0.105 s   34.5%
+ *   1 MiB, shuffle + deflate 1        0.236 s   87.2%       0.359 s   87.6%   0.084 s   34.5%
+ *   4 MiB, shuffle + deflate 1        0.236 s   87.4%       0.317 s   87.6%   0.097 s   34.6%
+ *   256 KiB, shuffle + deflate 3      0.194 s   87.3%       0.359 s   87.6%   0.086 s   34.5%
+ *   256 KiB, shuffle + deflate 6      0.239 s   86.9%       0.411 s   87.1%   0.126 s   34.2%
+ *   1 MiB, shuffle alone              0.008 s  109.4%       0.021 s  109.3%   0.013 s  109.4%
+ *   256 KiB, szip                     0.086 s   97.7%       0.127 s   97.5%   0.046 s   37.7%
+ *   contiguous, one value: deflated   0.004 s  100.1%       0.008 s  100.0%   0.016 s   40.4%
+ *
+ * The low mantissa bytes of simulated doubles are noise: lossless compression saves 12% at 50 to 70
+ * times the write time (and 8 times the read time of the mesh stage), and the chunk size and deflate
+ * level hardly matter. What does compress is data of one value, such as a PIC or FLIP liquid's zero
+ * affine matrices (60% of its frame), which deflate quickly. So frame datasets are contiguous, except
+ * those holding one value throughout, chunked with shuffle + deflate level 1. (szip is left out: not
+ * every HDF5 reader has it.) Fsync and rename add 0.01 s whatever the storage. */
 enum { DEFLATE_LEVEL = 1 };
-/* Target chunk size: large enough that per-chunk overhead is negligible, small enough that a reader
- * of a slice decompresses little it does not need. */
 enum { CHUNK_BYTES = 256 * 1024 };
+/* Below this a dataset of one value is left contiguous: a chunk index costs more than it saves. */
+enum { CONSTANT_MIN_BYTES = 4096 };
 
 static void h5_quiet(void)
 {
@@ -324,6 +342,13 @@ static void chunk_shape(int rank, const uint64_t *dims, hsize_t *chunk)
 
 static size_t kind_size(ElemKind kind) { return kind == ELEM_I32 ? 4 : 8; }
 
+/* True when all count elements of `size` bytes hold the same bytes: each element equals the next. */
+static bool one_value(const void *data, size_t count, size_t size)
+{
+    const unsigned char *b = data;
+    return count > 0 && memcmp(b, b + size, (count - 1) * size) == 0;
+}
+
 /* Appends op to a deferred handle, which then owns op's allocations (freed here on failure). */
 static DrStatus push_op(DrH5 *h, H5Op *op, DrError *err)
 {
@@ -411,9 +436,10 @@ static DrStatus write_dataset(DrH5 *h, const char *path, int rank, const uint64_
     bool ok = space >= 0 && lcpl >= 0 && dcpl >= 0;
     /* No modification times in object headers, so the same data gives the same bytes. */
     if (ok) ok = H5Pset_obj_track_times(dcpl, 0) >= 0;
-    /* A dataset without elements stays contiguous: chunk extents cannot be 0 and there is nothing
-     * to compress. */
-    if (ok && compress && count > 0) {
+    /* Frame data (compress) is deflated only when it holds one value throughout (see DEFLATE_LEVEL);
+     * so a dataset without elements stays contiguous, as chunk extents cannot be 0. */
+    size_t bytes = count * kind_size(elem);
+    if (ok && compress && bytes >= CONSTANT_MIN_BYTES && one_value(data, count, kind_size(elem))) {
         chunk_shape(rank, dims, chunk);
         ok = H5Pset_chunk(dcpl, rank, chunk) >= 0 && H5Pset_shuffle(dcpl) >= 0 &&
              H5Pset_deflate(dcpl, DEFLATE_LEVEL) >= 0;
