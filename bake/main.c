@@ -14,7 +14,7 @@ typedef struct Totals {
     double p2g, pressure, g2p, advect, other, io, frames_seconds;
     double io_wait;   /* part of io (main thread) spent waiting for the writer thread */
     double io_writer; /* seconds the writer thread spent writing (0 with --sync-writes) */
-    long io_files;    /* frame caches and checkpoints written */
+    long io_files;    /* frame caches and checkpoints written, or handed to the writer thread */
     bool io_background;
     long pressure_total;
     int pressure_max, not_converged, substeps_max, frames;
