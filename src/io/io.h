@@ -120,12 +120,10 @@ DR_NODISCARD DrStatus dr_h5_open(const char *path, DrH5 **out, DrError *err);
 /* Dataset writers (write handles only). Intermediate groups are created; an existing object at
  * `path` is DR_ERR_INPUT. rank 1..4, dims[rank], row-major data of prod(dims) elements (data may be
  * NULL when that product is 0: zero-sized dimensions are fine, e.g. an element with 0 particles).
- * compress = true (frame caches): contiguous, except a dataset of 4 KiB or more whose elements all
- * hold the same bytes (the zero affine matrices of a PIC or FLIP liquid), which is chunked (chunks of
- * about 256 KiB along the first dimension) with shuffle + deflate level 1 and shrinks to almost
- * nothing; simulation doubles compress by about 12% at 30 to 70 times the write time, which is not
- * worth it (measured in io_h5.c). false: contiguous (checkpoints). Readers see no difference. No
- * object timestamps are stored, so equal data gives equal datasets. `units` (NULL = none)
+ * compress = true: as the handle's DrH5Compress says (dr_h5_set_compress; by default chunked, chunks
+ * of about 256 KiB along the first dimension, with shuffle + deflate level 1); false: contiguous
+ * (checkpoints, where speed matters more than size). A dataset without elements is contiguous either
+ * way. Readers see no difference. No object timestamps are stored, so equal data gives equal datasets. `units` (NULL = none)
  * is stored as string attribute "units" on the dataset. DR_ERR_IO naming file and dataset on failure. */
 DR_NODISCARD DrStatus dr_h5_write_f64(DrH5 *h, const char *path, int rank, const uint64_t *dims,
                                       const double *data, const char *units, bool compress, DrError *err);
@@ -136,6 +134,17 @@ DR_NODISCARD DrStatus dr_h5_write_u64(DrH5 *h, const char *path, int rank, const
 /* Signed 4-byte integers: indices stored at half the size of i64 (sparse matrix columns, triangles). */
 DR_NODISCARD DrStatus dr_h5_write_i32(DrH5 *h, const char *path, int rank, const uint64_t *dims,
                                       const int32_t *data, const char *units, bool compress, DrError *err);
+
+/* What compress = true means for the datasets written to a write handle after the call. */
+typedef enum DrH5Compress {
+    DR_H5_COMPRESS_ALL,      /* [default] chunked, shuffle + deflate level 1 (caches written once, read often) */
+    DR_H5_COMPRESS_ONE_VALUE /* contiguous, except a dataset of 4 KiB or more whose elements all hold the
+                                same bytes (the zero affine matrices of a PIC or FLIP liquid), chunked with
+                                shuffle + deflate 1 and shrunk to almost nothing: frame caches, written every
+                                frame, whose doubles deflate by 12% at 50 to 70 times the write time (measured
+                                in io_h5.c) */
+} DrH5Compress;
+void dr_h5_set_compress(DrH5 *h, DrH5Compress mode);
 
 /* Attributes on "/", a group (created with its parents if missing) or an existing dataset. An
  * existing attribute of that name is replaced. Write handles only. */

@@ -10,6 +10,10 @@
 
 typedef enum ElemKind { ELEM_F64, ELEM_I64, ELEM_U64, ELEM_I32 } ElemKind;
 
+/* How one dataset is stored: compress = false gives CONTIGUOUS, compress = true the handle's
+ * DrH5Compress (DEFLATE for DR_H5_COMPRESS_ALL, ONE_VALUE for DR_H5_COMPRESS_ONE_VALUE). */
+typedef enum Layout { LAYOUT_CONTIGUOUS, LAYOUT_DEFLATE, LAYOUT_ONE_VALUE } Layout;
+
 /* One recorded call of a deferred handle, replayed as that same call on a real file. */
 typedef enum OpKind { OP_DATASET, OP_ATTR_STR, OP_ATTR_F64, OP_ATTR_I64 } OpKind;
 typedef struct H5Op {
@@ -20,7 +24,7 @@ typedef struct H5Op {
     ElemKind elem;
     int rank;
     uint64_t dims[4];
-    bool compress;
+    Layout layout;
     void *data; /* the dataset's elements (NULL when there are none) */
     double f64;
     int64_t i64;
@@ -29,6 +33,7 @@ typedef struct H5Op {
 struct DrH5 {
     hid_t file;                /* -1 for a deferred handle: it holds no HDF5 object */
     bool writable, deferred;
+    DrH5Compress compress;     /* what compress = true means for the datasets written next */
     char path[DR_IO_PATH_MAX]; /* final path (write) or opened path (read) */
     char tmp[DR_IO_PATH_MAX];  /* temporary path being written, "" for read and deferred handles */
     H5Op *ops;                 /* deferred: the recorded calls, in call order */
@@ -54,9 +59,12 @@ struct DrH5 {
  * The low mantissa bytes of simulated doubles are noise: lossless compression saves 12% at 50 to 70
  * times the write time (and 8 times the read time of the mesh stage), and the chunk size and deflate
  * level hardly matter. What does compress is data of one value, such as a PIC or FLIP liquid's zero
- * affine matrices (60% of its frame), which deflate quickly. So frame datasets are contiguous, except
- * those holding one value throughout, chunked with shuffle + deflate level 1. (szip is left out: not
- * every HDF5 reader has it.) Fsync and rename add 0.01 s whatever the storage. */
+ * affine matrices (60% of its frame), which deflate quickly. So frame datasets (DR_H5_COMPRESS_ONE_VALUE)
+ * are contiguous, except those holding one value throughout, chunked with shuffle + deflate level 1.
+ * (szip is left out: not every HDF5 reader has it.) Fsync and rename add 0.01 s whatever the storage.
+ * Precompute caches keep shuffle + deflate on every compressed dataset (DR_H5_COMPRESS_ALL): written
+ * once, their sorted index arrays do compress (the BEM cache of tests/data/bem_small.json: 541 kB,
+ * 663 kB contiguous). */
 enum { DEFLATE_LEVEL = 1 };
 enum { CHUNK_BYTES = 256 * 1024 };
 /* Below this a dataset of one value is left contiguous: a chunk index costs more than it saves. */
@@ -383,13 +391,13 @@ static bool op_strings(H5Op *op, const char *path, const char *name, const char 
 /* A deferred handle's dataset: checked as far as possible without the file (an object that is
  * already there is a dataset recorded before at the same path), its data copied. */
 static DrStatus record_dataset(DrH5 *h, const char *path, int rank, const uint64_t *dims, ElemKind elem,
-                               size_t count, const void *data, const char *units, bool compress, DrError *err)
+                               size_t count, const void *data, const char *units, Layout layout, DrError *err)
 {
     for (int i = 0; i < h->nops; i++)
         if (h->ops[i].kind == OP_DATASET && strcmp(h->ops[i].path, path) == 0)
             return dr_error_set(err, DR_ERR_INPUT, h->path, 0, 0,
                                 "dataset %s already exists; each dataset is written once", path);
-    H5Op op = {.kind = OP_DATASET, .elem = elem, .rank = rank, .compress = compress};
+    H5Op op = {.kind = OP_DATASET, .elem = elem, .rank = rank, .layout = layout};
     for (int i = 0; i < rank; i++) op.dims[i] = dims[i];
     bool ok = op_strings(&op, path, NULL, units);
     if (ok && count > 0) {
@@ -405,14 +413,14 @@ static DrStatus record_dataset(DrH5 *h, const char *path, int rank, const uint64
 }
 
 static DrStatus write_dataset(DrH5 *h, const char *path, int rank, const uint64_t *dims, ElemKind elem,
-                              const void *data, const char *units, bool compress, DrError *err)
+                              const void *data, const char *units, Layout layout, DrError *err)
 {
     assert(rank >= 1 && rank <= 4 && path[0] == '/');
     DR_TRY(check_writable(h, path, err));
     size_t count;
     DR_TRY(element_count(h, path, rank, dims, &count, err));
     assert(count == 0 || data);
-    if (h->deferred) return record_dataset(h, path, rank, dims, elem, count, data, units, compress, err);
+    if (h->deferred) return record_dataset(h, path, rank, dims, elem, count, data, units, layout, err);
     h5_quiet();
     /* The type ids are evaluated only here: the macros open the library, a deferred handle makes no
      * HDF5 call. */
@@ -436,10 +444,13 @@ static DrStatus write_dataset(DrH5 *h, const char *path, int rank, const uint64_
     bool ok = space >= 0 && lcpl >= 0 && dcpl >= 0;
     /* No modification times in object headers, so the same data gives the same bytes. */
     if (ok) ok = H5Pset_obj_track_times(dcpl, 0) >= 0;
-    /* Frame data (compress) is deflated only when it holds one value throughout (see DEFLATE_LEVEL);
-     * so a dataset without elements stays contiguous, as chunk extents cannot be 0. */
+    /* A dataset without elements stays contiguous: chunk extents cannot be 0 and there is nothing to
+     * compress. Frame data (ONE_VALUE) is deflated only when it holds one value throughout. */
     size_t bytes = count * kind_size(elem);
-    if (ok && compress && bytes >= CONSTANT_MIN_BYTES && one_value(data, count, kind_size(elem))) {
+    bool deflate = bytes > 0 && (layout == LAYOUT_DEFLATE ||
+                                 (layout == LAYOUT_ONE_VALUE && bytes >= CONSTANT_MIN_BYTES &&
+                                  one_value(data, count, kind_size(elem))));
+    if (ok && deflate) {
         chunk_shape(rank, dims, chunk);
         ok = H5Pset_chunk(dcpl, rank, chunk) >= 0 && H5Pset_shuffle(dcpl) >= 0 &&
              H5Pset_deflate(dcpl, DEFLATE_LEVEL) >= 0;
@@ -460,28 +471,40 @@ static DrStatus write_dataset(DrH5 *h, const char *path, int rank, const uint64_
     return DR_OK;
 }
 
+static Layout layout_of(const DrH5 *h, bool compress)
+{
+    if (!compress) return LAYOUT_CONTIGUOUS;
+    return h->compress == DR_H5_COMPRESS_ONE_VALUE ? LAYOUT_ONE_VALUE : LAYOUT_DEFLATE;
+}
+
+void dr_h5_set_compress(DrH5 *h, DrH5Compress mode)
+{
+    assert(h->writable);
+    h->compress = mode;
+}
+
 DrStatus dr_h5_write_f64(DrH5 *h, const char *path, int rank, const uint64_t *dims, const double *data,
                          const char *units, bool compress, DrError *err)
 {
-    return write_dataset(h, path, rank, dims, ELEM_F64, data, units, compress, err);
+    return write_dataset(h, path, rank, dims, ELEM_F64, data, units, layout_of(h, compress), err);
 }
 
 DrStatus dr_h5_write_i64(DrH5 *h, const char *path, int rank, const uint64_t *dims, const int64_t *data,
                          const char *units, bool compress, DrError *err)
 {
-    return write_dataset(h, path, rank, dims, ELEM_I64, data, units, compress, err);
+    return write_dataset(h, path, rank, dims, ELEM_I64, data, units, layout_of(h, compress), err);
 }
 
 DrStatus dr_h5_write_u64(DrH5 *h, const char *path, int rank, const uint64_t *dims, const uint64_t *data,
                          bool compress, DrError *err)
 {
-    return write_dataset(h, path, rank, dims, ELEM_U64, data, NULL, compress, err);
+    return write_dataset(h, path, rank, dims, ELEM_U64, data, NULL, layout_of(h, compress), err);
 }
 
 DrStatus dr_h5_write_i32(DrH5 *h, const char *path, int rank, const uint64_t *dims, const int32_t *data,
                          const char *units, bool compress, DrError *err)
 {
-    return write_dataset(h, path, rank, dims, ELEM_I32, data, units, compress, err);
+    return write_dataset(h, path, rank, dims, ELEM_I32, data, units, layout_of(h, compress), err);
 }
 
 static bool type_is(hid_t type, ElemKind kind)
@@ -665,7 +688,7 @@ static DrStatus replay(const H5Op *op, DrH5 *h, DrError *err)
 {
     switch (op->kind) {
     case OP_DATASET:
-        return write_dataset(h, op->path, op->rank, op->dims, op->elem, op->data, op->text, op->compress, err);
+        return write_dataset(h, op->path, op->rank, op->dims, op->elem, op->data, op->text, op->layout, err);
     case OP_ATTR_STR: return dr_h5_attr_str(h, op->path, op->name, op->text, err);
     case OP_ATTR_F64: return dr_h5_attr_f64(h, op->path, op->name, op->f64, err);
     case OP_ATTR_I64: return dr_h5_attr_i64(h, op->path, op->name, op->i64, err);

@@ -695,6 +695,7 @@ static DrStatus write_frame_body(const DrWorld *w, const DrFrameStats *stats, Dr
 DrStatus dr_world_write_frame(const DrWorld *w, const DrFrameStats *stats, const char *bake_key, DrH5 *h,
                               DrError *err)
 {
+    dr_h5_set_compress(h, DR_H5_COMPRESS_ONE_VALUE); /* written every frame: see src/io/io_h5.c */
     return write_frame_body(w, stats, h, bake_key, err);
 }
 

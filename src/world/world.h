@@ -129,7 +129,8 @@ DR_NODISCARD DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrErr
 
 /* Frame cache (DESIGN §4), written into h, a write handle (dr_h5_create, or dr_h5_create_deferred to have it
  * written later or on another thread) that the caller commits, or closes on failure, so the file appears
- * atomically or not at all. Root attributes drench_version, frame, time, substeps,
+ * atomically or not at all. Its datasets are stored as DR_H5_COMPRESS_ONE_VALUE says (contiguous, except those
+ * of one value). Root attributes drench_version, frame, time, substeps,
  * scene_key; one group per element; /diagnostics. An mpm_solid element's group holds its particles:
  * position (N×3, m), velocity (N×3, m/s), affine (N×3×3, 1/s: the APIC matrix C, zero for PIC/FLIP),
  * deformation_gradient (N×3×3, 1), volume (N, m³: rest volume V₀; the current one is det(F)·V₀), with
