@@ -12,6 +12,8 @@
 
 #include <dirent.h>
 #include <fcntl.h>
+#include <pthread.h>
+#include <signal.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
@@ -1159,6 +1161,58 @@ static void test_h5_writer_order(void **state)
     assert_int_equal(count_tmp_files(g_dir), 0);
 }
 
+/* The thread a SIGUSR1 handler ran on, and how often it ran. */
+static pthread_t g_signal_thread;
+static volatile sig_atomic_t g_signals;
+
+static void on_usr1(int sig)
+{
+    (void)sig;
+    g_signal_thread = pthread_self();
+    g_signals++;
+}
+
+/* Signals sent to the process while the writer thread runs are handled on this thread (the writer
+ * blocks them all), as bake's stop request must be. This thread blocks the signal while it is sent, so
+ * that the kernel would hand it to the writer thread if that one let it through; once unblocked here,
+ * the pending signal must arrive here. */
+static void test_h5_writer_signals(void **state)
+{
+    (void)state;
+    DrError err;
+    char path[512];
+    scratch_path("signalled.h5", path, sizeof path);
+    struct sigaction sa, old;
+    memset(&sa, 0, sizeof sa);
+    sa.sa_handler = on_usr1;
+    sa.sa_flags = SA_RESTART;
+    sigemptyset(&sa.sa_mask);
+    assert_int_equal(sigaction(SIGUSR1, &sa, &old), 0);
+    DrH5Writer *w = NULL;
+    assert_int_equal(dr_h5_writer_create(2, &w, &err), DR_OK);
+    DrH5 *h = deferred_file(path, 400000); /* busy for a while */
+    assert_int_equal(dr_h5_writer_submit(w, &h, &err), DR_OK);
+    pthread_t self = pthread_self();
+    sigset_t usr1;
+    sigemptyset(&usr1);
+    sigaddset(&usr1, SIGUSR1);
+    for (int i = 0; i < 5; i++) {
+        g_signals = 0;
+        assert_int_equal(pthread_sigmask(SIG_BLOCK, &usr1, NULL), 0);
+        assert_int_equal(kill(getpid(), SIGUSR1), 0);
+        usleep(2000);
+        assert_int_equal(g_signals, 0); /* nobody took it: the writer blocks it */
+        assert_int_equal(pthread_sigmask(SIG_UNBLOCK, &usr1, NULL), 0);
+        for (int k = 0; k < 10000 && g_signals == 0; k++) usleep(100);
+        assert_int_equal(g_signals, 1);
+        assert_true(pthread_equal(g_signal_thread, self));
+    }
+    assert_int_equal(dr_h5_writer_flush(w, &err), DR_OK);
+    dr_h5_writer_destroy(&w);
+    assert_int_equal(sigaction(SIGUSR1, &old, NULL), 0);
+    assert_true(dr_io_exists(path));
+}
+
 /* A background failure: the second of three files cannot be written. It surfaces at the next submit
  * or flush as DR_ERR_IO naming that file, its temporary file is gone, the first file is in place and
  * the third was dropped unwritten. Disk full is real: the temporary path is made a link to /dev/full
@@ -1314,6 +1368,7 @@ int main(void)
         cmocka_unit_test(test_h5_deferred_checks),
         cmocka_unit_test(test_h5_compress_modes),
         cmocka_unit_test(test_h5_writer_order),
+        cmocka_unit_test(test_h5_writer_signals),
         cmocka_unit_test(test_h5_writer_failure),
         cmocka_unit_test(test_precache),
     };
