@@ -141,7 +141,7 @@ typedef enum DrH5Compress {
     DR_H5_COMPRESS_ONE_VALUE /* contiguous, except a dataset of 4 KiB or more whose elements all hold the
                                 same bytes (the zero affine matrices of a PIC or FLIP liquid), chunked with
                                 shuffle + deflate 1 and shrunk to almost nothing: frame caches, written every
-                                frame, whose doubles deflate by 12% at 50 to 70 times the write time (measured
+                                frame, whose doubles deflate by 12% at about 50 times the write time (measured
                                 in io_h5.c) */
 } DrH5Compress;
 void dr_h5_set_compress(DrH5 *h, DrH5Compress mode);

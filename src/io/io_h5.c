@@ -44,27 +44,27 @@ struct DrH5 {
  * dam break's 12th frame, 2 cores, best of 3 writes, seconds to write through H5Fclose / size:
  *
  *                                  72k particles (8.6 MB)   120k (14.4 MB)   72k, zero affine
- *   contiguous                        0.003 s  100.1%       0.006 s  100.0%   0.004 s  100.1%
- *   256 KiB chunks, deflate 1         0.327 s   96.5%       0.516 s   96.3%   0.133 s   38.6%
- *   64 KiB, shuffle + deflate 1       0.213 s   87.5%       0.349 s   87.9%   0.084 s   34.6%
- *   256 KiB, shuffle + deflate 1      0.188 s   87.4%       0.278 s   87.7%   0.105 s   34.5%
- *   1 MiB, shuffle + deflate 1        0.236 s   87.2%       0.359 s   87.6%   0.084 s   34.5%
- *   4 MiB, shuffle + deflate 1        0.236 s   87.4%       0.317 s   87.6%   0.097 s   34.6%
- *   256 KiB, shuffle + deflate 3      0.194 s   87.3%       0.359 s   87.6%   0.086 s   34.5%
- *   256 KiB, shuffle + deflate 6      0.239 s   86.9%       0.411 s   87.1%   0.126 s   34.2%
- *   1 MiB, shuffle alone              0.008 s  109.4%       0.021 s  109.3%   0.013 s  109.4%
- *   256 KiB, szip                     0.086 s   97.7%       0.127 s   97.5%   0.046 s   37.7%
- *   contiguous, one value: deflated   0.004 s  100.1%       0.008 s  100.0%   0.016 s   40.4%
+ *   contiguous                        0.003 s  100.1%       0.005 s  100.0%   0.003 s  100.1%
+ *   256 KiB chunks, deflate 1         0.226 s   96.5%       0.388 s   96.3%   0.104 s   38.6%
+ *   64 KiB, shuffle + deflate 1       0.146 s   87.5%       0.248 s   87.9%   0.064 s   34.6%
+ *   256 KiB, shuffle + deflate 1      0.159 s   87.4%       0.271 s   87.7%   0.075 s   34.5%
+ *   1 MiB, shuffle + deflate 1        0.167 s   87.2%       0.283 s   87.6%   0.078 s   34.5%
+ *   4 MiB, shuffle + deflate 1        0.179 s   87.4%       0.301 s   87.6%   0.087 s   34.6%
+ *   256 KiB, shuffle + deflate 3      0.167 s   87.3%       0.283 s   87.6%   0.074 s   34.5%
+ *   256 KiB, shuffle + deflate 6      0.187 s   86.9%       0.329 s   87.1%   0.089 s   34.2%
+ *   1 MiB, shuffle alone              0.009 s  109.4%       0.014 s  109.3%   0.008 s  109.4%
+ *   256 KiB, szip                     0.055 s   97.7%       0.098 s   97.5%   0.034 s   37.7%
+ *   contiguous, one value: deflated   0.003 s  100.1%       0.005 s  100.0%   0.012 s   40.4%
  *
- * The low mantissa bytes of simulated doubles are noise: lossless compression saves 12% at 50 to 70
- * times the write time (and 8 times the read time of the mesh stage), and the chunk size and deflate
- * level hardly matter. What does compress is data of one value, such as a PIC or FLIP liquid's zero
- * affine matrices (60% of its frame), which deflate quickly. So frame datasets (DR_H5_COMPRESS_ONE_VALUE)
- * are contiguous, except those holding one value throughout, chunked with shuffle + deflate level 1.
- * (szip is left out: not every HDF5 reader has it.) Fsync and rename add 0.01 s whatever the storage.
- * Precompute caches keep shuffle + deflate on every compressed dataset (DR_H5_COMPRESS_ALL): written
- * once, their sorted index arrays do compress (the BEM cache of tests/data/bem_small.json: 541 kB,
- * 663 kB contiguous). */
+ * The low mantissa bytes of simulated doubles are noise: lossless compression saves 12% at about 50
+ * times the write time (and 7 to 8 times the read time of the mesh stage), and the chunk size and
+ * deflate level hardly matter. What does compress is data of one value, such as a PIC or FLIP liquid's
+ * zero affine matrices (60% of its frame), which deflate quickly. So frame datasets
+ * (DR_H5_COMPRESS_ONE_VALUE) are contiguous, except those holding one value throughout, chunked with
+ * shuffle + deflate level 1. (szip is left out: not every HDF5 reader has it.) Fsync and rename add
+ * 0.005 to 0.012 s whatever the storage. Precompute caches keep shuffle + deflate on every compressed
+ * dataset (DR_H5_COMPRESS_ALL): written once, their sorted index arrays do compress (the BEM cache of
+ * tests/data/bem_small.json: 541 kB, 663 kB contiguous). */
 enum { DEFLATE_LEVEL = 1 };
 enum { CHUNK_BYTES = 256 * 1024 };
 /* Below this a dataset of one value is left contiguous: a chunk index costs more than it saves. */
