@@ -12,6 +12,10 @@
 
 typedef struct Totals {
     double p2g, pressure, g2p, advect, other, io, frames_seconds;
+    double io_wait;   /* part of io (main thread) spent waiting for the writer thread */
+    double io_writer; /* seconds the writer thread spent writing (0 with --sync-writes) */
+    long io_files;    /* frame caches and checkpoints written, or handed to the writer thread */
+    bool io_background;
     long pressure_total;
     int pressure_max, not_converged, substeps_max, frames;
     long particles_first, particles_last;
@@ -99,7 +103,15 @@ static DrStatus trim_progress(const char *path, int last_frame, DrError *err)
     return s;
 }
 
-static void append_progress(const char *path, const DrFrameStats *fs, double io_seconds)
+/* Output seconds of one frame: io is the main thread's (recording the frame and checkpoint and handing them
+ * to the writer, or writing them itself with --sync-writes), wait the part of io spent waiting for the
+ * writer, writer the writer thread's own seconds on the files it finished since the previous frame's line. */
+typedef struct FrameIo {
+    double io, wait, writer;
+    bool background;
+} FrameIo;
+
+static void append_progress(const char *path, const DrFrameStats *fs, const FrameIo *io)
 {
     FILE *f = fopen(path, "a");
     if (!f) {
@@ -170,7 +182,11 @@ static void append_progress(const char *path, const DrFrameStats *fs, double io_
                 "\"bem_detect\":%.6f,\"bem_assembly\":%.6f,\"bem_pgs\":%.6f,\"bem_final\":%.6f,",
                 fs->seconds_bem_history, fs->seconds_bem_solve, fs->seconds_bem_correction, fs->seconds_bem_trial,
                 fs->seconds_bem_detect, fs->seconds_bem_assembly, fs->seconds_bem_pgs, fs->seconds_bem_final);
-    fprintf(f, "\"io\":%.6f,\"frame\":%.6f}}\n", io_seconds, fs->seconds + io_seconds);
+    fprintf(f, "\"io\":%.6f,\"frame\":%.6f},", io->io, fs->seconds + io->io);
+    /* outside "seconds", whose keys the plots stack as shares of the frame: the writer's seconds overlap
+       the next frame's simulation and the wait is part of seconds.io */
+    fprintf(f, "\"io\":{\"background\":%s,\"wait\":%.6f,\"writer\":%.6f}}\n", io->background ? "true" : "false",
+            io->wait, io->writer);
     fclose(f);
 }
 
@@ -184,6 +200,13 @@ static DrStatus write_report(const char *dir, const char *status, const char *me
     json_object_set_new(r, "seconds_by_phase",
                         json_pack("{s:f, s:f, s:f, s:f, s:f, s:f}", "p2g", t->p2g, "pressure", t->pressure, "g2p",
                                   t->g2p, "advect", t->advect, "other", t->other, "io", t->io));
+    /* main_thread_seconds (= seconds_by_phase.io) is what the bake waited for its output; writer_seconds ran
+       beside the simulation */
+    json_object_set_new(r, "io",
+                        json_pack("{s:b, s:I, s:f, s:f, s:f, s:f}", "background", t->io_background,
+                                  "files", (json_int_t)t->io_files, "main_thread_seconds", t->io,
+                                  "wait_seconds", t->io_wait, "writer_seconds", t->io_writer,
+                                  "main_thread_share", wall > 0 ? t->io / wall : 0.0));
     json_object_set_new(r, "pressure_iterations",
                         json_pack("{s:i, s:I, s:i}", "max", t->pressure_max, "total", (json_int_t)t->pressure_total,
                                   "not_converged_substeps", t->not_converged));
@@ -227,6 +250,26 @@ static DrStatus write_report(const char *dir, const char *status, const char *me
     DrStatus s = dr_io_write_text_atomic(path, withnl, err);
     free(text);
     free(withnl);
+    return s;
+}
+
+/* Writes the frame cache (fs non-NULL) or the checkpoint to path: recorded and handed to the writer thread,
+ * or, without one (--sync-writes), written and renamed into place here. *wait grows by the seconds spent
+ * waiting for the writer to have room. A failure of an earlier file in the background comes back here. */
+static DrStatus write_output(DrH5Writer *writer, const DrWorld *world, const DrFrameStats *fs, const char *key,
+                             const char *path, double *wait, DrError *err)
+{
+    DrH5 *h = NULL;
+    DR_TRY(writer ? dr_h5_create_deferred(path, &h, err) : dr_h5_create(path, &h, err));
+    DrStatus s = fs ? dr_world_write_frame(world, fs, key, h, err) : dr_world_write_checkpoint(world, key, h, err);
+    if (s < 0) {
+        dr_h5_close(&h); /* uncommitted: nothing appears at path */
+        return s;
+    }
+    if (!writer) return dr_h5_commit(&h, err);
+    double t0 = dr_time_now();
+    s = dr_h5_writer_submit(writer, &h, err);
+    *wait += dr_time_now() - t0;
     return s;
 }
 
@@ -302,10 +345,22 @@ int main(int argc, char **argv)
     }
 
     int checkpoint_every = dr_component_int(dr_scene_section(scene, "solver"), "checkpoint_every");
+    /* Frames and checkpoints are written by a thread of their own while the next frame is simulated. Two
+       files pending (a frame and its checkpoint) bound the memory to one frame's state held twice; a
+       frame that finishes before its predecessor's files are written waits for them. Nothing calls HDF5
+       on this thread from here on (the checkpoint and the precompute caches were read above). */
+    DrH5Writer *writer = NULL;
+    if (!args.sync_writes && dr_h5_writer_create(2, &writer, &err) < 0) {
+        dr_world_destroy(&world);
+        dr_scene_destroy(&scene);
+        return fail(&err);
+    }
     install_stop_handlers();
     dr_log_info("baking '%s' frames %d-%d into %s (%d threads, key %s)", dr_scene_path(scene),
                 dr_world_frame(world) + 1, last, dir, dr_threads(), keys.bake);
     Totals tot = {0};
+    tot.io_background = writer != NULL;
+    double writer_seconds = 0.0; /* the writer's seconds at the previous progress line */
     DrProgress prog;
     dr_progress_begin(&prog, "bake", last - dr_world_frame(world));
     while (s >= 0 && dr_world_frame(world) < last) {
@@ -313,13 +368,25 @@ int main(int argc, char **argv)
         s = dr_world_step_frame(world, &fs, &err);
         if (s < 0) break;
         double t_io = dr_time_now();
+        FrameIo fio = {.background = writer != NULL};
         dr_stage_frame_path(dir, "frame", fs.frame, "h5", path, sizeof path);
-        s = dr_world_write_frame(world, &fs, path, keys.bake, &err);
-        if (s == DR_OK && ((fs.frame - shot_first + 1) % checkpoint_every == 0 || fs.frame == last || stop_signal))
-            s = dr_world_write_checkpoint(world, ckpt, keys.bake, &err);
+        s = write_output(writer, world, &fs, keys.bake, path, &fio.wait, &err);
+        if (s == DR_OK) tot.io_files++;
+        /* submitted after the frame: the writer renames it into place after the frame's file */
+        if (s == DR_OK && ((fs.frame - shot_first + 1) % checkpoint_every == 0 || fs.frame == last || stop_signal)) {
+            s = write_output(writer, world, NULL, keys.bake, ckpt, &fio.wait, &err);
+            if (s == DR_OK) tot.io_files++;
+        }
         if (s < 0) break;
-        double io = dr_time_now() - t_io;
-        append_progress(progress, &fs, io);
+        fio.io = dr_time_now() - t_io;
+        double io = fio.io;
+        if (writer) {
+            DrH5WriterStats ws;
+            dr_h5_writer_stats(writer, &ws);
+            fio.writer = ws.seconds - writer_seconds;
+            writer_seconds = ws.seconds;
+        }
+        append_progress(progress, &fs, &fio);
         if (tot.frames == 0) tot.particles_first = fs.particles;
         tot.frames++;
         tot.particles_last = fs.particles;
@@ -329,6 +396,7 @@ int main(int argc, char **argv)
         tot.advect += fs.seconds_advect;
         tot.other += fs.seconds_other;
         tot.io += io;
+        tot.io_wait += fio.wait;
         tot.pressure_total += fs.pressure_iterations_total;
         if (fs.pressure_iterations_max > tot.pressure_max) tot.pressure_max = fs.pressure_iterations_max;
         if (fs.substeps > tot.substeps_max) tot.substeps_max = fs.substeps;
@@ -378,6 +446,27 @@ int main(int argc, char **argv)
         if (stop_signal && dr_world_frame(world) < last) break;
     }
     dr_progress_end(&prog);
+    /* Every file handed to the writer is on disk (or its failure known) before report.json and the MANIFEST;
+       after a failure of the simulation the frames before it and their checkpoint are still written. */
+    if (writer) {
+        double t0 = dr_time_now();
+        DrError werr;
+        dr_error_clear(&werr);
+        DrStatus ws = dr_h5_writer_flush(writer, &werr);
+        double waited = dr_time_now() - t0;
+        tot.io += waited;
+        tot.io_wait += waited;
+        if (ws < 0 && s >= 0) {
+            s = ws;
+            err = werr;
+        } else if (ws < 0 && strcmp(werr.message, err.message) != 0) {
+            dr_error_print("bake", &werr); /* a second failure, after the one reported below */
+        }
+        DrH5WriterStats st;
+        dr_h5_writer_stats(writer, &st);
+        tot.io_writer = st.seconds;
+        dr_h5_writer_destroy(&writer);
+    }
     bool interrupted = s >= 0 && stop_signal && dr_world_frame(world) < last;
     double wall = dr_time_now() - t_start;
     DrError rerr;
@@ -424,8 +513,13 @@ int main(int argc, char **argv)
     if (tot.bem)
         snprintf(bem, sizeof bem, ", %d BEM bod%s (%ld steps, %.1f s)", tot.bem_bodies, tot.bem_bodies == 1 ? "y" : "ies",
                  tot.bem_steps, tot.bem_seconds);
-    fprintf(stderr, "bake: %d frames in %.1fs (%.2fs/frame, %d threads), %ld particles, pressure iterations max %d%s%s%s%s\n",
+    char io[160];
+    if (tot.io_background)
+        snprintf(io, sizeof io, ", output %.1fs on the main thread + %.1fs in the background", tot.io, tot.io_writer);
+    else
+        snprintf(io, sizeof io, ", output %.1fs", tot.io);
+    fprintf(stderr, "bake: %d frames in %.1fs (%.2fs/frame, %d threads), %ld particles, pressure iterations max %d%s%s%s%s%s\n",
             tot.frames, wall, tot.frames ? wall / tot.frames : 0.0, dr_threads(), tot.particles_last, tot.pressure_max,
-            tot.not_converged ? ", some pressure solves did not converge (see warnings)" : "", mpm, hair, bem);
+            tot.not_converged ? ", some pressure solves did not converge (see warnings)" : "", mpm, hair, bem, io);
     return 0;
 }

@@ -10,7 +10,9 @@
  * err->file names the file and err->message what happened and what would fix it.
  *
  * Thread safety: the file functions are safe to call from several threads on different paths.
- * Everything DrH5 (HDF5 1.10 serial) must be called from one thread only. */
+ * HDF5 (1.10, built thread-safe behind one global lock) is called from one thread at a time: a
+ * DrH5 handle belongs to one thread. A deferred handle makes no HDF5 call until it is committed, so
+ * the main thread can record a file while a DrH5Writer's thread writes earlier ones. */
 #ifndef DR_IO_H
 #define DR_IO_H
 
@@ -99,16 +101,29 @@ typedef struct DrH5 DrH5;
 /* Creates "<final_path>.tmp.<pid>" for writing; nothing appears at final_path until dr_h5_commit.
  * DR_ERR_IO naming the file on failure. */
 DR_NODISCARD DrStatus dr_h5_create(const char *final_path, DrH5 **out, DrError *err);
+/* A deferred write handle for final_path: it takes the same dataset and attribute writers as one of
+ * dr_h5_create but makes no HDF5 call and touches no file. Each call is checked as far as it can be
+ * without the file (writable handle, sizes, a dataset path recorded twice is DR_ERR_INPUT) and
+ * recorded with a copy of its data, so the caller may change or free its arrays on return (memory:
+ * about the size of the data, until committed). dr_h5_commit replays the calls in their order on a
+ * handle of dr_h5_create and commits it, on whatever thread calls it (dr_h5_writer_submit: the
+ * writer's): the file is byte-identical to one written directly with the same calls. Failures of the
+ * file itself (cannot create, disk full) come from dr_h5_commit as from a direct handle, naming the
+ * file, with the temporary file removed. dr_h5_close drops the recording. The readers, dr_h5_has and
+ * dr_h5_list must not be called on it (asserted). DR_ERR_IO when the path is too long. */
+DR_NODISCARD DrStatus dr_h5_create_deferred(const char *final_path, DrH5 **out, DrError *err);
+/* True for a handle of dr_h5_create_deferred. */
+bool dr_h5_deferred(const DrH5 *h);
 /* Opens an existing file read-only. DR_ERR_INPUT naming it when missing or not HDF5. */
 DR_NODISCARD DrStatus dr_h5_open(const char *path, DrH5 **out, DrError *err);
 
 /* Dataset writers (write handles only). Intermediate groups are created; an existing object at
  * `path` is DR_ERR_INPUT. rank 1..4, dims[rank], row-major data of prod(dims) elements (data may be
  * NULL when that product is 0: zero-sized dimensions are fine, e.g. an element with 0 particles).
- * compress = true: chunked (chunks of about 256 KiB along the first dimension), shuffle + deflate
- * level 1 (a dataset without elements is stored contiguous: nothing to compress); false: contiguous
- * (checkpoints, where speed matters more than size). No object timestamps are stored, so equal data
- * gives equal datasets. `units` (NULL = none)
+ * compress = true: as the handle's DrH5Compress says (dr_h5_set_compress; by default chunked, chunks
+ * of about 256 KiB along the first dimension, with shuffle + deflate level 1); false: contiguous
+ * (checkpoints, where speed matters more than size). A dataset without elements is contiguous either
+ * way. Readers see no difference. No object timestamps are stored, so equal data gives equal datasets. `units` (NULL = none)
  * is stored as string attribute "units" on the dataset. DR_ERR_IO naming file and dataset on failure. */
 DR_NODISCARD DrStatus dr_h5_write_f64(DrH5 *h, const char *path, int rank, const uint64_t *dims,
                                       const double *data, const char *units, bool compress, DrError *err);
@@ -119,6 +134,17 @@ DR_NODISCARD DrStatus dr_h5_write_u64(DrH5 *h, const char *path, int rank, const
 /* Signed 4-byte integers: indices stored at half the size of i64 (sparse matrix columns, triangles). */
 DR_NODISCARD DrStatus dr_h5_write_i32(DrH5 *h, const char *path, int rank, const uint64_t *dims,
                                       const int32_t *data, const char *units, bool compress, DrError *err);
+
+/* What compress = true means for the datasets written to a write handle after the call. */
+typedef enum DrH5Compress {
+    DR_H5_COMPRESS_ALL,      /* [default] chunked, shuffle + deflate level 1 (caches written once, read often) */
+    DR_H5_COMPRESS_ONE_VALUE /* contiguous, except a dataset of 4 KiB or more whose elements all hold the
+                                same bytes (the zero affine matrices of a PIC or FLIP liquid), chunked with
+                                shuffle + deflate 1 and shrunk to almost nothing: frame caches, written every
+                                frame, whose doubles deflate by 12% at about 50 times the write time (measured
+                                in io_h5.c) */
+} DrH5Compress;
+void dr_h5_set_compress(DrH5 *h, DrH5Compress mode);
 
 /* Attributes on "/", a group (created with its parents if missing) or an existing dataset. An
  * existing attribute of that name is replaced. Write handles only. */
@@ -155,13 +181,46 @@ bool dr_h5_has(DrH5 *h, const char *path);
  * DR_ERR_INPUT naming it. */
 DR_NODISCARD DrStatus dr_h5_list(DrH5 *h, const char *group, char ***names, int *count, DrError *err);
 /* Write handle: closes the file, fsyncs it and renames it into place, then frees *h and sets it NULL
- * (also on failure, in which case the temporary file is removed and DR_ERR_IO names the file). */
+ * (also on failure, in which case the temporary file is removed and DR_ERR_IO names the file). A
+ * deferred handle is first written (see dr_h5_create_deferred). */
 DR_NODISCARD DrStatus dr_h5_commit(DrH5 **h, DrError *err);
 /* Read handle: closes. Write handle not committed: closes and deletes the temporary file, so neither
  * it nor the final file exists afterwards. Frees *h and sets it NULL; NULL is a no-op. */
 void dr_h5_close(DrH5 **h);
 /* The path the handle will have once committed (write) or was opened from (read). */
 const char *dr_h5_path(const DrH5 *h);
+
+/* ---- background writer ----------------------------------------------------------------------------
+ * A DrH5Writer commits deferred handles on a thread of its own, one at a time, in the order they were
+ * submitted (FIFO), so a file submitted after another is never renamed into place before it (a
+ * checkpoint never gets ahead of the frame it follows). At most max_pending files are held (waiting
+ * or being written); dr_h5_writer_submit waits for room, which bounds the memory to about
+ * max_pending recordings. The first failure (DR_ERR_IO naming the file, its temporary file removed)
+ * is kept: every file still waiting is dropped unwritten, later submissions are dropped, and
+ * dr_h5_writer_submit and dr_h5_writer_flush return that failure from then on. The writer thread
+ * blocks every signal, so handlers run on the caller's threads. When HDF5 is not built thread-safe,
+ * dr_h5_writer_submit commits on the calling thread instead (same files, same failures). A writer is
+ * used from one thread. */
+typedef struct DrH5Writer DrH5Writer;
+
+/* What the writer has done since it was created. */
+typedef struct DrH5WriterStats {
+    long files;     /* files committed or dropped */
+    double seconds; /* seconds the writer thread spent writing them (wall clock) */
+} DrH5WriterStats;
+
+/* max_pending >= 1. DR_ERR_RUNTIME when the thread cannot be started, DR_ERR_NOMEM. */
+DR_NODISCARD DrStatus dr_h5_writer_create(int max_pending, DrH5Writer **out, DrError *err);
+/* Hands the deferred handle *h (dr_h5_deferred) to the writer, which owns it from then on: *h is set
+ * NULL whatever happens. Waits while max_pending files are pending. Returns DR_OK once queued, or an
+ * earlier file's failure (then *h is dropped unwritten). */
+DR_NODISCARD DrStatus dr_h5_writer_submit(DrH5Writer *w, DrH5 **h, DrError *err);
+/* Waits until every submitted file is on disk (or dropped), then returns DR_OK or the first failure. */
+DR_NODISCARD DrStatus dr_h5_writer_flush(DrH5Writer *w, DrError *err);
+void dr_h5_writer_stats(DrH5Writer *w, DrH5WriterStats *out);
+/* Finishes every pending file (as dr_h5_writer_flush, whose failure it cannot report: flush first),
+ * stops the thread and frees *w, setting it NULL; NULL is a no-op. */
+void dr_h5_writer_destroy(DrH5Writer **w);
 
 /* ---- precompute cache: <root>/<kind>/<key>.h5, self-describing (DESIGN §4) ------------------- */
 

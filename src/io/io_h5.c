@@ -8,21 +8,67 @@
 #include <string.h>
 #include <unistd.h>
 
+typedef enum ElemKind { ELEM_F64, ELEM_I64, ELEM_U64, ELEM_I32 } ElemKind;
+
+/* How one dataset is stored: compress = false gives CONTIGUOUS, compress = true the handle's
+ * DrH5Compress (DEFLATE for DR_H5_COMPRESS_ALL, ONE_VALUE for DR_H5_COMPRESS_ONE_VALUE). */
+typedef enum Layout { LAYOUT_CONTIGUOUS, LAYOUT_DEFLATE, LAYOUT_ONE_VALUE } Layout;
+
+/* One recorded call of a deferred handle, replayed as that same call on a real file. */
+typedef enum OpKind { OP_DATASET, OP_ATTR_STR, OP_ATTR_F64, OP_ATTR_I64 } OpKind;
+typedef struct H5Op {
+    OpKind kind;
+    char *path;  /* dataset, or object holding the attribute */
+    char *name;  /* attribute name */
+    char *text;  /* units of a dataset (NULL: none), value of a string attribute */
+    ElemKind elem;
+    int rank;
+    uint64_t dims[4];
+    Layout layout;
+    void *data; /* the dataset's elements (NULL when there are none) */
+    double f64;
+    int64_t i64;
+} H5Op;
+
 struct DrH5 {
-    hid_t file;
-    bool writable;
+    hid_t file;                /* -1 for a deferred handle: it holds no HDF5 object */
+    bool writable, deferred;
+    DrH5Compress compress;     /* what compress = true means for the datasets written next */
     char path[DR_IO_PATH_MAX]; /* final path (write) or opened path (read) */
-    char tmp[DR_IO_PATH_MAX];  /* temporary path being written, "" for read handles */
+    char tmp[DR_IO_PATH_MAX];  /* temporary path being written, "" for read and deferred handles */
+    H5Op *ops;                 /* deferred: the recorded calls, in call order */
+    int nops, cap;
 };
 
-/* Shuffle groups the bytes of each significance together, which is what makes float data compress;
- * after it the deflate level barely matters for the ratio but does for the time. Measured on 300k
- * jittered particle positions (7.2 MB): level 1 gives 78.2% of the raw size in 0.18 s, level 4
- * 77.5% in 0.28 s, level 9 77.4% in 0.30 s. Frame writing must not dominate a bake: level 1. */
+/* Frame storage, chosen by measurement (tests/bench/bench_io, part 2) on the particle arrays of a
+ * dam break's 12th frame, 2 cores, best of 3 writes, seconds to write through H5Fclose / size:
+ *
+ *                                  72k particles (8.6 MB)   120k (14.4 MB)   72k, zero affine
+ *   contiguous                        0.003 s  100.1%       0.005 s  100.0%   0.003 s  100.1%
+ *   256 KiB chunks, deflate 1         0.226 s   96.5%       0.388 s   96.3%   0.104 s   38.6%
+ *   64 KiB, shuffle + deflate 1       0.146 s   87.5%       0.248 s   87.9%   0.064 s   34.6%
+ *   256 KiB, shuffle + deflate 1      0.159 s   87.4%       0.271 s   87.7%   0.075 s   34.5%
+ *   1 MiB, shuffle + deflate 1        0.167 s   87.2%       0.283 s   87.6%   0.078 s   34.5%
+ *   4 MiB, shuffle + deflate 1        0.179 s   87.4%       0.301 s   87.6%   0.087 s   34.6%
+ *   256 KiB, shuffle + deflate 3      0.167 s   87.3%       0.283 s   87.6%   0.074 s   34.5%
+ *   256 KiB, shuffle + deflate 6      0.187 s   86.9%       0.329 s   87.1%   0.089 s   34.2%
+ *   1 MiB, shuffle alone              0.009 s  109.4%       0.014 s  109.3%   0.008 s  109.4%
+ *   256 KiB, szip                     0.055 s   97.7%       0.098 s   97.5%   0.034 s   37.7%
+ *   contiguous, one value: deflated   0.003 s  100.1%       0.005 s  100.0%   0.012 s   40.4%
+ *
+ * The low mantissa bytes of simulated doubles are noise: lossless compression saves 12% at about 50
+ * times the write time (and 7 to 8 times the read time of the mesh stage), and the chunk size and
+ * deflate level hardly matter. What does compress is data of one value, such as a PIC or FLIP liquid's
+ * zero affine matrices (60% of its frame), which deflate quickly. So frame datasets
+ * (DR_H5_COMPRESS_ONE_VALUE) are contiguous, except those holding one value throughout, chunked with
+ * shuffle + deflate level 1. (szip is left out: not every HDF5 reader has it.) Fsync and rename add
+ * 0.005 to 0.012 s whatever the storage. Precompute caches keep shuffle + deflate on every compressed
+ * dataset (DR_H5_COMPRESS_ALL): written once, their sorted index arrays do compress (the BEM cache of
+ * tests/data/bem_small.json: 541 kB, 663 kB contiguous). */
 enum { DEFLATE_LEVEL = 1 };
-/* Target chunk size: large enough that per-chunk overhead is negligible, small enough that a reader
- * of a slice decompresses little it does not need. */
 enum { CHUNK_BYTES = 256 * 1024 };
+/* Below this a dataset of one value is left contiguous: a chunk index costs more than it saves. */
+enum { CONSTANT_MIN_BYTES = 4096 };
 
 static void h5_quiet(void)
 {
@@ -54,7 +100,8 @@ static herr_t h5_walk_cb(unsigned n, const H5E_error2_t *e, void *ctx)
     return 0;
 }
 
-/* The current thread's HDF5 error stack as "what failed (why)"; clears the stack. */
+/* The current thread's HDF5 error stack as "what failed (why)" on one line (HDF5's descriptions of
+ * failed system calls hold newlines, which become spaces); clears the stack. */
 static const char *h5_msg(char *buf, size_t size)
 {
     H5Msg m = {buf, size, 0};
@@ -62,6 +109,8 @@ static const char *h5_msg(char *buf, size_t size)
     H5Ewalk2(H5E_DEFAULT, H5E_WALK_DOWNWARD, h5_walk_cb, &m);
     H5Eclear2(H5E_DEFAULT);
     if (!buf[0]) snprintf(buf, size, "HDF5 reported no detail");
+    for (char *c = buf; *c; c++)
+        if ((unsigned char)*c < ' ') *c = ' ';
     return buf;
 }
 
@@ -93,6 +142,7 @@ static bool path_exists(hid_t file, const char *path)
 
 bool dr_h5_has(DrH5 *h, const char *path)
 {
+    assert(!h->deferred); /* a deferred handle holds no file to ask */
     h5_quiet();
     return path_exists(h->file, path);
 }
@@ -162,6 +212,21 @@ DrStatus dr_h5_create(const char *final_path, DrH5 **out, DrError *err)
     return DR_OK;
 }
 
+DrStatus dr_h5_create_deferred(const char *final_path, DrH5 **out, DrError *err)
+{
+    DrH5 *h;
+    DR_TRY(alloc_handle(final_path, &h, err));
+    h->writable = true;
+    h->deferred = true;
+    *out = h;
+    return DR_OK;
+}
+
+bool dr_h5_deferred(const DrH5 *h)
+{
+    return h->deferred;
+}
+
 DrStatus dr_h5_open(const char *path, DrH5 **out, DrError *err)
 {
     h5_quiet();
@@ -188,11 +253,41 @@ DrStatus dr_h5_open(const char *path, DrH5 **out, DrError *err)
     return DR_OK;
 }
 
+static void free_op(H5Op *op)
+{
+    free(op->path);
+    free(op->name);
+    free(op->text);
+    free(op->data);
+}
+
+static void free_ops(DrH5 *h)
+{
+    for (int i = 0; i < h->nops; i++) free_op(&h->ops[i]);
+    free(h->ops);
+    h->ops = NULL;
+    h->nops = h->cap = 0;
+}
+
+static DrStatus replay(const H5Op *op, DrH5 *h, DrError *err);
+
 DrStatus dr_h5_commit(DrH5 **hp, DrError *err)
 {
     DrH5 *h = *hp;
     assert(h && h->writable);
     *hp = NULL;
+    if (h->deferred) {
+        /* The recorded calls go to a real handle in their order, so the file is the one a direct
+         * handle given the same calls would have written. */
+        DrH5 *real = NULL;
+        DrStatus s = dr_h5_create(h->path, &real, err);
+        for (int i = 0; s == DR_OK && i < h->nops; i++) s = replay(&h->ops[i], real, err);
+        if (s == DR_OK) s = dr_h5_commit(&real, err);
+        else dr_h5_close(&real);
+        free_ops(h);
+        free(h);
+        return s;
+    }
     h5_quiet();
     DrStatus s = DR_OK;
     if (H5Fclose(h->file) < 0) {
@@ -213,6 +308,11 @@ void dr_h5_close(DrH5 **hp)
     if (!hp || !*hp) return;
     DrH5 *h = *hp;
     *hp = NULL;
+    if (h->deferred) { /* nothing was opened: no HDF5 call, no file */
+        free_ops(h);
+        free(h);
+        return;
+    }
     h5_quiet();
     if (h->file >= 0 && H5Fclose(h->file) < 0) H5Eclear2(H5E_DEFAULT);
     if (h->writable) unlink(h->tmp);
@@ -248,15 +348,90 @@ static void chunk_shape(int rank, const uint64_t *dims, hsize_t *chunk)
     }
 }
 
-static DrStatus write_dataset(DrH5 *h, const char *path, int rank, const uint64_t *dims, hid_t file_type,
-                              hid_t mem_type, const void *data, const char *units, bool compress, DrError *err)
+static size_t kind_size(ElemKind kind) { return kind == ELEM_I32 ? 4 : 8; }
+
+/* True when all count elements of `size` bytes hold the same bytes: each element equals the next. */
+static bool one_value(const void *data, size_t count, size_t size)
+{
+    const unsigned char *b = data;
+    return count > 0 && memcmp(b, b + size, (count - 1) * size) == 0;
+}
+
+/* Appends op to a deferred handle, which then owns op's allocations (freed here on failure). */
+static DrStatus push_op(DrH5 *h, H5Op *op, DrError *err)
+{
+    DrStatus s = DR_OK;
+    if (h->nops == h->cap) {
+        int cap = h->cap ? 2 * h->cap : 32;
+        H5Op *grown = h->ops;
+        s = dr_realloc((size_t)cap, sizeof *grown, &grown, err);
+        if (s == DR_OK) {
+            h->ops = grown;
+            h->cap = cap;
+        }
+    }
+    if (s == DR_OK) {
+        h->ops[h->nops++] = *op;
+        return DR_OK;
+    }
+    dr_error_set(err, DR_ERR_NOMEM, h->path, 0, 0, "out of memory recording a write to %s", op->path);
+    free_op(op);
+    return DR_ERR_NOMEM;
+}
+
+/* The string copies of an op; false when out of memory. */
+static bool op_strings(H5Op *op, const char *path, const char *name, const char *text)
+{
+    op->path = dr_strdup(path);
+    op->name = name ? dr_strdup(name) : NULL;
+    op->text = text ? dr_strdup(text) : NULL;
+    return op->path && (!name || op->name) && (!text || op->text);
+}
+
+/* A deferred handle's dataset: checked as far as possible without the file (an object that is
+ * already there is a dataset recorded before at the same path), its data copied. */
+static DrStatus record_dataset(DrH5 *h, const char *path, int rank, const uint64_t *dims, ElemKind elem,
+                               size_t count, const void *data, const char *units, Layout layout, DrError *err)
+{
+    for (int i = 0; i < h->nops; i++)
+        if (h->ops[i].kind == OP_DATASET && strcmp(h->ops[i].path, path) == 0)
+            return dr_error_set(err, DR_ERR_INPUT, h->path, 0, 0,
+                                "dataset %s already exists; each dataset is written once", path);
+    H5Op op = {.kind = OP_DATASET, .elem = elem, .rank = rank, .layout = layout};
+    for (int i = 0; i < rank; i++) op.dims[i] = dims[i];
+    bool ok = op_strings(&op, path, NULL, units);
+    if (ok && count > 0) {
+        op.data = malloc(count * kind_size(elem));
+        ok = op.data != NULL;
+        if (ok) memcpy(op.data, data, count * kind_size(elem));
+    }
+    if (!ok) {
+        free_op(&op);
+        return dr_error_set(err, DR_ERR_NOMEM, h->path, 0, 0, "out of memory copying dataset %s for writing", path);
+    }
+    return push_op(h, &op, err);
+}
+
+static DrStatus write_dataset(DrH5 *h, const char *path, int rank, const uint64_t *dims, ElemKind elem,
+                              const void *data, const char *units, Layout layout, DrError *err)
 {
     assert(rank >= 1 && rank <= 4 && path[0] == '/');
-    h5_quiet();
     DR_TRY(check_writable(h, path, err));
     size_t count;
     DR_TRY(element_count(h, path, rank, dims, &count, err));
     assert(count == 0 || data);
+    if (h->deferred) return record_dataset(h, path, rank, dims, elem, count, data, units, layout, err);
+    h5_quiet();
+    /* The type ids are evaluated only here: the macros open the library, a deferred handle makes no
+     * HDF5 call. */
+    hid_t file_type = elem == ELEM_F64 ? H5T_IEEE_F64LE
+                      : elem == ELEM_I64 ? H5T_STD_I64LE
+                      : elem == ELEM_U64 ? H5T_STD_U64LE
+                                         : H5T_STD_I32LE;
+    hid_t mem_type = elem == ELEM_F64 ? H5T_NATIVE_DOUBLE
+                     : elem == ELEM_I64 ? H5T_NATIVE_INT64
+                     : elem == ELEM_U64 ? H5T_NATIVE_UINT64
+                                        : H5T_NATIVE_INT32;
     if (path_exists(h->file, path))
         return dr_error_set(err, DR_ERR_INPUT, h->path, 0, 0,
                             "dataset %s already exists; each dataset is written once", path);
@@ -269,9 +444,13 @@ static DrStatus write_dataset(DrH5 *h, const char *path, int rank, const uint64_
     bool ok = space >= 0 && lcpl >= 0 && dcpl >= 0;
     /* No modification times in object headers, so the same data gives the same bytes. */
     if (ok) ok = H5Pset_obj_track_times(dcpl, 0) >= 0;
-    /* A dataset without elements stays contiguous: chunk extents cannot be 0 and there is nothing
-     * to compress. */
-    if (ok && compress && count > 0) {
+    /* A dataset without elements stays contiguous: chunk extents cannot be 0 and there is nothing to
+     * compress. Frame data (ONE_VALUE) is deflated only when it holds one value throughout. */
+    size_t bytes = count * kind_size(elem);
+    bool deflate = bytes > 0 && (layout == LAYOUT_DEFLATE ||
+                                 (layout == LAYOUT_ONE_VALUE && bytes >= CONSTANT_MIN_BYTES &&
+                                  one_value(data, count, kind_size(elem))));
+    if (ok && deflate) {
         chunk_shape(rank, dims, chunk);
         ok = H5Pset_chunk(dcpl, rank, chunk) >= 0 && H5Pset_shuffle(dcpl) >= 0 &&
              H5Pset_deflate(dcpl, DEFLATE_LEVEL) >= 0;
@@ -292,33 +471,41 @@ static DrStatus write_dataset(DrH5 *h, const char *path, int rank, const uint64_
     return DR_OK;
 }
 
+static Layout layout_of(const DrH5 *h, bool compress)
+{
+    if (!compress) return LAYOUT_CONTIGUOUS;
+    return h->compress == DR_H5_COMPRESS_ONE_VALUE ? LAYOUT_ONE_VALUE : LAYOUT_DEFLATE;
+}
+
+void dr_h5_set_compress(DrH5 *h, DrH5Compress mode)
+{
+    assert(h->writable);
+    h->compress = mode;
+}
+
 DrStatus dr_h5_write_f64(DrH5 *h, const char *path, int rank, const uint64_t *dims, const double *data,
                          const char *units, bool compress, DrError *err)
 {
-    return write_dataset(h, path, rank, dims, H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, data, units, compress, err);
+    return write_dataset(h, path, rank, dims, ELEM_F64, data, units, layout_of(h, compress), err);
 }
 
 DrStatus dr_h5_write_i64(DrH5 *h, const char *path, int rank, const uint64_t *dims, const int64_t *data,
                          const char *units, bool compress, DrError *err)
 {
-    return write_dataset(h, path, rank, dims, H5T_STD_I64LE, H5T_NATIVE_INT64, data, units, compress, err);
+    return write_dataset(h, path, rank, dims, ELEM_I64, data, units, layout_of(h, compress), err);
 }
 
 DrStatus dr_h5_write_u64(DrH5 *h, const char *path, int rank, const uint64_t *dims, const uint64_t *data,
                          bool compress, DrError *err)
 {
-    return write_dataset(h, path, rank, dims, H5T_STD_U64LE, H5T_NATIVE_UINT64, data, NULL, compress, err);
+    return write_dataset(h, path, rank, dims, ELEM_U64, data, NULL, layout_of(h, compress), err);
 }
 
 DrStatus dr_h5_write_i32(DrH5 *h, const char *path, int rank, const uint64_t *dims, const int32_t *data,
                          const char *units, bool compress, DrError *err)
 {
-    return write_dataset(h, path, rank, dims, H5T_STD_I32LE, H5T_NATIVE_INT32, data, units, compress, err);
+    return write_dataset(h, path, rank, dims, ELEM_I32, data, units, layout_of(h, compress), err);
 }
-
-typedef enum ElemKind { ELEM_F64, ELEM_I64, ELEM_U64, ELEM_I32 } ElemKind;
-
-static size_t kind_size(ElemKind kind) { return kind == ELEM_I32 ? 4 : 8; }
 
 static bool type_is(hid_t type, ElemKind kind)
 {
@@ -345,7 +532,7 @@ static const char *kind_name(ElemKind kind)
 static DrStatus read_dataset(DrH5 *h, const char *path, ElemKind kind, hid_t mem_type, int *rank, uint64_t dims[4],
                              void **data, DrError *err)
 {
-    assert(path[0] == '/');
+    assert(path[0] == '/' && !h->deferred);
     h5_quiet();
     *data = NULL;
     *rank = 0;
@@ -451,8 +638,23 @@ static DrStatus write_attr(DrH5 *h, const char *obj, const char *name, hid_t typ
     return DR_OK;
 }
 
+/* A deferred handle's attribute: copied, written when the handle is committed. */
+static DrStatus record_attr(DrH5 *h, OpKind kind, const char *obj, const char *name, const char *text, double f64,
+                            int64_t i64, DrError *err)
+{
+    assert(obj[0] == '/');
+    DR_TRY(check_writable(h, "an attribute", err));
+    H5Op op = {.kind = kind, .f64 = f64, .i64 = i64};
+    if (!op_strings(&op, obj, name, text)) {
+        free_op(&op);
+        return dr_error_set(err, DR_ERR_NOMEM, h->path, 0, 0, "out of memory copying attribute %s of %s", name, obj);
+    }
+    return push_op(h, &op, err);
+}
+
 DrStatus dr_h5_attr_str(DrH5 *h, const char *obj, const char *name, const char *value, DrError *err)
 {
+    if (h->deferred) return record_attr(h, OP_ATTR_STR, obj, name, value, 0.0, 0, err);
     hid_t type = H5Tcopy(H5T_C_S1);
     bool ok = type >= 0 && H5Tset_size(type, strlen(value) + 1) >= 0 && H5Tset_strpad(type, H5T_STR_NULLTERM) >= 0 &&
               H5Tset_cset(type, H5T_CSET_UTF8) >= 0;
@@ -471,18 +673,33 @@ DrStatus dr_h5_attr_str(DrH5 *h, const char *obj, const char *name, const char *
 
 DrStatus dr_h5_attr_f64(DrH5 *h, const char *obj, const char *name, double value, DrError *err)
 {
+    if (h->deferred) return record_attr(h, OP_ATTR_F64, obj, name, NULL, value, 0, err);
     return write_attr(h, obj, name, H5T_NATIVE_DOUBLE, &value, err);
 }
 
 DrStatus dr_h5_attr_i64(DrH5 *h, const char *obj, const char *name, int64_t value, DrError *err)
 {
+    if (h->deferred) return record_attr(h, OP_ATTR_I64, obj, name, NULL, 0.0, value, err);
     return write_attr(h, obj, name, H5T_NATIVE_INT64, &value, err);
+}
+
+/* One recorded call, made on the real handle h exactly as the caller made it. */
+static DrStatus replay(const H5Op *op, DrH5 *h, DrError *err)
+{
+    switch (op->kind) {
+    case OP_DATASET:
+        return write_dataset(h, op->path, op->rank, op->dims, op->elem, op->data, op->text, op->layout, err);
+    case OP_ATTR_STR: return dr_h5_attr_str(h, op->path, op->name, op->text, err);
+    case OP_ATTR_F64: return dr_h5_attr_f64(h, op->path, op->name, op->f64, err);
+    case OP_ATTR_I64: return dr_h5_attr_i64(h, op->path, op->name, op->i64, err);
+    }
+    return DR_OK;
 }
 
 /* Opens attribute name of obj; on failure fills err (DR_ERR_INPUT) and returns a negative id. */
 static hid_t open_attr(DrH5 *h, const char *obj, const char *name, DrError *err)
 {
-    assert(obj[0] == '/');
+    assert(obj[0] == '/' && !h->deferred);
     h5_quiet();
     if (strcmp(obj, "/") != 0 && !path_exists(h->file, obj)) {
         dr_error_set(err, DR_ERR_INPUT, h->path, 0, 0, "object %s (holding attribute %s) is missing", obj, name);
@@ -636,7 +853,7 @@ static herr_t list_cb(hid_t group, const char *name, const H5L_info_t *info, voi
 
 DrStatus dr_h5_list(DrH5 *h, const char *group, char ***names, int *count, DrError *err)
 {
-    assert(group[0] == '/');
+    assert(group[0] == '/' && !h->deferred);
     h5_quiet();
     *names = NULL;
     *count = 0;

@@ -34,6 +34,9 @@ static void print_help(DrStageId stage)
     if (stage == DR_STAGE_BAKE) {
         printf("  --resume            continue from out/<shot>/bake/checkpoint.h5 (bit-identical to an\n"
                "                      uninterrupted bake)\n"
+               "  --sync-writes       write each frame and checkpoint on the main thread before the next\n"
+               "                      frame starts (by default a writer thread writes them while the next\n"
+               "                      frame is simulated; the files are the same)\n"
                "  --list-components   print every element type, component and field (unit, default,\n"
                "                      range) and exit; add --markdown for a Markdown reference\n");
     }
@@ -110,6 +113,8 @@ DrStatus dr_stage_parse_args(DrStageId stage, int argc, char **argv, DrStageArgs
             else a->cache_root = argv[++i];
         } else if (!strcmp(s, "--resume") && stage == DR_STAGE_BAKE) {
             a->resume = true;
+        } else if (!strcmp(s, "--sync-writes") && stage == DR_STAGE_BAKE) {
+            a->sync_writes = true;
         } else if (!strcmp(s, "--finish") && (stage == DR_STAGE_MESH || stage == DR_STAGE_RENDER)) {
             a->finish = true;
         } else if (!strcmp(s, "--plots") && stage == DR_STAGE_RENDER) {

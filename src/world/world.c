@@ -692,23 +692,15 @@ static DrStatus write_frame_body(const DrWorld *w, const DrFrameStats *stats, Dr
     return DR_OK;
 }
 
-DrStatus dr_world_write_frame(const DrWorld *w, const DrFrameStats *stats, const char *path, const char *bake_key,
+DrStatus dr_world_write_frame(const DrWorld *w, const DrFrameStats *stats, const char *bake_key, DrH5 *h,
                               DrError *err)
 {
-    DrH5 *h = NULL;
-    DR_TRY(dr_h5_create(path, &h, err));
-    DrStatus s = write_frame_body(w, stats, h, bake_key, err);
-    if (s < 0) {
-        dr_h5_close(&h); /* uncommitted: the tmp file is removed, nothing appears at path */
-        return s;
-    }
-    return dr_h5_commit(&h, err);
+    dr_h5_set_compress(h, DR_H5_COMPRESS_ONE_VALUE); /* written every frame: see src/io/io_h5.c */
+    return write_frame_body(w, stats, h, bake_key, err);
 }
 
-DrStatus dr_world_write_checkpoint(const DrWorld *w, const char *path, const char *bake_key, DrError *err)
+DrStatus dr_world_write_checkpoint(const DrWorld *w, const char *bake_key, DrH5 *h, DrError *err)
 {
-    DrH5 *h = NULL;
-    DR_TRY(dr_h5_create(path, &h, err));
     DrStatus s = dr_h5_attr_str(h, "/", "scene_key", bake_key, err);
     if (s == DR_OK) s = dr_h5_attr_i64(h, "/", "frame", w->frame, err);
     if (s == DR_OK) s = dr_h5_attr_str(h, "/", "drench_version", DR_VERSION, err);
@@ -730,11 +722,7 @@ DrStatus dr_world_write_checkpoint(const DrWorld *w, const char *path, const cha
     if (s == DR_OK) s = dr_world_mpm_write_(w, h, false, err);
     if (s == DR_OK) s = dr_world_hair_write_(w, h, false, err);
     if (s == DR_OK) s = dr_world_bem_write_(w, h, false, err);
-    if (s < 0) {
-        dr_h5_close(&h);
-        return s;
-    }
-    return dr_h5_commit(&h, err);
+    return s;
 }
 
 static DrStatus read_liquid(DrH5 *h, const char *path, WorldLiquid *wl, DrError *err)

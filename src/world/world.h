@@ -10,6 +10,7 @@
 
 #include "bem/bem.h"
 #include "core/core.h"
+#include "io/io.h"
 #include "scene/scene.h"
 
 typedef struct DrWorld DrWorld;
@@ -126,7 +127,10 @@ void dr_world_bem_asset_free(DrWorldBemAsset *a);
  * stats; DR_ERR_RUNTIME when a solver produced non-finite values. */
 DR_NODISCARD DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrError *err);
 
-/* Frame cache (DESIGN §4), written atomically: root attributes drench_version, frame, time, substeps,
+/* Frame cache (DESIGN §4), written into h, a write handle (dr_h5_create, or dr_h5_create_deferred to have it
+ * written later or on another thread) that the caller commits, or closes on failure, so the file appears
+ * atomically or not at all. Its datasets are stored as DR_H5_COMPRESS_ONE_VALUE says (contiguous, except those
+ * of one value). Root attributes drench_version, frame, time, substeps,
  * scene_key; one group per element; /diagnostics. An mpm_solid element's group holds its particles:
  * position (N×3, m), velocity (N×3, m/s), affine (N×3×3, 1/s: the APIC matrix C, zero for PIC/FLIP),
  * deformation_gradient (N×3×3, 1), volume (N, m³: rest volume V₀; the current one is det(F)·V₀), with
@@ -143,14 +147,13 @@ DR_NODISCARD DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrErr
  * kinetic_energy and potential_energy of its frame, volume (m³, of the deformed surface), max_displacement, steps
  * (this frame) and time_step; /diagnostics/bem_* their sums (the largest max_displacement, angular momentum about
  * the origin). */
-DR_NODISCARD DrStatus dr_world_write_frame(const DrWorld *w, const DrFrameStats *stats, const char *path,
-                                           const char *bake_key, DrError *err);
+DR_NODISCARD DrStatus dr_world_write_frame(const DrWorld *w, const DrFrameStats *stats, const char *bake_key,
+                                           DrH5 *h, DrError *err);
 /* Checkpoint: everything a bit-identical continuation needs (particles in their current order, rng states,
  * MPM positions, velocities, affine matrices and deformation gradients, hair state, each bem_solid's
- * dr_bem_solid_state_get array and step count, frame). Read refuses a checkpoint whose bake key differs, or whose
+ * dr_bem_solid_state_get array and step count, frame), written into h as the frame cache is. Read refuses a checkpoint whose bake key differs, or whose
  * arrays or step counts do not fit the scene (DR_ERR_INPUT, with what to do). */
-DR_NODISCARD DrStatus dr_world_write_checkpoint(const DrWorld *w, const char *path, const char *bake_key,
-                                                DrError *err);
+DR_NODISCARD DrStatus dr_world_write_checkpoint(const DrWorld *w, const char *bake_key, DrH5 *h, DrError *err);
 DR_NODISCARD DrStatus dr_world_read_checkpoint(DrWorld *w, const char *path, const char *bake_key,
                                                DrError *err);
 /* Hash of the whole simulation state (for determinism tests and logs). */
@@ -166,6 +169,7 @@ typedef struct DrStageArgs {
     int frame_first, frame_last; /* --frames A-B; 0,0 when not given */
     bool frames_given;
     bool resume;             /* bake --resume */
+    bool sync_writes;        /* bake --sync-writes: frames and checkpoints written on the main thread */
     bool finish;             /* mesh/render --finish: seal frame ranges that ran separately */
     bool plots_only, no_plots; /* render --plots / --no-plots */
     int threads;             /* -j N; 0 = all cores */

@@ -12,6 +12,8 @@
 
 #include <dirent.h>
 #include <fcntl.h>
+#include <pthread.h>
+#include <signal.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
@@ -877,6 +879,391 @@ static void test_h5_abandon_and_bad_files(void **state)
     assert_string_equal(err.file, "/nonexistent/dir/x.h5");
 }
 
+/* ---- deferred handles and the background writer ---- */
+
+/* Files' bytes equal (both must exist). */
+static bool same_bytes(const char *a, const char *b)
+{
+    char cmd[1400];
+    snprintf(cmd, sizeof cmd, "cmp -s '%s' '%s'", a, b);
+    return system(cmd) == 0;
+}
+
+/* The calls of a small frame: every writer, compressed and not, empty datasets, an attribute replaced,
+ * on the root, a group made by it and a dataset. The arrays are overwritten after each call, so a
+ * deferred handle that kept pointers instead of copies would write other bytes. */
+static void write_sample(DrH5 *h, int seed)
+{
+    enum { N = 30000 };
+    DrError err;
+    double *x = malloc(sizeof(double) * 3 * N);
+    int64_t *ids = malloc(sizeof(int64_t) * N);
+    int32_t *tri = malloc(sizeof(int32_t) * 3 * N);
+    uint64_t rng[4] = {1, UINT64_MAX, 3, (uint64_t)seed};
+    assert_non_null(x);
+    assert_non_null(ids);
+    assert_non_null(tri);
+    DrRng r;
+    dr_rng_seed(&r, (uint64_t)seed);
+    for (int i = 0; i < 3 * N; i++) x[i] = 0.001 * (i % 997) + 1e-6 * dr_rng_uniform(&r);
+    for (int i = 0; i < N; i++) ids[i] = (int64_t)i * seed - 5;
+    for (int i = 0; i < 3 * N; i++) tri[i] = i / 2;
+    uint64_t d2[2] = {N, 3}, d1[1] = {N}, d4[1] = {4}, d0[2] = {0, 3};
+    assert_int_equal(dr_h5_attr_str(h, "/", "drench_version", DR_VERSION, &err), DR_OK);
+    assert_int_equal(dr_h5_attr_i64(h, "/", "frame", seed, &err), DR_OK);
+    assert_int_equal(dr_h5_attr_f64(h, "/", "time", seed / 24.0, &err), DR_OK);
+    assert_int_equal(dr_h5_write_f64(h, "/water/position", 2, d2, x, "m", true, &err), DR_OK);
+    for (int i = 0; i < 3 * N; i++) x[i] = -1.0;
+    assert_int_equal(dr_h5_write_f64(h, "/water/velocity", 2, d2, x, "m/s", false, &err), DR_OK);
+    for (int i = 0; i < 3 * N; i++) x[i] = 2.0;
+    assert_int_equal(dr_h5_write_i64(h, "/water/ids", 1, d1, ids, NULL, true, &err), DR_OK);
+    for (int i = 0; i < N; i++) ids[i] = 0;
+    assert_int_equal(dr_h5_write_i32(h, "/body/triangles", 2, d2, tri, "1", true, &err), DR_OK);
+    for (int i = 0; i < 3 * N; i++) tri[i] = 0;
+    assert_int_equal(dr_h5_write_u64(h, "/water/rng", 1, d4, rng, false, &err), DR_OK);
+    rng[0] = 0;
+    assert_int_equal(dr_h5_write_f64(h, "/empty/position", 2, d0, NULL, "m", true, &err), DR_OK);
+    assert_int_equal(dr_h5_attr_str(h, "/water", "type", "liquid", &err), DR_OK);
+    assert_int_equal(dr_h5_attr_str(h, "/water", "type", "liquid!", &err), DR_OK); /* replaced */
+    assert_int_equal(dr_h5_attr_f64(h, "/diagnostics/water", "mass", 1.25, &err), DR_OK);
+    assert_int_equal(dr_h5_attr_i64(h, "/water/ids", "count", N, &err), DR_OK);
+    free(x);
+    free(ids);
+    free(tri);
+}
+
+static void test_h5_deferred_identical(void **state)
+{
+    (void)state;
+    DrError err;
+    char direct[512], deferred[512], background[512], tmp[600];
+    scratch_path("direct.h5", direct, sizeof direct);
+    scratch_path("deferred.h5", deferred, sizeof deferred);
+    scratch_path("background.h5", background, sizeof background);
+    DrH5 *h = NULL;
+    assert_int_equal(dr_h5_create(direct, &h, &err), DR_OK);
+    assert_false(dr_h5_deferred(h));
+    write_sample(h, 3);
+    assert_int_equal(dr_h5_commit(&h, &err), DR_OK);
+
+    /* Deferred, committed on this thread: nothing on disk until the commit. */
+    assert_int_equal(dr_h5_create_deferred(deferred, &h, &err), DR_OK);
+    assert_true(dr_h5_deferred(h));
+    assert_string_equal(dr_h5_path(h), deferred);
+    write_sample(h, 3);
+    dr_io_tmp_path(deferred, tmp, sizeof tmp);
+    assert_false(dr_io_exists(tmp));
+    assert_false(dr_io_exists(deferred));
+    assert_int_equal(dr_h5_commit(&h, &err), DR_OK);
+    assert_null(h);
+    assert_true(same_bytes(direct, deferred));
+
+    /* Deferred, committed by the writer's thread. */
+    DrH5Writer *w = NULL;
+    assert_int_equal(dr_h5_writer_create(2, &w, &err), DR_OK);
+    assert_int_equal(dr_h5_create_deferred(background, &h, &err), DR_OK);
+    write_sample(h, 3);
+    assert_int_equal(dr_h5_writer_submit(w, &h, &err), DR_OK);
+    assert_null(h);
+    assert_int_equal(dr_h5_writer_flush(w, &err), DR_OK);
+    DrH5WriterStats st;
+    dr_h5_writer_stats(w, &st);
+    assert_int_equal(st.files, 1);
+    assert_true(st.seconds > 0.0);
+    dr_h5_writer_destroy(&w);
+    assert_null(w);
+    dr_h5_writer_destroy(&w); /* NULL: no-op */
+    assert_true(same_bytes(direct, background));
+
+    /* Another seed gives another file: the comparison can tell files apart. */
+    assert_int_equal(dr_h5_create_deferred(deferred, &h, &err), DR_OK);
+    write_sample(h, 4);
+    assert_int_equal(dr_h5_commit(&h, &err), DR_OK);
+    assert_false(same_bytes(direct, deferred));
+    assert_int_equal(count_tmp_files(g_dir), 0);
+}
+
+static void test_h5_deferred_checks(void **state)
+{
+    (void)state;
+    DrError err;
+    char path[512], tmp[600];
+    scratch_path("dropped.h5", path, sizeof path);
+    dr_io_tmp_path(path, tmp, sizeof tmp);
+    DrH5 *h = NULL;
+    uint64_t d[1] = {3};
+    double v[3] = {1, 2, 3};
+    assert_int_equal(dr_h5_create_deferred(path, &h, &err), DR_OK);
+    assert_int_equal(dr_h5_write_f64(h, "/a/b", 1, d, v, NULL, true, &err), DR_OK);
+    /* the same dataset twice is refused when recorded, as on a direct handle */
+    assert_int_equal(dr_h5_write_f64(h, "/a/b", 1, d, v, NULL, true, &err), DR_ERR_INPUT);
+    assert_string_equal(err.file, path);
+    assert_non_null(strstr(err.message, "/a/b"));
+    /* closing drops the recording: no file, no temporary file */
+    dr_h5_close(&h);
+    assert_null(h);
+    assert_false(dr_io_exists(path));
+    assert_false(dr_io_exists(tmp));
+
+    /* A failure of the file itself comes from the commit, naming the file, leaving nothing. */
+    const char *missing = "/nonexistent/dir/x.h5";
+    assert_int_equal(dr_h5_create_deferred(missing, &h, &err), DR_OK);
+    assert_int_equal(dr_h5_write_f64(h, "/a", 1, d, v, NULL, false, &err), DR_OK);
+    assert_int_equal(dr_h5_commit(&h, &err), DR_ERR_IO);
+    assert_null(h);
+    assert_string_equal(err.file, missing);
+    /* A clash only the file can see (a dataset under a dataset) also comes from the commit. */
+    assert_int_equal(dr_h5_create_deferred(path, &h, &err), DR_OK);
+    assert_int_equal(dr_h5_write_f64(h, "/a", 1, d, v, NULL, false, &err), DR_OK);
+    assert_int_equal(dr_h5_write_f64(h, "/a/b", 1, d, v, NULL, false, &err), DR_OK);
+    assert_true(dr_h5_commit(&h, &err) < 0);
+    assert_string_equal(err.file, path);
+    assert_false(dr_io_exists(path));
+    assert_false(dr_io_exists(tmp));
+}
+
+/* The two meanings of compress = true: DR_H5_COMPRESS_ALL (the default) deflates every such dataset;
+ * DR_H5_COMPRESS_ONE_VALUE (frame caches) only those of 4 KiB or more holding one value. Every dataset
+ * reads back bit-identical either way, and a deferred handle keeps the mode it was given. */
+static void write_modes_sample(DrH5 *h)
+{
+    enum { N = 20000 };
+    DrError err;
+    double *x = malloc(sizeof(double) * 3 * N), *still = malloc(sizeof(double) * 3 * N);
+    assert_non_null(x);
+    assert_non_null(still);
+    DrRng r;
+    dr_rng_seed(&r, 9);
+    for (int i = 0; i < 3 * N; i++) {
+        x[i] = dr_rng_uniform(&r);
+        still[i] = 0.25;
+    }
+    uint64_t d[2] = {N, 3}, dsmall[2] = {100, 3}; /* 2.4 kB: under the 4 KiB where deflating one value pays */
+    assert_int_equal(dr_h5_write_f64(h, "/varied", 2, d, x, "m", true, &err), DR_OK);
+    assert_int_equal(dr_h5_write_f64(h, "/still", 2, d, still, "1/s", true, &err), DR_OK);
+    assert_int_equal(dr_h5_write_f64(h, "/still_small", 2, dsmall, still, "1/s", true, &err), DR_OK);
+    assert_int_equal(dr_h5_write_f64(h, "/still_raw", 2, d, still, "1/s", false, &err), DR_OK);
+    free(x);
+    free(still);
+}
+
+static void test_h5_compress_modes(void **state)
+{
+    (void)state;
+    DrError err;
+    char all[512], frame[512], deferred[512];
+    scratch_path("mode_all.h5", all, sizeof all);
+    scratch_path("mode_frame.h5", frame, sizeof frame);
+    scratch_path("mode_frame_deferred.h5", deferred, sizeof deferred);
+    DrH5 *h = NULL;
+    assert_int_equal(dr_h5_create(all, &h, &err), DR_OK);
+    write_modes_sample(h);
+    assert_int_equal(dr_h5_commit(&h, &err), DR_OK);
+    assert_int_equal(dr_h5_create(frame, &h, &err), DR_OK);
+    dr_h5_set_compress(h, DR_H5_COMPRESS_ONE_VALUE);
+    write_modes_sample(h);
+    assert_int_equal(dr_h5_commit(&h, &err), DR_OK);
+    assert_int_equal(dr_h5_create_deferred(deferred, &h, &err), DR_OK);
+    dr_h5_set_compress(h, DR_H5_COMPRESS_ONE_VALUE);
+    write_modes_sample(h);
+    assert_int_equal(dr_h5_commit(&h, &err), DR_OK);
+    assert_true(same_bytes(frame, deferred));
+
+    /* Sizes: 480 kB per large array. ALL deflates the varied doubles a little (shuffle groups their
+     * exponent bytes: measured 88%) and the one-value array to almost nothing; ONE_VALUE stores the
+     * varied array raw. Either way the compress = false array takes its 480 kB. */
+    size_t raw = sizeof(double) * 3 * 20000;
+    struct stat sa, sf;
+    assert_int_equal(stat(all, &sa), 0);
+    assert_int_equal(stat(frame, &sf), 0);
+    assert_true((size_t)sf.st_size >= 2 * raw && (size_t)sf.st_size < 2 * raw + raw / 10);
+    assert_true((size_t)sa.st_size < (size_t)sf.st_size);
+    assert_true((size_t)sa.st_size >= raw);
+
+    const char *names[] = {"/varied", "/still", "/still_small", "/still_raw"};
+    for (int m = 0; m < 2; m++) {
+        assert_int_equal(dr_h5_open(m == 0 ? all : frame, &h, &err), DR_OK);
+        double *back = NULL;
+        int rank;
+        uint64_t dims[4];
+        assert_int_equal(dr_h5_read_f64(h, "/still", &rank, dims, &back, &err), DR_OK);
+        for (int i = 0; i < 60000; i++) assert_true(back[i] == 0.25);
+        free(back);
+        dr_h5_close(&h);
+    }
+    /* h5dump (when installed) shows each dataset's storage. */
+    if (system("command -v h5dump >/dev/null 2>&1") == 0) {
+        const bool deflated[2][4] = {{true, true, true, false}, {false, true, false, false}};
+        char cmd[1400], dump[600];
+        scratch_path("modes.txt", dump, sizeof dump);
+        for (int m = 0; m < 2; m++)
+            for (int k = 0; k < 4; k++) {
+                snprintf(cmd, sizeof cmd, "h5dump -p -H -d %s '%s' > '%s' 2>&1", names[k], m == 0 ? all : frame,
+                         dump);
+                assert_int_equal(system(cmd), 0);
+                char *text = slurp(dump);
+                assert_true((strstr(text, "DEFLATE") != NULL) == deflated[m][k]);
+                assert_true((strstr(text, "CONTIGUOUS") != NULL) == !deflated[m][k]);
+                free(text);
+            }
+    }
+}
+
+/* A frame of n particles' worth of data for the writer tests. */
+static DrH5 *deferred_file(const char *path, long n)
+{
+    DrError err;
+    DrH5 *h = NULL;
+    assert_int_equal(dr_h5_create_deferred(path, &h, &err), DR_OK);
+    double *x = calloc((size_t)(3 * n), sizeof(double));
+    assert_non_null(x);
+    for (long i = 0; i < 3 * n; i++) x[i] = sin((double)i);
+    uint64_t d[2] = {(uint64_t)n, 3};
+    assert_int_equal(dr_h5_write_f64(h, "/water/position", 2, d, x, "m", true, &err), DR_OK);
+    free(x);
+    return h;
+}
+
+static void test_h5_writer_order(void **state)
+{
+    (void)state;
+    DrError err;
+    char big[512], small[512];
+    scratch_path("order_frame.h5", big, sizeof big);
+    scratch_path("order_checkpoint.h5", small, sizeof small);
+    for (int pending = 1; pending <= 2; pending++) {
+        unlink(big);
+        unlink(small);
+        DrH5Writer *w = NULL;
+        assert_int_equal(dr_h5_writer_create(pending, &w, &err), DR_OK);
+        DrH5 *h = deferred_file(big, 400000); /* takes the writer a while */
+        assert_int_equal(dr_h5_writer_submit(w, &h, &err), DR_OK);
+        h = deferred_file(small, 1);
+        assert_int_equal(dr_h5_writer_submit(w, &h, &err), DR_OK);
+        /* the file submitted second is never in place before the first: look as soon as it is */
+        for (int i = 0; i < 300000 && !dr_io_exists(small); i++) usleep(200);
+        assert_true(dr_io_exists(small));
+        assert_true(dr_io_exists(big));
+        assert_int_equal(dr_h5_writer_flush(w, &err), DR_OK);
+        DrH5WriterStats st;
+        dr_h5_writer_stats(w, &st);
+        assert_int_equal(st.files, 2);
+        dr_h5_writer_destroy(&w);
+    }
+    /* destroy finishes what is still pending */
+    unlink(big);
+    DrH5Writer *w = NULL;
+    assert_int_equal(dr_h5_writer_create(1, &w, &err), DR_OK);
+    DrH5 *h = deferred_file(big, 1000);
+    assert_int_equal(dr_h5_writer_submit(w, &h, &err), DR_OK);
+    dr_h5_writer_destroy(&w);
+    assert_true(dr_io_exists(big));
+    assert_int_equal(count_tmp_files(g_dir), 0);
+}
+
+/* The thread a SIGUSR1 handler ran on, and how often it ran. */
+static pthread_t g_signal_thread;
+static volatile sig_atomic_t g_signals;
+
+static void on_usr1(int sig)
+{
+    (void)sig;
+    g_signal_thread = pthread_self();
+    g_signals++;
+}
+
+/* Signals sent to the process while the writer thread runs are handled on this thread (the writer
+ * blocks them all), as bake's stop request must be. This thread blocks the signal while it is sent, so
+ * that the kernel would hand it to the writer thread if that one let it through; once unblocked here,
+ * the pending signal must arrive here. */
+static void test_h5_writer_signals(void **state)
+{
+    (void)state;
+    DrError err;
+    char path[512];
+    scratch_path("signalled.h5", path, sizeof path);
+    struct sigaction sa, old;
+    memset(&sa, 0, sizeof sa);
+    sa.sa_handler = on_usr1;
+    sa.sa_flags = SA_RESTART;
+    sigemptyset(&sa.sa_mask);
+    assert_int_equal(sigaction(SIGUSR1, &sa, &old), 0);
+    DrH5Writer *w = NULL;
+    assert_int_equal(dr_h5_writer_create(2, &w, &err), DR_OK);
+    DrH5 *h = deferred_file(path, 400000); /* busy for a while */
+    assert_int_equal(dr_h5_writer_submit(w, &h, &err), DR_OK);
+    pthread_t self = pthread_self();
+    sigset_t usr1;
+    sigemptyset(&usr1);
+    sigaddset(&usr1, SIGUSR1);
+    for (int i = 0; i < 5; i++) {
+        g_signals = 0;
+        assert_int_equal(pthread_sigmask(SIG_BLOCK, &usr1, NULL), 0);
+        assert_int_equal(kill(getpid(), SIGUSR1), 0);
+        usleep(2000);
+        assert_int_equal(g_signals, 0); /* nobody took it: the writer blocks it */
+        assert_int_equal(pthread_sigmask(SIG_UNBLOCK, &usr1, NULL), 0);
+        for (int k = 0; k < 10000 && g_signals == 0; k++) usleep(100);
+        assert_int_equal(g_signals, 1);
+        assert_true(pthread_equal(g_signal_thread, self));
+    }
+    assert_int_equal(dr_h5_writer_flush(w, &err), DR_OK);
+    dr_h5_writer_destroy(&w);
+    assert_int_equal(sigaction(SIGUSR1, &old, NULL), 0);
+    assert_true(dr_io_exists(path));
+}
+
+/* A background failure: the second of three files cannot be written. It surfaces at the next submit
+ * or flush as DR_ERR_IO naming that file, its temporary file is gone, the first file is in place and
+ * the third was dropped unwritten. Disk full is real: the temporary path is made a link to /dev/full
+ * (writes fail with ENOSPC whoever runs the test, root included); without /dev/full, a missing
+ * directory. */
+static void test_h5_writer_failure(void **state)
+{
+    (void)state;
+    DrError err;
+    char first[512], second[512], third[512], tmp[600];
+    scratch_path("fail.0001.h5", first, sizeof first);
+    bool full = dr_io_exists("/dev/full");
+    if (full) {
+        scratch_path("fail.0002.h5", second, sizeof second);
+        dr_io_tmp_path(second, tmp, sizeof tmp);
+        assert_int_equal(symlink("/dev/full", tmp), 0);
+    } else {
+        snprintf(second, sizeof second, "%s/missing/fail.0002.h5", g_dir);
+        dr_io_tmp_path(second, tmp, sizeof tmp);
+    }
+    scratch_path("fail.0003.h5", third, sizeof third);
+    DrH5Writer *w = NULL;
+    assert_int_equal(dr_h5_writer_create(2, &w, &err), DR_OK);
+    DrH5 *h = deferred_file(first, 1000);
+    assert_int_equal(dr_h5_writer_submit(w, &h, &err), DR_OK);
+    h = deferred_file(second, 100000);
+    assert_int_equal(dr_h5_writer_submit(w, &h, &err), DR_OK);
+    h = deferred_file(third, 1000);
+    DrStatus s = dr_h5_writer_submit(w, &h, &err); /* may come before or after the failure */
+    assert_null(h);
+    dr_error_clear(&err);
+    assert_int_equal(dr_h5_writer_flush(w, &err), DR_ERR_IO);
+    assert_string_equal(err.file, second);
+    assert_true(s == DR_OK || s == DR_ERR_IO);
+    assert_true(dr_io_exists(first));
+    assert_false(dr_io_exists(second));
+    struct stat sb;
+    assert_true(lstat(tmp, &sb) != 0); /* the temporary file (here the link) is removed */
+    assert_false(dr_io_exists(third));
+    /* the failure sticks: later files are dropped and the same failure returned */
+    h = deferred_file(third, 10);
+    dr_error_clear(&err);
+    assert_int_equal(dr_h5_writer_submit(w, &h, &err), DR_ERR_IO);
+    assert_null(h);
+    assert_string_equal(err.file, second);
+    assert_int_equal(dr_h5_writer_flush(w, &err), DR_ERR_IO);
+    dr_h5_writer_destroy(&w);
+    assert_false(dr_io_exists(third));
+    assert_int_equal(count_tmp_files(g_dir), 0);
+}
+
 /* ---- precompute cache ---- */
 
 static void test_precache(void **state)
@@ -977,6 +1364,12 @@ int main(void)
         cmocka_unit_test(test_manifest),
         cmocka_unit_test(test_h5_round_trip),
         cmocka_unit_test(test_h5_abandon_and_bad_files),
+        cmocka_unit_test(test_h5_deferred_identical),
+        cmocka_unit_test(test_h5_deferred_checks),
+        cmocka_unit_test(test_h5_compress_modes),
+        cmocka_unit_test(test_h5_writer_order),
+        cmocka_unit_test(test_h5_writer_signals),
+        cmocka_unit_test(test_h5_writer_failure),
         cmocka_unit_test(test_precache),
     };
     return cmocka_run_group_tests(tests, group_setup, group_teardown);
