@@ -5,6 +5,7 @@
  * std::call_once. */
 
 #include "vdb/vdb.h" /* includes core/core.h with C linkage */
+#include "vdb/vdb_internal.h"
 
 #include <algorithm>
 #include <atomic>
@@ -152,6 +153,453 @@ DrStatus validate_mesh(const DrTriMesh *mesh, DrError *err)
                                 "the asset",
                                 i / 3, mesh->tri[i], mesh->nv);
     return DR_OK;
+}
+
+/* ---- inside/outside by signed crossings along grid lines -------------------------------------
+ *
+ * Why not OpenVDB's sign. meshToVolume (OpenVDB 10) decides inside/outside by sweeping and flood
+ * filling from outside the mesh's bounding box (traceExteriorBoundaries); it has no other interior
+ * test (no interior-test hook, which OpenVDB 12 adds, and no winding-number tool). A region the fill
+ * cannot reach is interior, and RemoveSelfIntersectingSurface then deletes its walls as if they were
+ * self-intersections: an enclosed cavity comes back solid, with distances to the outer surface only
+ * (tests/data/cavity_block.obj at dx 0.025 m: -0.5 m at the centre of its hollow, the distance to
+ * the block's faces, where the clamped exterior value +0.125 m is right).
+ *
+ * The method. Each node takes the winding number of the surface around it, counted along the three
+ * grid lines through it (the lines of constant (j,k), (k,i) and (i,j)): every triangle is binned to
+ * the lines its footprint covers, each line's crossings are sorted, and one sweep along the line
+ * gives every node the signed count of crossings on either side of it. Cost O(triangles × lines each
+ * covers + 3 × nodes); measured against meshToVolume's own time on 2 cores: 2 % for a sphere of 81920
+ * triangles on 301^3 nodes (0.34 s), 5 % for the default shot's ground slab (12 triangles on
+ * 409 x 20 x 409 nodes), 1-3 % for its cube and jelly. Rejected:
+ *  - a generalised winding number (solid angles) at every node: O(nodes × triangles), or a tree
+ *    code whose far-field approximation needs tuning;
+ *  - segmenting the regions the surface separates and testing one point per region: a voxel-level
+ *    segmentation joins regions through walls thinner than a voxel, the flood fill's own failure;
+ *  - crossing parity: where two shells overlap (a handle modelled into a mug) parity is even, so
+ *    the overlap would turn hollow where OpenVDB makes it solid today. The signed count is 2 there;
+ *    a node is inside where it is not zero, so overlaps stay solid, an inside-out mesh stays solid,
+ *    and a cavity (an inner shell wound to face into the hollow) has winding 0: outside.
+ *
+ * Exactness. Rays through edges and vertices (an axis-aligned cube with its corners on nodes) are
+ * the classic failure of crossing counts. The 2D point-in-triangle test here is exact: vertex
+ * coordinates are snapped to a lattice of spacing h = 2^-k voxel, with k per axis chosen so that
+ * every coordinate difference is an integer multiple of h below 2^26 h, so the edge functions
+ * (products of two such differences, and their difference) are exact in double (and -ffp-contract=off
+ * keeps the compiler from fusing them). A line exactly on an edge or vertex is decided by
+ * Simulation of Simplicity: the line is moved by ε·(1, δ), 0 < δ << 1, across its axis, which
+ * decides each edge function that is zero by the edge's direction alone. Every triangle thus sees
+ * the same moved line, which misses every edge and vertex, so the count along a line is that of a
+ * generic line: even on a closed mesh, unwelded seams included (an edge function reads positions
+ * only, and that of an edge shared by two triangles is exactly antisymmetric between them). Snapping
+ * moves the surface by at most (√3/2) h (h <= 2^-16 voxel on grids of up to 1024 nodes per axis),
+ * so the winding number is exact at every node farther than that from the surface. Crossing
+ * positions along the line are rounded, which only matters for nodes within rounding of the surface.
+ *
+ * Open meshes. A line through a hole crosses the surface unevenly. Each line counts from both of its
+ * ends and votes "inside" (both counts non-zero), "outside" (both zero) or not at all (the counts
+ * disagree: the node lies beyond a hole along this line). A node takes the majority of the votes of
+ * its three lines, and OpenVDB's sign when the votes tie (every line through holes). On a closed
+ * mesh the three lines always agree. */
+
+/* Nodes whose OpenVDB distance is at most this (in voxels) keep OpenVDB's sign: they lie on the
+ * surface to within the snapping and rounding above, and either sign is right there. */
+constexpr double kOnSurfaceVoxels = 1e-3;
+
+/* A crossing of one grid line: t is the local index coordinate along the line (node i is at t = i),
+ * sigma the sign of the triangle normal's component along the line (+1: the line leaves the solid). */
+struct Crossing {
+    double t;
+    int tri;
+    int sigma;
+};
+
+/* The crossings of every grid line parallel to one axis. Line (ju, jv) along axis a, with
+ * (u, v) = (a+1, a+2) mod 3, is number ju + n[u]*jv; its crossings are
+ * hits[start[line] .. start[line+1]), sorted by t. */
+struct AxisCrossings {
+    int a, u, v;
+    std::vector<long> start;
+    std::vector<Crossing> hits;
+};
+
+/* The node grid, in local index coordinates: node (i,j,k) at (i,j,k), flat index i + nx*(j + ny*k). */
+struct NodeGrid {
+    int n[3];
+    long stride[3];
+    long count() const { return stride[2] * n[2]; }
+};
+
+/* Sign of the edge function (a x b) of the edge a -> b relative to the line, a and b given relative
+ * to the line (exact: see the note above). Zero (the line on the edge's extension) is decided by the
+ * perturbation ε·(1, δ): sign of (b - a) x (1, δ). 0 only for an edge of zero length. */
+inline int edge_sign(double au, double av, double bu, double bv)
+{
+    const double e = au * bv - av * bu;
+    if (e > 0.0) return 1;
+    if (e < 0.0) return -1;
+    const double eu = bu - au, ev = bv - av;
+    if (ev != 0.0) return ev < 0.0 ? 1 : -1;
+    return eu > 0.0 ? 1 : (eu < 0.0 ? -1 : 0);
+}
+
+/* Vertex positions in local index coordinates (metres / dx - grid origin index), snapped per axis
+ * to multiples of 2^-k[a] (see the note above). */
+std::vector<double> snapped_vertices(const DrTriMesh *m, double dx, const double ilo[3],
+                                     const NodeGrid &g)
+{
+    int k[3];
+    for (int a = 0; a < 3; a++) {
+        int bits = 0;
+        while ((1L << bits) < static_cast<long>(g.n[a])) bits++;
+        /* Beyond 2^26 nodes along one axis (never in a scene: the other two axes then hold at most
+         * two nodes between them) k stays 0 and the edge functions may round. */
+        k[a] = std::max(0, 26 - bits);
+    }
+    std::vector<double> q(3 * static_cast<size_t>(m->nv));
+    for (size_t i = 0; i < q.size(); i++) {
+        const int a = static_cast<int>(i % 3);
+        const double local = m->v[i] / dx - ilo[a];
+        q[i] = std::ldexp(std::nearbyint(std::ldexp(local, k[a])), -k[a]);
+    }
+    return q;
+}
+
+/* Bins every triangle to the lines along axis `a` that its footprint covers and records where and
+ * which way each line crosses it. */
+AxisCrossings find_crossings(const DrTriMesh *m, const std::vector<double> &q, const NodeGrid &g, int a)
+{
+    AxisCrossings ax;
+    ax.a = a;
+    ax.u = (a + 1) % 3;
+    ax.v = (a + 2) % 3;
+    const int u = ax.u, v = ax.v, nu = g.n[u], nv = g.n[v];
+    struct Raw {
+        long line;
+        Crossing c;
+    };
+    std::vector<Raw> raw;
+    for (int t = 0; t < m->nt; t++) {
+        const double *P[3];
+        for (int c = 0; c < 3; c++) P[c] = q.data() + 3 * static_cast<size_t>(m->tri[3 * t + c]);
+        const double umin = std::min({P[0][u], P[1][u], P[2][u]}), umax = std::max({P[0][u], P[1][u], P[2][u]});
+        const double vmin = std::min({P[0][v], P[1][v], P[2][v]}), vmax = std::max({P[0][v], P[1][v], P[2][v]});
+        const int j0 = std::max(0, static_cast<int>(std::ceil(umin))), j1 = std::min(nu - 1, static_cast<int>(std::floor(umax)));
+        const int k0 = std::max(0, static_cast<int>(std::ceil(vmin))), k1 = std::min(nv - 1, static_cast<int>(std::floor(vmax)));
+        if (j0 > j1 || k0 > k1) continue;
+        /* twice the projected area, exact: its sign is the normal's component along the line */
+        const double area = (P[1][u] - P[0][u]) * (P[2][v] - P[0][v]) - (P[1][v] - P[0][v]) * (P[2][u] - P[0][u]);
+        if (area == 0.0) continue; /* seen edge-on: the perturbed line misses it (see edge_sign) */
+        const double tmin = std::min({P[0][a], P[1][a], P[2][a]}), tmax = std::max({P[0][a], P[1][a], P[2][a]});
+        for (int kk = k0; kk <= k1; kk++)
+            for (int jj = j0; jj <= j1; jj++) {
+                double r[3][2];
+                for (int c = 0; c < 3; c++) {
+                    r[c][0] = P[c][u] - jj;
+                    r[c][1] = P[c][v] - kk;
+                }
+                const int s0 = edge_sign(r[0][0], r[0][1], r[1][0], r[1][1]);
+                const int s1 = edge_sign(r[1][0], r[1][1], r[2][0], r[2][1]);
+                const int s2 = edge_sign(r[2][0], r[2][1], r[0][0], r[0][1]);
+                if (s0 == 0 || s0 != s1 || s0 != s2) continue;
+                /* barycentric weights: each vertex is weighted by the edge function opposite it */
+                const double w0 = r[1][0] * r[2][1] - r[1][1] * r[2][0];
+                const double w1 = r[2][0] * r[0][1] - r[2][1] * r[0][0];
+                const double w2 = r[0][0] * r[1][1] - r[0][1] * r[1][0];
+                double tc = (w0 * P[0][a] + w1 * P[1][a] + w2 * P[2][a]) / area;
+                tc = std::min(std::max(tc, tmin), tmax);
+                raw.push_back({jj + static_cast<long>(nu) * kk, {tc, t, s0}});
+            }
+    }
+    /* counting sort by line (keeps the triangle order within a line), then by t within each line */
+    const long nlines = static_cast<long>(nu) * nv;
+    ax.start.assign(static_cast<size_t>(nlines) + 1, 0);
+    for (const Raw &r : raw) ax.start[static_cast<size_t>(r.line) + 1]++;
+    for (long l = 0; l < nlines; l++) ax.start[l + 1] += ax.start[l];
+    ax.hits.resize(raw.size());
+    std::vector<long> fill(ax.start.begin(), ax.start.end() - 1);
+    for (const Raw &r : raw) ax.hits[static_cast<size_t>(fill[static_cast<size_t>(r.line)]++)] = r.c;
+    for (long l = 0; l < nlines; l++)
+        std::sort(ax.hits.begin() + ax.start[l], ax.hits.begin() + ax.start[l + 1],
+                  [](const Crossing &x, const Crossing &y) { return x.t < y.t || (x.t == y.t && x.tri < y.tri); });
+    return ax;
+}
+
+/* Node index of the first node of line `line` of axis crossings `ax`; node i of the line is at
+ * line_node(...) + i * g.stride[ax.a]. */
+inline long line_node(const NodeGrid &g, const AxisCrossings &ax, long line)
+{
+    const long ju = line % g.n[ax.u], jv = line / g.n[ax.u];
+    return ju * g.stride[ax.u] + jv * g.stride[ax.v];
+}
+
+struct VoteCtx {
+    const NodeGrid *g;
+    const AxisCrossings *ax;
+    int8_t *votes;
+};
+
+/* Adds each node's vote along the lines [begin, end) of one axis: +1 inside, -1 outside, 0 when the
+ * counts from the two ends of the line disagree (a hole along the line). */
+void vote_lines(long begin, long end, void *vctx)
+{
+    const VoteCtx *c = static_cast<const VoteCtx *>(vctx);
+    const AxisCrossings &ax = *c->ax;
+    const int n = c->g->n[ax.a];
+    const long step = c->g->stride[ax.a];
+    for (long line = begin; line < end; line++) {
+        int8_t *votes = c->votes + line_node(*c->g, ax, line);
+        const Crossing *h = ax.hits.data() + ax.start[line], *he = ax.hits.data() + ax.start[line + 1];
+        int total = 0;
+        for (const Crossing *p = h; p < he; p++) total += p->sigma;
+        int before = 0; /* signed crossings with t < i */
+        for (int i = 0; i < n; i++) {
+            while (h < he && h->t < i) before += (h++)->sigma;
+            /* winding counted from the far end (crossings at t >= i) and from the near end */
+            const int w_far = total - before, w_near = -before;
+            const int vote = (w_far != 0 && w_near != 0) ? 1 : (w_far == 0 && w_near == 0) ? -1 : 0;
+            votes[i * step] += static_cast<int8_t>(vote);
+        }
+    }
+}
+
+/* Connected components of the mesh (triangles sharing a vertex position, so unwelded seams join),
+ * numbered in order of their first triangle. */
+std::vector<int> mesh_components(const DrTriMesh *m, int *ncomp)
+{
+    std::vector<int> order(static_cast<size_t>(m->nv));
+    for (int i = 0; i < m->nv; i++) order[i] = i;
+    std::sort(order.begin(), order.end(), [m](int x, int y) {
+        return std::lexicographical_compare(m->v + 3 * x, m->v + 3 * x + 3, m->v + 3 * y, m->v + 3 * y + 3) ||
+               (std::equal(m->v + 3 * x, m->v + 3 * x + 3, m->v + 3 * y) && x < y);
+    });
+    std::vector<int> parent(static_cast<size_t>(m->nv));
+    for (int i = 0; i < m->nv; i++) parent[i] = i;
+    auto find = [&parent](int x) {
+        while (parent[x] != x) x = parent[x] = parent[parent[x]];
+        return x;
+    };
+    auto unite = [&](int x, int y) {
+        x = find(x);
+        y = find(y);
+        if (x != y) parent[std::max(x, y)] = std::min(x, y);
+    };
+    for (int i = 1; i < m->nv; i++)
+        if (std::equal(m->v + 3 * order[i], m->v + 3 * order[i] + 3, m->v + 3 * order[i - 1]))
+            unite(order[i], order[i - 1]);
+    for (int t = 0; t < m->nt; t++) {
+        unite(m->tri[3 * t], m->tri[3 * t + 1]);
+        unite(m->tri[3 * t + 1], m->tri[3 * t + 2]);
+    }
+    std::vector<int> label(static_cast<size_t>(m->nv), -1), comp(static_cast<size_t>(m->nt));
+    int n = 0;
+    for (int t = 0; t < m->nt; t++) {
+        const int r = find(m->tri[3 * t]);
+        if (label[r] < 0) label[r] = n++;
+        comp[t] = label[r];
+    }
+    *ncomp = n;
+    return comp;
+}
+
+/* MeshToVolume's MeshDataAdapter over a subset of a DrTriMesh's triangles. */
+struct TriSubsetAdapter {
+    const DrTriMesh *mesh;
+    const std::vector<int> *tris;
+    double dx;
+    size_t polygonCount() const { return tris->size(); }
+    size_t pointCount() const { return static_cast<size_t>(mesh->nv); }
+    size_t vertexCount(size_t) const { return 3; }
+    void getIndexSpacePoint(size_t n, size_t v, openvdb::Vec3d &pos) const
+    {
+        const double *p = mesh->v + 3 * static_cast<size_t>(mesh->tri[3 * static_cast<size_t>((*tris)[n]) + v]);
+        pos = openvdb::Vec3d(p[0] / dx, p[1] / dx, p[2] / dx);
+    }
+};
+
+/* Adds |phi| of a sparse grid's active voxels inside the node box into `mag` (the smaller wins). */
+void min_combine(const openvdb::FloatGrid &grid, const openvdb::Coord &cmin, const NodeGrid &g, float *mag)
+{
+    const openvdb::CoordBBox box(cmin, cmin.offsetBy(g.n[0] - 1, g.n[1] - 1, g.n[2] - 1));
+    for (auto leaf = grid.tree().cbeginLeaf(); leaf; ++leaf) {
+        if (!box.hasOverlap(leaf->getNodeBoundingBox())) continue;
+        for (auto it = leaf->cbeginValueOn(); it; ++it) {
+            const openvdb::Coord c = it.getCoord();
+            if (!box.isInside(c)) continue;
+            const long n = (c.x() - cmin.x()) + g.stride[1] * (c.y() - cmin.y()) + g.stride[2] * (c.z() - cmin.z());
+            mag[n] = std::min(mag[n], std::fabs(*it));
+        }
+    }
+}
+
+/* The votes (-3..3) of the three lines through every node of the box `g` whose first node has index
+ * coordinates cmin, into votes[g.count()] (zeroed here), and the lines' crossings. */
+void crossing_votes(const DrTriMesh *mesh, double dx, const openvdb::Coord &cmin, const NodeGrid &g,
+                    int8_t *votes, AxisCrossings axes[3])
+{
+    const double ilo[3] = {static_cast<double>(cmin.x()), static_cast<double>(cmin.y()),
+                           static_cast<double>(cmin.z())};
+    const std::vector<double> q = snapped_vertices(mesh, dx, ilo, g);
+    std::fill(votes, votes + g.count(), static_cast<int8_t>(0));
+    for (int a = 0; a < 3; a++) {
+        axes[a] = find_crossings(mesh, q, g, a);
+        VoteCtx ctx{&g, &axes[a], votes};
+        /* A thread's range holds at least 2^20 nodes: on small grids the whole pass takes well
+         * under a millisecond, less than waking OpenMP threads while OpenVDB's TBB workers spin. */
+        const long grain = std::max(1L, (1L << 20) / g.n[axes[a].a]);
+        dr_parallel_for(static_cast<long>(g.n[axes[a].u]) * g.n[axes[a].v], grain, vote_lines, &ctx);
+    }
+}
+
+/* 4. of dr_vdb_mesh_to_sdf: replaces OpenVDB's sign in phi (the flood fill's, nodes in the node box
+ *    `g` whose first node has index coordinates cmin) by the signed-crossing one, and where that
+ *    finds enclosed cavities, recomputes the distances OpenVDB lost with their walls.
+ *    ex_band: the exterior band in voxels, the clamp of positive values. */
+void sign_by_crossings(const DrTriMesh *mesh, double dx, const openvdb::Coord &cmin, const NodeGrid &g,
+                       float ex_band, float *phi)
+{
+    const long count = g.count();
+
+    /* a. votes of the three lines through each node */
+    std::vector<int8_t> votes(static_cast<size_t>(count));
+    AxisCrossings axes[3];
+    crossing_votes(mesh, dx, cmin, g, votes.data(), axes);
+
+    /* b. the sign of each node; "cavity" marks a node OpenVDB put inside that the crossings put
+     *    outside: a region the flood fill could not reach. */
+    enum : int8_t { kInside = 1, kCavity = 2 };
+    const float on_surface = static_cast<float>(kOnSurfaceVoxels * dx);
+    long cavity = 0;
+    int8_t *state = votes.data(); /* each node's votes are read once, then replaced by its state */
+    for (long n = 0; n < count; n++) {
+        const bool flood_inside = phi[n] < 0.0f;
+        bool inside = flood_inside;
+        if (state[n] != 0 && std::fabs(phi[n]) > on_surface) inside = state[n] > 0;
+        const bool cav = flood_inside && !inside;
+        cavity += cav;
+        state[n] = static_cast<int8_t>((inside ? kInside : 0) | (cav ? kCavity : 0));
+    }
+
+    if (cavity == 0) {
+        /* OpenVDB's distances stand; only nodes it put outside that are inside change sign (thin
+         * features, or an interior the flood fill leaked into through a hole, whose distance then
+         * stays capped at the exterior band). A closed mesh without cavities keeps OpenVDB's field
+         * bit for bit. */
+        for (long n = 0; n < count; n++)
+            if ((state[n] & kInside) && phi[n] > 0.0f) phi[n] = -phi[n];
+        return;
+    }
+
+    /* c. The flood fill deleted the walls of every region it could not reach, so its distances
+     *    there are to the outer surface only. The lost walls belong to the shells (connected
+     *    components) that bound a cavity: those met first by a grid line leaving a cavity node.
+     *    Each such shell alone is a closed surface OpenVDB handles (the fill reaches all around
+     *    it); the distance to the whole surface is the smallest over the shells. Shells are run
+     *    one at a time because one may hold another (a solid ball in the hollow of a hollow one).
+     *    Not DISABLE_INTERSECTING_VOXEL_REMOVAL on the whole mesh: it keeps the walls, but
+     *    OpenVDB's band expansion lets the first wall front to reach a voxel claim it, and in the
+     *    material between two walls distances came out up to 2.1 voxels too large (the same block).
+     *    A shell overlapping another shell would bring its faces inside the other back as surface:
+     *    a mesh with both a cavity and overlapping shells may get too small distances (never a
+     *    wrong sign) inside the overlap. */
+    int ncomp = 0;
+    const std::vector<int> comp = mesh_components(mesh, &ncomp);
+    std::vector<char> bounds_cavity(static_cast<size_t>(ncomp), 0);
+    for (const AxisCrossings &ax : axes) {
+        const long nlines = static_cast<long>(g.n[ax.u]) * g.n[ax.v];
+        for (long line = 0; line < nlines; line++) {
+            const Crossing *h0 = ax.hits.data() + ax.start[line], *he = ax.hits.data() + ax.start[line + 1];
+            if (h0 == he) continue;
+            const Crossing *h = h0;
+            const int8_t *st = state + line_node(g, ax, line);
+            for (int i = 0; i < g.n[ax.a]; i++) {
+                while (h < he && h->t < i) h++;
+                if (!(st[i * g.stride[ax.a]] & kCavity)) continue;
+                if (h > h0) bounds_cavity[static_cast<size_t>(comp[static_cast<size_t>((h - 1)->tri)])] = 1;
+                if (h < he) bounds_cavity[static_cast<size_t>(comp[static_cast<size_t>(h->tri)])] = 1;
+            }
+        }
+    }
+
+    /*    The shells' runs need exact distances as deep as any inside node lies below the surface:
+     *    at most its OpenVDB distance (which is to real triangles) and its distance to the nearest
+     *    outside node (the segment between them crosses the surface), bounded from above by a
+     *    chamfer distance whose steps to the 26 neighbours weigh at least their length. Outside
+     *    nodes need no more than the exterior band. */
+    double depth = 0.0;
+    {
+        /* in 1/16 voxel: 16, 23 >= 16 sqrt 2, 28 >= 16 sqrt 3; saturating at 0xffff (4096 voxels,
+         * more than any 512^3 box holds) keeps an upper bound since |phi| bounds it as well */
+        const uint16_t w[4] = {0, 16, 23, 28};
+        std::vector<uint16_t> cd(static_cast<size_t>(count));
+        for (long n = 0; n < count; n++) cd[static_cast<size_t>(n)] = (state[n] & kInside) ? 0xffff : 0;
+        const int nx = g.n[0], ny = g.n[1], nz = g.n[2];
+        /* forward over the 13 neighbours earlier in memory order, then backward over the others:
+         * the offset of neighbour (di, dj, dk) is s * (di, dj, dk), s = -1 forward, +1 backward */
+        for (int pass = 0; pass < 2; pass++) {
+            const int s = pass == 0 ? -1 : 1;
+            for (int kk = 0; kk < nz; kk++)
+                for (int jj = 0; jj < ny; jj++)
+                    for (int ii = 0; ii < nx; ii++) {
+                        const int i = pass == 0 ? ii : nx - 1 - ii, j = pass == 0 ? jj : ny - 1 - jj,
+                                  k = pass == 0 ? kk : nz - 1 - kk;
+                        const long n = i + g.stride[1] * j + g.stride[2] * k;
+                        unsigned best = cd[static_cast<size_t>(n)];
+                        if (best == 0) continue;
+                        for (int dk = 0; dk <= 1; dk++)
+                            for (int dj = -1; dj <= 1; dj++)
+                                for (int di = -1; di <= 1; di++) {
+                                    if (dk == 0 && (dj == -1 || (dj == 0 && di <= 0))) continue;
+                                    const int ni = i + s * di, nj = j + s * dj, nk = k + s * dk;
+                                    if (ni < 0 || ni >= nx || nj < 0 || nj >= ny || nk < 0 || nk >= nz) continue;
+                                    const unsigned v = cd[static_cast<size_t>(ni + g.stride[1] * nj + g.stride[2] * nk)] +
+                                                       w[std::abs(di) + std::abs(dj) + dk];
+                                    best = std::min(best, v);
+                                }
+                        cd[static_cast<size_t>(n)] = static_cast<uint16_t>(std::min(best, 0xffffu));
+                    }
+        }
+        for (long n = 0; n < count; n++)
+            if (state[n] & kInside)
+                depth = std::max(depth, std::min(std::fabs(phi[n]) / dx, cd[static_cast<size_t>(n)] / 16.0));
+    }
+    const float deep = std::max(ex_band, static_cast<float>(std::ceil(depth) + 1.0));
+
+    /*    A shell facing into what it encloses (negative volume: the wall of a hollow) needs only
+     *    the exterior band inside; one facing out (a solid, perhaps in a hollow) only outside.
+     *    Measured: a ball of 81920 triangles hollowed by one of 20480 on 301^3 nodes spends 1.0 s on
+     *    the components and the chamfer bound (46 voxels) and 3.0 s in the shell's meshToVolume, on
+     *    top of the whole mesh's 18.5 s. */
+    for (long n = 0; n < count; n++) phi[n] = std::fabs(phi[n]);
+    int nshells = 0;
+    std::vector<int> tris;
+    openvdb::math::Transform::Ptr xform = uniform_transform(dx);
+    for (int c = 0; c < ncomp; c++) {
+        if (!bounds_cavity[static_cast<size_t>(c)]) continue;
+        tris.clear();
+        double volume = 0.0; /* 6 x signed volume, in metres^3 */
+        for (int t = 0; t < mesh->nt; t++) {
+            if (comp[static_cast<size_t>(t)] != c) continue;
+            tris.push_back(t);
+            const double *A = mesh->v + 3 * mesh->tri[3 * t], *B = mesh->v + 3 * mesh->tri[3 * t + 1],
+                         *C = mesh->v + 3 * mesh->tri[3 * t + 2];
+            volume += A[0] * (B[1] * C[2] - B[2] * C[1]) - A[1] * (B[0] * C[2] - B[2] * C[0]) +
+                      A[2] * (B[0] * C[1] - B[1] * C[0]);
+        }
+        const float interior = volume < 0.0 ? ex_band : deep, exterior = volume > 0.0 ? ex_band : deep;
+        TriSubsetAdapter shell{mesh, &tris, dx};
+        openvdb::FloatGrid::Ptr grid =
+            openvdb::tools::meshToVolume<openvdb::FloatGrid>(shell, *xform, exterior, interior);
+        min_combine(*grid, cmin, g, phi);
+        nshells++;
+    }
+
+    /* d. signs; positive values clamped at the exterior band as everywhere outside */
+    const float clamp = static_cast<float>(ex_band * dx);
+    for (long n = 0; n < count; n++) phi[n] = (state[n] & kInside) ? -phi[n] : std::min(phi[n], clamp);
+    dr_log_debug("vdb: collider mesh encloses cavities (%ld nodes): distances recomputed around %d of its %d "
+                 "shells, %.0f voxels deep",
+                 cavity, nshells, ncomp, static_cast<double>(deep));
 }
 
 /* ---- particles -> level set ------------------------------------------------------------------ */
@@ -316,8 +764,10 @@ extern "C" DrStatus dr_vdb_init(DrError *err)
     }
 }
 
-extern "C" DrStatus dr_vdb_mesh_to_sdf(const DrTriMesh *mesh, double dx, int pad_voxels,
-                                       DrDenseSdf *out, DrError *err)
+/* dr_vdb_mesh_to_sdf; with by_crossings false, OpenVDB's flood-fill sign and distances as they come
+ * (dr_vdb_mesh_to_sdf_flood_fill_). */
+static DrStatus mesh_to_sdf(const DrTriMesh *mesh, double dx, int pad_voxels, bool by_crossings,
+                            DrDenseSdf *out, DrError *err)
 {
     assert(mesh && out);
     float *phi = nullptr;
@@ -355,7 +805,7 @@ extern "C" DrStatus dr_vdb_mesh_to_sdf(const DrTriMesh *mesh, double dx, int pad
         const long open = count_open_edges(mesh);
         if (open > 0)
             dr_log_warn("collider mesh is not closed: %ld open edges; inside/outside may be wrong "
-                        "behind holes wider than a voxel",
+                        "where grid lines through a node pass through holes",
                         open);
 
         /* 2. sparse SDF: exact distances in the whole interior (interior band = FLT_MAX), a band of
@@ -375,6 +825,13 @@ extern "C" DrStatus dr_vdb_mesh_to_sdf(const DrTriMesh *mesh, double dx, int pad
         const openvdb::CoordBBox bbox(cmin, cmin.offsetBy(nx - 1, ny - 1, nz - 1));
         openvdb::tools::Dense<float, openvdb::tools::LayoutXYZ> dense(bbox, phi);
         openvdb::tools::copyToDense(*grid, dense);
+        grid.reset();
+
+        /* 4. the sign by signed crossings, and the distances around enclosed cavities */
+        if (by_crossings) {
+            const NodeGrid g = {{nx, ny, nz}, {1, static_cast<long>(nx), static_cast<long>(nx) * ny}};
+            sign_by_crossings(mesh, dx, cmin, g, ex_band, phi);
+        }
 
         out->nx = nx;
         out->ny = ny;
@@ -386,6 +843,37 @@ extern "C" DrStatus dr_vdb_mesh_to_sdf(const DrTriMesh *mesh, double dx, int pad
     } catch (...) {
         std::free(phi);
         return translate_exception("converting the collider mesh to a signed distance field", NULL, err);
+    }
+}
+
+extern "C" DrStatus dr_vdb_mesh_to_sdf(const DrTriMesh *mesh, double dx, int pad_voxels,
+                                       DrDenseSdf *out, DrError *err)
+{
+    return mesh_to_sdf(mesh, dx, pad_voxels, true, out, err);
+}
+
+extern "C" DrStatus dr_vdb_mesh_to_sdf_flood_fill_(const DrTriMesh *mesh, double dx, int pad_voxels,
+                                                   DrDenseSdf *out, DrError *err)
+{
+    return mesh_to_sdf(mesh, dx, pad_voxels, false, out, err);
+}
+
+extern "C" DrStatus dr_vdb_crossing_votes_(const DrTriMesh *mesh, const DrDenseSdf *grid, int8_t *votes,
+                                          DrError *err)
+{
+    assert(mesh && grid && votes);
+    try {
+        DR_TRY(validate_mesh(mesh, err));
+        const openvdb::Coord cmin(static_cast<int>(std::lround(grid->origin.x / grid->dx)),
+                                  static_cast<int>(std::lround(grid->origin.y / grid->dx)),
+                                  static_cast<int>(std::lround(grid->origin.z / grid->dx)));
+        const NodeGrid g = {{grid->nx, grid->ny, grid->nz},
+                            {1, static_cast<long>(grid->nx), static_cast<long>(grid->nx) * grid->ny}};
+        AxisCrossings axes[3];
+        crossing_votes(mesh, grid->dx, cmin, g, votes, axes);
+        return DR_OK;
+    } catch (...) {
+        return translate_exception("counting the collider mesh's crossings", NULL, err);
     }
 }
 
