@@ -356,8 +356,10 @@ int main(int argc, char **argv)
         return fail(&err);
     }
     install_stop_handlers();
-    dr_log_info("baking '%s' frames %d-%d into %s (%d threads, key %s)", dr_scene_path(scene),
-                dr_world_frame(world) + 1, last, dir, dr_threads(), keys.bake);
+    char wait[96];
+    dr_thread_wait_describe(wait, sizeof wait);
+    dr_log_info("baking '%s' frames %d-%d into %s (%d threads, %s, key %s)", dr_scene_path(scene),
+                dr_world_frame(world) + 1, last, dir, dr_threads(), wait, keys.bake);
     Totals tot = {0};
     tot.io_background = writer != NULL;
     double writer_seconds = 0.0; /* the writer's seconds at the previous progress line */

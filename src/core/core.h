@@ -205,6 +205,18 @@ const char *dr_temp_dir(void); /* $TMPDIR when set and not empty, else /tmp (a f
 typedef void (*DrRangeFn)(long begin, long end, void *ctx);
 void dr_parallel_for(long count, long grain, DrRangeFn fn, void *ctx);
 void dr_set_threads(int n); /* n <= 0: OpenMP's default */
+/* How the parallel-for's threads wait at a barrier, by default: a short spin (GOMP_SPINCOUNT =
+   DR_SPINCOUNT_DEFAULT iterations, a few microseconds), then sleep, so a process on a shared machine
+   neither holds cores it does not use nor waits for woken threads at every barrier (sys.c has the
+   measurements). OpenMP reads its settings once, before main, so when neither OMP_WAIT_POLICY nor
+   GOMP_SPINCOUNT is set this sets GOMP_SPINCOUNT and starts the process again (execv of
+   /proc/self/exe with argv): call it first thing in main, before any thread or file exists. Returns
+   when the user set either variable, in the restarted process, and when the restart fails (the
+   process then runs with OpenMP's defaults). */
+#define DR_SPINCOUNT_DEFAULT "3000"
+void dr_thread_defaults(char **argv);
+/* How the threads wait, for logs: "GOMP_SPINCOUNT=3000", "OMP_WAIT_POLICY=active", ... (NUL-terminated). */
+void dr_thread_wait_describe(char *buf, size_t size);
 int dr_threads(void);
 
 /* ---- rng ------------------------------------------------------------------------------------ */

@@ -194,6 +194,7 @@ DrStatus dr_stage_begin(DrStageId stage, int argc, char **argv, DrStageArgs *arg
                         DrSceneKeys *keys, char *dir, size_t dir_size, bool *done, DrError *err)
 {
     *scene = NULL;
+    dr_thread_defaults(argv);
     DR_TRY(dr_stage_parse_args(stage, argc, argv, args, done, err));
     if (*done) return DR_OK;
     if (args->list_components) {

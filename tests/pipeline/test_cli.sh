@@ -16,6 +16,11 @@ check "--print-frames prints the shot's range" bash -c "[ \"\$('$BIN/mesh' --pri
 expect_exit "bake --frames out of order exits 2" 2 "out of order" "$BIN/bake" "$scene" --frames 9-3
 expect_exit "bake --frames outside the shot exits 2" 2 "outside the shot" "$BIN/bake" "$scene" --frames 1-400
 expect_exit "bad -j exits 2" 2 "thread count" "$BIN/bake" "$scene" -j 0
+# the threads' wait at barriers: a short spin by default (core.h), the user's setting when given
+check "bake's threads spin briefly, then sleep, by default" bash -c \
+  "'$BIN/bake' '$scene' --frames 1-1 --out '$WORK/wait' 2>&1 | grep -q 'GOMP_SPINCOUNT=3000'"
+check "bake keeps the user's OpenMP wait policy" bash -c \
+  "OMP_WAIT_POLICY=active '$BIN/bake' '$scene' --frames 1-1 --out '$WORK/wait' 2>&1 | grep -q 'OMP_WAIT_POLICY=active'"
 check "list-components names every component" bash -c \
   "'$BIN/bake' --list-components | grep -q LiquidMaterial && '$BIN/bake' --list-components | grep -q Motion"
 check "list-components gives units and ranges" bash -c "'$BIN/bake' --list-components | grep -E 'density' | grep -q 'kg/m'"
