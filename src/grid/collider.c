@@ -1,6 +1,7 @@
 /* Rigid colliders: dense rest-frame SDF + keyed pose; see grid.h. */
 #include "grid/grid.h"
 
+#include <stdatomic.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -13,7 +14,10 @@ struct DrCollider {
     bool no_slip;
     int nkeys;
     double *keys; /* nkeys rows of 7 */
+    uint64_t id;  /* unique per process (dr_collider_id) */
 };
+
+static atomic_uint_fast64_t next_id = 1;
 
 DrStatus dr_collider_create(const DrColliderDesc *desc, DrCollider **out, DrError *err)
 {
@@ -61,6 +65,7 @@ DrStatus dr_collider_create(const DrColliderDesc *desc, DrCollider **out, DrErro
     c->origin = desc->origin; c->dx = desc->dx;
     c->friction = desc->friction; c->thickness = desc->thickness; c->no_slip = desc->no_slip;
     c->nkeys = desc->nkeys;
+    c->id = (uint64_t)atomic_fetch_add(&next_id, 1);
     *out = c;
     return DR_OK;
 }
@@ -76,6 +81,8 @@ void dr_collider_destroy(DrCollider **c)
 
 double dr_collider_friction(const DrCollider *c) { return c->friction; }
 bool dr_collider_no_slip(const DrCollider *c) { return c->no_slip; }
+bool dr_collider_static(const DrCollider *c) { return c->nkeys <= 1; }
+uint64_t dr_collider_id(const DrCollider *c) { return c->id; }
 
 /* Interpolated key row at time t (translation and Euler angles) and its time derivative. */
 static void keys_state(const double *K, int nkeys, double t, double st[6], double rate[6])

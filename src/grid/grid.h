@@ -112,6 +112,11 @@ double dr_collider_phi(const DrCollider *c, double t, DrVec3 x, DrVec3 *grad);
 DrVec3 dr_collider_velocity(const DrCollider *c, double t, DrVec3 x);
 double dr_collider_friction(const DrCollider *c);
 bool dr_collider_no_slip(const DrCollider *c);
+/* True when the collider never moves (at most one key): its pose and SDF are the same at every time. */
+bool dr_collider_static(const DrCollider *c);
+/* A number no other collider created by this process has had (thread-safe), so that something computed
+   from a collider can be recognised as its own even when a later collider reuses its memory. */
+uint64_t dr_collider_id(const DrCollider *c);
 
 /* Rigid motion from key rows as DrColliderDesc.keys describe them (also the scalp motion of hair): the pose at
    time t (identity without keys; linear between keys, constant outside). */

@@ -33,6 +33,12 @@ struct DrLiquid {
     unsigned char *valid[3], *valid2[3], *valid3[3];
     unsigned char *shut[3];  /* face closed at the solid velocity in this substep's projection (shut_faces) */
     double *nphi;            /* collider union phi at grid nodes (cell corners) */
+    double *nphi_static;     /* the same for the static colliders alone (dr_collider_static), kept while the
+                                set of static colliders (static_ids) stays the same */
+    uint64_t static_ids[MAX_COLLIDERS_FRAME];
+    float *dsum[3];          /* summed-volume tables of the uncut cells' phi differences (phi_direction_tables),
+                                (nx+1)(ny+1)(nz+1) each; created on first use */
+    int nstatic;             /* -1: nphi_static not computed */
     float *open;             /* per cell: fraction of its volume outside every collider, ω ∈ [0, 1] */
     unsigned char *near;     /* per cell: a cell within one cell of it is cut by a collider (ω < 1) */
     /* mass-weighted pressure next to colliders (virtual_mass): the virtual liquid inside the colliders,
@@ -287,6 +293,8 @@ DrStatus dr_liquid_create(const DrLiquidDesc *desc, const DrCollider *const *col
         if ((s = dr_calloc(nf, 1, &L->shut[a], err)) < 0) goto fail;
     }
     if ((s = dr_calloc((size_t)L->nnodes, sizeof(double), &L->nphi, err)) < 0) goto fail;
+    if ((s = dr_calloc((size_t)L->nnodes, sizeof(double), &L->nphi_static, err)) < 0) goto fail;
+    L->nstatic = -1;
     if ((s = dr_calloc((size_t)L->ncells, sizeof(double), &L->cphi, err)) < 0) goto fail;
     if ((s = dr_calloc((size_t)L->ncells, sizeof(float), &L->open, err)) < 0) goto fail;
     if ((s = dr_calloc((size_t)L->ncells, 1, &L->near, err)) < 0) goto fail;
@@ -366,7 +374,9 @@ void dr_liquid_destroy(DrLiquid **liq)
         free(L->fm[a]); free(L->uold[a]); free(L->wgt[a]); free(L->wsol[a]); free(L->us[a]);
         free(L->tmp[a]); free(L->tmp2[a]); free(L->valid[a]); free(L->valid2[a]); free(L->valid3[a]); free(L->shut[a]);
     }
-    free(L->nphi); free(L->open); free(L->near); free(L->cphi); free(L->dens); free(L->div_target); free(L->row); free(L->cells_of_row);
+    for (int a = 0; a < 3; a++) free(L->dsum[a]);
+    free(L->nphi); free(L->nphi_static); free(L->open); free(L->near); free(L->cphi); free(L->dens);
+    free(L->div_target); free(L->row); free(L->cells_of_row);
     free(L->rhs); free(L->q); free(L->work); free(L->impulse_partial);
     dr_csr_destroy(&L->A);
     dr_mic0_destroy(&L->M);
@@ -480,34 +490,63 @@ static void run_faces(DrLiquid *L, DrRangeFn fn, int a)
     dr_parallel_for(L->g->fdim[a][2], slice_grain(L->g, a), fn, &ctx);
 }
 
+/* Collider-union phi at the grid nodes: ctx->a = 1 writes the static colliders' union into nphi_static,
+   ctx->a = 0 the union of all into nphi, taking the static part from nphi_static. A collider's phi is
+   evaluated only within its box padded by two cells (beyond, it exceeds every threshold used here). */
 static void node_phi_slices(long begin, long end, void *vctx)
 {
     BcCtx *ctx = vctx;
     DrLiquid *L = ctx->L;
     const DrMacGrid *g = L->g;
+    bool statics = ctx->a == 1;
     int nx1 = g->nx + 1, ny1 = g->ny + 1;
     DrVec3 blo[MAX_COLLIDERS_FRAME], bhi[MAX_COLLIDERS_FRAME];
+    bool use[MAX_COLLIDERS_FRAME];
     for (int c = 0; c < L->nframes; c++) {
+        use[c] = dr_collider_static(L->frames[c].c) == statics;
         dr_collider_frame_bounds(&L->frames[c], &blo[c], &bhi[c]);
         DrVec3 pad = dr_v3(2 * g->dx, 2 * g->dx, 2 * g->dx);
         blo[c] = dr_v3_sub(blo[c], pad);
         bhi[c] = dr_v3_add(bhi[c], pad);
     }
+    double *out = statics ? L->nphi_static : L->nphi;
     for (long k = begin; k < end; k++)
         for (int j = 0; j < ny1; j++)
             for (int i = 0; i < nx1; i++) {
+                long node = i + (long)nx1 * (j + (long)ny1 * k);
                 DrVec3 x = dr_v3(g->origin.x + i * g->dx, g->origin.y + j * g->dx, g->origin.z + k * g->dx);
-                double phi = INFINITY;
+                double phi = statics || L->nstatic == 0 ? INFINITY : L->nphi_static[node];
                 for (int c = 0; c < L->nframes; c++) {
-                    if (!in_box(x, blo[c], bhi[c])) continue;
+                    if (!use[c] || !in_box(x, blo[c], bhi[c])) continue;
                     double p = dr_collider_frame_phi(&L->frames[c], x, NULL);
                     if (p < phi) phi = p;
                 }
-                L->nphi[i + (long)nx1 * (j + (long)ny1 * k)] = phi;
+                out[node] = phi;
             }
 }
 
-static double node_phi(const DrLiquid *L, int i, int j, int k)
+/* nphi for this substep's collider poses; the static colliders' part is computed again only when their
+   set changes (a scene's tank or bowl is sampled once, not every substep). */
+static void node_phi(DrLiquid *L)
+{
+    const DrMacGrid *g = L->g;
+    uint64_t ids[MAX_COLLIDERS_FRAME];
+    int n = 0;
+    for (int c = 0; c < L->nframes; c++)
+        if (dr_collider_static(L->frames[c].c)) ids[n++] = dr_collider_id(L->frames[c].c);
+    if (n != L->nstatic || memcmp(ids, L->static_ids, (size_t)n * sizeof ids[0]) != 0) {
+        L->nstatic = n;
+        memcpy(L->static_ids, ids, (size_t)n * sizeof ids[0]);
+        if (n > 0) {
+            BcCtx ctx = {L, 1};
+            dr_parallel_for(g->nz + 1, slice_grain(g, 2), node_phi_slices, &ctx);
+        }
+    }
+    BcCtx ctx = {L, 0};
+    dr_parallel_for(g->nz + 1, slice_grain(g, 2), node_phi_slices, &ctx);
+}
+
+static double node_phi_at(const DrLiquid *L, int i, int j, int k)
 {
     return L->nphi[i + (long)(L->g->nx + 1) * (j + (long)(L->g->ny + 1) * k)];
 }
@@ -537,14 +576,26 @@ static void weight_slices(long begin, long end, void *vctx)
                         int nn[3] = {ijk[0], ijk[1], ijk[2]};
                         nn[b] += (q == 1 || q == 2);
                         nn[c] += (q >= 2);
-                        p[q] = node_phi(L, nn[0], nn[1], nn[2]);
+                        p[q] = node_phi_at(L, nn[0], nn[1], nn[2]);
                     }
                     double pmin = fmin(fmin(p[0], p[1]), fmin(p[2], p[3]));
                     if (pmin < g->dx) w = dr_face_fraction_outside(p[0], p[1], p[2], p[3]);
-                    if (pmin < 2.0 * g->dx) {
+                    if (pmin < 2.0 * g->dx && L->nstatic < L->nframes) {
+                        /* the nearest collider's velocity; a static one's is 0, and its phi at the centre
+                           is taken as the mean of the face's corners (it only decides which is nearest) */
                         DrVec3 x = dr_mac_face_position(g, a, i, j, (int)k);
                         double best = INFINITY;
+                        if (L->nstatic > 0) {
+                            best = 0.0;
+                            for (int q = 0; q < 4; q++) {
+                                int nn[3] = {ijk[0], ijk[1], ijk[2]};
+                                nn[b] += (q == 1 || q == 2);
+                                nn[c] += (q >= 2);
+                                best += 0.25 * L->nphi_static[nn[0] + (long)(g->nx + 1) * (nn[1] + (long)(g->ny + 1) * nn[2])];
+                            }
+                        }
                         for (int cc = 0; cc < L->nframes; cc++) {
+                            if (dr_collider_static(L->frames[cc].c)) continue;
                             double ph = dr_collider_frame_phi(&L->frames[cc], x, NULL);
                             if (ph < best) {
                                 best = ph;
@@ -583,8 +634,8 @@ static void open_slices(long begin, long end, void *vctx)
             }
 }
 
-/* near[c]: some cell of the 3×3×3 block around c is cut (ω < 1), i.e. the P2G support of c's faces may
-   reach into a collider, where it finds no particles. */
+/* near[c]: some cell of the 3×3×3 block around c is partly open (0 < ω < 1): c is at a collider's
+   surface, where the P2G support of its faces may reach into the collider and find no particles. */
 static void near_slices(long begin, long end, void *vctx)
 {
     BcCtx *ctx = vctx;
@@ -599,7 +650,8 @@ static void near_slices(long begin, long end, void *vctx)
                         for (int di = -1; di <= 1 && !cut; di++) {
                             int ii = i + di, jj = j + dj, kk = (int)k + dk;
                             if (ii < 0 || jj < 0 || kk < 0 || ii >= g->nx || jj >= g->ny || kk >= g->nz) continue;
-                            cut = L->open[dr_mac_cell_index(g, ii, jj, kk)] < 1.0f;
+                            float om = L->open[dr_mac_cell_index(g, ii, jj, kk)];
+                            cut = om > 0.0f && om < 1.0f;
                         }
                 L->near[dr_mac_cell_index(g, i, j, (int)k)] = cut;
             }
@@ -866,32 +918,66 @@ static double uncut_phi_at(const DrLiquid *L, DrVec3 x, bool held, double *out)
 
 /* Direction in which the uncut cells' phi grows around cut cell (i,j,k): per axis, the sum of the
    differences of phi between neighbouring uncut cells of the 5×5×5 block along that axis (a curved
-   collider cuts a band of cells up to two wide). Only pairs of uncut cells count, so in a pool at rest,
-   whose uncut cells have one value per layer, the horizontal components vanish exactly and the direction
-   is exactly vertical wherever the block reaches across the surface; it is zero where it does not (deep
-   in the liquid or in the air). */
+   collider cuts a band of cells up to two wide), from the tables of phi_direction_tables. Only pairs of
+   uncut cells count, so in a pool at rest, whose uncut cells have one value per layer, the horizontal
+   components vanish exactly and the direction is exactly vertical wherever the block reaches across the
+   surface; it is zero where it does not (deep in the liquid or in the air). */
 #define EXT_BLOCK 2
 static DrVec3 uncut_phi_direction(const DrLiquid *L, int i, int j, int k)
 {
     const DrMacGrid *g = L->g;
-    double gr[3] = {0, 0, 0};
-    for (int dk = -EXT_BLOCK; dk <= EXT_BLOCK; dk++)
-        for (int dj = -EXT_BLOCK; dj <= EXT_BLOCK; dj++)
-            for (int di = -EXT_BLOCK; di <= EXT_BLOCK; di++) {
-                int u[3] = {i + di, j + dj, k + dk}, off[3] = {di, dj, dk};
-                if (u[0] < 0 || u[1] < 0 || u[2] < 0 || u[0] >= g->nx || u[1] >= g->ny || u[2] >= g->nz) continue;
-                long cu = dr_mac_cell_index(g, u[0], u[1], u[2]);
-                if (L->open[cu] < 1.0f) continue;
-                for (int a = 0; a < 3; a++) {
-                    int v[3] = {u[0], u[1], u[2]};
-                    v[a]++;
-                    if (off[a] == EXT_BLOCK || v[a] >= (a == 0 ? g->nx : (a == 1 ? g->ny : g->nz))) continue;
-                    long cv = dr_mac_cell_index(g, v[0], v[1], v[2]);
-                    if (L->open[cv] < 1.0f) continue;
-                    gr[a] += L->cphi[cv] - L->cphi[cu];
-                }
-            }
+    int n[3] = {g->nx, g->ny, g->nz}, c[3] = {i, j, k};
+    long sy = g->nx + 1, sz = (long)(g->nx + 1) * (g->ny + 1);
+    double gr[3];
+    for (int a = 0; a < 3; a++) {
+        /* the pairs (u, u + e_a) inside the block: u_a in [c_a − B, c_a + B − 1], the others in [c − B, c + B] */
+        int lo[3], hi[3];
+        for (int d = 0; d < 3; d++) {
+            lo[d] = c[d] - EXT_BLOCK < 0 ? 0 : c[d] - EXT_BLOCK;
+            hi[d] = c[d] + EXT_BLOCK + (d == a ? 0 : 1);
+            if (hi[d] > n[d]) hi[d] = n[d];
+        }
+        const float *S = L->dsum[a];
+        /* inclusion–exclusion over the table's corners: S[x,y,z] sums the cells below (x, y, z) */
+        double sum = 0.0;
+        for (int q = 0; q < 8; q++) {
+            long x = (q & 1) ? hi[0] : lo[0], y = (q & 2) ? hi[1] : lo[1], z = (q & 4) ? hi[2] : lo[2];
+            int sign = ((q & 1) ? 1 : -1) * ((q & 2) ? 1 : -1) * ((q & 4) ? 1 : -1);
+            sum += sign * (double)S[x + sy * y + sz * z];
+        }
+        gr[a] = sum;
+    }
     return dr_v3(gr[0], gr[1], gr[2]);
+}
+
+/* The tables of uncut_phi_direction: for each axis a, D_a(u) = phi(u + e_a) − phi(u) where both cells are
+   uncut (else 0), summed over every box of cells from the origin (a summed-volume table), so that the sum
+   over a block is eight lookups. In float: the sums it is used for are of differences of the saturated
+   phi (±Δx/2 in full and empty cells), exact in either precision, and a direction needs no more. */
+static DrStatus phi_direction_tables(DrLiquid *L, DrError *err)
+{
+    const DrMacGrid *g = L->g;
+    long sy = g->nx + 1, sz = (long)(g->nx + 1) * (g->ny + 1);
+    int n[3] = {g->nx, g->ny, g->nz};
+    for (int a = 0; a < 3; a++) {
+        if (!L->dsum[a]) DR_TRY(dr_calloc((size_t)L->nnodes, sizeof(float), &L->dsum[a], err));
+        float *S = L->dsum[a];
+        for (int k = 0; k < g->nz; k++)
+            for (int j = 0; j < g->ny; j++)
+                for (int i = 0; i < g->nx; i++) {
+                    int u[3] = {i, j, k};
+                    long cu = dr_mac_cell_index(g, i, j, k);
+                    double d = 0.0;
+                    if (u[a] + 1 < n[a] && L->open[cu] >= 1.0f) {
+                        long cv = cu + (a == 0 ? 1 : (a == 1 ? g->nx : (long)g->nx * g->ny));
+                        if (L->open[cv] >= 1.0f) d = L->cphi[cv] - L->cphi[cu];
+                    }
+                    long o = (i + 1) + sy * (j + 1) + sz * (k + 1);
+                    S[o] = (float)(d + S[o - 1] + S[o - sy] + S[o - sz] - S[o - 1 - sy] - S[o - 1 - sz] -
+                                   S[o - sy - sz] + S[o - 1 - sy - sz]);
+                }
+    }
+    return DR_OK;
 }
 
 /* Writes the extended phi of the cut cells into L->tmp2[0] (the count phi of the uncut cells is read from
@@ -900,10 +986,11 @@ static DrVec3 uncut_phi_direction(const DrLiquid *L, int i, int j, int k)
    collider normal n projected onto the surface's tangent plane (n − (n·ĝ)ĝ, ĝ = uncut_phi_direction),
    far enough to leave the collider and one cell more, and on, half a cell at a time up to three cells
    further, until the sample's eight cells are all uncut (a curved collider cuts a band of cells); where
-   no uncut cell is found that way, cut cells holding particles are sampled too.
-   Extending along n itself (a 90° contact angle) would bend a still surface that meets a sloping wall,
-   and the bend would drive flow. Where the surface is not near (ĝ = 0 around the cell and around the point
-   one cell outside the collider along n) or lies parallel to the wall, the sample is taken along n. */
+   no uncut cell is found that way, cut cells holding particles are sampled too. Extending along n
+   itself (a 90° contact angle) would bend a still surface that meets a sloping wall, and the bend would
+   drive flow. Where the surface is not near (ĝ = 0 around the cell and around the point one cell
+   outside the collider along n) or lies parallel to the wall, the sample is taken along n. Cells inside
+   a collider (ω = 0) are skipped: they have no open face. */
 static void extend_phi_slices(long begin, long end, void *vctx)
 {
     DrLiquid *L = ((PhiCtx *)vctx)->L;
@@ -916,14 +1003,19 @@ static void extend_phi_slices(long begin, long end, void *vctx)
             for (int i = 0; i < g->nx; i++) {
                 long c = dr_mac_cell_index(g, i, j, (int)k);
                 if (L->open[c] >= 1.0f) continue;
+                if (L->open[c] <= 0.0f) { /* inside a collider: never a pressure cell (no open face) */
+                    ext[c] = 0.5 * g->dx;
+                    continue;
+                }
                 DrVec3 x = dr_mac_cell_center(g, i, j, (int)k);
                 double phs = INFINITY;
-                DrVec3 nrm = dr_v3(0, 1, 0);
+                int near_c = 0;
                 for (int cc = 0; cc < L->nframes; cc++) {
-                    DrVec3 gr;
-                    double p = dr_collider_frame_phi(&L->frames[cc], x, &gr);
-                    if (p < phs) { phs = p; nrm = gr; }
+                    double p = dr_collider_frame_phi(&L->frames[cc], x, NULL);
+                    if (p < phs) { phs = p; near_c = cc; }
                 }
+                DrVec3 nrm;
+                (void)dr_collider_frame_phi(&L->frames[near_c], x, &nrm); /* the nearest one's normal */
                 double depth = fmax(0.0, -phs);
                 DrVec3 dir = nrm;
                 double reach = depth + g->dx;
@@ -1070,6 +1162,7 @@ static DrStatus pressure_solve(DrLiquid *L, DrLiquidStats *stats, DrError *err)
     long cgrain = (PAR_MIN_ITEMS + cstride[2] - 1) / cstride[2];
     dr_parallel_for(g->nz, cgrain, count_phi_slices, &pctx);
     if (L->nframes > 0) {
+        DR_TRY(phi_direction_tables(L, err));
         dr_parallel_for(g->nz, 1, extend_phi_slices, &pctx);
         for (long c = 0; c < L->ncells; c++)
             if (L->open[c] < 1.0f) L->cphi[c] = L->tmp2[0][c];
@@ -1357,7 +1450,7 @@ static void collider_slices(long begin, long end, void *vctx)
                     int nn[3] = {ijk[0], ijk[1], ijk[2]};
                     nn[b] += (q == 1 || q == 2);
                     nn[c] += (q >= 2);
-                    double p = node_phi(L, nn[0], nn[1], nn[2]);
+                    double p = node_phi_at(L, nn[0], nn[1], nn[2]);
                     if (p < pmin) pmin = p;
                 }
                 if (!(pmin < g->dx)) continue;
@@ -1366,11 +1459,11 @@ static void collider_slices(long begin, long end, void *vctx)
                 double phi = INFINITY;
                 DrVec3 n = dr_v3(0, 0, 0);
                 for (int cc = 0; cc < L->nframes; cc++) {
-                    DrVec3 gr;
-                    double p = dr_collider_frame_phi(&L->frames[cc], x, &gr);
-                    if (p < phi) { phi = p; best = cc; n = gr; }
+                    double p = dr_collider_frame_phi(&L->frames[cc], x, NULL);
+                    if (p < phi) { phi = p; best = cc; }
                 }
                 if (best < 0 || phi >= 0.5 * g->dx) continue;
+                (void)dr_collider_frame_phi(&L->frames[best], x, &n); /* the gradient: six more samples */
                 const DrColliderFrame *fr = &L->frames[best];
                 DrVec3 vs = dr_collider_frame_velocity(fr, x);
                 DrVec3 vrel = dr_v3_sub(face_full_velocity(L, a, i, j, (int)k), vs);
@@ -1535,7 +1628,11 @@ static double collider_speed(const DrLiquid *L, const DrCollider *const *collide
 
 /* ---- 9. particles: advection, push-out, clamp -------------------------------------------------------- */
 
-typedef struct AdvCtx { DrLiquid *L; double dt; double *partial_max; long nchunks; } AdvCtx;
+typedef struct AdvCtx {
+    DrLiquid *L;
+    double dt;
+    DrVec3 blo[MAX_COLLIDERS_FRAME], bhi[MAX_COLLIDERS_FRAME]; /* each collider's SDF box at this pose */
+} AdvCtx;
 
 static void advect_range(long begin, long end, void *vctx)
 {
@@ -1552,10 +1649,11 @@ static void advect_range(long begin, long end, void *vctx)
                    fmin(fmax(xp.z, lo.z + margin), hi.z - margin));
         for (int c = 0; c < L->nframes; c++) {
             const DrColliderFrame *fr = &L->frames[c];
+            if (!in_box(xp, ctx->blo[c], ctx->bhi[c])) continue; /* outside its SDF box phi > 0 */
             for (int it = 0; it < 24; it++) {
                 DrVec3 n;
+                if (dr_collider_frame_phi(fr, xp, NULL) >= 0.0) break; /* the gradient costs six more samples */
                 double phi = dr_collider_frame_phi(fr, xp, &n);
-                if (phi >= 0.0) break;
                 /* remove the inward relative velocity, then push out along ∇φ a little beyond the surface;
                    components of ∇φ that point out of the domain at a wall the particle touches are dropped
                    (a collider standing on the floor pushes sideways or up, never through the wall) */
@@ -1751,7 +1849,7 @@ static DrStatus substep_grid(DrLiquid *L, double t, double dt, bool visc_clamped
 
     /* 3. boundary conditions: walls and collider face fractions, the cells' open fractions */
     BcCtx bctx = {L, 0};
-    if (L->nframes > 0) dr_parallel_for(g->nz + 1, slice_grain(g, 2), node_phi_slices, &bctx);
+    if (L->nframes > 0) node_phi(L);
     for (int a = 0; a < 3; a++) run_faces(L, weight_slices, a);
     long cgrain = (PAR_MIN_ITEMS + (long)g->nx * g->ny - 1) / ((long)g->nx * g->ny);
     dr_parallel_for(g->nz, cgrain, open_slices, &bctx);
@@ -1792,7 +1890,10 @@ static DrStatus substep(DrLiquid *L, double t, double dt, bool visc_clamped, DrL
     stats->seconds_g2p += t_5 - t_4;
 
     /* 8. advection x += Δt v^{n+1} ([APIC] §5.3), push-out, clamp */
-    AdvCtx actx = {L, dt, NULL, 0};
+    AdvCtx actx;
+    actx.L = L;
+    actx.dt = dt;
+    for (int c = 0; c < L->nframes; c++) dr_collider_frame_bounds(&L->frames[c], &actx.blo[c], &actx.bhi[c]);
     dr_parallel_for(s->n, L->nframes > 0 ? 2048 : PAR_MIN_ITEMS, advect_range, &actx);
     double t_6 = dr_time_now();
     stats->seconds_advect += t_6 - t_5;
