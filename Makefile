@@ -29,6 +29,7 @@ TEST_C  := $(sort $(wildcard tests/unit/test_*.c tests/validation/test_*.c tests
 TEST_BIN := $(TEST_C:%.c=build/%)
 BENCH_C := $(sort $(wildcard tests/bench/bench_*.c))
 BENCH_BIN := $(BENCH_C:%.c=build/%)
+BENCH_SH := $(sort $(wildcard tests/bench/bench_*.sh))
 
 .PHONY: all deps test-deps test bench clean readme
 all: $(BINS)
@@ -87,7 +88,7 @@ test: test-deps
 
 bench: deps
 	@$(MAKE) --no-print-directory all $(BENCH_BIN)
-	@bash tests/bench/run_bench.sh $(BENCH_BIN)
+	@bash tests/bench/run_bench.sh $(BENCH_BIN) $(BENCH_SH)
 
 # Refreshes the README's component reference from the scene tables (headings moved under README's own).
 readme: bin/bake

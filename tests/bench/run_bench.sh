@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# Runs every benchmark binary given as argument: bench_NAME writes out/bench/NAME*.csv (first argument) and a
-# markdown table on stdout; tests/bench/NAME.gp (gnuplot) turns its CSVs into PNG plots. Timings are measured
-# here and never asserted. Ends with out/bench/summary.md.
+# Runs every benchmark given as argument (a binary, or a bash script bench_NAME.sh): bench_NAME writes
+# out/bench/NAME*.csv (first argument) and a markdown table on stdout; tests/bench/NAME.gp (gnuplot) turns
+# its CSVs into PNG plots. Timings are measured here and never asserted. Ends with out/bench/summary.md.
 set -u
 cd "$(dirname "$0")/../.."
 mkdir -p out/bench
@@ -16,9 +16,10 @@ summary=out/bench/summary.md
 } > "$summary"
 status=0
 for bin in "$@"; do
-  name=$(basename "$bin"); name=${name#bench_}
+  name=$(basename "$bin" .sh); name=${name#bench_}
+  run=("$bin"); [ "${bin%.sh}" != "$bin" ] && run=(bash "$bin")
   echo "== $name"
-  if ! "$bin" "out/bench/$name.csv" | tee "out/bench/$name.md"; then echo "bench $name failed" >&2; status=1; fi
+  if ! "${run[@]}" "out/bench/$name.csv" | tee "out/bench/$name.md"; then echo "bench $name failed" >&2; status=1; fi
   { echo "## $name"; echo; cat "out/bench/$name.md"; echo; } >> "$summary"
   if [ -f "tests/bench/$name.gp" ] && command -v gnuplot >/dev/null; then
     (cd out/bench && gnuplot "../../tests/bench/$name.gp") || { echo "plot $name failed" >&2; status=1; }
