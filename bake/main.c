@@ -125,6 +125,7 @@ static void append_progress(const char *path, const DrFrameStats *fs, const Fram
             fs->frame, fs->time, fs->substeps, fs->particles, fs->pressure_iterations_max,
             fs->pressure_iterations_total, fs->pressure_not_converged, fs->liquid_volume, fs->volume_drift,
             fs->kinetic_energy);
+    if (fs->liquid) fprintf(f, "\"liquid_substeps\":%d,", fs->liquid_substeps);
     /* MPM solids, only in scenes that have them; the names follow render/plots.c's rules (…_iterations,
        …_energy, momentum.*, seconds.*) so the plots pick them up */
     if (fs->mpm)

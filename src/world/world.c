@@ -553,6 +553,7 @@ DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrError *err)
     DR_TRY(dr_world_bem_step_(w, frame, stats, err));
     DR_TRY(body_colliders_end(w, t0, t1, err));
     double volume = 0.0, volume0 = 0.0;
+    stats->liquid = w->nliquids > 0;
     for (int i = 0; i < w->nliquids; i++) {
         WorldLiquid *wl = &w->liquids[i];
         DrLiquidStats ls;
@@ -573,6 +574,7 @@ DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrError *err)
         dr_liquid_totals(wl->liquid, &mass, &p, &l, &ke);
         stats->kinetic_energy += ke;
         if (ls.substeps > stats->substeps) stats->substeps = ls.substeps;
+        if (ls.substeps > stats->liquid_substeps) stats->liquid_substeps = ls.substeps;
         stats->particles += ls.particles;
         if (ls.pressure_iterations_max > stats->pressure_iterations_max)
             stats->pressure_iterations_max = ls.pressure_iterations_max;

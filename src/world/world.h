@@ -20,6 +20,8 @@ typedef struct DrFrameStats {
     int frame;
     double time;             /* s, at the end of the frame */
     int substeps;            /* largest substep count of any solver this frame */
+    bool liquid;             /* the scene has liquid */
+    int liquid_substeps;     /* largest substep count of a liquid this frame (0 without liquid) */
     long particles;          /* liquid particles, all elements */
     int pressure_iterations_max;
     long pressure_iterations_total;

@@ -6,8 +6,8 @@
 # Reported per scene: wall seconds per simulated 5 ms (the reference's step: it took 0.262 s on box_test and
 # 0.52 s on dragging_test per step on 2 quiet cores of this kind of machine) and the ratio to it, substeps
 # per frame, the share of the bake's wall time the main thread spent on frame output, and the slowdown of a
-# 2-thread bake with one busy process beside it, for drench's default OpenMP wait policy (passive) and for
-# libgomp's spinning default (OMP_WAIT_POLICY=active). Runs are interleaved and repeated; the table gives
+# 2-thread bake with one busy process beside it, for drench's default OpenMP wait (a short spin, then
+# sleep: core.h) and for waiting by spinning (OMP_WAIT_POLICY=active). Runs are interleaved and repeated; the table gives
 # the fastest and the spread.
 # usage: bench_reference.sh [csv = out/bench/reference.csv] [frames = 24]
 set -u
@@ -38,7 +38,7 @@ stats() {
 import json, sys
 d = sys.argv[1]
 rows = [json.loads(l) for l in open(d + "/progress.jsonl")]
-sub = [r["substeps"] for r in rows]
+sub = [r.get("liquid_substeps", r["substeps"]) for r in rows]
 io = sum(r["seconds"].get("io", 0.0) for r in rows)
 print("%.2f %d %.3f" % (sum(sub) / len(sub), max(sub), io))
 PY
@@ -72,7 +72,7 @@ def best(scene, cond):
     rs = [r for r in rows if r["scene"] == scene and r["condition"] == cond]
     w = sorted(float(r["wall_s"]) for r in rs)
     return min(rs, key=lambda r: float(r["wall_s"])), w
-print("| scene | condition | wall s (fastest; all) | s per simulated 5 ms | ratio to reference | substeps/frame mean, max | main-thread output share |")
+print("| scene | condition | wall s (fastest; all) | s per simulated 5 ms | ratio to reference | liquid substeps/frame mean, max | main-thread output share |")
 print("|---|---|---|---|---|---|---|")
 for scene in ("box_test", "dragging_test"):
     for cond in ("quiet", "busy", "quiet_active", "busy_active"):
@@ -80,7 +80,7 @@ for scene in ("box_test", "dragging_test"):
         print("| %s | %s | %s (%s) | %s | %s | %s, %s | %.1f %% |" % (scene, cond, r["wall_s"], ", ".join("%.1f" % x for x in w),
               r["per_5ms_s"], r["ratio_to_reference"], r["substeps_mean"], r["substeps_max"], 100 * float(r["io_share"])))
 print()
-print("| scene | slowdown beside a busy process, passive (default) | same, OMP_WAIT_POLICY=active |")
+print("| scene | slowdown beside a busy process, drench's default wait (a short spin, then sleep) | same, OMP_WAIT_POLICY=active |")
 print("|---|---|---|")
 for scene in ("box_test", "dragging_test"):
     q = best(scene, "quiet")[0]; b = best(scene, "busy")[0]
