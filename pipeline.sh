@@ -82,6 +82,11 @@ for i in "${!stages[@]}"; do
   elif [ "$st" = "$force" ]; then reason="--force"
   elif [ -z "$have" ]; then reason="no complete output yet"
   elif [ "$have" != "$key" ]; then reason="inputs changed"
+  elif [ "$st" = precompute ]; then
+    # the products live in the shared cache, not beside the MANIFEST: a cleared or moved cache is stale too
+    while read -r _ kind _ k; do
+      [ -f "${DRENCH_CACHE:-cache}/$kind/$k.h5" ] || { reason="its cache entry $kind/$k.h5 is missing"; break; }
+    done < <(awk '$1=="input" && NF==4 && length($4)==32' "$dir/MANIFEST")
   fi
   reason_of[$st]="$reason"
   [ -n "$reason" ] && [ "$i" -lt "$first_stale" ] && first_stale=$i

@@ -188,3 +188,9 @@ check "pipeline.sh runs precompute, bake, mesh and render on a bem_solid scene" 
   bash -c "[ $rc -eq 0 ] && grep -q 'pipeline: 4 stage(s) ran' <<<'$out' && [ -s '$DRENCH_OUT/bem_pipe/render/contact_sheet.png' ]"
 out=$("$ROOT/pipeline.sh" --no-build "$pipe" -j 2 2>&1)
 check "and nothing the second time" grep -q "pipeline: 0 stage(s) ran, 4 up to date" <<<"$out"
+# the precompute stage's products live in the shared cache, not beside its MANIFEST: with the cache moved away
+# the stage is stale (and rebuilds the matrices) rather than up to date with a bake that then cannot start
+mv "$DRENCH_CACHE" "$WORK/cache_away"
+out=$("$ROOT/pipeline.sh" --no-build "$pipe" -j 2 2>&1); rc=$?
+check "a cleared cache makes the precompute stage stale, and pipeline.sh runs it again" \
+  bash -c "[ $rc -eq 0 ] && grep -q 'precompute: running (its cache entry bem/[0-9a-f]*.h5 is missing)' <<<'$out' && [ -n \"\$(ls '$DRENCH_CACHE'/bem/*.h5)\" ]"
