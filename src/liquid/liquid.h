@@ -15,15 +15,15 @@
  * Colliders. A face's weight is its open fraction (from the collider phi at its corners); its blocked
  * part moves with the collider (the variational boundary). A face that no particle reaches (no P2G mass)
  * is closed and moves with the collider: a pool next to a collider keeps no spurious velocity on faces
- * inside it, and a collider that carries liquid carries it at exactly its own velocity. A cell cut by a
- * collider counts particles unreliably (where the surface crosses the seeding lattice decides how many
- * it holds, and a small open part may hold none while liquid surrounds it: as an air cell it would put
- * p = 0 into the liquid at depth), so its liquid phi is the liquid's around it, continued into the
- * collider along the liquid surface (liquid.c: extend_phi_slices): still water next to a sphere, a bowl,
- * a sloping box or a plate, or inside a tank that is a collider, stays still (to ~1e-8 m/s) and takes one
- * substep per frame. Colliders thinner than about a cell are not resolved by the face fractions (their
- * corners miss them): the particles are still pushed out of them, but the pressure sees them partly
- * open.
+ * inside it, and a closed collider carrying liquid carries it at its own velocity (< 5e-4 m/s relative).
+ * A cell cut by a collider counts particles unreliably (where the surface crosses the seeding lattice
+ * decides how many it holds, and a small open part may hold none while liquid surrounds it: as an air
+ * cell it would put p = 0 into the liquid at depth), so its liquid phi is the liquid's around it,
+ * continued into the collider along the liquid surface (liquid.c: extend_phi_slices): still water next to
+ * a sphere, a bowl, a sloping box or a plate, or inside a tank that is a collider, stays still (to ~1e-8
+ * m/s) and takes one substep per frame. Colliders thinner than about a cell are not resolved by the face
+ * fractions (their corners miss them): the particles are still pushed out of what the collider's field
+ * resolves, but the pressure sees them partly open.
  *
  * Units SI. Determinism: a run is bit-identical for any thread count (fixed-order reductions, coloured
  * P2G). Thread safety: one DrLiquid belongs to one thread at a time (it parallelises internally).

@@ -137,9 +137,30 @@ static void test_mac_layout_and_kernel(void **state)
     }
 }
 
+/* dr_collider_static: at most one key; dr_collider_id: never the same twice, also when a new collider takes
+   the memory of a destroyed one (the liquid keeps static colliders' samples by id). */
+static void test_static_and_id(void **state)
+{
+    (void)state;
+    double one[7] = {0.0, 0.1, 0, 0, 0, 0, 0}, two[14] = {0.0, 0, 0, 0, 0, 0, 0, 1.0, 0.1, 0, 0, 0, 0, 0};
+    DrCollider *a = sphere(0, NULL, 0.0), *b = sphere(1, one, 0.0), *c = sphere(2, two, 0.0);
+    assert_true(dr_collider_static(a));
+    assert_true(dr_collider_static(b));
+    assert_false(dr_collider_static(c));
+    uint64_t ia = dr_collider_id(a), ib = dr_collider_id(b), ic = dr_collider_id(c);
+    assert_true(ia != ib && ib != ic && ia != ic);
+    dr_collider_destroy(&a);
+    DrCollider *d = sphere(0, NULL, 0.0);
+    assert_true(dr_collider_id(d) != ia && dr_collider_id(d) != ib && dr_collider_id(d) != ic);
+    dr_collider_destroy(&b);
+    dr_collider_destroy(&c);
+    dr_collider_destroy(&d);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {cmocka_unit_test(test_pose_interpolation), cmocka_unit_test(test_moving_sphere),
-                                       cmocka_unit_test(test_face_fraction), cmocka_unit_test(test_mac_layout_and_kernel)};
+                                       cmocka_unit_test(test_face_fraction), cmocka_unit_test(test_mac_layout_and_kernel),
+                                       cmocka_unit_test(test_static_and_id)};
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
