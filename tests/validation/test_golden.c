@@ -1,0 +1,134 @@
+/* Golden states: one small scene per solver kind (liquid with a moving collider, MPM, hair, BEM bodies in contact,
+ * and one scene mixing them all), stepped a few frames on 1 and on 2 threads; the world's state hash
+ * (dr_world_state_hash: every particle, vertex, body state, generator state and step count) must equal the constant
+ * stored here. A change to any solver's arithmetic, its order of operations or its clock shows up as a new hash: a
+ * deliberate one updates the constant in the same commit and says why. Run from the repository root.
+ *
+ * DRENCH_GOLDEN_PRINT=1 prints the hashes instead of checking them. */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "bem/bem.h"
+#include "scene/scene.h"
+#include "world/world.h"
+
+#define DATA "tests/data/"
+
+static char g_cache[512];
+
+/* Builds every bem_solid's matrices of a scene into the test's cache folder, on one thread (the assembly is
+   deterministic for a given thread count, so the matrices do not depend on the run's). */
+static void precompute(const DrScene *scene)
+{
+    dr_set_threads(1);
+    for (int i = 0; i < dr_scene_element_count(scene); i++) {
+        const DrElement *e = dr_scene_element(scene, i);
+        if (strcmp(e->type, "bem_solid") != 0) continue;
+        DrWorldBemAsset a;
+        DrError err;
+        if (dr_world_bem_asset_load(e, &a, &err) < 0) fail_msg("%s: %s", e->name, err.message);
+        DrBemMatrices *m = NULL;
+        DrBemMatrices *have = NULL;
+        bool hit = false;
+        if (dr_bem_cache_read(g_cache, a.key, &have, &hit, &err) < 0) fail_msg("%s", err.message);
+        if (have) dr_bem_matrices_destroy(&have);
+        if (!hit) {
+            if (dr_bem_matrices_build(&a.mesh, &a.desc, NULL, &m, &err) < 0) fail_msg("%s: %s", e->name, err.message);
+            if (dr_bem_cache_write(g_cache, a.key, "{}", a.mesh_hash, m, &err) < 0) fail_msg("%s", err.message);
+            dr_bem_matrices_destroy(&m);
+        }
+        dr_world_bem_asset_free(&a);
+    }
+}
+
+/* The state hash of scene `path` after `frames` frames on `threads` threads, as 32 hex digits. */
+static void golden_hash(const char *path, int frames, int threads, char hex[33])
+{
+    DrScene *scene = NULL;
+    DrError err;
+    if (dr_scene_load(path, &scene, &err) < 0) fail_msg("%s: %s", path, err.message);
+    precompute(scene);
+    dr_set_threads(threads);
+    DrWorldDesc d;
+    dr_world_desc_default(&d);
+    d.cache_root = g_cache;
+    DrWorld *w = NULL;
+    if (dr_world_create_desc(scene, &d, &w, &err) < 0) fail_msg("%s: %s", path, err.message);
+    for (int f = 0; f < frames; f++) {
+        DrFrameStats fs;
+        if (dr_world_step_frame(w, &fs, &err) < 0) fail_msg("%s frame %d: %s", path, f + 1, err.message);
+    }
+    dr_hash_hex(dr_world_state_hash(w), hex);
+    dr_world_destroy(&w);
+    dr_scene_destroy(&scene);
+    dr_set_threads(0);
+}
+
+typedef struct Golden {
+    const char *scene;
+    int frames;
+    const char *hash; /* on 1 and on 2 threads alike */
+} Golden;
+
+static const Golden GOLDEN[] = {
+    {DATA "moving_collider.json", 2, "975f9b2fbf4b151a8560a46fe1c12760"},
+    {DATA "mpm_drop.json", 4, "f82e4206818696d3b77be6c0e58924ff"},
+    {DATA "hair_small.json", 3, "cf5eb13ddf87db370d469624a686808d"},
+    {DATA "bem_pair.json", 2, "ce7a7fc60ae0c84f736584fb90264e1e"},
+    {DATA "golden_mix.json", 3, "f39f690a5dc669c9612994bab2d34b25"},
+};
+
+static void check(int k)
+{
+    const Golden *g = &GOLDEN[k];
+    bool print = getenv("DRENCH_GOLDEN_PRINT") != NULL;
+    for (int t = 0; t < 2; t++) {
+        char hex[33];
+        golden_hash(g->scene, g->frames, t + 1, hex);
+        if (print)
+            printf("golden %s %d frames %d thread(s): %s\n", g->scene, g->frames, t + 1, hex);
+        else if (strcmp(hex, g->hash) != 0)
+            fail_msg("%s after %d frames on %d thread(s): state hash %s, stored %s", g->scene, g->frames, t + 1, hex,
+                     g->hash);
+    }
+}
+
+static void test_liquid_with_moving_collider(void **state) { (void)state; check(0); }
+static void test_mpm_drop(void **state) { (void)state; check(1); }
+static void test_hair_on_moving_scalp(void **state) { (void)state; check(2); }
+static void test_bem_bodies_in_contact(void **state) { (void)state; check(3); }
+static void test_every_solver_in_one_scene(void **state) { (void)state; check(4); }
+
+static int setup(void **state)
+{
+    (void)state;
+    snprintf(g_cache, sizeof g_cache, "%s/drench_test_golden.XXXXXX", dr_temp_dir());
+    return mkdtemp(g_cache) ? 0 : -1;
+}
+
+static int teardown(void **state)
+{
+    (void)state;
+    char cmd[600];
+    snprintf(cmd, sizeof cmd, "rm -rf '%s'", g_cache);
+    return system(cmd) == 0 ? 0 : -1;
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_liquid_with_moving_collider),
+        cmocka_unit_test(test_mpm_drop),
+        cmocka_unit_test(test_hair_on_moving_scalp),
+        cmocka_unit_test(test_bem_bodies_in_contact),
+        cmocka_unit_test(test_every_solver_in_one_scene),
+    };
+    return cmocka_run_group_tests(tests, setup, teardown);
+}
