@@ -52,6 +52,7 @@ void *dr_arena_alloc(DrArena *a, size_t count, size_t size)
             b = it;
         } else {
             size_t sz = bytes > a->block_bytes ? bytes : a->block_bytes;
+            dr_alloc_count_add_();
             b = calloc(1, sizeof *b);
             if (!b) return NULL;
             b->data = aligned_alloc(64, sz);

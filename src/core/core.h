@@ -76,6 +76,11 @@ DR_NODISCARD DrStatus dr_calloc(size_t count, size_t size, void *out_ptr, DrErro
 DR_NODISCARD DrStatus dr_realloc(size_t count, size_t size, void *inout_ptr, DrError *err);
 bool dr_mul_overflows(size_t a, size_t b, size_t *out);
 char *dr_strdup(const char *s); /* NULL on NULL or exhaustion */
+/* Heap allocations made so far by this process through dr_calloc, dr_realloc, dr_strdup and new arena blocks
+   (every thread; relaxed atomic). Solver code allocates only through these, so a test can assert that a step
+   after the first allocates nothing: read the count before and after. */
+uint64_t dr_alloc_count(void);
+void dr_alloc_count_add_(void); /* for core's own allocators */
 
 /* ---- small math by value --------------------------------------------------------------- */
 

@@ -1,6 +1,7 @@
 /* Status, error messages and checked allocation. */
 #include "core.h"
 
+#include <stdatomic.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -69,8 +70,14 @@ bool dr_mul_overflows(size_t a, size_t b, size_t *out)
     return false;
 }
 
+static _Atomic uint64_t g_allocs;
+
+uint64_t dr_alloc_count(void) { return atomic_load_explicit(&g_allocs, memory_order_relaxed); }
+void dr_alloc_count_add_(void) { atomic_fetch_add_explicit(&g_allocs, 1, memory_order_relaxed); }
+
 DrStatus dr_calloc(size_t count, size_t size, void *out_ptr, DrError *err)
 {
+    dr_alloc_count_add_();
     void **out = (void **)out_ptr;
     size_t bytes;
     *out = NULL;
@@ -89,6 +96,7 @@ DrStatus dr_realloc(size_t count, size_t size, void *inout_ptr, DrError *err)
 {
     void **ptr = (void **)inout_ptr;
     size_t bytes;
+    dr_alloc_count_add_();
     if (dr_mul_overflows(count, size, &bytes))
         return dr_error_set(err, DR_ERR_NOMEM, NULL, 0, 0,
                             "allocation of %zu x %zu bytes overflows; reduce the problem size", count, size);
@@ -105,6 +113,7 @@ char *dr_strdup(const char *s)
 {
     if (!s) return NULL;
     size_t n = strlen(s) + 1;
+    dr_alloc_count_add_();
     char *d = malloc(n);
     if (d) memcpy(d, s, n);
     return d;

@@ -120,9 +120,23 @@ static void test_arena(void **state)
     assert_true(used >= 8000 + 100);
     dr_arena_reset(a);
     assert_int_equal(dr_arena_used(a), 0);
-    double *r = dr_arena_alloc(a, 1000, sizeof(double)); /* reuses a block, zeroed */
+    uint64_t before = dr_alloc_count();
+    double *r = dr_arena_alloc(a, 1000, sizeof(double)); /* reuses a block, zeroed, allocating nothing */
     assert_true(r[999] == 0.0);
+    assert_true(dr_arena_alloc(a, 100, 1) != NULL);
+    assert_true(dr_alloc_count() == before);
+    assert_non_null(dr_arena_alloc(a, 10000, 1)); /* a new block is counted */
+    assert_true(dr_alloc_count() == before + 1);
     dr_arena_destroy(&a);
+    /* the checked allocators count every call */
+    before = dr_alloc_count();
+    double *d = NULL;
+    assert_int_equal(dr_calloc(4, sizeof *d, &d, &err), DR_OK);
+    assert_int_equal(dr_realloc(8, sizeof *d, &d, &err), DR_OK);
+    char *c = dr_strdup("x");
+    assert_true(dr_alloc_count() == before + 3);
+    free(d);
+    free(c);
     assert_null(a);
     dr_arena_destroy(&a); /* NULL is a no-op */
 }
