@@ -8,6 +8,7 @@
 
 #include "io/io.h"
 #include "scene/scene.h"
+#include "stage/stage.h"
 #include "world/world.h"
 
 typedef struct Totals {

@@ -9,7 +9,7 @@
 #include "io/io.h"
 #include "scene/scene.h"
 #include "vdb/vdb.h"
-#include "world/world.h"
+#include "stage/stage.h"
 
 static int fail(const DrError *err)
 {
@@ -587,7 +587,7 @@ int main(int argc, char **argv)
     if (s == DR_OK) s = dr_calloc((size_t)nel + 1, sizeof(DrTriMesh), &rest, &err);
     for (int i = 0; s == DR_OK && i < nel; i++) {
         const DrElement *e = dr_scene_element(scene, i);
-        if (strcmp(e->type, "collider") == 0) s = dr_world_load_collider_mesh(e, &rest[i], &err);
+        if (strcmp(e->type, "collider") == 0) s = dr_stage_load_collider_mesh(e, &rest[i], &err);
     }
     if (s == DR_OK) s = dr_vdb_init(&err);
     if (s == DR_OK) s = dr_io_mkdirs(dir, &err);

@@ -9,6 +9,7 @@
 #include "bem/bem.h"
 #include "io/io.h"
 #include "scene/scene.h"
+#include "stage/stage.h"
 #include "world/world.h"
 
 static int fail(const DrError *err)
@@ -27,12 +28,8 @@ typedef struct Body {
 /* Prefixes "<element>.Mesh.file: " to a failure's message, so it names the element as well as the file. */
 static DrStatus in_element(DrStatus s, const Body *b, DrError *err)
 {
-    if (s >= 0) return s;
-    char msg[sizeof err->message];
-    int n = snprintf(msg, sizeof msg, "%s.Mesh.file: %s", b->a.element->name, err->message);
-    if (n >= (int)sizeof msg) msg[sizeof msg - 2] = '.';
-    memcpy(err->message, msg, sizeof msg);
-    if (!err->file[0]) snprintf(err->file, sizeof err->file, "%s", b->a.path);
+    if (dr_error_prefix(s, err, "%s.Mesh.file", b->a.element->name) < 0 && !err->file[0])
+        snprintf(err->file, sizeof err->file, "%s", b->a.path);
     return s;
 }
 

@@ -9,7 +9,7 @@
 #include "plots.h"
 #include "render/render.h"
 #include "scene/scene.h"
-#include "world/world.h"
+#include "stage/stage.h"
 
 static int fail(const DrError *err)
 {

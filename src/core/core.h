@@ -51,6 +51,10 @@ typedef struct DrError {
 /* Fills err (if non-NULL) and returns `status`. `file` may be NULL. */
 DrStatus dr_error_set(DrError *err, DrStatus status, const char *file, int line, int col,
                       const char *fmt, ...) DR_PRINTF(6, 7);
+/* Puts a formatted prefix and ": " in front of a failure's message ("jelly.MpmShape.mesh: <message>"), keeping its
+   status, file and position; a message that no longer fits keeps its start and ends in ".". Returns s, and does
+   nothing when s is not a failure or err is NULL. */
+DrStatus dr_error_prefix(DrStatus s, DrError *err, const char *fmt, ...) DR_PRINTF(3, 4);
 void dr_error_clear(DrError *err);
 /* "file:line:col: error: message" (or "error: message"), one line, no trailing newline. */
 void dr_error_format(const DrError *err, char *buf, size_t size);

@@ -20,6 +20,21 @@ DrStatus dr_error_set(DrError *err, DrStatus status, const char *file, int line,
     return status;
 }
 
+DrStatus dr_error_prefix(DrStatus s, DrError *err, const char *fmt, ...)
+{
+    if (s >= 0 || !err) return s;
+    char msg[sizeof err->message];
+    va_list ap;
+    va_start(ap, fmt);
+    int n = vsnprintf(msg, sizeof msg, fmt, ap);
+    va_end(ap);
+    if (n < 0) return s;
+    if ((size_t)n < sizeof msg) n += snprintf(msg + n, sizeof msg - (size_t)n, ": %s", err->message);
+    if (n >= (int)sizeof msg) msg[sizeof msg - 2] = '.'; /* long messages keep their start */
+    memcpy(err->message, msg, sizeof msg);
+    return s;
+}
+
 void dr_error_clear(DrError *err)
 {
     if (!err) return;

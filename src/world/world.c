@@ -22,46 +22,15 @@ double dr_world_frame_time(const DrWorld *w, int frame) { return (double)(frame 
 
 DrStatus dr_world_asset_context_(DrStatus s, const char *element, const char *field, DrError *err)
 {
-    if (s >= 0 || !err) return s;
-    char msg[sizeof err->message];
-    int n = snprintf(msg, sizeof msg, "%s.%s: %s", element, field, err->message);
-    if (n >= (int)sizeof msg) msg[sizeof msg - 2] = '.'; /* long messages keep their start */
-    memcpy(err->message, msg, sizeof msg);
-    return s;
+    return dr_error_prefix(s, err, "%s.%s", element, field);
 }
 
-DrStatus dr_world_load_collider_mesh(const DrElement *e, DrTriMesh *mesh, DrError *err)
-{
-    return dr_world_load_posed_mesh_(e, dr_component_str(dr_element_component(e, "Mesh"), "file"), "Mesh.file", mesh,
-                                     err);
-}
-
-DrXform dr_world_transform_(const DrElement *e, double *scale)
-{
-    const DrComponent *tr = dr_element_component(e, "Transform");
-    DrXform X = {dr_m3_from_euler_xyz(dr_v3_scale(dr_component_vec3(tr, "rotate_deg"), DR_PI / 180.0)),
-                 dr_component_vec3(tr, "translate")};
-    *scale = dr_component_num(tr, "scale");
-    return X;
-}
+DrXform dr_world_transform_(const DrElement *e, double *scale) { return dr_stage_element_transform(e, scale); }
 
 DrStatus dr_world_load_posed_mesh_(const DrElement *e, const char *path, const char *field, DrTriMesh *mesh,
                                    DrError *err)
 {
-    DR_TRY(dr_world_asset_context_(dr_io_load_mesh(path, mesh, err), e->name, field, err));
-    free(mesh->n); /* file normals would not follow the transform; consumers recompute what they need */
-    mesh->n = NULL;
-    if (!dr_element_component(e, "Transform")) return DR_OK;
-    double s;
-    DrXform X = dr_world_transform_(e, &s);
-    for (int i = 0; i < mesh->nv; i++) {
-        DrVec3 p = dr_v3(mesh->v[3 * i], mesh->v[3 * i + 1], mesh->v[3 * i + 2]);
-        p = dr_v3_add(dr_m3_apply(X.R, dr_v3_scale(p, s)), X.t);
-        mesh->v[3 * i] = p.x;
-        mesh->v[3 * i + 1] = p.y;
-        mesh->v[3 * i + 2] = p.z;
-    }
-    return DR_OK;
+    return dr_stage_load_posed_mesh(e, path, field, mesh, err);
 }
 
 double dr_world_posed_sdf_(DrVec3 x, DrVec3 *normal, void *ctx)
@@ -133,7 +102,7 @@ static DrStatus build_colliders(DrWorld *w, DrError *err)
         WorldCollider *wc = &w->colliders[w->ncolliders++];
         wc->element = e;
         DrTriMesh mesh = {0};
-        DR_TRY(dr_world_load_collider_mesh(e, &mesh, err));
+        DR_TRY(dr_stage_load_collider_mesh(e, &mesh, err));
         if (dx <= 0.0) { /* nothing in the scene samples colliders: validate the asset, build nothing */
             dr_trimesh_free(&mesh);
             continue;

@@ -97,9 +97,6 @@ long dr_world_mpm_particle_count(const DrWorld *w); /* 0 when the scene has no M
 typedef struct DrLiquid DrLiquid;
 const DrLiquid *dr_world_liquid(const DrWorld *w, int i);
 const DrElement *dr_world_liquid_element(const DrWorld *w, int i);
-/* Loads a collider element's Mesh.file and applies its Transform component (scale, then rotation, then
- * translation): the collider in its scene pose. Errors name the element, the field and the file. */
-DR_NODISCARD DrStatus dr_world_load_collider_mesh(const DrElement *e, DrTriMesh *mesh, DrError *err);
 /* Colliders whose SDF was built (none when no solver samples colliders). */
 int dr_world_live_collider_count(const DrWorld *w);
 
@@ -160,42 +157,5 @@ DR_NODISCARD DrStatus dr_world_read_checkpoint(DrWorld *w, const char *path, con
                                                DrError *err);
 /* Hash of the whole simulation state (for determinism tests and logs). */
 DrHash dr_world_state_hash(const DrWorld *w);
-
-/* ---- stage plumbing ----------------------------------------------------------------------------- */
-
-typedef enum DrStageId { DR_STAGE_PRECOMPUTE, DR_STAGE_BAKE, DR_STAGE_MESH, DR_STAGE_RENDER } DrStageId;
-
-typedef struct DrStageArgs {
-    DrStageId stage;
-    const char *scene_path;  /* NULL when only --help/--version/--list-components */
-    int frame_first, frame_last; /* --frames A-B; 0,0 when not given */
-    bool frames_given;
-    bool resume;             /* bake --resume */
-    bool sync_writes;        /* bake --sync-writes: frames and checkpoints written on the main thread */
-    bool finish;             /* mesh/render --finish: seal frame ranges that ran separately */
-    bool plots_only, no_plots; /* render --plots / --no-plots */
-    int threads;             /* -j N; 0 = all cores */
-    const char *out_root;    /* --out DIR, else $DRENCH_OUT, else "out" */
-    const char *cache_root;  /* --cache DIR, else $DRENCH_CACHE, else "cache" */
-    bool print_key, print_out_dir, print_frames, list_components, markdown, quiet;
-} DrStageArgs;
-
-/* Parses the common options. Returns DR_OK, or DR_ERR_INPUT with a usage message. --help and --version are
- * handled here: they print and set *done (the caller exits 0). */
-DR_NODISCARD DrStatus dr_stage_parse_args(DrStageId stage, int argc, char **argv, DrStageArgs *args, bool *done,
-                                          DrError *err);
-/* Everything a stage does before its own work: parses the arguments, loads the scene and its keys, fills
- * the stage's output folder, and answers --help, --version, --list-components, --print-key and
- * --print-out-dir (then *done is set: the caller exits 0). On failure *scene is NULL and err says why. */
-DR_NODISCARD DrStatus dr_stage_begin(DrStageId stage, int argc, char **argv, DrStageArgs *args, DrScene **scene,
-                                     DrSceneKeys *keys, char *dir, size_t dir_size, bool *done, DrError *err);
-const char *dr_stage_name(DrStageId stage);
-/* <out_root>/<shot name>/<stage> */
-void dr_stage_out_dir(const DrStageArgs *args, const DrScene *scene, DrStageId stage, char *buf, size_t size);
-/* Resolves --frames against the shot (DR_ERR_INPUT when out of the shot's range or out of order). */
-DR_NODISCARD DrStatus dr_stage_frame_range(const DrStageArgs *args, const DrScene *scene, int *first, int *last,
-                                           DrError *err);
-/* Frame file name inside a stage folder: "<prefix>.NNNN.<ext>" (4 digits, more if needed). */
-void dr_stage_frame_path(const char *dir, const char *prefix, int frame, const char *ext, char *buf, size_t size);
 
 #endif

@@ -11,6 +11,7 @@
 #include "io/io.h"
 #include "liquid/liquid.h"
 #include "mpm/mpm.h"
+#include "stage/stage.h"
 
 /* snprintf into an array that must hold the result: element names are at most 128 characters, so the
  * HDF5 paths built here always fit; a truncation would be a programming error. */
@@ -183,6 +184,10 @@ DR_NODISCARD DrStatus dr_world_make_collider_(const DrTriMesh *mesh, double dx, 
 /* Element e's Transform component without its scale (R from the XYZ Euler angles, t the translation), and the
    scale: a point p of its mesh is placed at R·(scale·p) + t. */
 DrXform dr_world_transform_(const DrElement *e, double *scale);
+static inline DrStatus dr_world_load_collider_mesh(const DrElement *e, DrTriMesh *mesh, DrError *err)
+{
+    return dr_stage_load_collider_mesh(e, mesh, err);
+}
 /* Loads the mesh file `path` (referenced by element e's `field`) and applies e's Transform component. */
 DR_NODISCARD DrStatus dr_world_load_posed_mesh_(const DrElement *e, const char *path, const char *field,
                                                 DrTriMesh *mesh, DrError *err);

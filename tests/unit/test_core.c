@@ -23,6 +23,18 @@ static void test_error_format_and_exit_codes(void **state)
     dr_error_set(&err, DR_ERR_IO, "a.h5", 0, 0, "disk full");
     dr_error_format(&err, buf, sizeof buf);
     assert_string_equal(buf, "a.h5: error: disk full");
+    /* a prefix names the element and field, keeping status and file; a success passes through untouched */
+    assert_int_equal(dr_error_prefix(DR_ERR_IO, &err, "%s.%s", "jelly", "Mesh.file"), DR_ERR_IO);
+    dr_error_format(&err, buf, sizeof buf);
+    assert_string_equal(buf, "a.h5: error: jelly.Mesh.file: disk full");
+    assert_int_equal(dr_error_prefix(DR_OK, &err, "other"), DR_OK);
+    assert_string_equal(err.message, "jelly.Mesh.file: disk full");
+    char longer[sizeof err.message + 10];
+    memset(longer, 'x', sizeof longer - 1);
+    longer[sizeof longer - 1] = 0;
+    dr_error_prefix(DR_ERR_IO, &err, "%s", longer);
+    assert_int_equal(strlen(err.message), sizeof err.message - 1);
+    assert_int_equal(err.message[sizeof err.message - 2], '.');
     assert_int_equal(dr_exit_code(DR_OK), 0);
     assert_int_equal(dr_exit_code(DR_WARN_NOT_CONVERGED), 0);
     assert_int_equal(dr_exit_code(DR_ERR_INPUT), 2);

@@ -1,5 +1,5 @@
-/* Command-line plumbing shared by the four stage executables. */
-#include "world/world.h"
+/* What the four stage executables share: the command line, output folders, posed element meshes. */
+#include "stage/stage.h"
 
 #include <stdlib.h>
 #include <string.h>
@@ -223,4 +223,40 @@ DrStatus dr_stage_begin(DrStageId stage, int argc, char **argv, DrStageArgs *arg
         *done = true;
     }
     return DR_OK;
+}
+
+/* ---- element meshes in their scene pose ------------------------------------------------------------------- */
+
+DrXform dr_stage_element_transform(const DrElement *e, double *scale)
+{
+    const DrComponent *tr = dr_element_component(e, "Transform");
+    DrXform X = {dr_m3_from_euler_xyz(dr_v3_scale(dr_component_vec3(tr, "rotate_deg"), DR_PI / 180.0)),
+                 dr_component_vec3(tr, "translate")};
+    *scale = dr_component_num(tr, "scale");
+    return X;
+}
+
+DrStatus dr_stage_load_posed_mesh(const DrElement *e, const char *path, const char *field, DrTriMesh *mesh,
+                                  DrError *err)
+{
+    DR_TRY(dr_error_prefix(dr_io_load_mesh(path, mesh, err), err, "%s.%s", e->name, field));
+    free(mesh->n); /* file normals would not follow the transform; consumers recompute what they need */
+    mesh->n = NULL;
+    if (!dr_element_component(e, "Transform")) return DR_OK;
+    double s;
+    DrXform X = dr_stage_element_transform(e, &s);
+    for (int i = 0; i < mesh->nv; i++) {
+        DrVec3 p = dr_v3(mesh->v[3 * i], mesh->v[3 * i + 1], mesh->v[3 * i + 2]);
+        p = dr_v3_add(dr_m3_apply(X.R, dr_v3_scale(p, s)), X.t);
+        mesh->v[3 * i] = p.x;
+        mesh->v[3 * i + 1] = p.y;
+        mesh->v[3 * i + 2] = p.z;
+    }
+    return DR_OK;
+}
+
+DrStatus dr_stage_load_collider_mesh(const DrElement *e, DrTriMesh *mesh, DrError *err)
+{
+    return dr_stage_load_posed_mesh(e, dr_component_str(dr_element_component(e, "Mesh"), "file"), "Mesh.file", mesh,
+                                    err);
 }

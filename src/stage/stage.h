@@ -1,0 +1,57 @@
+/* What the four stage executables share: their command line (arguments, --help, --version, the cache keys they
+ * print), their output folders and frame file names, and loading a collider element's mesh in its scene pose (the
+ * mesh stage draws colliders; the world builds their SDFs). Nothing here simulates. */
+#ifndef DR_STAGE_H
+#define DR_STAGE_H
+
+#include "core/core.h"
+#include "io/io.h"
+#include "scene/scene.h"
+
+typedef enum DrStageId { DR_STAGE_PRECOMPUTE, DR_STAGE_BAKE, DR_STAGE_MESH, DR_STAGE_RENDER } DrStageId;
+
+typedef struct DrStageArgs {
+    DrStageId stage;
+    const char *scene_path;  /* NULL when only --help/--version/--list-components */
+    int frame_first, frame_last; /* --frames A-B; 0,0 when not given */
+    bool frames_given;
+    bool resume;             /* bake --resume */
+    bool sync_writes;        /* bake --sync-writes: frames and checkpoints written on the main thread */
+    bool finish;             /* mesh/render --finish: seal frame ranges that ran separately */
+    bool plots_only, no_plots; /* render --plots / --no-plots */
+    int threads;             /* -j N; 0 = all cores */
+    const char *out_root;    /* --out DIR, else $DRENCH_OUT, else "out" */
+    const char *cache_root;  /* --cache DIR, else $DRENCH_CACHE, else "cache" */
+    bool print_key, print_out_dir, print_frames, list_components, markdown, quiet;
+} DrStageArgs;
+
+/* Parses the common options. Returns DR_OK, or DR_ERR_INPUT with a usage message. --help and --version are
+ * handled here: they print and set *done (the caller exits 0). */
+DR_NODISCARD DrStatus dr_stage_parse_args(DrStageId stage, int argc, char **argv, DrStageArgs *args, bool *done,
+                                          DrError *err);
+/* Everything a stage does before its own work: parses the arguments, loads the scene and its keys, fills
+ * the stage's output folder, and answers --help, --version, --list-components, --print-key and
+ * --print-out-dir (then *done is set: the caller exits 0). On failure *scene is NULL and err says why. */
+DR_NODISCARD DrStatus dr_stage_begin(DrStageId stage, int argc, char **argv, DrStageArgs *args, DrScene **scene,
+                                     DrSceneKeys *keys, char *dir, size_t dir_size, bool *done, DrError *err);
+const char *dr_stage_name(DrStageId stage);
+/* <out_root>/<shot name>/<stage> */
+void dr_stage_out_dir(const DrStageArgs *args, const DrScene *scene, DrStageId stage, char *buf, size_t size);
+/* Resolves --frames against the shot (DR_ERR_INPUT when out of the shot's range or out of order). */
+DR_NODISCARD DrStatus dr_stage_frame_range(const DrStageArgs *args, const DrScene *scene, int *first, int *last,
+                                           DrError *err);
+/* Frame file name inside a stage folder: "<prefix>.NNNN.<ext>" (4 digits, more if needed). */
+void dr_stage_frame_path(const char *dir, const char *prefix, int frame, const char *ext, char *buf, size_t size);
+
+
+/* Loads a collider element's Mesh.file and applies its Transform component (scale, then rotation, then
+ * translation): the collider in its scene pose. Errors name the element, the field and the file. */
+DR_NODISCARD DrStatus dr_stage_load_collider_mesh(const DrElement *e, DrTriMesh *mesh, DrError *err);
+/* Element e's Transform component without its scale (R from the XYZ Euler angles, t the translation), and the
+ * scale: a point p of its mesh is placed at R·(scale·p) + t. */
+DrXform dr_stage_element_transform(const DrElement *e, double *scale);
+/* Loads the mesh file `path` (referenced by element e's `field`, which errors name) and applies e's Transform. */
+DR_NODISCARD DrStatus dr_stage_load_posed_mesh(const DrElement *e, const char *path, const char *field,
+                                               DrTriMesh *mesh, DrError *err);
+
+#endif
