@@ -28,7 +28,7 @@ static void apply_pose(const double *rest, int nv, const double R[9], const doub
 
 /* ---- hair ------------------------------------------------------------------------------------------------ */
 
-static bool is_hair(const DrElement *e) { return strcmp(e->type, "hair") == 0; }
+static bool is_hair(const DrElement *e) { return e->kind == DR_ELEMENT_HAIR; }
 
 /* "3×4" for a dataset's shape. */
 static void shape_str(int rank, const uint64_t *dims, char *buf, size_t size)
@@ -249,7 +249,7 @@ static DrStatus mesh_hair(const DrElement *e, DrH5 *h, const char *dir, int fram
 
 /* ---- boundary-element bodies ------------------------------------------------------------------------------ */
 
-static bool is_bem(const DrElement *e) { return strcmp(e->type, "bem_solid") == 0; }
+static bool is_bem(const DrElement *e) { return e->kind == DR_ELEMENT_BEM_SOLID; }
 
 /* Reads dataset /<name>/<what> of a frame cache: `rows` rows of `cols` finite numbers (rows 0: a vector of cols
  * numbers, rank 1; rows < 0: any count of rows, returned in *nrows). Anything else is DR_ERR_INPUT naming the file
@@ -421,7 +421,7 @@ static DrStatus mesh_frame(const DrScene *scene, const DrTriMesh *rest, const ch
     const DrComponent *ms = dr_scene_section(scene, "mesh");
     for (int i = 0; s == DR_OK && i < dr_scene_element_count(scene); i++) {
         const DrElement *e = dr_scene_element(scene, i);
-        if (strcmp(e->type, "collider") == 0 && dr_component_present(dr_element_component(e, "Motion"))) {
+        if (e->kind == DR_ELEMENT_COLLIDER && dr_component_present(dr_element_component(e, "Motion"))) {
             double *R = NULL, *t = NULL;
             int rank;
             uint64_t d1[4], d2[4];
@@ -452,8 +452,8 @@ static DrStatus mesh_frame(const DrScene *scene, const DrTriMesh *rest, const ch
             s = mesh_bem(e, h, dir, frame, triangles, err);
             continue;
         }
-        bool liquid = strcmp(e->type, "liquid") == 0;
-        if (!liquid && strcmp(e->type, "mpm_solid") != 0) continue;
+        bool liquid = e->kind == DR_ELEMENT_LIQUID;
+        if (!liquid && e->kind != DR_ELEMENT_MPM_SOLID) continue;
         double *x = NULL, *v = NULL;
         int rank;
         uint64_t dx_[4], dv[4];
@@ -520,8 +520,8 @@ static DrStatus check_outputs(const DrScene *scene, const char *dir, int first, 
     for (int i = 0; i < dr_scene_element_count(scene); i++) {
         const DrElement *e = dr_scene_element(scene, i);
         /* liquid and MPM solids are surfaced alike, one file per frame */
-        bool liquid = strcmp(e->type, "liquid") == 0 || strcmp(e->type, "mpm_solid") == 0;
-        bool collider = strcmp(e->type, "collider") == 0;
+        bool liquid = e->kind == DR_ELEMENT_LIQUID || e->kind == DR_ELEMENT_MPM_SOLID;
+        bool collider = e->kind == DR_ELEMENT_COLLIDER;
         bool moving = collider && dr_component_present(dr_element_component(e, "Motion"));
         if (collider) {
             snprintf(path, sizeof path, "%s/%s.obj", dir, e->name);
@@ -587,7 +587,7 @@ int main(int argc, char **argv)
     if (s == DR_OK) s = dr_calloc((size_t)nel + 1, sizeof(DrTriMesh), &rest, &err);
     for (int i = 0; s == DR_OK && i < nel; i++) {
         const DrElement *e = dr_scene_element(scene, i);
-        if (strcmp(e->type, "collider") == 0) s = dr_stage_load_collider_mesh(e, &rest[i], &err);
+        if (e->kind == DR_ELEMENT_COLLIDER) s = dr_stage_load_collider_mesh(e, &rest[i], &err);
     }
     if (s == DR_OK) s = dr_vdb_init(&err);
     if (s == DR_OK) s = dr_io_mkdirs(dir, &err);
@@ -598,7 +598,7 @@ int main(int argc, char **argv)
     /* colliders once, in their scene pose */
     for (int i = 0; s == DR_OK && i < nel; i++) {
         const DrElement *e = dr_scene_element(scene, i);
-        if (strcmp(e->type, "collider") != 0) continue;
+        if (e->kind != DR_ELEMENT_COLLIDER) continue;
         char out[4096];
         snprintf(out, sizeof out, "%s/%s.obj", dir, e->name);
         s = dr_io_write_obj(out, &rest[i], "drench collider (scene pose)", &err);
@@ -623,7 +623,7 @@ int main(int argc, char **argv)
         s = dr_io_manifest_write(dir, "mesh", keys.mesh, dr_scene_path(scene), inputs, 2, &err);
     }
     char hair[64] = "";
-    if (dr_scene_count_type(scene, "hair") > 0) snprintf(hair, sizeof hair, " and %ld strands", strands);
+    if (dr_scene_count_kind(scene, DR_ELEMENT_HAIR) > 0) snprintf(hair, sizeof hair, " and %ld strands", strands);
     for (int i = 0; rest && i < nel; i++) dr_trimesh_free(&rest[i]);
     free(rest);
     dr_scene_destroy(&scene);

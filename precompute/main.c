@@ -127,13 +127,13 @@ int main(int argc, char **argv)
     double t0 = dr_time_now();
 
     /* 1. every bem_solid element checked and keyed before anything is computed or written */
-    int nbodies = dr_scene_count_type(scene, "bem_solid");
+    int nbodies = dr_scene_count_kind(scene, DR_ELEMENT_BEM_SOLID);
     Body *bodies = NULL;
     DrStatus s = dr_calloc((size_t)nbodies + 1, sizeof *bodies, &bodies, &err);
     int nb = 0;
     for (int i = 0; s == DR_OK && i < dr_scene_element_count(scene); i++) {
         const DrElement *e = dr_scene_element(scene, i);
-        if (strcmp(e->type, "bem_solid") != 0) continue;
+        if (e->kind != DR_ELEMENT_BEM_SOLID) continue;
         Body *b = &bodies[nb++];
         s = prepare(e, b, &err);
         b->first = nb - 1;

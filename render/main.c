@@ -145,7 +145,7 @@ static double ground_height(const DrScene *scene, const Drawable *draw, int ndra
     double y = 1e300;
     for (int i = 0; i < dr_scene_element_count(scene); i++) {
         const DrElement *e = dr_scene_element(scene, i);
-        if (strcmp(e->type, "liquid") != 0 && strcmp(e->type, "mpm_solid") != 0) continue;
+        if (e->kind != DR_ELEMENT_LIQUID && e->kind != DR_ELEMENT_MPM_SOLID) continue;
         DrVec3 lo, hi;
         dr_component_box(dr_element_component(e, "Domain"), "box", &lo, &hi);
         if (lo.y < y) y = lo.y;
@@ -221,7 +221,7 @@ int main(int argc, char **argv)
     for (int i = 0; s == DR_OK && i < nel; i++) {
         const DrElement *e = dr_scene_element(scene, i);
         Drawable d = {.element = e};
-        bool liquid = !strcmp(e->type, "liquid"), mpm = !strcmp(e->type, "mpm_solid");
+        bool liquid = e->kind == DR_ELEMENT_LIQUID, mpm = e->kind == DR_ELEMENT_MPM_SOLID;
         if (liquid || mpm) {
             if (!dr_component_bool(dr_scene_section(scene, "mesh"), "write_obj")) {
                 s = dr_error_set(&err, DR_ERR_INPUT, dr_scene_path(scene), 0, 0,
@@ -233,16 +233,16 @@ int main(int argc, char **argv)
             /* MPM solids are opaque deformable bodies: the warm matte solid material, not the liquid's */
             d.material = liquid ? DR_MATERIAL_LIQUID : DR_MATERIAL_SOLID;
             d.per_frame = true;
-        } else if (!strcmp(e->type, "bem_solid")) {
+        } else if (e->kind == DR_ELEMENT_BEM_SOLID) {
             /* the body's deformed surface, which the mesh stage writes for every frame whatever mesh.write_obj says */
             d.material = DR_MATERIAL_SOLID;
             d.per_frame = true;
-        } else if (!strcmp(e->type, "hair")) {
+        } else if (e->kind == DR_ELEMENT_HAIR) {
             /* strands, from the polylines the mesh stage writes for every frame whatever mesh.write_obj says */
             d.material = DR_MATERIAL_HAIR;
             d.per_frame = true;
             d.strands = true;
-        } else if (!strcmp(e->type, "collider")) {
+        } else if (e->kind == DR_ELEMENT_COLLIDER) {
             d.material = DR_MATERIAL_COLLIDER;
             d.per_frame = dr_component_present(dr_element_component(e, "Motion"));
             if (!d.per_frame) {

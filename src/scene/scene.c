@@ -586,7 +586,7 @@ static DrStatus check_collider_fields(Parser *p, const DrElement *e)
     for (int i = 0; i < e->spec->component_count; i++) has |= strcmp(e->spec->components[i], "Collider") == 0;
     if (!has) return DR_OK;
     const DrComponent *col = dr_element_component(e, "Collider");
-    bool bem = strcmp(e->type, "bem_solid") == 0;
+    bool bem = e->kind == DR_ELEMENT_BEM_SOLID;
     if (bem && value_at(col, "boundary")->set) {
         push_key(p, "components");
         push_key(p, "Collider");
@@ -640,7 +640,7 @@ static DrStatus check_bem_time_steps(Parser *p)
     double frame = 1.0 / fps;
     for (int i = 0; i < s->element_count; i++) {
         const DrElement *e = &s->elements[i];
-        if (strcmp(e->type, "bem_solid") != 0) continue;
+        if (e->kind != DR_ELEMENT_BEM_SOLID) continue;
         double dt = value_at(dr_element_component(e, "BemSolver"), "time_step")->num[0];
         double ratio = frame / dt, n = floor(ratio + 0.5);
         if (n >= 1.0 && fabs(ratio - n) <= 1e-6 * ratio) continue;
@@ -740,7 +740,7 @@ static DrStatus check_bem_joints(Parser *p)
         if (strcmp(s->elements[i].type, "bem_solid") == 0) bodies[nb++] = s->elements[i].name;
     for (int i = 0; i < s->element_count; i++) {
         const DrElement *e = &s->elements[i];
-        if (strcmp(e->type, "bem_joint") != 0) continue;
+        if (e->kind != DR_ELEMENT_BEM_JOINT) continue;
         const DrComponent *j = dr_element_component(e, "Joint");
         const char *field[2] = {"body_a", "body_b"};
         const DrElement *b[2];
@@ -862,6 +862,7 @@ static DrStatus parse_element(Parser *p, const json_t *v, int index)
         return fail(p, "element '%s': unknown type '%s'%s Types: %s", e->name, json_string_value(type), sug, type_list);
     }
     e->type = e->spec->type;
+    e->kind = e->spec->kind;
     pop(p);
 
     const DrElementSpec *t = e->spec;
@@ -921,10 +922,10 @@ static DrStatus parse_element(Parser *p, const json_t *v, int index)
         return fail(p, "%s: missing component '%s' (%s); add \"%s\": {%s} to its components", where, c->spec->name,
                     c->spec->doc, c->spec->name, need);
     }
-    if (strcmp(t->type, "liquid") == 0) DR_TRY(check_liquid_transfer(p, e));
-    if (strcmp(t->type, "hair") == 0) DR_TRY(check_hair_collider(p, e));
+    if (t->kind == DR_ELEMENT_LIQUID) DR_TRY(check_liquid_transfer(p, e));
+    if (t->kind == DR_ELEMENT_HAIR) DR_TRY(check_hair_collider(p, e));
     DR_TRY(check_collider_fields(p, e));
-    if (strcmp(t->type, "bem_solid") == 0) DR_TRY(check_bem_transform(p, e));
+    if (t->kind == DR_ELEMENT_BEM_SOLID) DR_TRY(check_bem_transform(p, e));
     return DR_OK;
 }
 
@@ -1127,6 +1128,13 @@ int dr_scene_count_type(const DrScene *s, const char *type)
 {
     int n = 0;
     for (int i = 0; i < s->element_count; i++) n += strcmp(s->elements[i].type, type) == 0;
+    return n;
+}
+
+int dr_scene_count_kind(const DrScene *s, DrElementKind kind)
+{
+    int n = 0;
+    for (int i = 0; i < s->element_count; i++) n += s->elements[i].kind == kind;
     return n;
 }
 

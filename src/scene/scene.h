@@ -80,6 +80,16 @@ typedef struct DrComponentSpec {
     int field_count;
 } DrComponentSpec;
 
+/* The element types, in the order of the type table; DrElement.kind and DrElementSpec.kind say which one. */
+typedef enum DrElementKind {
+    DR_ELEMENT_LIQUID,
+    DR_ELEMENT_COLLIDER,
+    DR_ELEMENT_MPM_SOLID,
+    DR_ELEMENT_HAIR,
+    DR_ELEMENT_BEM_SOLID,
+    DR_ELEMENT_BEM_JOINT,
+} DrElementKind;
+
 typedef struct DrElementSpec {
     const char *type;
     const char *doc;
@@ -88,6 +98,7 @@ typedef struct DrElementSpec {
     const char *const *required_components;
     int required_count;
     bool needs_precompute; /* whether `precompute` builds data for elements of this type (bem_solid) */
+    DrElementKind kind;
 } DrElementSpec;
 
 /* Spec lookups (NULL when unknown). Sections: "shot", "solver", "mesh", "render", "render.camera". */
@@ -108,6 +119,7 @@ typedef struct DrScene DrScene;         /* opaque, immutable after load */
 typedef struct DrElement {
     const char *name;
     const char *type;
+    DrElementKind kind;         /* the type, as an enum */
     int index;                  /* position in the scene's "elements" array */
     const DrElementSpec *spec;
     DrComponent *components_;   /* private: one per spec component, in spec order */
@@ -122,6 +134,7 @@ int dr_scene_element_count(const DrScene *s);
 const DrElement *dr_scene_element(const DrScene *s, int i); /* asserts 0 <= i < count */
 const DrElement *dr_scene_find(const DrScene *s, const char *name); /* NULL if absent */
 int dr_scene_count_type(const DrScene *s, const char *type);
+int dr_scene_count_kind(const DrScene *s, DrElementKind kind);
 
 /* Sections: never NULL for a section name (absent -> defaults); asserts on any other name. */
 const DrComponent *dr_scene_section(const DrScene *s, const char *name);

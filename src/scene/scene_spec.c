@@ -470,26 +470,27 @@ static const char *const bem_joint_components[] = {"Joint"};
 
 const DrElementSpec dr_scene_types_[] = {
     {"liquid", "a body of incompressible liquid (APIC/FLIP/PIC particles on a MAC grid inside its Domain)",
-     liquid_components, COUNT(liquid_components), liquid_required, COUNT(liquid_required), false},
+     liquid_components, COUNT(liquid_components), liquid_required, COUNT(liquid_required), false, DR_ELEMENT_LIQUID},
     {"collider", "a rigid obstacle given by a closed triangle mesh, optionally moving", collider_components,
-     COUNT(collider_components), collider_required, COUNT(collider_required), false},
+     COUNT(collider_components), collider_required, COUNT(collider_required), false, DR_ELEMENT_COLLIDER},
     {"mpm_solid",
      "an elastic solid on the material point method; every mpm_solid of a scene shares one grid (the bounding box "
      "of their Domain boxes, one voxel_size), so the bodies collide with each other",
-     mpm_solid_components, COUNT(mpm_solid_components), mpm_solid_required, COUNT(mpm_solid_required), false},
+     mpm_solid_components, COUNT(mpm_solid_components), mpm_solid_required, COUNT(mpm_solid_required), false, DR_ELEMENT_MPM_SOLID},
     {"hair",
      "strands of hair or fur as discrete elastic rods, grown from a scalp mesh or read from OBJ polylines; the roots "
      "are fixed to the scalp and follow its Transform and Motion",
-     hair_components, COUNT(hair_components), hair_required, COUNT(hair_required), false},
+     hair_components, COUNT(hair_components), hair_required, COUNT(hair_required), false, DR_ELEMENT_HAIR},
     {"bem_solid",
      "an elastic body simulated on its surface only by the boundary element method; its matrices are computed by "
      "precompute and cached under cache/bem, and bake moves it from the pose of its Transform with its "
      "InitialVelocity under gravity",
-     bem_solid_components, COUNT(bem_solid_components), bem_solid_required, COUNT(bem_solid_required), true},
+     bem_solid_components, COUNT(bem_solid_components), bem_solid_required, COUNT(bem_solid_required), true, DR_ELEMENT_BEM_SOLID},
     {"bem_joint", "a joint between two bem_solid bodies: their vertices held together in a bake",
-     bem_joint_components, COUNT(bem_joint_components), bem_joint_components, COUNT(bem_joint_components), false},
+     bem_joint_components, COUNT(bem_joint_components), bem_joint_components, COUNT(bem_joint_components), false, DR_ELEMENT_BEM_JOINT},
 };
 const int dr_scene_type_count_ = COUNT(dr_scene_types_);
+_Static_assert(COUNT(dr_scene_types_) == DR_ELEMENT_BEM_JOINT + 1, "one DrElementKind per element type");
 
 /* ---- lookups ---------------------------------------------------------------------------------------------- */
 

@@ -75,10 +75,10 @@ static double smallest_grid_dx(const DrScene *scene)
     for (int i = 0; i < dr_scene_element_count(scene); i++) {
         const DrElement *e = dr_scene_element(scene, i);
         double d;
-        if (strcmp(e->type, "hair") == 0) {
+        if (e->kind == DR_ELEMENT_HAIR) {
             const DrComponent *g = dr_element_component(e, "Groom");
             d = dr_component_is_set(g, "scalp") ? dr_component_num(g, "length") / dr_component_int(g, "segments") : 0.004;
-        } else if (strcmp(e->type, "liquid") == 0 || strcmp(e->type, "mpm_solid") == 0) {
+        } else if (e->kind == DR_ELEMENT_LIQUID || e->kind == DR_ELEMENT_MPM_SOLID) {
             d = dr_component_num(dr_element_component(e, "Domain"), "voxel_size");
         } else {
             continue;
@@ -91,14 +91,14 @@ static double smallest_grid_dx(const DrScene *scene)
 static DrStatus build_colliders(DrWorld *w, DrError *err)
 {
     const DrScene *scene = w->scene;
-    int n = dr_scene_count_type(scene, "collider");
+    int n = dr_scene_count_kind(scene, DR_ELEMENT_COLLIDER);
     DR_TRY(dr_calloc((size_t)n + 1, sizeof(WorldCollider), &w->colliders, err));
     DR_TRY(dr_calloc((size_t)n + 1, sizeof(DrCollider *), &w->collider_ptrs, err));
     /* The SDF resolves the smallest grid cell twice so face fractions see the collider's shape. */
     double dx = smallest_grid_dx(scene) * 0.5;
     for (int i = 0; i < dr_scene_element_count(scene); i++) {
         const DrElement *e = dr_scene_element(scene, i);
-        if (strcmp(e->type, "collider") != 0) continue;
+        if (e->kind != DR_ELEMENT_COLLIDER) continue;
         WorldCollider *wc = &w->colliders[w->ncolliders++];
         wc->element = e;
         DrTriMesh mesh = {0};
@@ -270,7 +270,7 @@ static void body_keys(WorldBodyCollider *bc, double t0, double t1)
    colliders the liquid takes: the live colliders, then the bodies. */
 static DrStatus build_body_colliders(DrWorld *w, DrError *err)
 {
-    size_t n = w->bem && dr_scene_count_type(w->scene, "liquid") > 0 ? (size_t)w->bem->nbodies : 0;
+    size_t n = w->bem && dr_scene_count_kind(w->scene, DR_ELEMENT_LIQUID) > 0 ? (size_t)w->bem->nbodies : 0;
     DR_TRY(dr_calloc((size_t)w->nlive + n + 1, sizeof(DrCollider *), &w->liquid_colliders, err));
     for (int i = 0; i < w->nlive; i++) w->liquid_colliders[i] = w->collider_ptrs[i];
     w->nliquid_colliders = w->nlive;
@@ -437,11 +437,11 @@ DrStatus dr_world_create_desc(const DrScene *scene, const DrWorldDesc *desc, DrW
     /* the bodies before the liquid: it seeds no particle inside them */
     if (s == DR_OK) s = dr_world_bem_create_(w, desc->cache_root, err);
     if (s == DR_OK) s = build_body_colliders(w, err);
-    int nl = dr_scene_count_type(scene, "liquid");
+    int nl = dr_scene_count_kind(scene, DR_ELEMENT_LIQUID);
     if (s == DR_OK) s = dr_calloc((size_t)nl + 1, sizeof(WorldLiquid), &w->liquids, err);
     for (int i = 0; s == DR_OK && i < dr_scene_element_count(scene); i++) {
         const DrElement *e = dr_scene_element(scene, i);
-        if (strcmp(e->type, "liquid") == 0) s = build_liquid(w, e, &w->liquids[w->nliquids++], err);
+        if (e->kind == DR_ELEMENT_LIQUID) s = build_liquid(w, e, &w->liquids[w->nliquids++], err);
     }
     if (s == DR_OK) s = dr_world_mpm_create_(w, err);
     if (s == DR_OK) s = dr_world_hair_create_(w, err);

@@ -276,6 +276,29 @@ static void test_full_scene_getters(void **state)
     dr_scene_destroy(&s); /* NULL is a no-op */
 }
 
+static void test_element_kinds(void **state)
+{
+    (void)state;
+    const char *types[] = {"liquid", "collider", "mpm_solid", "hair", "bem_solid", "bem_joint"};
+    const DrElementKind kinds[] = {DR_ELEMENT_LIQUID,    DR_ELEMENT_COLLIDER,  DR_ELEMENT_MPM_SOLID,
+                                   DR_ELEMENT_HAIR,      DR_ELEMENT_BEM_SOLID, DR_ELEMENT_BEM_JOINT};
+    for (int i = 0; i < 6; i++) {
+        const DrElementSpec *t = dr_scene_element_spec(types[i]);
+        assert_non_null(t);
+        assert_int_equal(t->kind, kinds[i]);
+    }
+    DrScene *sc = NULL;
+    DrError err;
+    assert_int_equal(dr_scene_load("tests/data/golden_mix.json", &sc, &err), DR_OK);
+    for (int i = 0; i < dr_scene_element_count(sc); i++) {
+        const DrElement *e = dr_scene_element(sc, i);
+        assert_int_equal(e->kind, e->spec->kind);
+        assert_int_equal(dr_scene_count_kind(sc, e->kind), dr_scene_count_type(sc, e->type));
+    }
+    assert_int_equal(dr_scene_count_kind(sc, DR_ELEMENT_BEM_JOINT), 0);
+    dr_scene_destroy(&sc);
+}
+
 static void test_empty_scene_is_all_defaults(void **state)
 {
     (void)state;
@@ -1409,7 +1432,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_full_scene_getters),
-        cmocka_unit_test(test_empty_scene_is_all_defaults),
+        cmocka_unit_test(test_element_kinds), cmocka_unit_test(test_empty_scene_is_all_defaults),
         cmocka_unit_test(test_asset_resolution),
         cmocka_unit_test(test_bad_files),
         cmocka_unit_test(test_bad_input_messages),
