@@ -260,3 +260,18 @@ DrStatus dr_stage_load_collider_mesh(const DrElement *e, DrTriMesh *mesh, DrErro
     return dr_stage_load_posed_mesh(e, dr_component_str(dr_element_component(e, "Mesh"), "file"), "Mesh.file", mesh,
                                     err);
 }
+
+DrStatus dr_stage_motion_keys(const DrElement *e, int first_frame, double fps, double **keys, int *nkeys, DrError *err)
+{
+    const double *rows = NULL;
+    int n = dr_component_table(dr_element_component(e, "Motion"), "keys", &rows);
+    *nkeys = 0;
+    DR_TRY(dr_calloc((size_t)n * 7 + 7, sizeof(double), keys, err));
+    for (int k = 0; k < n; k++) {
+        (*keys)[7 * k] = (rows[7 * k] - first_frame + 1) / fps;
+        for (int j = 1; j < 4; j++) (*keys)[7 * k + j] = rows[7 * k + j];
+        for (int j = 4; j < 7; j++) (*keys)[7 * k + j] = rows[7 * k + j] * DR_PI / 180.0;
+    }
+    *nkeys = n;
+    return DR_OK;
+}

@@ -53,5 +53,11 @@ DrXform dr_stage_element_transform(const DrElement *e, double *scale);
 /* Loads the mesh file `path` (referenced by element e's `field`, which errors name) and applies e's Transform. */
 DR_NODISCARD DrStatus dr_stage_load_posed_mesh(const DrElement *e, const char *path, const char *field,
                                                DrTriMesh *mesh, DrError *err);
+/* Element e's Motion keys as the solvers take them: rows of 7 (t in s, translation in m, XYZ Euler angles in rad),
+ * the scene's frame numbers turned into times on the shot's clock (frame first_frame − 1 is t = 0; fractional
+ * frames keep their exact time). *keys is allocated (at least one row, so never NULL on success; free it) and
+ * *nkeys is 0 when e has no Motion. */
+DR_NODISCARD DrStatus dr_stage_motion_keys(const DrElement *e, int first_frame, double fps, double **keys, int *nkeys,
+                                           DrError *err);
 
 #endif

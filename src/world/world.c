@@ -108,17 +108,9 @@ static DrStatus build_colliders(DrWorld *w, DrError *err)
             continue;
         }
         const DrComponent *c = dr_element_component(e, "Collider");
-        const DrComponent *m = dr_element_component(e, "Motion");
-        const double *rows = NULL;
-        int nrows = dr_component_table(m, "keys", &rows);
         double *keys = NULL;
-        DrStatus s = dr_calloc((size_t)nrows * 7 + 1, sizeof(double), &keys, err);
-        for (int k = 0; s == DR_OK && k < nrows; k++) {
-            /* fractional frames are allowed in keys: keep the exact time */
-            keys[7 * k] = (rows[7 * k] - w->first_frame + 1) / w->fps;
-            for (int j = 1; j < 4; j++) keys[7 * k + j] = rows[7 * k + j];
-            for (int j = 4; j < 7; j++) keys[7 * k + j] = rows[7 * k + j] * DR_PI / 180.0;
-        }
+        int nrows = 0;
+        DrStatus s = dr_stage_motion_keys(e, w->first_frame, w->fps, &keys, &nrows, err);
         if (s == DR_OK)
             s = dr_world_make_collider_(&mesh, dx, dr_component_num(c, "friction"),
                                         strcmp(dr_component_str(c, "boundary"), "no_slip") == 0,
