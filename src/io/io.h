@@ -135,6 +135,15 @@ DR_NODISCARD DrStatus dr_h5_write_u64(DrH5 *h, const char *path, int rank, const
 DR_NODISCARD DrStatus dr_h5_write_i32(DrH5 *h, const char *path, int rank, const uint64_t *dims,
                                       const int32_t *data, const char *units, bool compress, DrError *err);
 
+/* One value (dims {1}) or one vector (dims {3}) at <group>/<name>, with its units: the diagnostics of caches. */
+DR_NODISCARD DrStatus dr_h5_write_scalar(DrH5 *h, const char *group, const char *name, double v, const char *units,
+                                         DrError *err);
+DR_NODISCARD DrStatus dr_h5_write_vec3(DrH5 *h, const char *group, const char *name, DrVec3 v, const char *units,
+                                       DrError *err);
+/* A particle set (DESIGN §4): /<name>/position (n×3, m), velocity (n×3, m/s) and affine (n×3×3, 1/s). */
+DR_NODISCARD DrStatus dr_h5_write_particles(DrH5 *h, const char *name, long n, const double *x, const double *v,
+                                            const double *affine, bool compress, DrError *err);
+
 /* What compress = true means for the datasets written to a write handle after the call. */
 typedef enum DrH5Compress {
     DR_H5_COMPRESS_ALL,      /* [default] chunked, shuffle + deflate level 1 (caches written once, read often) */

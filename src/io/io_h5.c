@@ -880,3 +880,47 @@ DrStatus dr_h5_list(DrH5 *h, const char *group, char ***names, int *count, DrErr
     *count = c.count;
     return DR_OK;
 }
+
+/* ---- composite writers ------------------------------------------------------------------------------------ */
+
+static DrStatus join_path(char *buf, size_t size, const char *a, const char *b, DrError *err)
+{
+    int n = snprintf(buf, size, "%s/%s", a, b);
+    if (n < 0 || (size_t)n >= size)
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "dataset path '%s/%s' is longer than %zu characters", a, b,
+                            size - 1);
+    return DR_OK;
+}
+
+DrStatus dr_h5_write_scalar(DrH5 *h, const char *group, const char *name, double v, const char *units, DrError *err)
+{
+    char path[512];
+    DR_TRY(join_path(path, sizeof path, group, name, err));
+    uint64_t dims[1] = {1};
+    return dr_h5_write_f64(h, path, 1, dims, &v, units, false, err);
+}
+
+DrStatus dr_h5_write_vec3(DrH5 *h, const char *group, const char *name, DrVec3 v, const char *units, DrError *err)
+{
+    char path[512];
+    DR_TRY(join_path(path, sizeof path, group, name, err));
+    uint64_t dims[1] = {3};
+    double a[3] = {v.x, v.y, v.z};
+    return dr_h5_write_f64(h, path, 1, dims, a, units, false, err);
+}
+
+DrStatus dr_h5_write_particles(DrH5 *h, const char *name, long n, const double *x, const double *v,
+                               const double *affine, bool compress, DrError *err)
+{
+    char group[512], path[512];
+    int k = snprintf(group, sizeof group, "/%s", name);
+    if (k < 0 || (size_t)k >= sizeof group)
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "group name '%s' is too long", name);
+    uint64_t d2[2] = {(uint64_t)n, 3}, d3[3] = {(uint64_t)n, 3, 3};
+    DR_TRY(join_path(path, sizeof path, group, "position", err));
+    DR_TRY(dr_h5_write_f64(h, path, 2, d2, x, "m", compress, err));
+    DR_TRY(join_path(path, sizeof path, group, "velocity", err));
+    DR_TRY(dr_h5_write_f64(h, path, 2, d2, v, "m/s", compress, err));
+    DR_TRY(join_path(path, sizeof path, group, "affine", err));
+    return dr_h5_write_f64(h, path, 3, d3, affine, "1/s", compress, err);
+}

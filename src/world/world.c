@@ -560,19 +560,12 @@ DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrError *err)
 
 DrStatus dr_world_write_scalar_(DrH5 *h, const char *group, const char *name, double v, const char *units, DrError *err)
 {
-    char path[512];
-    PATHF(path, "%s/%s", group, name);
-    uint64_t dims[1] = {1};
-    return dr_h5_write_f64(h, path, 1, dims, &v, units, false, err);
+    return dr_h5_write_scalar(h, group, name, v, units, err);
 }
 
 DrStatus dr_world_write_vec_(DrH5 *h, const char *group, const char *name, DrVec3 v, const char *units, DrError *err)
 {
-    char path[512];
-    PATHF(path, "%s/%s", group, name);
-    uint64_t dims[1] = {3};
-    double a[3] = {v.x, v.y, v.z};
-    return dr_h5_write_f64(h, path, 1, dims, a, units, false, err);
+    return dr_h5_write_vec3(h, group, name, v, units, err);
 }
 
 static DrStatus write_liquid_arrays(DrH5 *h, const WorldLiquid *wl, bool compress, DrError *err)
@@ -584,15 +577,7 @@ static DrStatus write_liquid_arrays(DrH5 *h, const WorldLiquid *wl, bool compres
 DrStatus dr_world_write_particles_(DrH5 *h, const char *name, long n, const double *x, const double *v,
                                    const double *affine, bool compress, DrError *err)
 {
-    char path[512];
-    uint64_t d2[2] = {(uint64_t)n, 3}, d3[3] = {(uint64_t)n, 3, 3};
-    PATHF(path, "/%s/position", name);
-    DR_TRY(dr_h5_write_f64(h, path, 2, d2, x, "m", compress, err));
-    PATHF(path, "/%s/velocity", name);
-    DR_TRY(dr_h5_write_f64(h, path, 2, d2, v, "m/s", compress, err));
-    PATHF(path, "/%s/affine", name);
-    DR_TRY(dr_h5_write_f64(h, path, 3, d3, affine, "1/s", compress, err));
-    return DR_OK;
+    return dr_h5_write_particles(h, name, n, x, v, affine, compress, err);
 }
 
 static DrStatus write_frame_body(const DrWorld *w, const DrFrameStats *stats, DrH5 *h, const char *bake_key,
