@@ -1,0 +1,67 @@
+/* Contact between solids: one shape vocabulary and one deterministic broad phase that every solid uses.
+ *
+ * Shapes. A DrShape names what a solid offers to contact: a posed signed distance field (a collider), a triangle
+ * set (a deformed surface), a segment set (hair strands) or a point set (particles), each with a thickness (the
+ * distance at which contact begins, m) and group/mask bits: two shapes meet when each one's group bits meet the
+ * other's mask. Geometry is borrowed (plain SI arrays the owning solver keeps), so a shape costs nothing to pose
+ * again: the owner updates its arrays and the broad phase reads them.
+ *
+ * Broad phase. Axis-aligned boxes (one per element of a shape, already inflated by whatever reach the caller's
+ * narrow phase needs) are binned on a uniform grid of cubic cells; a pair of boxes is a candidate when the boxes
+ * overlap (closed intervals), reported once, in the cell holding the low corner of the boxes' overlap. Pairs come
+ * out in a fixed order that depends on the boxes alone: cells in increasing (x, y, z) cell index, and within a
+ * cell the pairs (i, j), i < j, in increasing box order, i before j. Nothing depends on the thread count, on the
+ * address of anything or on a hash function. A cell at least as large as the largest box keeps each box in at
+ * most 2 cells per axis.
+ *
+ * Memory: a DrBroadPhase keeps its buffers between queries, growing them geometrically: once it has seen its
+ * largest query, a query allocates nothing (dr_alloc_count does not move).
+ * Thread safety: one DrBroadPhase per thread; queries on different objects may run concurrently. */
+#ifndef DR_CONTACT_H
+#define DR_CONTACT_H
+
+#include "core/core.h"
+#include "grid/grid.h"
+
+typedef enum DrShapeKind {
+    DR_SHAPE_SDF,       /* a posed collider: collider + frame */
+    DR_SHAPE_TRIANGLES, /* x (3 per vertex) and elements (3 vertex indices per triangle) */
+    DR_SHAPE_SEGMENTS,  /* x and elements (2 vertex indices per segment) */
+    DR_SHAPE_POINTS,    /* x only */
+} DrShapeKind;
+
+typedef struct DrShape {
+    DrShapeKind kind;
+    int owner;                 /* the solver's own index of the object (body, strand batch, collider) */
+    uint32_t group, mask;      /* meets another shape when (group & other.mask) && (other.group & mask) */
+    double thickness;          /* m, ≥ 0 */
+    const double *x;           /* 3·nverts, m (not for DR_SHAPE_SDF) */
+    int nverts;
+    const int *elements;       /* 3 or 2 per element (triangles, segments); NULL for points */
+    int nelements;             /* elements, or points for DR_SHAPE_POINTS */
+    const DrCollider *collider; /* DR_SHAPE_SDF: the field, posed by frame */
+    DrColliderFrame frame;
+} DrShape;
+
+/* Whether shapes a and b may touch by their group and mask bits. */
+bool dr_shape_pair_allowed(const DrShape *a, const DrShape *b);
+/* The box of element k of a triangle, segment or point shape, inflated by `pad` on every side. */
+void dr_shape_element_box(const DrShape *s, int k, double pad, DrVec3 *lo, DrVec3 *hi);
+
+typedef struct DrBroadPair { int a, b; } DrBroadPair; /* box indices, a < b */
+
+typedef struct DrBroadPhase DrBroadPhase;
+DR_NODISCARD DrStatus dr_broad_phase_create(DrBroadPhase **out, DrError *err);
+void dr_broad_phase_destroy(DrBroadPhase **bp);
+/* Forgets the boxes (keeps the memory). */
+void dr_broad_phase_clear(DrBroadPhase *bp);
+/* Adds a box (lo ≤ hi componentwise, finite); its index is the number of boxes added before it. */
+DR_NODISCARD DrStatus dr_broad_phase_add(DrBroadPhase *bp, DrVec3 lo, DrVec3 hi, DrError *err);
+int dr_broad_phase_count(const DrBroadPhase *bp);
+/* The candidate pairs of the boxes added since the last clear, on cells of edge `cell` (m, > 0), in the order the
+ * header describes; *pairs stays valid until the next query, clear or destroy. DR_ERR_INPUT when a box is not
+ * finite or lies more than 2^30 cells from the origin (a cell far too small for the scene: say which). */
+DR_NODISCARD DrStatus dr_broad_phase_pairs(DrBroadPhase *bp, double cell, const DrBroadPair **pairs, long *npairs,
+                                           DrError *err);
+
+#endif

@@ -1,0 +1,177 @@
+/* The contact module: the broad phase finds exactly the overlapping box pairs (against all pairs tested directly),
+ * once each, in its stated order, allocating nothing once warm; bad boxes are refused; group/mask bits. */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "contact/contact.h"
+
+static bool overlap(const double *p, const double *q)
+{
+    for (int c = 0; c < 3; c++)
+        if (p[c] > q[3 + c] || q[c] > p[3 + c]) return false;
+    return true;
+}
+
+/* n random boxes of edge up to `size` in a cube of edge `extent`, some touching exactly (shared faces). */
+static void random_boxes(DrRng *rng, int n, double extent, double size, double *box)
+{
+    for (int i = 0; i < n; i++) {
+        for (int a = 0; a < 3; a++) {
+            double lo = dr_rng_uniform(rng) * extent - 0.5 * extent;
+            box[6 * i + a] = lo;
+            box[6 * i + 3 + a] = lo + dr_rng_uniform(rng) * size;
+        }
+        if (i > 0 && i % 7 == 0) { /* moved to touch the previous box's high x face */
+            double shift = box[6 * (i - 1) + 3] - box[6 * i];
+            box[6 * i] += shift;
+            box[6 * i + 3] += shift;
+        }
+    }
+}
+
+static void check_against_all_pairs(int n, double extent, double size, double cell, uint64_t seed)
+{
+    DrRng rng;
+    dr_rng_seed(&rng, seed);
+    double *box = malloc(6 * sizeof(double) * (size_t)n);
+    random_boxes(&rng, n, extent, size, box);
+    DrBroadPhase *bp = NULL;
+    DrError err;
+    assert_int_equal(dr_broad_phase_create(&bp, &err), DR_OK);
+    for (int i = 0; i < n; i++)
+        assert_int_equal(dr_broad_phase_add(bp, dr_v3(box[6 * i], box[6 * i + 1], box[6 * i + 2]),
+                                            dr_v3(box[6 * i + 3], box[6 * i + 4], box[6 * i + 5]), &err),
+                         DR_OK);
+    assert_int_equal(dr_broad_phase_count(bp), n);
+    const DrBroadPair *pairs = NULL;
+    long np = 0;
+    assert_int_equal(dr_broad_phase_pairs(bp, cell, &pairs, &np, &err), DR_OK);
+    /* every reported pair overlaps, is ordered a < b, and appears once */
+    char *seen = calloc((size_t)n * (size_t)n, 1);
+    for (long k = 0; k < np; k++) {
+        int a = pairs[k].a, b = pairs[k].b;
+        assert_true(a < b);
+        assert_true(overlap(box + 6 * a, box + 6 * b));
+        assert_int_equal(seen[(size_t)a * n + b], 0);
+        seen[(size_t)a * n + b] = 1;
+    }
+    /* every overlapping pair is reported */
+    long expected = 0;
+    for (int a = 0; a < n; a++)
+        for (int b = a + 1; b < n; b++)
+            if (overlap(box + 6 * a, box + 6 * b)) {
+                expected++;
+                assert_int_equal(seen[(size_t)a * n + b], 1);
+            }
+    assert_int_equal(np, expected);
+    /* the same boxes again: the same pairs in the same order, and no allocation */
+    DrBroadPair *first = malloc(sizeof *first * (size_t)(np + 1));
+    memcpy(first, pairs, sizeof *first * (size_t)np);
+    dr_broad_phase_clear(bp);
+    for (int i = 0; i < n; i++)
+        assert_int_equal(dr_broad_phase_add(bp, dr_v3(box[6 * i], box[6 * i + 1], box[6 * i + 2]),
+                                            dr_v3(box[6 * i + 3], box[6 * i + 4], box[6 * i + 5]), &err),
+                         DR_OK);
+    uint64_t before = dr_alloc_count();
+    assert_int_equal(dr_broad_phase_pairs(bp, cell, &pairs, &np, &err), DR_OK);
+    assert_true(dr_alloc_count() == before);
+    assert_int_equal(np, expected);
+    assert_memory_equal(first, pairs, sizeof *first * (size_t)np);
+    free(first);
+    free(seen);
+    free(box);
+    dr_broad_phase_destroy(&bp);
+}
+
+static void test_pairs_equal_all_pairs_tested(void **state)
+{
+    (void)state;
+    check_against_all_pairs(400, 1.0, 0.08, 0.1, 1);   /* cell larger than every box */
+    check_against_all_pairs(400, 1.0, 0.3, 0.05, 2);   /* boxes spanning many cells */
+    check_against_all_pairs(200, 0.1, 0.1, 1.0, 3);    /* everything in one cell */
+    check_against_all_pairs(1, 1.0, 0.1, 0.1, 4);      /* one box: no pair */
+}
+
+/* The order: cells by increasing (x, y, z), pairs within a cell by increasing box index. Two boxes in cell
+   (1, 0, 0) come after two in cell (0, 5, 0), although their indices are smaller. */
+static void test_pair_order(void **state)
+{
+    (void)state;
+    DrBroadPhase *bp = NULL;
+    DrError err;
+    assert_int_equal(dr_broad_phase_create(&bp, &err), DR_OK);
+    assert_int_equal(dr_broad_phase_add(bp, dr_v3(1.1, 0.1, 0.1), dr_v3(1.2, 0.2, 0.2), &err), DR_OK); /* 0 */
+    assert_int_equal(dr_broad_phase_add(bp, dr_v3(1.15, 0.1, 0.1), dr_v3(1.3, 0.2, 0.2), &err), DR_OK); /* 1 */
+    assert_int_equal(dr_broad_phase_add(bp, dr_v3(0.1, 5.1, 0.1), dr_v3(0.2, 5.2, 0.2), &err), DR_OK); /* 2 */
+    assert_int_equal(dr_broad_phase_add(bp, dr_v3(0.1, 5.1, 0.1), dr_v3(0.2, 5.2, 0.2), &err), DR_OK); /* 3 */
+    assert_int_equal(dr_broad_phase_add(bp, dr_v3(9, 9, 9), dr_v3(9.1, 9.1, 9.1), &err), DR_OK);       /* 4: alone */
+    const DrBroadPair *p = NULL;
+    long n = 0;
+    assert_int_equal(dr_broad_phase_pairs(bp, 1.0, &p, &n, &err), DR_OK);
+    assert_int_equal(n, 2);
+    assert_int_equal(p[0].a, 2);
+    assert_int_equal(p[0].b, 3);
+    assert_int_equal(p[1].a, 0);
+    assert_int_equal(p[1].b, 1);
+    dr_broad_phase_destroy(&bp);
+}
+
+static void test_bad_boxes_and_cells(void **state)
+{
+    (void)state;
+    DrBroadPhase *bp = NULL;
+    DrError err;
+    const DrBroadPair *p = NULL;
+    long n = 0;
+    assert_int_equal(dr_broad_phase_create(&bp, &err), DR_OK);
+    assert_int_equal(dr_broad_phase_add(bp, dr_v3(0, 0, 0), dr_v3(1, 1, 1), &err), DR_OK);
+    assert_int_equal(dr_broad_phase_pairs(bp, 0.0, &p, &n, &err), DR_ERR_INPUT);
+    assert_non_null(strstr(err.message, "cell size"));
+    assert_int_equal(dr_broad_phase_pairs(bp, 1e-12, &p, &n, &err), DR_ERR_INPUT); /* 1e12 cells: refused */
+    assert_non_null(strstr(err.message, "2^30 cells"));
+    dr_broad_phase_clear(bp);
+    assert_int_equal(dr_broad_phase_add(bp, dr_v3(0, NAN, 0), dr_v3(1, 1, 1), &err), DR_OK);
+    assert_int_equal(dr_broad_phase_pairs(bp, 1.0, &p, &n, &err), DR_ERR_INPUT);
+    assert_non_null(strstr(err.message, "box 0"));
+    dr_broad_phase_destroy(&bp);
+}
+
+static void test_shape_bits_and_boxes(void **state)
+{
+    (void)state;
+    DrShape hair = {.kind = DR_SHAPE_SEGMENTS, .group = 1u, .mask = ~0u};
+    DrShape body = {.kind = DR_SHAPE_TRIANGLES, .group = 2u, .mask = ~0u};
+    DrShape shy = {.kind = DR_SHAPE_POINTS, .group = 4u, .mask = 4u}; /* meets only its own group */
+    assert_true(dr_shape_pair_allowed(&hair, &body));
+    assert_false(dr_shape_pair_allowed(&hair, &shy));
+    assert_false(dr_shape_pair_allowed(&shy, &body));
+    assert_true(dr_shape_pair_allowed(&shy, &shy));
+    const double x[] = {0, 0, 0, 1, 2, 3, -1, 0.5, 0};
+    const int tri[] = {0, 1, 2}, seg[] = {2, 1};
+    DrShape t = {.kind = DR_SHAPE_TRIANGLES, .x = x, .nverts = 3, .elements = tri, .nelements = 1};
+    DrShape s = {.kind = DR_SHAPE_SEGMENTS, .x = x, .nverts = 3, .elements = seg, .nelements = 1};
+    DrShape pt = {.kind = DR_SHAPE_POINTS, .x = x, .nverts = 3, .nelements = 3};
+    DrVec3 lo, hi;
+    dr_shape_element_box(&t, 0, 0.5, &lo, &hi);
+    assert_true(lo.x == -1.5 && lo.y == -0.5 && lo.z == -0.5 && hi.x == 1.5 && hi.y == 2.5 && hi.z == 3.5);
+    dr_shape_element_box(&s, 0, 0.0, &lo, &hi);
+    assert_true(lo.x == -1 && lo.y == 0.5 && lo.z == 0 && hi.x == 1 && hi.y == 2 && hi.z == 3);
+    dr_shape_element_box(&pt, 1, 0.0, &lo, &hi);
+    assert_true(lo.x == 1 && hi.x == 1 && lo.z == 3 && hi.z == 3);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_pairs_equal_all_pairs_tested),
+        cmocka_unit_test(test_pair_order),
+        cmocka_unit_test(test_bad_boxes_and_cells),
+        cmocka_unit_test(test_shape_bits_and_boxes),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
