@@ -3,7 +3,8 @@
  * the step before it was split (recorded hashes); a solve leaves nothing the next solve reads; the stable step
  * is §4.3's formula with gravity; an external force changes the momentum by exactly F·h, also when Newton and
  * CG stop early; an implicit drag decays a translation as backward Euler does at any stiffness; bad forces are
- * rejected. */
+ * rejected; and, through the world, a moving collider far from the bodies leaves their substeps and state as
+ * they are without it. The world scenes live in tests/data/; run from the repository root. */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -14,6 +15,10 @@
 #include <cmocka.h>
 
 #include "mpm/mpm.h"
+#include "scene/scene.h"
+#include "world/world.h"
+
+#define DATA "tests/data/"
 
 /* ---- scenes ---------------------------------------------------------------------------------------- */
 
@@ -484,6 +489,44 @@ static void test_solve_rejects_bad_forces(void **state)
     }
 }
 
+/* Through the world: the same falling body with and without a keyframed collider 1.3 m away (which sends
+   the world down its path that poses colliders at every substep) takes the same substeps in every frame
+   and ends in the same state. Gravity sets the substeps here: at rest the CFL alone allows any step. */
+static void run_world(const char *path, int frames, int *substeps, DrHash *hash)
+{
+    DrScene *scene = NULL;
+    DrError err;
+    if (dr_scene_load(path, &scene, &err) < 0) fail_msg("%s: %s", path, err.message);
+    DrWorld *w = NULL;
+    if (dr_world_create(scene, &w, &err) < 0) fail_msg("%s: %s", path, err.message);
+    for (int f = 0; f < frames; f++) {
+        DrFrameStats fs;
+        if (dr_world_step_frame(w, &fs, &err) < 0) fail_msg("%s frame %d: %s", path, f + 1, err.message);
+        substeps[f] = fs.mpm_substeps;
+    }
+    *hash = dr_world_state_hash(w);
+    dr_world_destroy(&w);
+    dr_scene_destroy(&scene);
+}
+
+static void test_world_far_moving_collider_keeps_the_clock(void **state)
+{
+    (void)state;
+    enum { FRAMES = 4 };
+    int a[FRAMES], b[FRAMES];
+    DrHash ha, hb;
+    run_world(DATA "mpm_fall.json", FRAMES, a, &ha);
+    run_world(DATA "mpm_fall_far_collider.json", FRAMES, b, &hb);
+    int total = 0;
+    for (int f = 0; f < FRAMES; f++) {
+        printf("frame %d: %d substeps without the collider, %d with it\n", f + 1, a[f], b[f]);
+        assert_int_equal(a[f], b[f]);
+        total += a[f];
+    }
+    assert_true(total > FRAMES); /* the limit is met: some frame takes more than one substep */
+    assert_true(ha.hi == hb.hi && ha.lo == hb.lo);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -495,6 +538,7 @@ int main(void)
         cmocka_unit_test(test_momentum_ledger),
         cmocka_unit_test(test_implicit_drag),
         cmocka_unit_test(test_solve_rejects_bad_forces),
+        cmocka_unit_test(test_world_far_moving_collider_keeps_the_clock),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
