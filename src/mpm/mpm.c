@@ -35,6 +35,13 @@
  * (one-sided, possibly moving) act as in mpm.h: on v after P2G and on ṽ after the solve.
  * FLIP sees the projection of v as part of the grid change: its particles get Σ w (Π v − v) too.
  *
+ * Phases (mpm.h): dr_mpm_predict is 1–2 of the step, dr_mpm_solve 3 and dr_mpm_commit 4. A solve reads only
+ * what the prediction wrote: it releases contacts in con, which the next solve copies from con0 again, and
+ * it overwrites every scratch vector before reading it. External point forces enter the grid update like
+ * gravity, as a force with the potential −Σ_i f_i·u_i, or, with a velocity derivative D, through the
+ * energy of `external` and the operator term −Δt M⁻¹ Wᵀ D W of A₂. Newton then starts from their impulse
+ * Δt M⁻¹ f, so its corrections carry no momentum and the ledger holds however early CG or Newton stop.
+ *
  * Determinism: per-particle loops run through dr_parallel_for and write disjoint entries; every sum over
  * particles or nodes is sequential in index order (the solve's vectors hold 3 entries per active node,
  * small next to the particle work), and the transfer functions are thread-count independent. */
@@ -65,6 +72,9 @@ struct DrMpm {
     /* per-particle scratch */
     double *G, *Fu, *Q, *dG, *dM, *px, *pf, *bx, *bv, *bC, *bF;
     double *psi;
+    double *pvol;       /* samples: current volume V₀ det F^n (n) */
+    double *sv;         /* samples: solved grid velocity at the particles (3n) */
+    double *xf, *xs;    /* external force per particle and solved velocity offset ṽ_p − v_p (3n each) */
     /* bodies */
     int nbodies;
     long *body_start;
@@ -74,15 +84,24 @@ struct DrMpm {
     DrMpmCollider *cols;
     /* grid scratch (3·nnodes) */
     double *vn, *v0, *vnew, *uf, *ff, *tf;
+    double *fe, *fv;    /* external force on the nodes; node velocities v0 + Δv for the drag gather */
     unsigned char *fix; /* per node: bit a set = component a fixed by a wall */
     unsigned char *con; /* per node, this step: CON_NONE, CON_NORMAL (cnrm) or CON_FULL, from colliders */
+    unsigned char *con0; /* con as the prediction recorded it (a solve releases contacts in con only) */
     double *cnrm;       /* per node (3): contact normal, orthogonal to the wall-fixed axes, unit length */
     double *cinfo;      /* per node (4): friction coefficient and velocity of the collider in contact */
     /* compact solve vectors, 3 per active node */
     long *act;
     long nact;
     double *mact, *dv, *res, *del, *tmp, *cgw;
+    /* the open step (dr_mpm_predict … dr_mpm_commit) */
+    int phase;          /* PHASE_NONE, PHASE_PREDICTED or PHASE_SOLVED */
+    double h;           /* its step, s */
+    bool projected;     /* the wall and collider projection changed the P2G velocity */
+    bool sv_valid;      /* sv holds the last solve's velocities */
 };
+
+enum { PHASE_NONE = 0, PHASE_PREDICTED = 1, PHASE_SOLVED = 2 };
 
 static const char *integrator_name(DrMpmIntegrator i)
 {
@@ -172,13 +191,14 @@ DrStatus dr_mpm_create(const DrMpmDesc *desc, DrMpm **out, DrError *err)
     if (s == DR_OK) s = dr_node_bins_create(m->grid, 1024, &m->bins, err);
     m->bins_cap = 1024;
     long nn = m->grid ? m->grid->nnodes : 0;
-    double **grid_arrays[] = {&m->vn, &m->v0, &m->vnew, &m->uf, &m->ff, &m->tf,
+    double **grid_arrays[] = {&m->vn, &m->v0, &m->vnew, &m->uf, &m->ff, &m->tf, &m->fe, &m->fv,
                               &m->mact, &m->dv, &m->res, &m->del, &m->tmp};
     for (size_t k = 0; s == DR_OK && k < sizeof grid_arrays / sizeof *grid_arrays; k++)
         s = dr_calloc(3 * (size_t)nn, sizeof(double), grid_arrays[k], err);
     if (s == DR_OK) s = dr_calloc(12 * (size_t)nn, sizeof(double), &m->cgw, err);
     if (s == DR_OK) s = dr_calloc((size_t)nn, sizeof(unsigned char), &m->fix, err);
     if (s == DR_OK) s = dr_calloc((size_t)nn, sizeof(unsigned char), &m->con, err);
+    if (s == DR_OK) s = dr_calloc((size_t)nn, sizeof(unsigned char), &m->con0, err);
     if (s == DR_OK) s = dr_calloc(3 * (size_t)nn, sizeof(double), &m->cnrm, err);
     if (s == DR_OK) s = dr_calloc(4 * (size_t)nn, sizeof(double), &m->cinfo, err);
     if (s == DR_OK) s = dr_calloc((size_t)nn, sizeof(long), &m->act, err);
@@ -212,8 +232,9 @@ void dr_mpm_destroy(DrMpm **mpm)
     dr_node_grid_destroy(&m->grid);
     void *arrays[] = {m->x, m->v, m->C, m->F, m->mass, m->vol0, m->mu, m->lam, m->ak, m->at, m->model, m->body,
                       m->G, m->Fu, m->Q, m->dG, m->dM, m->px, m->pf, m->bx, m->bv, m->bC, m->bF, m->psi,
-                      m->body_start, m->mats, m->cols, m->vn, m->v0, m->vnew, m->uf, m->ff, m->tf, m->fix,
-                      m->con, m->cnrm, m->cinfo, m->act, m->mact, m->dv, m->res, m->del, m->tmp, m->cgw};
+                      m->pvol, m->sv, m->xf, m->xs, m->body_start, m->mats, m->cols, m->vn, m->v0, m->vnew,
+                      m->uf, m->ff, m->tf, m->fe, m->fv, m->fix, m->con, m->con0, m->cnrm, m->cinfo, m->act,
+                      m->mact, m->dv, m->res, m->del, m->tmp, m->cgw};
     for (size_t k = 0; k < sizeof arrays / sizeof *arrays; k++) free(arrays[k]);
     free(m);
     *mpm = NULL;
@@ -233,6 +254,8 @@ static DrStatus reserve(DrMpm *m, long need, DrError *err)
         {&m->dG, 9 * sizeof(double)}, {&m->dM, 9 * sizeof(double)}, {&m->px, 3 * sizeof(double)},
         {&m->pf, 3 * sizeof(double)}, {&m->bx, 3 * sizeof(double)}, {&m->bv, 3 * sizeof(double)},
         {&m->bC, 9 * sizeof(double)}, {&m->bF, 9 * sizeof(double)}, {&m->psi, sizeof(double)},
+        {&m->pvol, sizeof(double)},   {&m->sv, 3 * sizeof(double)}, {&m->xf, 3 * sizeof(double)},
+        {&m->xs, 3 * sizeof(double)},
     };
     for (size_t k = 0; k < sizeof arr / sizeof *arr; k++) DR_TRY(dr_realloc((size_t)cap, arr[k].per, arr[k].p, err));
     /* anchors of particles added later are "none" */
@@ -266,6 +289,7 @@ DrStatus dr_mpm_add_particles(DrMpm *mpm, long n, const double *x, const double 
 {
     assert(mpm && mat);
     DrMpm *m = mpm;
+    m->phase = PHASE_NONE;
     if (n < 0 || (n > 0 && (!x || !v || !vol)))
         return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "mpm: %ld particles with missing arrays", n);
     if (mat->model != DR_MPM_NEOHOOKEAN && mat->model != DR_MPM_FIXED_COROTATED)
@@ -394,6 +418,7 @@ DrStatus dr_mpm_set_anchors(DrMpm *mpm, const double *k, const double *target, D
 {
     assert(mpm);
     DrMpm *m = mpm;
+    m->phase = PHASE_NONE;
     if (m->n > 0 && (!k || !target))
         return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "mpm: set_anchors needs k and target arrays");
     for (long p = 0; p < m->n; p++) {
@@ -417,6 +442,7 @@ DrStatus dr_mpm_set_anchors(DrMpm *mpm, const double *k, const double *target, D
 DrStatus dr_mpm_add_collider(DrMpm *mpm, const DrMpmCollider *c, DrError *err)
 {
     assert(mpm && c);
+    mpm->phase = PHASE_NONE;
     if (!c->sdf || !dr_v3_isfinite(c->velocity) || !(c->friction >= 0.0) || !isfinite(c->friction))
         return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
                             "mpm: a collider needs an sdf, a finite velocity and friction >= 0");
@@ -435,6 +461,7 @@ DrStatus dr_mpm_restore(DrMpm *mpm, long n, const double *x, const double *v, co
                         DrError *err)
 {
     assert(mpm);
+    mpm->phase = PHASE_NONE;
     if (n != mpm->n)
         return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "mpm: restore of %ld particles into a solver holding %ld",
                             n, mpm->n);
@@ -747,7 +774,50 @@ typedef struct Solve {
     double dt, alpha, beta, c, q;
     DrStatus status;
     DrError *err;
+    const double *force; /* external point forces at the particles (3n) or NULL */
+    const double *dfdv;  /* their velocity derivative D_p (9n) or NULL; only with force */
 } Solve;
+
+static void m3vec(const double *A, const double *x, double *y)
+{
+    for (int r = 0; r < 3; r++) y[r] = A[3 * r] * x[0] + A[3 * r + 1] * x[1] + A[3 * r + 2] * x[2];
+}
+
+/* The external force on the nodes at Δv, into fe, and its part of E. A constant force (no D) was spread
+   once by the solve (fe = Σ_p w_ip F_p) and is a potential like gravity's: −Σ_i fe_i·u_i. With D the
+   force at the particles is F_p + D_p s_p, s_p = ṽ_p − v_p the solved velocity offset at the particle
+   (ṽ_p = Σ_i w_ip (v0_i + Δv_i)); its potential in Δv is −β Σ_p (F_p·s_p + ½ s_p·D_p s_p) (∂/∂Δv gives
+   −β times the spread force, as ∂Φ/∂Δv = −β f; D symmetric). */
+static double external(Solve *s, const double *dv)
+{
+    DrMpm *m = s->m;
+    DrNodeGrid *g = m->grid;
+    double E = 0.0;
+    if (!s->dfdv) {
+        for (long k = 0; k < m->nact; k++) {
+            const double *u = m->uf + 3 * m->act[k], *f = m->fe + 3 * m->act[k];
+            E -= f[0] * u[0] + f[1] * u[1] + f[2] * u[2];
+        }
+        return E;
+    }
+    for (long k = 0; k < m->nact; k++) {
+        long i = m->act[k];
+        for (int a = 0; a < 3; a++) m->fv[3 * i + a] = m->v0[3 * i + a] + dv[3 * k + a];
+    }
+    dr_node_gather_vector(g, m->fv, m->n, m->x, m->xs);
+    for (long p = 0; p < m->n; p++) {
+        double *sp = m->xs + 3 * p, *f = m->xf + 3 * p, Ds[3];
+        for (int a = 0; a < 3; a++) sp[a] -= m->v[3 * p + a];
+        m3vec(s->dfdv + 9 * p, sp, Ds);
+        const double *F = s->force + 3 * p;
+        for (int a = 0; a < 3; a++) {
+            f[a] = F[a] + Ds[a];
+            E += F[a] * sp[a] + 0.5 * sp[a] * Ds[a];
+        }
+    }
+    dr_node_scatter_vector(m->bins, m->x, m->xf, g, m->fe);
+    return -s->beta * E;
+}
 
 /* Fills uf (grid displacement α v0 + β Δv on active nodes), G, Fu, ψ, Q, dM and ff (force f(u)).
    Returns E(Δv) (+∞ where Ψ is undefined), and in *bad the first such particle. */
@@ -785,6 +855,7 @@ static double evaluate(Solve *s, const double *dv, bool with_force, long *bad)
         E += 0.5 * s->c * mi * (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
         E -= mi * (gr.x * u[0] + gr.y * u[1] + gr.z * u[2]);
     }
+    if (s->force) E += external(s, dv);
     if (with_force) {
         dr_node_scatter_gradient(m->bins, m->x, m->dM, g, m->ff);
         if (m->anchors) {
@@ -794,6 +865,9 @@ static double evaluate(Solve *s, const double *dv, bool with_force, long *bad)
             for (long k = 0; k < m->nact; k++)
                 for (int a = 0; a < 3; a++) m->ff[3 * m->act[k] + a] += m->tf[3 * m->act[k] + a];
         }
+        if (s->force)
+            for (long k = 0; k < m->nact; k++)
+                for (int a = 0; a < 3; a++) m->ff[3 * m->act[k] + a] += m->fe[3 * m->act[k] + a];
     }
     return E;
 }
@@ -812,7 +886,8 @@ static void residual(Solve *s, const double *dv, double *r)
     }
 }
 
-/* y = Π A₂ Π x = Π(x + βΔt M⁻¹ K Π x) */
+/* y = Π A₂ Π x = Π(x + βΔt M⁻¹ K Π x − Δt M⁻¹ Wᵀ D W Π x), the last term for an implicit external force
+   (W the weights, D per particle) */
 static void apply_a2(const double *x, double *y, void *ctx)
 {
     Solve *s = ctx;
@@ -836,22 +911,38 @@ static void apply_a2(const double *x, double *y, void *ctx)
         for (long k = 0; k < m->nact; k++)
             for (int a = 0; a < 3; a++) m->ff[3 * m->act[k] + a] += m->tf[3 * m->act[k] + a];
     }
+    if (s->dfdv) {
+        dr_node_gather_vector(g, m->uf, m->n, m->x, m->xs);
+        for (long p = 0; p < m->n; p++) m3vec(s->dfdv + 9 * p, m->xs + 3 * p, m->xf + 3 * p);
+        dr_node_scatter_vector(m->bins, m->x, m->xf, g, m->fe);
+    }
     double z = s->beta * s->dt;
     for (long k = 0; k < m->nact; k++) {
         long i = m->act[k];
         double mi = m->mact[3 * k];
         for (int a = 0; a < 3; a++) y[3 * k + a] += z * m->ff[3 * i + a] / mi;
+        if (s->dfdv)
+            for (int a = 0; a < 3; a++) y[3 * k + a] -= s->dt * m->fe[3 * i + a] / mi;
         project_fixed(m, i, y + 3 * k);
     }
 }
 
-/* Newton on E (§4.1) from Δv = 0; leaves Δv in m->dv. */
+/* Newton on E (§4.1) from Δv = 0, or with an external force from its impulse Δt M⁻¹ f (projected) so
+   that every later correction has zero momentum (§4.2); leaves Δv in m->dv. */
 static DrStatus newton(Solve *s, DrMpmStats *st)
 {
     DrMpm *m = s->m;
     const int n3 = (int)(3 * m->nact);
     double *dv = m->dv, *r = m->res, *del = m->del, *trial = m->tmp;
     memset(dv, 0, (size_t)n3 * sizeof(double));
+    if (s->force) {
+        if (s->dfdv) external(s, dv); /* the force at Δv = 0 */
+        for (long k = 0; k < m->nact; k++) {
+            long i = m->act[k];
+            for (int a = 0; a < 3; a++) dv[3 * k + a] = s->dt * m->fe[3 * i + a] / m->mact[3 * k];
+            project_fixed(m, i, dv + 3 * k);
+        }
+    }
     long bad = -1;
     double E = evaluate(s, dv, true, &bad);
     if (!isfinite(E)) {
@@ -1059,20 +1150,26 @@ static void restore_backup(DrMpm *m)
     memcpy(m->F, m->bF, 9 * (size_t)m->n * sizeof(double));
 }
 
-DrStatus dr_mpm_step(DrMpm *mpm, double dt, DrMpmStats *stats, DrError *err)
+static double det3(const double *A)
+{
+    return A[0] * (A[4] * A[8] - A[5] * A[7]) - A[1] * (A[3] * A[8] - A[5] * A[6]) + A[2] * (A[3] * A[7] - A[4] * A[6]);
+}
+
+DrStatus dr_mpm_predict(DrMpm *mpm, double h, DrError *err)
 {
     assert(mpm);
     DrMpm *m = mpm;
-    DrMpmStats local;
-    DrMpmStats *st = stats ? stats : &local;
-    memset(st, 0, sizeof *st);
-    st->substeps = 1;
-    if (!(dt > 0.0) || !isfinite(dt))
-        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "mpm: time step %g must be positive and finite", dt);
-    if (m->n == 0) return DR_OK;
+    m->phase = PHASE_NONE;
+    m->sv_valid = false;
+    if (!(h > 0.0) || !isfinite(h))
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "mpm: time step %g must be positive and finite", h);
+    m->h = h;
+    if (m->n == 0) {
+        m->phase = PHASE_PREDICTED;
+        return DR_OK;
+    }
     DrNodeGrid *g = m->grid;
     const long nn = g->nnodes;
-    double t0 = dr_time_now();
 
     /* 1. bin and P2G (eqs. 24–26) */
     DrError berr;
@@ -1100,13 +1197,40 @@ DrStatus dr_mpm_step(DrMpm *mpm, double dt, DrMpmStats *stats, DrError *err)
         if (m->ncol) collide_node(m, i, dr_node_position(g, i), u, true);
         projected = projected || u[0] != m->vn[3 * i] || u[1] != m->vn[3 * i + 1] || u[2] != m->vn[3 * i + 2];
     }
-    double t1 = dr_time_now();
-    st->seconds_transfer += t1 - t0;
+    m->projected = projected;
+    memcpy(m->con0, m->con, (size_t)nn);
+    for (long p = 0; p < m->n; p++) m->pvol[p] = m->vol0[p] * det3(m->F + 9 * p);
+    m->phase = PHASE_PREDICTED;
+    return DR_OK;
+}
 
-    /* 3. grid update */
-    Solve s = {m, dt, 0, 0, 0, 0, DR_OK, err};
+DrMpmSamples dr_mpm_samples(const DrMpm *mpm)
+{
+    assert(mpm && mpm->phase != PHASE_NONE);
+    const DrMpm *m = mpm;
+    DrMpmSamples s = {m->n, m->x, m->v, m->mass, m->pvol, m->sv_valid ? m->sv : NULL};
+    return s;
+}
+
+/* 3. the grid update of the predicted step: ṽ in m->vnew. Adds its iterations and seconds to st. */
+static DrStatus grid_solve(DrMpm *m, const double *force, const double *dfdv, DrMpmStats *st, DrError *err)
+{
+    assert(m->phase != PHASE_NONE);
+    m->phase = PHASE_PREDICTED;
+    m->sv_valid = false;
+    if (m->n == 0) {
+        m->phase = PHASE_SOLVED;
+        return DR_OK;
+    }
+    DrNodeGrid *g = m->grid;
+    const long nn = g->nnodes;
+    const double dt = m->h;
+    double t1 = dr_time_now();
+    memcpy(m->con, m->con0, (size_t)nn);
+    Solve s = {m, dt, 0, 0, 0, 0, DR_OK, err, force, dfdv};
     DrStatus status = DR_OK;
     memset(m->uf, 0, 3 * (size_t)nn * sizeof(double));
+    if (force && !dfdv) dr_node_scatter_vector(m->bins, m->x, force, g, m->fe);
     if (m->d.integrator == DR_MPM_SYMPLECTIC_EULER) {
         /* forces at F^n (u = 0) and anchors at x^n */
         memset(m->G, 0, 9 * (size_t)m->n * sizeof(double));
@@ -1132,6 +1256,7 @@ DrStatus dr_mpm_step(DrMpm *mpm, double dt, DrMpmStats *stats, DrError *err)
             double mi = m->mact[3 * k];
             for (int a = 0; a < 3; a++) {
                 double f = m->ff[3 * i + a] + (m->anchors ? m->tf[3 * i + a] : 0.0);
+                if (force) f += m->fe[3 * i + a];
                 m->vnew[3 * i + a] = m->v0[3 * i + a] + dt * (f / mi + dr_v3_get(m->d.gravity, a));
             }
         }
@@ -1172,15 +1297,71 @@ DrStatus dr_mpm_step(DrMpm *mpm, double dt, DrMpmStats *stats, DrError *err)
     if (m->ncol)
         for (long k = 0; k < m->nact; k++)
             collide_node(m, m->act[k], dr_node_position(g, m->act[k]), m->vnew + 3 * m->act[k], false);
-    double t2 = dr_time_now();
-    st->seconds_solve += t2 - t1;
+    st->seconds_solve += dr_time_now() - t1;
+    m->phase = PHASE_SOLVED;
+    return status;
+}
+
+DrStatus dr_mpm_solve(DrMpm *mpm, const double *force, const double *dforce_dv, DrMpmStats *stats, DrError *err)
+{
+    assert(mpm && mpm->phase != PHASE_NONE);
+    DrMpm *m = mpm;
+    DrMpmStats local;
+    DrMpmStats *st = stats ? stats : &local;
+    memset(st, 0, sizeof *st);
+    m->phase = PHASE_PREDICTED;
+    m->sv_valid = false;
+    if (dforce_dv && !force)
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                            "mpm: dforce_dv without force; pass the force at the samples' velocity (zeros if none)");
+    if (dforce_dv && m->d.integrator == DR_MPM_SYMPLECTIC_EULER)
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                            "mpm: symplectic Euler is explicit and takes no force derivative (dforce_dv); pass NULL, or "
+                            "use the midpoint or backward Euler integrator for an implicit drag");
+    for (long i = 0; force && i < 3 * m->n; i++)
+        if (!isfinite(force[i]))
+            return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "mpm: external force on particle %ld is not finite",
+                                i / 3);
+    for (long p = 0; dforce_dv && p < m->n; p++) {
+        const double *D = dforce_dv + 9 * p;
+        double big = 0.0, asym = 0.0;
+        for (int k = 0; k < 9; k++) {
+            if (!isfinite(D[k]))
+                return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "mpm: dforce_dv of particle %ld is not finite", p);
+            big = fmax(big, fabs(D[k]));
+            asym = fmax(asym, fabs(D[k] - D[3 * (k % 3) + k / 3]));
+        }
+        /* the implicit solve is a minimisation (§4.1): a non-symmetric D has no energy */
+        if (asym > 1e-9 * big)
+            return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                                "mpm: dforce_dv of particle %ld is not symmetric (|D - D^T| = %g of %g); give the "
+                                "symmetric velocity derivative of the force (a drag law's R C R^T)", p, asym, big);
+    }
+    DrStatus s = grid_solve(m, force, dforce_dv, st, err);
+    if (s >= 0 && m->n > 0) {
+        dr_node_gather_vector(m->grid, m->vnew, m->n, m->x, m->sv);
+        m->sv_valid = true;
+    }
+    return s;
+}
+
+DrStatus dr_mpm_commit(DrMpm *mpm, DrError *err)
+{
+    assert(mpm && mpm->phase == PHASE_SOLVED);
+    DrMpm *m = mpm;
+    m->phase = PHASE_NONE;
+    m->sv_valid = false;
+    if (m->n == 0) return DR_OK;
+    DrNodeGrid *g = m->grid;
+    const long nn = g->nnodes;
+    const double dt = m->h;
 
     /* 4. G2P (eqs. 37–39) and the F update (eq. 40 or 109–111) */
     memcpy(m->bx, m->x, 3 * (size_t)m->n * sizeof(double));
     memcpy(m->bv, m->v, 3 * (size_t)m->n * sizeof(double));
     memcpy(m->bC, m->C, 9 * (size_t)m->n * sizeof(double));
     memcpy(m->bF, m->F, 9 * (size_t)m->n * sizeof(double));
-    bool flip_fix = m->d.scheme == DR_TRANSFER_FLIP && projected;
+    bool flip_fix = m->d.scheme == DR_TRANSFER_FLIP && m->projected;
     if (flip_fix) {
         for (long i = 0; i < 3 * nn; i++) m->tf[i] = m->v0[i] - m->vn[i];
         dr_node_gather_vector(g, m->tf, m->n, m->x, m->pf);
@@ -1194,7 +1375,6 @@ DrStatus dr_mpm_step(DrMpm *mpm, double dt, DrMpmStats *stats, DrError *err)
     FCtx fc = {m, dt, m->d.f_update_order == 2};
     dr_parallel_for(m->n, GRAIN, fupdate_range, &fc);
     long bad = first_nonfinite_particle(m);
-    st->seconds_transfer += dr_time_now() - t2;
     if (bad >= 0) {
         restore_backup(m);
         const double *x = m->x + 3 * bad;
@@ -1202,7 +1382,40 @@ DrStatus dr_mpm_step(DrMpm *mpm, double dt, DrMpmStats *stats, DrError *err)
                             "mpm: particle %ld (at (%g, %g, %g) before the step) became non-finite; the state is "
                             "left as it was before the step: reduce the time step", bad, x[0], x[1], x[2]);
     }
-    return status;
+    return DR_OK;
+}
+
+DrStatus dr_mpm_step(DrMpm *mpm, double dt, DrMpmStats *stats, DrError *err)
+{
+    assert(mpm);
+    DrMpmStats local;
+    DrMpmStats *st = stats ? stats : &local;
+    memset(st, 0, sizeof *st);
+    st->substeps = 1;
+    double t0 = dr_time_now();
+    DR_TRY(dr_mpm_predict(mpm, dt, err));
+    double t1 = dr_time_now();
+    st->seconds_transfer += t1 - t0;
+    DrStatus status = grid_solve(mpm, NULL, NULL, st, err);
+    if (status < 0) {
+        mpm->phase = PHASE_NONE;
+        return status;
+    }
+    double t2 = dr_time_now();
+    DrStatus c = dr_mpm_commit(mpm, err);
+    st->seconds_transfer += dr_time_now() - t2;
+    return c < 0 ? c : status;
+}
+
+double dr_mpm_stable_dt(const DrMpm *mpm)
+{
+    /* §4.3 with the speed gravity adds over the step: Δt (S + |g| Δt) <= ν Δx, S the §4.3 speed bound (a
+       body at rest under gravity would otherwise be given the whole duration in one step) */
+    double nudx = mpm->d.cfl * mpm->d.dx, cfl = dr_mpm_cfl_dt(mpm);
+    double S = isfinite(cfl) ? nudx / cfl : 0.0, gn = dr_v3_norm(mpm->d.gravity);
+    double lim = (S > 0.0 || gn > 0.0) ? 2.0 * nudx / (S + sqrt(S * S + 4.0 * gn * nudx)) : INFINITY;
+    if (mpm->d.integrator == DR_MPM_SYMPLECTIC_EULER) lim = fmin(lim, explicit_dt(mpm));
+    return lim;
 }
 
 DrStatus dr_mpm_advance(DrMpm *mpm, double duration, int max_substeps, DrMpmStats *stats, DrError *err)
@@ -1218,12 +1431,7 @@ DrStatus dr_mpm_advance(DrMpm *mpm, double duration, int max_substeps, DrMpmStat
     DrStatus worst = DR_OK;
     int done = 0;
     while (left > 0.0 && done < max_substeps) {
-        /* §4.3 with the speed gravity adds over the step: Δt (S + |g| Δt) <= ν Δx, S the §4.3 speed bound
-           (a body at rest under gravity would otherwise be given the whole duration in one step) */
-        double nudx = mpm->d.cfl * mpm->d.dx, cfl = dr_mpm_cfl_dt(mpm);
-        double S = isfinite(cfl) ? nudx / cfl : 0.0, gn = dr_v3_norm(mpm->d.gravity);
-        double lim = (S > 0.0 || gn > 0.0) ? 2.0 * nudx / (S + sqrt(S * S + 4.0 * gn * nudx)) : INFINITY;
-        if (mpm->d.integrator == DR_MPM_SYMPLECTIC_EULER) lim = fmin(lim, explicit_dt(mpm));
+        double lim = dr_mpm_stable_dt(mpm);
         double need = isfinite(lim) ? ceil(left / lim - 1e-9) : 1.0;
         int budget = max_substeps - done;
         double k = need < 1.0 ? 1.0 : (need > budget ? budget : need);

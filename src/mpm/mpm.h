@@ -125,6 +125,12 @@ typedef struct DrMpmStats {
 } DrMpmStats;
 /* The largest step §4.3 allows: ν Δx / max_p(‖v_p‖ + (6√d/Δx)·‖B_p‖_F), with B_p = C_p D. */
 double dr_mpm_cfl_dt(const DrMpm *mpm);
+/* The solver's own step limit for the current state, s (INFINITY when nothing limits it: no particle
+   moves, no gravity, and an implicit integrator): §4.3's with the speed gravity adds within the step,
+   Δt (S + |g| Δt) <= ν Δx with S = ν Δx / dr_mpm_cfl_dt, i.e. Δt = 2νΔx / (S + √(S² + 4|g|νΔx)); for
+   symplectic Euler also the explicit stability limits ν Δx/c (c = √((λ+2μ)/ρ), the fastest body) and
+   2ν/√(k/m) for anchors. dr_mpm_advance substeps by exactly this limit. */
+double dr_mpm_stable_dt(const DrMpm *mpm);
 /* One step of dt. Returns DR_OK, DR_WARN_NOT_CONVERGED (positive: Newton stopped at its iteration cap;
    the step is kept) or a negative status (non-finite state: DR_ERR_RUNTIME, naming the particle). */
 DR_NODISCARD DrStatus dr_mpm_step(DrMpm *mpm, double dt, DrMpmStats *stats, DrError *err);
@@ -134,18 +140,70 @@ DR_NODISCARD DrStatus dr_mpm_step(DrMpm *mpm, double dt, DrMpmStats *stats, DrEr
      (residual and CG vectors projected), so walls are exact constraints of the λ-family update.
      DR_MPM_WALL_NONE leaves a face open: the grid extends dr_kernel_reach + 2 nodes beyond the box, and
      a particle whose stencil leaves the grid fails the step with DR_ERR_RUNTIME.
-   - Implicit solves start from Δv = 0; if that configuration inverts a Neo-Hookean particle they start
-     from the one of F^n instead (u = 0). Only a state whose F^n itself is outside Ψ's domain fails
+   - Implicit solves start from Δv = 0 (with an external force, from its impulse: dr_mpm_solve); if that
+     configuration inverts a Neo-Hookean particle they start from the one of F^n instead (u = 0). Only a state whose F^n itself is outside Ψ's domain fails
      (DR_ERR_RUNTIME naming the particle); symplectic Euler fails the same way.
    - On a negative status the particle state (x, v, C, F) is the one before the step.
    - f_update_order = 2 applies eqs. (109)–(111) both to the F update and, with F^{n+λ} built from the
      same rule, to the implicit energy, forces and force differentials.
    - 2-D: z velocities and the z row and column of C are kept at 0.
    - FLIP: particles also receive the change the wall and collider projection made to the P2G velocity. */
-/* Advances by `duration` in CFL-limited substeps (at most max_substeps; fewer when the CFL allows). The
-   limit is §4.3's with the speed gravity adds within the step (Δt (S + |g| Δt) ≤ ν Δx, S the §4.3 speed),
-   and for symplectic Euler also the explicit stability limits ν Δx/c (c = √((λ+2μ)/ρ)) and 2ν/√(k/m)
-   for anchors. */
+
+/* The step opened into phases (DESIGN §8), for a caller that exchanges forces with other solvers within
+   one step: dr_mpm_step(dt) is dr_mpm_predict(dt) + dr_mpm_solve(NULL, NULL) + dr_mpm_commit, bit for bit.
+   The phases must come in that order: predict, then one or more solves, then commit (a commit needs the
+   last solve to have succeeded; misuse asserts). A solve never changes what the next solve
+   reads, so solving again from the same prediction with other forces gives what that solve alone would
+   have given. Adding particles or colliders, setting anchors or restoring a state drops a prediction.
+
+   Predict: bins the particles, P2G (eqs. 24–26), the wall projection and the collider contacts of the
+   P2G velocity. Fails like dr_mpm_step (DR_ERR_INPUT for a step h that is not positive and finite,
+   DR_ERR_RUNTIME for a particle that left the grid); the particle state is never changed. */
+DR_NODISCARD DrStatus dr_mpm_predict(DrMpm *mpm, double h, DrError *err);
+
+/* The points where the solids meet other solvers: the particles, borrowed (valid until the next phase
+   call or any call that changes the particles). Between predict and commit: x, v the particle state at
+   the start of the step (m, m/s), mass (kg), volume the current volume V₀ det F^n (m³); v_solved the
+   grid velocity of the last dr_mpm_solve interpolated at x (Σ_i w_ip ṽ_i, what G2P hands APIC and PIC
+   particles), NULL before the first solve. 2-D: per unit depth (kg/m, m²), z velocities 0. */
+typedef struct DrMpmSamples {
+    long n;
+    const double *x, *v;     /* 3n */
+    const double *mass;      /* n */
+    const double *volume;    /* n */
+    const double *v_solved;  /* 3n or NULL */
+} DrMpmSamples;
+DrMpmSamples dr_mpm_samples(const DrMpm *mpm);
+
+/* The grid solve of the predicted step (eqs. 27–36 by the chosen integrator, contacts, friction) with
+   external point forces at the samples: force (3n, N; N/m in 2-D, z ignored) or NULL for none, spread to
+   the nodes by the transfer weights (f_i = Σ_p w_ip force_p, which keeps Σ force). dforce_dv (9n, a
+   row-major 3×3 per sample, N·s/m, symmetric; NULL for none) makes the force implicit: the force acting
+   is force_p + D_p (ṽ_p − v_p) with ṽ_p = Σ_i w_ip ṽ_i the solved velocity at the sample and v_p the
+   sample velocity of the prediction (dr_mpm_samples' v), the drag term taken at the end-of-step velocity
+   for both implicit integrators (unconditionally stable for a dissipative D, negative semidefinite).
+   It enters the minimisation of §4.1 as the energy −β Σ_p (force_p·s_p + ½ s_p·D_p s_p), s_p = ṽ_p − v_p,
+   and A₂ as −Δt M⁻¹ Wᵀ D W (W the weights), so it must be symmetric (to 1e-9 of its largest entry).
+   Implicit solves start from Δv = Δt M⁻¹ f (f the spread force at Δv = 0, walls and contacts projected):
+   the remaining Newton and CG corrections then have zero momentum (§4.2), so away from walls, colliders
+   and anchors a force without dforce_dv changes the total momentum by Δt Σ force to round-off, even when
+   CG or Newton stop early.
+   Symplectic Euler adds the force explicitly and rejects dforce_dv (DR_ERR_INPUT: an explicit step has
+   no implicit drag; use midpoint or backward Euler). dforce_dv without force is DR_ERR_INPUT too.
+   Returns DR_OK, DR_WARN_NOT_CONVERGED (the result is kept and may be committed), DR_ERR_INPUT for
+   non-finite or asymmetric inputs, or DR_ERR_RUNTIME (an undefined stress or energy, as dr_mpm_step);
+   after a negative status another solve may be tried but not a commit. stats (may be NULL) receives this
+   solve's Newton and CG iterations, last relative residual and seconds_solve (substeps 0). */
+DR_NODISCARD DrStatus dr_mpm_solve(DrMpm *mpm, const double *force, const double *dforce_dv, DrMpmStats *stats,
+                                   DrError *err);
+
+/* G2P (eqs. 37–39), the F update (eq. 40 or 109–111) and advection with the last solve's grid velocity.
+   DR_ERR_RUNTIME if a particle became non-finite; the state is then the one before the step. Either way
+   the prediction is used up. */
+DR_NODISCARD DrStatus dr_mpm_commit(DrMpm *mpm, DrError *err);
+
+/* Advances by `duration` in substeps of at most dr_mpm_stable_dt (recomputed before each substep from
+   what is left, evened out over it: k = ⌈left / limit⌉ equal substeps, at most max_substeps in all). */
 DR_NODISCARD DrStatus dr_mpm_advance(DrMpm *mpm, double duration, int max_substeps, DrMpmStats *stats, DrError *err);
 
 /* Hot per-particle arrays (read-only view; n particles). */

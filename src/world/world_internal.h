@@ -62,7 +62,6 @@ typedef struct WorldMpm {
     int ncolliders;
     bool any_moving;
     int max_substeps;
-    double cfl;
     double time;             /* s, start of the frame being advanced (poses moving colliders) */
     DrMpmStats last;         /* the last frame's stats, summed over its substeps */
     int not_converged;       /* 1 when a Newton iteration of the last frame stopped at its cap */

@@ -225,7 +225,6 @@ DrStatus dr_world_mpm_create_(DrWorld *w, DrError *err)
     for (int f = 0; f < 6; f++) d.wall[f] = wall;
     d.cfl = dr_component_num(solver, "cfl");
     m->max_substeps = dr_component_int(solver, "max_substeps");
-    m->cfl = d.cfl;
     DR_TRY(dr_mpm_create(&d, &m->mpm, err));
 
     for (int i = 0; i < w->ncolliders; i++) {
@@ -272,32 +271,17 @@ static DrStatus step_failed(DrStatus s, int frame, DrError *err)
                         frame, msg);
 }
 
-/* dr_mpm_advance's substepping (each substep the CFL step, evened out over what is left of the frame, at
-   most max_substeps), taken here one dr_mpm_step at a time so that moving colliders are posed at each
-   substep's midpoint. Symplectic Euler's elastic wave limit is dr_mpm_advance's own; the world sets no
-   anchors, so that limit is the wave speed alone. */
+/* dr_mpm_advance's substepping (each substep the solver's stable step dr_mpm_stable_dt, evened out over what
+   is left of the frame, at most max_substeps), taken here one dr_mpm_step at a time so that moving colliders
+   are posed at each substep's midpoint. The same limit as dr_mpm_advance, so a moving collider the bodies
+   never touch leaves the substeps as they are without it. */
 static DrStatus advance_posing_colliders(WorldMpm *m, double duration, DrMpmStats *sum, DrError *err)
 {
-    const DrComponent *in = dr_element_component(m->bodies[0].element, "Integrator");
-    double dt_wave = INFINITY;
-    if (integrator_of(dr_component_str(in, "type")) == DR_MPM_SYMPLECTIC_EULER) {
-        double c = 0.0;
-        for (int b = 0; b < m->nbodies; b++) {
-            const DrComponent *mat = dr_element_component(m->bodies[b].element, "MpmMaterial");
-            DrMpmMaterial mm = {DR_MPM_FIXED_COROTATED, dr_component_num(mat, "density"),
-                                dr_component_num(mat, "youngs_modulus"), dr_component_num(mat, "poisson")};
-            double mu, lambda;
-            dr_mpm_lame(&mm, &mu, &lambda);
-            c = fmax(c, sqrt((lambda + 2.0 * mu) / mm.density)); /* dilatational wave speed */
-        }
-        const DrComponent *dom = dr_element_component(m->bodies[0].element, "Domain");
-        dt_wave = m->cfl * dr_component_num(dom, "voxel_size") / c;
-    }
     memset(sum, 0, sizeof *sum);
     DrStatus worst = DR_OK;
     double left = duration, t = m->time;
     while (left > 0.0 && sum->substeps < m->max_substeps) {
-        double lim = fmin(dr_mpm_cfl_dt(m->mpm), dt_wave);
+        double lim = dr_mpm_stable_dt(m->mpm);
         double need = isfinite(lim) ? ceil(left / lim - 1e-9) : 1.0;
         int budget = m->max_substeps - sum->substeps;
         double k = need < 1.0 ? 1.0 : (need > budget ? budget : need);

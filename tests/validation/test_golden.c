@@ -82,7 +82,7 @@ static const Golden GOLDEN[] = {
     {DATA "mpm_drop.json", 4, "f82e4206818696d3b77be6c0e58924ff"},
     {DATA "hair_small.json", 3, "cf5eb13ddf87db370d469624a686808d"},
     {DATA "bem_pair.json", 2, "ce7a7fc60ae0c84f736584fb90264e1e"},
-    {DATA "golden_mix.json", 3, "f39f690a5dc669c9612994bab2d34b25"},
+    {DATA "golden_mix.json", 3, "8c25300f6fb68b331d4b07d1d544744e"},
 };
 
 static void check(int k)
