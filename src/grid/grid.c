@@ -40,6 +40,41 @@ void dr_mac_grid_destroy(DrMacGrid **g)
     *g = NULL;
 }
 
+DrStatus dr_face_coupling_create(const DrMacGrid *g, DrFaceCoupling **out, DrError *err)
+{
+    *out = NULL;
+    DrFaceCoupling *fc = NULL;
+    DR_TRY(dr_calloc(1, sizeof *fc, &fc, err));
+    for (int a = 0; a < 3; a++) {
+        fc->nfaces[a] = g->nfaces[a];
+        DrStatus s = dr_calloc((size_t)g->nfaces[a], sizeof(double), &fc->open[a], err);
+        if (s >= 0) s = dr_calloc((size_t)g->nfaces[a], sizeof(double), &fc->velocity[a], err);
+        if (s >= 0) s = dr_calloc((size_t)g->nfaces[a], sizeof(double), &fc->impulse[a], err);
+        if (s < 0) { dr_face_coupling_destroy(&fc); return s; }
+    }
+    dr_face_coupling_clear(fc);
+    *out = fc;
+    return DR_OK;
+}
+
+void dr_face_coupling_destroy(DrFaceCoupling **fc)
+{
+    if (!fc || !*fc) return;
+    for (int a = 0; a < 3; a++) { free((*fc)->open[a]); free((*fc)->velocity[a]); free((*fc)->impulse[a]); }
+    free(*fc);
+    *fc = NULL;
+}
+
+void dr_face_coupling_clear(DrFaceCoupling *fc)
+{
+    for (int a = 0; a < 3; a++)
+        for (long f = 0; f < fc->nfaces[a]; f++) {
+            fc->open[a][f] = 1.0;
+            fc->velocity[a][f] = 0.0;
+            if (fc->impulse[a]) fc->impulse[a][f] = 0.0;
+        }
+}
+
 DrVec3 dr_mac_face_position(const DrMacGrid *g, int a, int i, int j, int k)
 {
     return dr_v3(g->origin.x + g->dx * (i + dr_mac_face_offset(a, 0)),

@@ -47,6 +47,33 @@ static inline double dr_mac_face_offset(int a, int axis) { return a == axis ? 0.
 DrVec3 dr_mac_face_position(const DrMacGrid *g, int a, int i, int j, int k);
 DrVec3 dr_mac_cell_center(const DrMacGrid *g, int i, int j, int k);
 
+/* ---- face coupling ------------------------------------------------------------------------------- */
+
+/* What solids impose on the liquid at the MAC faces: one value per face of each component, each array
+ * sized like the grid's faces (nfaces[a], the grid's face order). The liquid keeps one of these for its
+ * colliders (their variational face weights and velocities, liquid.h); another participant fills one of
+ * its own and hands it to the liquid's projection (dr_liquid_project), which adds it to the colliders'.
+ *   open[a][f]      fraction of the face open to the liquid, in [0, 1]: 1 − the solids' share of its
+ *                   area (the variational weight; an open fraction rather than the solid share, so the
+ *                   colliders' weights are stored exactly as the projection uses them)
+ *   velocity[a][f]  component a of the solids' velocity over the blocked part of the face, m/s (read
+ *                   only where open < 1, and on faces no liquid reaches)
+ *   impulse[a][f]   momentum added to the liquid through the face along e_a, N·s (kg·m/s; not per area):
+ *                   the liquid turns it into the velocity increment J/m_f with its own face mass m_f.
+ *                   May be NULL for none (the colliders' instance has none).
+ * A participant writing into one owns its arrays; nothing here is thread-safe against a concurrent writer. */
+typedef struct DrFaceCoupling {
+    long nfaces[3];
+    double *open[3];
+    double *velocity[3];
+    double *impulse[3];
+} DrFaceCoupling;
+/* Allocates the three arrays for grid g and clears them (dr_face_coupling_clear). DR_ERR_NOMEM. */
+DR_NODISCARD DrStatus dr_face_coupling_create(const DrMacGrid *g, DrFaceCoupling **out, DrError *err);
+void dr_face_coupling_destroy(DrFaceCoupling **fc);
+/* No solid: open 1, velocity 0, impulse 0 on every face. */
+void dr_face_coupling_clear(DrFaceCoupling *fc);
+
 /* ---- kernels --------------------------------------------------------------------------------------- */
 
 /* One axis of a quadratic B-spline stencil: nodes base, base+1, base+2 with weights w[] (sum 1) and

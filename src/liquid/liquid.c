@@ -26,9 +26,15 @@ struct DrLiquid {
     long ncells, nnodes;
     double *fm[3];           /* face masses from P2G, kg */
     double *uold[3];         /* face velocities right after P2G */
-    double *wgt[3];          /* fraction of each face open to liquid (variational weights; 0 on domain walls) */
+    DrFaceCoupling own;      /* the colliders' face coupling (weight_slices): open = the fraction of each face
+                                open to liquid (variational weights; 0 on domain walls), velocity = the solid
+                                velocity (component a) on faces near a collider (0 elsewhere); no impulse */
+    DrFaceCoupling mix;      /* own combined with a projection's extra coupling (mix_coupling); open and
+                                velocity allocated on first use, no impulse */
+    const DrFaceCoupling *cpl; /* the coupling the current projection uses: &own or &mix */
     float *wsol[3];          /* fraction of each face outside every collider (walls ignored) */
-    double *us[3];           /* solid velocity (component a) on faces near a collider, 0 elsewhere */
+    double *ustar[3];        /* face velocities before the projection (dr_liquid_begin), so that a projection
+                                can be repeated from them; allocated on first use */
     double *tmp[3], *tmp2[3];
     unsigned char *valid[3], *valid2[3], *valid3[3];
     unsigned char *shut[3];  /* face closed at the solid velocity in this substep's projection (shut_faces) */
@@ -69,7 +75,24 @@ struct DrLiquid {
     double vol_density;      /* density·dx³: the face mass of a full face (mass-weighted pressure) */
     DrColliderFrame frames[MAX_COLLIDERS_FRAME];
     int nframes;
+    /* the interval of the clock the substeps land on (a frame; dr_liquid_stable_dt) */
+    double ival_t0, ival_t1; /* ival_t1 NaN: none open */
+    int ival_substeps;       /* substeps ended in it (max_substeps) */
+    bool ival_warned;        /* its max_substeps warning was logged */
+    /* the open substep */
+    int phase;               /* PHASE_* below */
+    double t_step, h_step;   /* its start and length (dr_liquid_begin) */
+    double h_stable;         /* the length dr_liquid_stable_dt gave */
+    bool step_lands;         /* that length ends the interval */
+    bool step_clamped;       /* max_substeps clamped it (viscosity then takes its limit without a log line) */
+    int nproj;               /* projections since dr_liquid_begin */
+    bool sample_ok;          /* the grid holds a projection's velocities and pressure (dr_liquid_sample) */
+    DrVec3 added;            /* momentum the extra coupling's impulses gave in the last projection, N·s */
+    double pend_p2g, pend_other; /* seconds spent before the stats of dr_liquid_end can take them */
 };
+
+/* The phases of a substep, in order; each public phase function asserts the one before it. */
+enum { PHASE_IDLE, PHASE_READY, PHASE_BEGUN, PHASE_PROJECTED };
 
 /* Grain (z-slices per chunk) of a loop over the faces of component a: at least PAR_MIN_ITEMS faces. */
 static long slice_grain(const DrMacGrid *g, int a)
@@ -282,9 +305,10 @@ DrStatus dr_liquid_create(const DrLiquidDesc *desc, const DrCollider *const *col
         size_t nf = (size_t)L->g->nfaces[a];
         if ((s = dr_calloc(nf, sizeof(double), &L->fm[a], err)) < 0) goto fail;
         if ((s = dr_calloc(nf, sizeof(double), &L->uold[a], err)) < 0) goto fail;
-        if ((s = dr_calloc(nf, sizeof(double), &L->wgt[a], err)) < 0) goto fail;
+        if ((s = dr_calloc(nf, sizeof(double), &L->own.open[a], err)) < 0) goto fail;
         if ((s = dr_calloc(nf, sizeof(float), &L->wsol[a], err)) < 0) goto fail;
-        if ((s = dr_calloc(nf, sizeof(double), &L->us[a], err)) < 0) goto fail;
+        if ((s = dr_calloc(nf, sizeof(double), &L->own.velocity[a], err)) < 0) goto fail;
+        L->own.nfaces[a] = L->mix.nfaces[a] = (long)nf;
         if ((s = dr_calloc(nf, sizeof(double), &L->tmp[a], err)) < 0) goto fail;
         if ((s = dr_calloc(nf, sizeof(double), &L->tmp2[a], err)) < 0) goto fail;
         if ((s = dr_calloc(nf, 1, &L->valid[a], err)) < 0) goto fail;
@@ -295,6 +319,8 @@ DrStatus dr_liquid_create(const DrLiquidDesc *desc, const DrCollider *const *col
     if ((s = dr_calloc((size_t)L->nnodes, sizeof(double), &L->nphi, err)) < 0) goto fail;
     if ((s = dr_calloc((size_t)L->nnodes, sizeof(double), &L->nphi_static, err)) < 0) goto fail;
     L->nstatic = -1;
+    L->cpl = &L->own;
+    L->ival_t0 = L->ival_t1 = NAN;
     if ((s = dr_calloc((size_t)L->ncells, sizeof(double), &L->cphi, err)) < 0) goto fail;
     if ((s = dr_calloc((size_t)L->ncells, sizeof(float), &L->open, err)) < 0) goto fail;
     if ((s = dr_calloc((size_t)L->ncells, 1, &L->near, err)) < 0) goto fail;
@@ -371,7 +397,8 @@ void dr_liquid_destroy(DrLiquid **liq)
     if (!liq || !*liq) return;
     DrLiquid *L = *liq;
     for (int a = 0; a < 3; a++) {
-        free(L->fm[a]); free(L->uold[a]); free(L->wgt[a]); free(L->wsol[a]); free(L->us[a]);
+        free(L->fm[a]); free(L->uold[a]); free(L->own.open[a]); free(L->wsol[a]); free(L->own.velocity[a]);
+        free(L->mix.open[a]); free(L->mix.velocity[a]); free(L->ustar[a]);
         free(L->tmp[a]); free(L->tmp2[a]); free(L->valid[a]); free(L->valid2[a]); free(L->valid3[a]); free(L->shut[a]);
     }
     for (int a = 0; a < 3; a++) free(L->dsum[a]);
@@ -396,6 +423,11 @@ const DrLiquidState *dr_liquid_state(const DrLiquid *liq) { return &liq->st; }
 DrLiquidState *dr_liquid_state_mut(DrLiquid *liq) { return &liq->st; }
 double dr_liquid_particle_mass(const DrLiquid *liq) { return liq->pmass; }
 const DrMacGrid *dr_liquid_grid(const DrLiquid *liq) { return liq->g; }
+const double *dr_liquid_face_mass(const DrLiquid *liq, int a)
+{
+    assert(a >= 0 && a < 3);
+    return liq->fm[a];
+}
 void dr_liquid_resume_state(const DrLiquid *liq, DrLiquidResume *out)
 {
     memcpy(out->rng, liq->rng.s, sizeof liq->rng.s);
@@ -421,6 +453,9 @@ DrStatus dr_liquid_restore(DrLiquid *liq, long n, const double *x, const double 
     memcpy(liq->rng.s, resume->rng, sizeof liq->rng.s);
     liq->accel = resume->cfl_accel;
     liq->accel_known = true;
+    liq->phase = PHASE_IDLE;
+    liq->sample_ok = false;
+    liq->ival_t0 = liq->ival_t1 = NAN;
     return DR_OK;
 }
 
@@ -552,9 +587,9 @@ static double node_phi_at(const DrLiquid *L, int i, int j, int k)
 }
 
 /* Face weights and solid velocities. wsol is the fraction of the face outside every collider, from the
-   collider-union phi at its four corners (dr_face_fraction_outside); wgt is the same with domain-boundary
+   collider-union phi at its four corners (dr_face_fraction_outside); own.open is the same with domain-boundary
    faces closed (walls: weight 0, at rest). Faces with a corner closer than 2Δx to a collider take the
-   velocity of the nearest collider at their centre as the solid velocity us: the partly blocked faces
+   velocity of the nearest collider at their centre as the solid velocity own.velocity: the partly blocked faces
    (weight < 1), and the open faces next to them that may carry no liquid mass and are then closed at
    that velocity (pressure_row). */
 static void weight_slices(long begin, long end, void *vctx)
@@ -609,8 +644,8 @@ static void weight_slices(long begin, long end, void *vctx)
                     w = 0.0;
                     vs = 0.0;
                 }
-                L->wgt[a][f] = w;
-                L->us[a][f] = vs;
+                L->own.open[a][f] = w;
+                L->own.velocity[a][f] = vs;
             }
 }
 
@@ -696,8 +731,9 @@ static inline double face_inv_density(const DrLiquid *L, int a, long f)
    the zero P2G leaves there, and a collider carrying liquid carries it exactly). */
 static inline double face_flux(const DrLiquid *L, int a, long f)
 {
-    double w = L->wgt[a][f];
-    return L->shut[a][f] ? L->us[a][f] : w * L->g->f[a][f] + (1.0 - w) * L->us[a][f];
+    const DrFaceCoupling *k = L->cpl;
+    double w = k->open[a][f];
+    return L->shut[a][f] ? k->velocity[a][f] : w * L->g->f[a][f] + (1.0 - w) * k->velocity[a][f];
 }
 
 /* shut[a][f]: the face carries no liquid mass, or next to nothing between two pressure cells (TINY_MASS). */
@@ -723,6 +759,117 @@ static void shut_slices(long begin, long end, void *vctx)
                 }
                 L->shut[a][f] = shut;
             }
+}
+
+/* The projection's coupling with another participant's (dr_liquid_project): on each face that the extra
+   coupling blocks in part (open < 1), the solid shares add (the solids are taken as disjoint, as contact
+   keeps them apart): open = 1 − (1 − w_own) − (1 − w_extra), at least 0, and the solid velocity is the
+   share-weighted mean of the two. Faces the extra coupling leaves open keep the colliders' values exactly,
+   and domain walls stay closed and at rest. Flags (impulse_partial[IMPULSE_PARTS·k + 5]) a slice holding
+   an open fraction outside [0, 1] or a non-finite velocity or impulse. */
+typedef struct MixCtx { DrLiquid *L; int a; const DrFaceCoupling *x; } MixCtx;
+
+static void mix_slices(long begin, long end, void *vctx)
+{
+    MixCtx *ctx = vctx;
+    DrLiquid *L = ctx->L;
+    const DrMacGrid *g = L->g;
+    int a = ctx->a;
+    const int *dim = g->fdim[a];
+    const double *wo = L->own.open[a], *vo = L->own.velocity[a], *we = ctx->x->open[a], *ve = ctx->x->velocity[a];
+    const double *J = ctx->x->impulse[a];
+    double *wm = L->mix.open[a], *vm = L->mix.velocity[a];
+    for (long k = begin; k < end; k++) {
+        bool bad = false;
+        for (int j = 0; j < dim[1]; j++)
+            for (int i = 0; i < dim[0]; i++) {
+                long f = dr_mac_face_index(g, a, i, j, (int)k);
+                int ijk[3] = {i, j, (int)k};
+                if (!(we[f] >= 0.0 && we[f] <= 1.0) || !isfinite(ve[f]) || (J && !isfinite(J[f]))) bad = true;
+                if (we[f] >= 1.0 || !(we[f] >= 0.0) || ijk[a] == 0 || ijk[a] == dim[a] - 1) {
+                    wm[f] = wo[f];
+                    vm[f] = vo[f];
+                    continue;
+                }
+                double so = 1.0 - wo[f], se = 1.0 - we[f], sum = so + se;
+                wm[f] = sum < 1.0 ? 1.0 - sum : 0.0;
+                vm[f] = (so * vo[f] + se * ve[f]) / sum;
+            }
+        L->impulse_partial[IMPULSE_PARTS * k + 5] = bad;
+    }
+}
+
+static DrStatus mix_coupling(DrLiquid *L, const DrFaceCoupling *x, DrError *err)
+{
+    const DrMacGrid *g = L->g;
+    for (int a = 0; a < 3; a++) {
+        assert(x->nfaces[a] == g->nfaces[a] && x->open[a] && x->velocity[a]);
+        if (!L->mix.open[a]) {
+            DR_TRY(dr_calloc((size_t)g->nfaces[a], sizeof(double), &L->mix.open[a], err));
+            DR_TRY(dr_calloc((size_t)g->nfaces[a], sizeof(double), &L->mix.velocity[a], err));
+        }
+    }
+    for (int a = 0; a < 3; a++) {
+        MixCtx ctx = {L, a, x};
+        dr_parallel_for(g->fdim[a][2], slice_grain(g, a), mix_slices, &ctx);
+        for (int k = 0; k < g->fdim[a][2]; k++)
+            if (L->impulse_partial[IMPULSE_PARTS * k + 5] != 0.0)
+                return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "liquid project: the face coupling of component "
+                                    "%d has an open fraction outside [0, 1] or a non-finite velocity or impulse "
+                                    "in face layer %d.", a, k);
+    }
+    return DR_OK;
+}
+
+/* The extra coupling's impulses J_f (N·s) as velocity increments J_f/m_f, m_f the face's P2G mass, on the
+   faces that take part in the projection as liquid faces: open, not shut, not a domain wall, more than
+   TINY_MASS of a full face's mass (a smaller one would turn a finite impulse into an unbounded velocity),
+   and, ghost fluid, next to a pressure cell (the others are overwritten by the extrapolation). So the
+   liquid's momentum gains exactly Σ J_f over these faces before the pressure acts; L->added holds that
+   sum (slice partials added in slice order). After shut_slices. */
+typedef struct AddCtx { DrLiquid *L; int a; const double *J; } AddCtx;
+
+static void add_impulse_slices(long begin, long end, void *vctx)
+{
+    AddCtx *ctx = vctx;
+    DrLiquid *L = ctx->L;
+    DrMacGrid *g = L->g;
+    int a = ctx->a;
+    const int *dim = g->fdim[a];
+    long cstride[3] = {1, g->nx, (long)g->nx * g->ny};
+    bool mw = L->d.pressure == DR_PRESSURE_MASS_WEIGHTED;
+    double tiny = TINY_MASS * L->vol_density;
+    for (long k = begin; k < end; k++) {
+        double sum = 0.0;
+        for (int j = 0; j < dim[1]; j++)
+            for (int i = 0; i < dim[0]; i++) {
+                long f = dr_mac_face_index(g, a, i, j, (int)k);
+                double J = ctx->J[f];
+                int ijk[3] = {i, j, (int)k};
+                if (J == 0.0 || ijk[a] == 0 || ijk[a] == dim[a] - 1) continue;
+                if (!(L->cpl->open[a][f] > 0.0) || L->shut[a][f] || !(L->fm[a][f] > tiny)) continue;
+                if (!mw) {
+                    long chi = dr_mac_cell_index(g, i, j, (int)k), clo = chi - cstride[a];
+                    if (L->row[chi] < 0 && L->row[clo] < 0) continue;
+                }
+                g->f[a][f] += J / L->fm[a][f];
+                sum += J;
+            }
+        L->impulse_partial[IMPULSE_PARTS * k] = sum;
+    }
+}
+
+static void add_impulse(DrLiquid *L, const DrFaceCoupling *x)
+{
+    const DrMacGrid *g = L->g;
+    double tot[3] = {0.0, 0.0, 0.0};
+    for (int a = 0; a < 3; a++) {
+        if (!x->impulse[a]) continue;
+        AddCtx ctx = {L, a, x->impulse[a]};
+        dr_parallel_for(g->fdim[a][2], slice_grain(g, a), add_impulse_slices, &ctx);
+        for (int k = 0; k < g->fdim[a][2]; k++) tot[a] += L->impulse_partial[IMPULSE_PARTS * k];
+    }
+    L->added = dr_v3(tot[0], tot[1], tot[2]);
 }
 
 /* Volume correction (liquid.h): Δx·D for cell c, D = κ·(ρ̃ − 1 − band)/T where the smoothed density ρ̃
@@ -775,7 +922,7 @@ static int pressure_row(const DrLiquid *L, int r, int col[7], double val[7], dou
         rhs += face_flux(L, a, flo);
         for (int side = 0; side < 2; side++) {
             long f = side ? fhi : flo;
-            double w = L->wgt[a][f];
+            double w = L->cpl->open[a][f];
             int slot = side ? 3 + a : 2 - a; /* -z,-y,-x | +x,+y,+z: ascending cell index */
             offcol[slot] = -1;
             if (w <= 0.0) continue;
@@ -1058,7 +1205,7 @@ static void extend_phi_slices(long begin, long end, void *vctx)
                         for (int side = 0; side < 2; side++) {
                             int nb = idx[a] + (side ? 1 : -1);
                             long f = low_face(g, a, i, j, (int)k) + (side ? face_stride(g, a) : 0);
-                            if (nb < 0 || nb >= n[a] || !(L->wgt[a][f] > 0.0)) continue;
+                            if (nb < 0 || nb >= n[a] || !(L->cpl->open[a][f] > 0.0)) continue;
                             long cn = c + (side ? cstride[a] : -cstride[a]);
                             if (L->bins->cell_start[cn + 1] > L->bins->cell_start[cn]) v = fmin(v, count_phi(L, cn));
                         }
@@ -1152,7 +1299,7 @@ static DrStatus virtual_mass(DrLiquid *L, DrError *err)
     return DR_OK;
 }
 
-static DrStatus pressure_solve(DrLiquid *L, DrLiquidStats *stats, DrError *err)
+static DrStatus pressure_solve(DrLiquid *L, const DrFaceCoupling *extra, DrLiquidStats *stats, DrError *err)
 {
     const DrMacGrid *g = L->g;
     long cstride[3] = {1, g->nx, (long)g->nx * g->ny};
@@ -1180,7 +1327,7 @@ static DrStatus pressure_solve(DrLiquid *L, DrLiquidStats *stats, DrError *err)
         for (int a = 0; a < 3; a++)
             for (int side = 0; side < 2; side++) {
                 long f = low_face(g, a, i, j, k) + (side ? face_stride(g, a) : 0);
-                if (!(L->wgt[a][f] > 0.0)) continue;
+                if (!(L->cpl->open[a][f] > 0.0)) continue;
                 if (L->fm[a][f] > tiny) open = true; /* a face no shut_faces can shut: the row is not empty */
                 if (!(face_mass(L, a, f) > tiny)) massive = false;
             }
@@ -1195,6 +1342,7 @@ static DrStatus pressure_solve(DrLiquid *L, DrLiquidStats *stats, DrError *err)
     }
     stats->liquid_cells = nrow;
     for (int a = 0; a < 3; a++) run_faces(L, shut_slices, a);
+    if (extra) add_impulse(L, extra);
     if (nrow == 0) return DR_OK;
     if (L->d.volume_correction > 0.0) {
         DensCtx dctx = {L, 0.0};
@@ -1271,13 +1419,13 @@ static void project_slices(long begin, long end, void *vctx)
                 long clo = has_lo ? (has_hi ? chi - cstride[a] : dr_mac_cell_index(g, i, j, (int)k) - cstride[a]) : -1;
                 bool flo = clo >= 0 && L->row[clo] >= 0, fhi = chi >= 0 && L->row[chi] >= 0;
                 unsigned char val = 0;
-                if (L->wgt[a][f] <= 0.0) {
-                    g->f[a][f] = L->us[a][f];
+                if (L->cpl->open[a][f] <= 0.0) {
+                    g->f[a][f] = L->cpl->velocity[a][f];
                     val = 1;
                 } else if (L->shut[a][f]) {
                     /* no liquid reaches it: closed at the solid velocity next to a pressure cell (face_flux) */
                     if (flo || fhi) {
-                        g->f[a][f] = L->us[a][f];
+                        g->f[a][f] = L->cpl->velocity[a][f];
                         val = 1;
                     }
                 } else if (mw) {
@@ -1805,7 +1953,7 @@ static void sort_particles(DrLiquid *L)
 
 
 /* 1. P2G: particles sorted by cell, then splatted; uold keeps the transferred face velocities. */
-static DrStatus substep_p2g(DrLiquid *L, DrLiquidStats *stats, DrError *err)
+static DrStatus substep_p2g(DrLiquid *L, DrError *err)
 {
     DrMacGrid *g = L->g;
     DrLiquidState *s = &L->st;
@@ -1815,16 +1963,19 @@ static DrStatus substep_p2g(DrLiquid *L, DrLiquidStats *stats, DrError *err)
     dr_transfer_p2g_mac(L->bins, s->x, s->v, L->d.scheme == DR_TRANSFER_APIC ? s->c : NULL, L->pmass,
                         L->d.wall_no_slip, g, L->fm);
     for (int a = 0; a < 3; a++) memcpy(L->uold[a], g->f[a], (size_t)g->nfaces[a] * sizeof(double));
-    stats->seconds_p2g += dr_time_now() - t_0;
+    L->pend_p2g += dr_time_now() - t_0;
     return DR_OK;
 }
 
-/* 2.–6. of a substep from t to t + dt, after substep_p2g: the grid's new velocities (and L->accel). */
-static DrStatus substep_grid(DrLiquid *L, double t, double dt, bool visc_clamped, DrLiquidStats *stats, DrError *err)
+/* 2.–3. of a substep from t to t + dt, after substep_p2g: the colliders posed at t + dt, the forces, the
+   colliders' face coupling (own) and the cells' open fractions. */
+static void grid_begin(DrLiquid *L, const DrCollider *const *colliders, int ncolliders, double t, double dt,
+                       bool visc_clamped)
 {
     DrMacGrid *g = L->g;
     double t_1 = dr_time_now();
-    for (int c = 0; c < L->nframes; c++) L->frames[c] = dr_collider_frame(L->frames[c].c, t + dt);
+    L->nframes = ncolliders;
+    for (int c = 0; c < ncolliders; c++) L->frames[c] = dr_collider_frame(colliders[c], t + dt);
 
     /* 2. forces: gravity, then explicit viscosity within its stability limit */
     for (int a = 0; a < 3; a++) {
@@ -1855,54 +2006,39 @@ static DrStatus substep_grid(DrLiquid *L, double t, double dt, bool visc_clamped
     dr_parallel_for(g->nz, cgrain, open_slices, &bctx);
     if (L->nframes > 0 && L->d.pressure == DR_PRESSURE_MASS_WEIGHTED)
         dr_parallel_for(g->nz, cgrain, near_slices, &bctx);
+    L->pend_other += dr_time_now() - t_1;
+}
+
+/* 4.–6. of a substep, after grid_begin: the pressure projection with the coupling `extra` added to the
+   colliders' (NULL: theirs alone), the extrapolation of the grid change, the collider velocity constraint
+   (domain walls stay at rest). */
+static DrStatus grid_project(DrLiquid *L, const DrFaceCoupling *extra, DrLiquidStats *stats, DrError *err)
+{
+    DrMacGrid *g = L->g;
     double t_2 = dr_time_now();
+    L->added = dr_v3(0, 0, 0);
+    L->sample_ok = false;
+    L->cpl = &L->own;
+    if (extra) {
+        DR_TRY(mix_coupling(L, extra, err));
+        L->cpl = &L->mix;
+    }
 
     /* 4. pressure projection */
-    DR_TRY(pressure_solve(L, stats, err));
+    DR_TRY(pressure_solve(L, extra, stats, err));
     for (int a = 0; a < 3; a++) run_faces(L, project_slices, a);
     stats->divergence_mean = divergence_mean(L, stats->liquid_cells);
     double t_3 = dr_time_now();
     stats->seconds_pressure += t_3 - t_2;
 
-    /* 5. extrapolation; 6. collider velocity constraint; domain walls stay at rest */
+    /* 5. extrapolation; 6. collider velocity constraint */
     extrapolate(L);
     if (L->nframes > 0) {
         for (int a = 0; a < 3; a++) memcpy(L->tmp[a], g->f[a], (size_t)g->nfaces[a] * sizeof(double));
         for (int a = 0; a < 3; a++) run_faces(L, collider_slices, a);
     }
-    grid_impulse(L, dt, stats);
-    stats->seconds_other += (t_2 - t_1) + (dr_time_now() - t_3);
-    return DR_OK;
-}
-
-/* 2.–9. of a substep from t to t + dt, after substep_p2g. */
-static DrStatus substep(DrLiquid *L, double t, double dt, bool visc_clamped, DrLiquidStats *stats, DrError *err)
-{
-    DrMacGrid *g = L->g;
-    DrLiquidState *s = &L->st;
-    DR_TRY(substep_grid(L, t, dt, visc_clamped, stats, err));
-    double t_4 = dr_time_now();
-
-    /* 7. G2P */
-    dr_transfer_g2p_mac(g, (const double *const *)L->uold, L->d.scheme, L->d.flip_blend, L->d.wall_no_slip, s->n,
-                        s->x, s->v, s->c);
-    double t_5 = dr_time_now();
-    stats->seconds_g2p += t_5 - t_4;
-
-    /* 8. advection x += Δt v^{n+1} ([APIC] §5.3), push-out, clamp */
-    AdvCtx actx;
-    actx.L = L;
-    actx.dt = dt;
-    for (int c = 0; c < L->nframes; c++) dr_collider_frame_bounds(&L->frames[c], &actx.blo[c], &actx.bhi[c]);
-    dr_parallel_for(s->n, L->nframes > 0 ? 2048 : PAR_MIN_ITEMS, advect_range, &actx);
-    double t_6 = dr_time_now();
-    stats->seconds_advect += t_6 - t_5;
-
-    /* 9. emitters, kill boxes */
-    DR_TRY(emit(L, t, stats, err));
-    kill(L, stats);
-    stats->seconds_other += dr_time_now() - t_6;
-    stats->substeps++;
+    L->sample_ok = true;
+    stats->seconds_other += dr_time_now() - t_3;
     return DR_OK;
 }
 
@@ -1923,71 +2059,269 @@ static double cfl_step(const DrLiquid *L, double umax)
     return den > 0.0 ? L->d.cfl * L->g->dx / den : INFINITY;
 }
 
-DrStatus dr_liquid_advance(DrLiquid *liq, const DrCollider *const *colliders, int ncolliders, double t0, double t1,
-                           DrLiquidStats *stats, DrError *err)
+/* The interval [t0, t1] the substeps land on: its duration is the volume correction's T, and max_substeps
+   counts the substeps in it. */
+static void interval_start(DrLiquid *L, double t0, double t1)
 {
-    memset(stats, 0, sizeof *stats);
-    if (ncolliders < 0 || ncolliders > MAX_COLLIDERS_FRAME)
-        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "liquid: between 0 and %d colliders.", MAX_COLLIDERS_FRAME);
-    if (!(t1 >= t0) || !isfinite(t0) || !isfinite(t1))
-        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "liquid advance: t1 (%g) must not precede t0 (%g).", t1, t0);
-    liq->nframes = ncolliders;
-    for (int c = 0; c < ncolliders; c++) liq->frames[c] = dr_collider_frame(colliders[c], t0);
-    liq->span = t1 > t0 ? t1 - t0 : 1.0;
-    const DrMacGrid *g = liq->g;
-    double nu = liq->d.viscosity / liq->d.density;
-    double t = t0;
-    bool warned = false;
-    while (t < t1) {
-        DR_TRY(substep_p2g(liq, stats, err));
-        DrVec3 llo, lhi;
-        double umax = grid_speed(liq, &llo, &lhi);
-        /* a collider moving through the liquid moves it at its own speed within this substep: a step the
-           liquid's own speed allows could carry the collider across cells the pressure never sees it in */
-        umax = fmax(umax, collider_speed(liq, colliders, ncolliders, t, t1, llo, lhi));
-        if (!liq->accel_known && isfinite(umax)) {
-            /* the first substep of a liquid: a⁺ of the initial state, from a trial of the grid phases over
-               the step gravity alone would allow, then discarded (the grid is transferred again) */
-            DrLiquidStats trial;
-            memset(&trial, 0, sizeof trial);
-            liq->accel = dr_v3_norm(liq->d.gravity);
-            double h = fmin(cfl_step(liq, umax), t1 - t);
-            DR_TRY(substep_grid(liq, t, h, true, &trial, err));
-            for (int c = 0; c < liq->nframes; c++) liq->frames[c] = dr_collider_frame(colliders[c], t);
-            DR_TRY(substep_p2g(liq, stats, err));
-        }
-        liq->accel_known = true;
-        if (!isfinite(umax) || !isfinite(liq->accel))
-            return dr_error_set(err, DR_ERR_RUNTIME, NULL, 0, 0,
-                                "liquid: velocities became non-finite at t = %g s; lower cfl or raise max_substeps.", t);
-        double dt = cfl_step(liq, umax);
-        if (nu > 0.0) dt = fmin(dt, g->dx * g->dx / (6.0 * nu));
-        double remaining = t1 - t;
-        double nneed = ceil(remaining / dt);
-        int left = liq->d.max_substeps - stats->substeps;
-        bool clamped = false;
-        if (!(nneed <= left)) {
-            nneed = left;
-            clamped = true;
-            if (!warned) {
-                dr_log_warn("liquid: the CFL condition needs more than max_substeps = %d substeps in [%g, %g] s; "
-                            "clamping (raise max_substeps for accuracy)", liq->d.max_substeps, t0, t1);
-                warned = true;
-            }
-        }
-        if (nneed < 1) nneed = 1;
-        dt = remaining / nneed;
-        bool last = nneed <= 1;
-        DR_TRY(substep(liq, t, dt, clamped, stats, err));
-        t = last ? t1 : t + dt;
+    L->ival_t0 = t0;
+    L->ival_t1 = t1;
+    L->ival_substeps = 0;
+    L->ival_warned = false;
+    L->span = t1 > t0 ? t1 - t0 : 1.0;
+}
+
+/* The next substep's length from t in the open interval (liquid.h: dr_liquid_stable_dt), after P2G. */
+static DrStatus stable_step(DrLiquid *L, const DrCollider *const *colliders, int ncolliders, double t, double *h,
+                            DrError *err)
+{
+    const DrMacGrid *g = L->g;
+    double t1 = L->ival_t1, nu = L->d.viscosity / L->d.density;
+    L->phase = PHASE_IDLE;
+    L->sample_ok = false;
+    DR_TRY(substep_p2g(L, err));
+    DrVec3 llo, lhi;
+    double umax = grid_speed(L, &llo, &lhi);
+    /* a collider moving through the liquid moves it at its own speed within this substep: a step the
+       liquid's own speed allows could carry the collider across cells the pressure never sees it in */
+    umax = fmax(umax, collider_speed(L, colliders, ncolliders, t, t1, llo, lhi));
+    if (!L->accel_known && isfinite(umax)) {
+        /* the first substep of a liquid: a⁺ of the initial state, from a trial of the grid phases over
+           the step gravity alone would allow, then discarded (the grid is transferred again) */
+        DrLiquidStats trial;
+        memset(&trial, 0, sizeof trial);
+        L->accel = dr_v3_norm(L->d.gravity);
+        double ht = fmin(cfl_step(L, umax), t1 - t);
+        grid_begin(L, colliders, ncolliders, t, ht, true);
+        DR_TRY(grid_project(L, NULL, &trial, err));
+        grid_impulse(L, ht, &trial);
+        L->sample_ok = false;
+        DR_TRY(substep_p2g(L, err));
     }
-    stats->particles = liq->st.n;
+    L->accel_known = true;
+    if (!isfinite(umax) || !isfinite(L->accel))
+        return dr_error_set(err, DR_ERR_RUNTIME, NULL, 0, 0,
+                            "liquid: velocities became non-finite at t = %g s; lower cfl or raise max_substeps.", t);
+    double dt = cfl_step(L, umax);
+    if (nu > 0.0) dt = fmin(dt, g->dx * g->dx / (6.0 * nu));
+    double remaining = t1 - t;
+    double nneed = ceil(remaining / dt);
+    int left = L->d.max_substeps - L->ival_substeps;
+    bool clamped = false;
+    if (!(nneed <= left)) {
+        nneed = left;
+        clamped = true;
+        if (!L->ival_warned) {
+            dr_log_warn("liquid: the CFL condition needs more than max_substeps = %d substeps in [%g, %g] s; "
+                        "clamping (raise max_substeps for accuracy)", L->d.max_substeps, L->ival_t0, t1);
+            L->ival_warned = true;
+        }
+    }
+    if (nneed < 1) nneed = 1;
+    dt = remaining / nneed;
+    L->t_step = t;
+    L->h_stable = dt;
+    L->step_lands = nneed <= 1;
+    L->step_clamped = clamped;
+    L->phase = PHASE_READY;
+    *h = dt;
+    return DR_OK;
+}
+
+/* 2.–3. from t over h, after stable_step at t; keep: save the velocities the projection starts from. */
+static void step_begin(DrLiquid *L, const DrCollider *const *colliders, int ncolliders, double t, double h, bool keep)
+{
+    grid_begin(L, colliders, ncolliders, t, h, L->step_clamped);
+    L->t_step = t;
+    L->h_step = h;
+    L->nproj = 0;
+    if (keep) {
+        double t_0 = dr_time_now();
+        for (int a = 0; a < 3; a++) memcpy(L->ustar[a], L->g->f[a], (size_t)L->g->nfaces[a] * sizeof(double));
+        L->pend_other += dr_time_now() - t_0;
+    }
+    L->phase = PHASE_BEGUN;
+}
+
+/* 4.–6.; from the second call on, from the velocities step_begin saved. */
+static DrStatus step_project(DrLiquid *L, const DrFaceCoupling *extra, DrLiquidStats *stats, DrError *err)
+{
+    if (L->nproj++ > 0) {
+        assert(L->ustar[0]);
+        for (int a = 0; a < 3; a++) memcpy(L->g->f[a], L->ustar[a], (size_t)L->g->nfaces[a] * sizeof(double));
+    }
+    L->phase = PHASE_BEGUN;
+    DR_TRY(grid_project(L, extra, stats, err));
+    L->phase = PHASE_PROJECTED;
+    return DR_OK;
+}
+
+static void report_particles(const DrLiquid *L, DrLiquidStats *stats)
+{
+    stats->particles = L->st.n;
     double vmax = 0.0;
-    for (long p = 0; p < liq->st.n; p++) {
-        const double *v = liq->st.v + 3 * p;
+    for (long p = 0; p < L->st.n; p++) {
+        const double *v = L->st.v + 3 * p;
         double sp = sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
         if (sp > vmax) vmax = sp;
     }
     stats->max_speed = vmax;
+}
+
+/* 7.–10. of the substep, after step_project: the grid impulse and a⁺ from the projected grid, G2P,
+   advection, push-out, emitters, kill boxes. */
+static DrStatus step_end(DrLiquid *L, DrLiquidStats *stats, bool report, DrError *err)
+{
+    DrMacGrid *g = L->g;
+    DrLiquidState *s = &L->st;
+    double t_4 = dr_time_now();
+    grid_impulse(L, L->h_step, stats);
+    stats->added_impulse = dr_v3_add(stats->added_impulse, L->added);
+    stats->seconds_p2g += L->pend_p2g;
+    stats->seconds_other += L->pend_other;
+    L->pend_p2g = L->pend_other = 0.0;
+    double t_5 = dr_time_now();
+    stats->seconds_other += t_5 - t_4;
+
+    /* 7. G2P */
+    dr_transfer_g2p_mac(g, (const double *const *)L->uold, L->d.scheme, L->d.flip_blend, L->d.wall_no_slip, s->n,
+                        s->x, s->v, s->c);
+    double t_6 = dr_time_now();
+    stats->seconds_g2p += t_6 - t_5;
+
+    /* 8. advection x += Δt v^{n+1} ([APIC] §5.3), push-out, clamp */
+    AdvCtx actx;
+    actx.L = L;
+    actx.dt = L->h_step;
+    for (int c = 0; c < L->nframes; c++) dr_collider_frame_bounds(&L->frames[c], &actx.blo[c], &actx.bhi[c]);
+    dr_parallel_for(s->n, L->nframes > 0 ? 2048 : PAR_MIN_ITEMS, advect_range, &actx);
+    double t_7 = dr_time_now();
+    stats->seconds_advect += t_7 - t_6;
+
+    /* 9. emitters, kill boxes */
+    DR_TRY(emit(L, L->t_step, stats, err));
+    kill(L, stats);
+    stats->seconds_other += dr_time_now() - t_7;
+    stats->substeps++;
+    L->ival_substeps++;
+    L->phase = PHASE_IDLE;
+    if (report) report_particles(L, stats);
     return DR_OK;
+}
+
+static DrStatus check_colliders(int ncolliders, DrError *err)
+{
+    if (ncolliders < 0 || ncolliders > MAX_COLLIDERS_FRAME)
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "liquid: between 0 and %d colliders.", MAX_COLLIDERS_FRAME);
+    return DR_OK;
+}
+
+DrStatus dr_liquid_advance(DrLiquid *liq, const DrCollider *const *colliders, int ncolliders, double t0, double t1,
+                           DrLiquidStats *stats, DrError *err)
+{
+    memset(stats, 0, sizeof *stats);
+    DR_TRY(check_colliders(ncolliders, err));
+    if (!(t1 >= t0) || !isfinite(t0) || !isfinite(t1))
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "liquid advance: t1 (%g) must not precede t0 (%g).", t1, t0);
+    interval_start(liq, t0, t1);
+    double t = t0;
+    while (t < t1) {
+        double dt;
+        DR_TRY(stable_step(liq, colliders, ncolliders, t, &dt, err));
+        bool last = liq->step_lands;
+        step_begin(liq, colliders, ncolliders, t, dt, false);
+        DR_TRY(step_project(liq, NULL, stats, err));
+        DR_TRY(step_end(liq, stats, false, err));
+        t = last ? t1 : t + dt;
+    }
+    report_particles(liq, stats);
+    return DR_OK;
+}
+
+/* ---- the substep in phases (liquid.h) ---------------------------------------------------------------- */
+
+DrStatus dr_liquid_stable_dt(DrLiquid *liq, const DrCollider *const *colliders, int ncolliders, double t,
+                             double t_end, double *h, DrError *err)
+{
+    *h = 0.0;
+    DR_TRY(check_colliders(ncolliders, err));
+    if (!isfinite(t) || !isfinite(t_end) || !(t_end > t))
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                            "liquid stable_dt: t_end (%g) must be finite and after t (%g).", t_end, t);
+    if (!(t_end == liq->ival_t1) || !(t >= liq->ival_t0)) interval_start(liq, t, t_end);
+    return stable_step(liq, colliders, ncolliders, t, h, err);
+}
+
+DrStatus dr_liquid_begin(DrLiquid *liq, const DrCollider *const *colliders, int ncolliders, double t, double h,
+                         DrError *err)
+{
+    assert(liq->phase == PHASE_READY && t == liq->t_step); /* dr_liquid_stable_dt(t) first */
+    DR_TRY(check_colliders(ncolliders, err));
+    if (!(h > 0.0) || !(h <= liq->h_stable))
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                            "liquid begin: h (%g s) must be positive and at most the stable step %g s.", h,
+                            liq->h_stable);
+    for (int a = 0; a < 3; a++)
+        if (!liq->ustar[a]) DR_TRY(dr_calloc((size_t)liq->g->nfaces[a], sizeof(double), &liq->ustar[a], err));
+    step_begin(liq, colliders, ncolliders, t, h, true);
+    return DR_OK;
+}
+
+DrStatus dr_liquid_project(DrLiquid *liq, const DrFaceCoupling *extra, DrLiquidStats *stats, DrError *err)
+{
+    assert(liq->phase == PHASE_BEGUN || liq->phase == PHASE_PROJECTED); /* dr_liquid_begin first */
+    return step_project(liq, extra, stats, err);
+}
+
+DrStatus dr_liquid_end(DrLiquid *liq, DrLiquidStats *stats, DrError *err)
+{
+    assert(liq->phase == PHASE_PROJECTED); /* dr_liquid_project first */
+    return step_end(liq, stats, true, err);
+}
+
+/* Trilinear interpolation at world position x of the cell-centred pressure (p = ρq/Δt on pressure cells,
+   0 elsewhere), clamped to the lattice of cell centres like dr_mac_sample_face. */
+static double sample_pressure(const DrLiquid *L, DrVec3 x)
+{
+    const DrMacGrid *g = L->g;
+    int n[3] = {g->nx, g->ny, g->nz}, idx[3][2];
+    double w[3][2];
+    for (int d = 0; d < 3; d++) {
+        double s = (dr_v3_get(x, d) - dr_v3_get(g->origin, d)) / g->dx - 0.5;
+        int hi = n[d] - 1;
+        if (s < 0.0) s = 0.0;
+        if (s > hi) s = hi;
+        DrStencil2 st = dr_kernel_linear(s);
+        idx[d][0] = st.base;
+        idx[d][1] = st.base + 1 > hi ? hi : st.base + 1;
+        w[d][0] = st.w[0];
+        w[d][1] = st.w[1];
+    }
+    double sum = 0.0;
+    for (int kk = 0; kk < 2; kk++)
+        for (int jj = 0; jj < 2; jj++)
+            for (int ii = 0; ii < 2; ii++) {
+                int r = L->row[dr_mac_cell_index(g, idx[0][ii], idx[1][jj], idx[2][kk])];
+                if (r >= 0) sum += w[0][ii] * w[1][jj] * w[2][kk] * L->q[r];
+            }
+    return sum * L->d.density / L->h_step;
+}
+
+typedef struct SampleCtx { const DrLiquid *L; const double *x; double *v, *p; } SampleCtx;
+
+static void sample_range(long begin, long end, void *vctx)
+{
+    const SampleCtx *ctx = vctx;
+    for (long i = begin; i < end; i++) {
+        DrVec3 x = dr_v3(ctx->x[3 * i], ctx->x[3 * i + 1], ctx->x[3 * i + 2]);
+        if (ctx->v)
+            for (int a = 0; a < 3; a++) ctx->v[3 * i + a] = dr_mac_sample_face(ctx->L->g, a, x);
+        if (ctx->p) ctx->p[i] = sample_pressure(ctx->L, x);
+    }
+}
+
+void dr_liquid_sample(const DrLiquid *liq, long n, const double *points, double *vel_out, double *pressure_out)
+{
+    assert(liq->sample_ok); /* a projection since the last dr_liquid_stable_dt */
+    SampleCtx ctx = {liq, points, vel_out, pressure_out};
+    dr_parallel_for(n, 4096, sample_range, &ctx);
 }

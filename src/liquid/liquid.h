@@ -134,6 +134,10 @@ typedef struct DrLiquidStats {
        ([APIC] §5.3), so the change of dr_liquid_totals' momentum/angular equals these (before the
        push-out/clamp/emitter/kill phases, which the caller avoids when checking). */
     DrVec3 grid_linear_impulse, grid_angular_impulse;
+    /* Σ over substeps of the momentum the extra face coupling's impulses gave the liquid in the substep's
+       last dr_liquid_project (N·s; the faces that took them, dr_liquid_project); part of the grid impulse
+       above. 0 without an extra coupling (dr_liquid_advance). */
+    DrVec3 added_impulse;
 } DrLiquidStats;
 
 typedef struct DrLiquid DrLiquid;
@@ -156,6 +160,76 @@ void dr_liquid_destroy(DrLiquid **liq);
    solver breaks down (non-finite values); DR_ERR_NOMEM if growing for emitters fails. */
 DR_NODISCARD DrStatus dr_liquid_advance(DrLiquid *liq, const DrCollider *const *colliders, int ncolliders,
                                         double t0, double t1, DrLiquidStats *stats, DrError *err);
+/* ---- the substep in phases (DESIGN §8) ----------------------------------------------------------------
+ * dr_liquid_advance is the loop
+ *     while (t < t1) { stable_dt(t, t1, &h); begin(t, h); project(NULL); end(); t = h == t1 − t ? t1 : t + h; }
+ * and gives the same bits as that loop (tests/validation/test_liquid_phases.c). A coupled step calls the
+ * phases itself: between begin and end it may project several times with other participants' face
+ * coupling and sample the grid after each projection. One substep's calls come in this order; a call out
+ * of order is a programming error (assert). Particles are re-sorted in stable_dt: indices of particles
+ * are good for one substep only.
+ *
+ * stable_dt: the length h of the substep from t that dr_liquid_advance would take next towards t_end: the
+ *   CFL bound (above; on the liquid's first substep a⁺ comes from a trial of the grid phases), the explicit-
+ *   viscosity limit and max_substeps, with the interval [t, t_end] split into equal substeps, so h ≤ t_end −
+ *   t and h == t_end − t when the substep lands on t_end (then take t_end as the next t: t + h may differ
+ *   in the last bit). The interval: the first call with a given t_end (or with t before the interval's
+ *   start) opens [t, t_end]; its duration is the volume correction's T and max_substeps counts the
+ *   substeps ended in it (dr_liquid_advance opens [t0, t1]). Transfers the particles to the grid (P2G),
+ *   which begin uses: the particles must not change between the two calls. Never INFINITY (the step always
+ *   lands on t_end). DR_ERR_INPUT for a bad collider count or t_end not after t (both finite);
+ *   DR_ERR_RUNTIME for non-finite velocities; DR_ERR_NOMEM. *h is 0 on failure. */
+DR_NODISCARD DrStatus dr_liquid_stable_dt(DrLiquid *liq, const DrCollider *const *colliders, int ncolliders,
+                                          double t, double t_end, double *h, DrError *err);
+/* begin: the substep from t (the t of the stable_dt call just before) over h, 0 < h ≤ the stable_dt
+   result: the colliders posed at t + h, gravity and viscosity on the grid, the colliders' face coupling
+   (their face weights and velocities) and the cells' open fractions; keeps a copy of the face velocities
+   the projection starts from. DR_ERR_INPUT for h out of range or a bad collider count; DR_ERR_NOMEM (the
+   copy is allocated on the first call). */
+DR_NODISCARD DrStatus dr_liquid_begin(DrLiquid *liq, const DrCollider *const *colliders, int ncolliders, double t,
+                                      double h, DrError *err);
+/* project: the pressure solve, the velocity update, the extrapolation of the grid change into the faces the
+   projection does not update and the colliders' velocity constraint. extra (NULL: none, which is what
+   dr_liquid_advance does) is another participant's face coupling (grid.h), sized like the liquid's grid
+   (dr_liquid_grid), borrowed for the call: its solid shares add to the colliders' (the solids taken as
+   disjoint; a face the extra coupling leaves fully open keeps the colliders' values exactly), its solid
+   velocity joins theirs weighted by share, and its impulse J_f (N·s) is added as the velocity increment
+   J_f/m_f (m_f the face's P2G mass) before the solve, on the faces that take part as liquid faces: open,
+   neither a domain wall nor without liquid (at most 1e-6 of a full face's mass), and, ghost fluid, next
+   to a pressure cell; impulses elsewhere are dropped. The momentum so given (Σ J_f over the faces taking
+   it) goes to stats->added_impulse at end. The extra solid fractions enter the projection only: the
+   cells' open fractions (free-surface level set), the particles' push-out and the slip/friction
+   constraint stay the colliders' (an extra solid keeps the liquid out through its blocked faces, as the
+   pressure sees them; particles are not pushed out of it). Re-callable: every call starts from the
+   velocities begin kept, so the same extra gives the same bits again, and only the last call's grid goes
+   on to end. Adds the solve's figures (iterations, residual, non-convergence, seconds) of every call to
+   *stats and sets liquid_cells and divergence_mean. A pressure solve that does not converge is a warning
+   (stats), never a failure. DR_ERR_INPUT for an extra coupling with an open fraction outside [0, 1] or
+   non-finite values; DR_ERR_RUNTIME if the solver breaks down; DR_ERR_NOMEM. */
+DR_NODISCARD DrStatus dr_liquid_project(DrLiquid *liq, const DrFaceCoupling *extra, DrLiquidStats *stats,
+                                        DrError *err);
+/* sample: after a project (and until the next stable_dt), the grid velocity (m/s; trilinear on each face
+   component's lattice, dr_mac_sample_face) and the pressure (Pa; p = ρq/Δt at the pressure cells' centres,
+   0 at every other cell centre — air and solids —, trilinear on the lattice of cell centres) at n points
+   (3n, m). Both lattices are clamped at the domain: beyond the outermost centres the value is that of the
+   nearest. In the half cell below the free surface the pressure tends to the air cells' 0 at their
+   centres, not at the surface (a hydrostatic pool reads ρ g depth below the top liquid cells' centres,
+   ρ g Δx/4 too much at the surface). vel_out (3n) or pressure_out (n) may be NULL. Reads only: may run
+   while nothing writes the liquid. */
+void dr_liquid_sample(const DrLiquid *liq, long n, const double *points, double *vel_out, double *pressure_out);
+/* The P2G face masses of component a (kg; nfaces[a] values in dr_liquid_grid's face order) of the substep
+   the last dr_liquid_stable_dt opened, valid until the next one; borrowed. An extra coupling's impulse J_f
+   becomes the velocity increment J_f/m_f, so a face holding little liquid turns a small impulse into a
+   large velocity: a participant spreading a reaction over faces weights it by these masses (J_f = m_f δu
+   for a velocity increment δu). */
+const double *dr_liquid_face_mass(const DrLiquid *liq, int a);
+/* end: the grid impulse (and a⁺ of the next CFL step) of the last projection, G2P, advection, push-out out
+   of the colliders, the domain clamp, emitters and kill boxes; adds the substep to *stats (substeps,
+   impulses, seconds of every phase) and sets particles and max_speed. DR_ERR_NOMEM if growing for emitters
+   fails. */
+DR_NODISCARD DrStatus dr_liquid_end(DrLiquid *liq, DrLiquidStats *stats, DrError *err);
+/* The phase functions add to *stats: zero it before a sequence (dr_liquid_advance zeroes it itself). */
+
 const DrLiquidState *dr_liquid_state(const DrLiquid *liq);
 DrLiquidState *dr_liquid_state_mut(DrLiquid *liq);  /* for initial conditions in tests; keep arrays' length n */
 /* Checkpoint support: everything besides the particle arrays that a bit-identical continuation needs. */
