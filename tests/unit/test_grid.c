@@ -139,6 +139,32 @@ static void test_mac_layout_and_kernel(void **state)
 
 /* dr_collider_static: at most one key; dr_collider_id: never the same twice, also when a new collider takes
    the memory of a destroyed one (the liquid keeps static colliders' samples by id). */
+/* A face coupling is sized like the grid's faces and starts as no solid: open 1, velocity 0, impulse 0. */
+static void test_face_coupling(void **state)
+{
+    (void)state;
+    DrMacGrid *g = NULL;
+    DrError err;
+    assert_int_equal(dr_mac_grid_create(2, 3, 4, 0.5, dr_v3(0, 0, 0), &g, &err), DR_OK);
+    DrFaceCoupling *fc = NULL;
+    assert_int_equal(dr_face_coupling_create(g, &fc, &err), DR_OK);
+    for (int a = 0; a < 3; a++) {
+        assert_int_equal(fc->nfaces[a], g->nfaces[a]);
+        for (long f = 0; f < fc->nfaces[a]; f++) {
+            assert_true(fc->open[a][f] == 1.0 && fc->velocity[a][f] == 0.0 && fc->impulse[a][f] == 0.0);
+            fc->open[a][f] = 0.5; fc->velocity[a][f] = 2.0; fc->impulse[a][f] = 3.0;
+        }
+    }
+    dr_face_coupling_clear(fc);
+    for (int a = 0; a < 3; a++)
+        for (long f = 0; f < fc->nfaces[a]; f++)
+            assert_true(fc->open[a][f] == 1.0 && fc->velocity[a][f] == 0.0 && fc->impulse[a][f] == 0.0);
+    dr_face_coupling_destroy(&fc);
+    assert_null(fc);
+    dr_face_coupling_destroy(&fc);
+    dr_mac_grid_destroy(&g);
+}
+
 static void test_static_and_id(void **state)
 {
     (void)state;
@@ -161,6 +187,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {cmocka_unit_test(test_pose_interpolation), cmocka_unit_test(test_moving_sphere),
                                        cmocka_unit_test(test_face_fraction), cmocka_unit_test(test_mac_layout_and_kernel),
-                                       cmocka_unit_test(test_static_and_id)};
+                                       cmocka_unit_test(test_static_and_id),
+                                       cmocka_unit_test(test_face_coupling)};
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
