@@ -747,28 +747,25 @@ static bool entry_less(const HashEntry *a, const HashEntry *b)
     return a->key != b->key ? a->key < b->key : a->tri < b->tri;
 }
 
-/* Heapsort by (key, triangle): in place (the C library's qsort may take a heap buffer), and since equal entries are
-   identical, any correct sort gives the same array. */
-static void entries_sort(HashEntry *e, int n)
+/* Bottom-up merge sort by (key, triangle) through the scratch tmp (n entries), ending in e: the library's qsort
+   sorts the same way but takes its buffer from the heap on every call. Equal entries are identical, so any correct
+   sort gives the same array. */
+static void entries_sort(HashEntry *e, HashEntry *tmp, int n)
 {
-    for (int start = n / 2 - 1, end = n; end > 1;) {
-        int root;
-        if (start >= 0) {
-            root = start--;
-        } else {
-            HashEntry t = e[0];
-            e[0] = e[--end];
-            e[end] = t;
-            root = 0;
+    HashEntry *src = e, *dst = tmp;
+    for (int width = 1; width < n; width *= 2) {
+        for (int lo = 0; lo < n; lo += 2 * width) {
+            int mid = lo + width < n ? lo + width : n, hi = lo + 2 * width < n ? lo + 2 * width : n;
+            int i = lo, j = mid, k = lo;
+            while (i < mid && j < hi) dst[k++] = entry_less(&src[j], &src[i]) ? src[j++] : src[i++];
+            while (i < mid) dst[k++] = src[i++];
+            while (j < hi) dst[k++] = src[j++];
         }
-        for (int child; (child = 2 * root + 1) < end; root = child) {
-            if (child + 1 < end && entry_less(&e[child], &e[child + 1])) child++;
-            if (!entry_less(&e[root], &e[child])) break;
-            HashEntry t = e[root];
-            e[root] = e[child];
-            e[child] = t;
-        }
+        HashEntry *t = src;
+        src = dst;
+        dst = t;
     }
+    if (src != e) memcpy(e, src, sizeof *e * (size_t)n);
 }
 
 /* The point of triangle (a, b, c) closest to x, as barycentric weights w. */
@@ -800,9 +797,10 @@ static void closest_on_triangle(const double *x, const double *a, const double *
 }
 
 /* Triangles of body b at positions V into the cells (size h) their bounding box, grown by h, overlaps, sorted by
-   cell key: a vertex then needs only its own cell. *out (capacity *cap, kept between steps) grows as needed. */
+   cell key: a vertex then needs only its own cell. *out and the sort's scratch *tmp (capacities *cap_ and *tmp_cap,
+   kept between steps) grow as needed. */
 static DrStatus hash_build(const DrBemMatrices *m, const double *V, double h, HashEntry **out, size_t *cap_,
-                           int *count, DrError *err)
+                           HashEntry **tmp, size_t *tmp_cap, int *count, DrError *err)
 {
     int ne = 0;
     size_t cap = *cap_;
@@ -829,14 +827,18 @@ static DrStatus hash_build(const DrBemMatrices *m, const double *V, double h, Ha
                     e[ne++] = (HashEntry){cell_key(i, j, k), t};
                 }
     }
-    entries_sort(e, ne);
+    if ((size_t)ne > *tmp_cap) {
+        DR_TRY(dr_realloc(cap, sizeof *e, tmp, err));
+        *tmp_cap = cap;
+    }
+    entries_sort(e, *tmp, ne);
     *count = ne;
     return DR_OK;
 }
 
 /* Vertices of body a within 2·thickness of (or at most h inside) the surface of body b, at the trial positions. */
 static DrStatus detect_body_pair(Body *bodies, int ia, int ib, double *const *V0, double *const *Vs,
-                                 const DrBemConstraints *c, HashEntry **hash, size_t *hash_cap, Con *cons, int *nc,
+                                 const DrBemConstraints *c, HashEntry *hash[2], size_t hash_cap[2], Con *cons, int *nc,
                                  DrBemConstraintStats *stats, DrError *err)
 {
     const DrBemMatrices *mb = bodies[ib].s->m;
@@ -848,8 +850,8 @@ static DrStatus detect_body_pair(Body *bodies, int ia, int ib, double *const *V0
         }
     h = fmax(h / (3.0 * mb->nt), 4 * c->thickness);
     int ne = 0;
-    DR_TRY(hash_build(mb, V0[ib], h, hash, hash_cap, &ne, err));
-    const HashEntry *e = *hash;
+    DR_TRY(hash_build(mb, V0[ib], h, &hash[0], &hash_cap[0], &hash[1], &hash_cap[1], &ne, err));
+    const HashEntry *e = hash[0];
     for (int v = 0; v < bodies[ia].s->nv; v++) {
         const double *x = &V0[ia][3 * v];
         uint64_t key = cell_key((long)floor(x[0] / h), (long)floor(x[1] / h), (long)floor(x[2] / h));
@@ -919,8 +921,8 @@ struct BemGroupWork {
     size_t cons_cap;
     Con *cons, *cons0;          /* the active constraints; as predicted, where every solve starts */
     Sweep sweep;
-    HashEntry *hash;            /* body–body detection */
-    size_t hash_cap;
+    HashEntry *hash[2];         /* body–body detection: the entries and the sort's scratch */
+    size_t hash_cap[2];
     double *work;               /* the assembly's */
     size_t work_cap;
     DrBemConstraintStats pred, stats; /* the prediction's figures; the step's so far */
@@ -939,7 +941,8 @@ void bem_group_work_free(BemGroupWork **pw)
     free(w->cons);
     free(w->cons0);
     sweep_free(&w->sweep);
-    free(w->hash);
+    free(w->hash[0]);
+    free(w->hash[1]);
     free(w->work);
     free(w);
     *pw = NULL;
@@ -1091,7 +1094,7 @@ DrStatus dr_bem_solids_predict(DrBemSolid *const *solids, int count, const DrBem
     for (int ia = 0; c->body_contact && ia < count && status == DR_OK; ia++)
         for (int ib = 0; ib < count && status == DR_OK; ib++)
             if (ia != ib)
-                status = detect_body_pair(bodies, ia, ib, V0s, Vss, c, &w->hash, &w->hash_cap, cons, &nc, &stats, err);
+                status = detect_body_pair(bodies, ia, ib, V0s, Vss, c, w->hash, w->hash_cap, cons, &nc, &stats, err);
     for (int i = 0; i < nc; i++) /* local indices, now that every active list is final */
         for (int e = 0; e < cons[i].ne; e++) cons[i].local[e] = bodies[cons[i].body[e]].map[cons[i].vertex[e]];
     stats.seconds_detect = dr_time_now() - t_det;
