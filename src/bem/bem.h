@@ -222,8 +222,56 @@ typedef struct DrBemStepStats {
 } DrBemStepStats;
 
 /* One step with nodal tractions p (3N, body frame, Pa; NULL = traction-free). DR_ERR_RUNTIME if the state
- * turns non-finite (the step is refused and the previous state kept). st may be NULL. */
+ * turns non-finite (the step is refused and the previous state kept). st may be NULL. The same, bit for bit, as
+ * dr_bem_solid_predict + dr_bem_solid_solve(traction, NULL) + dr_bem_solid_commit below. */
 DR_NODISCARD DrStatus dr_bem_solid_step(DrBemSolid *s, const double *traction, DrBemStepStats *st, DrError *err);
+
+/* ---- the step in phases (DESIGN §8) ------------------------------------------------------------------------------
+ * predict → samples → solve(load) … solve(load) → commit. What eq. (9) sums over past steps (the history of u, p and
+ * the frame accelerations) does not depend on this step's load, so predict computes it once; a solve is the rest of
+ * the step for one load: eq. (12) for u, the error correction of §3.2.1 and the frame of eqs. (10)–(11); commit
+ * takes the last solve into the state and the history window. Between predict and commit the state
+ * (dr_bem_solid_state_get, the readers below) stays that of the start of the step; each solve starts again from
+ * the prediction, so solving again with another load gives what that solve alone would have given. Misuse (a solve
+ * without a prediction, a commit without a successful solve since predict) asserts; dr_bem_solid_state_set drops a
+ * prediction. No phase allocates. */
+
+/* The body's time step: matrices->desc.dt, not a limit but the only step it can take. The convolution quadrature
+ * weights H_k, G_k, D_k, Q_k are built for it, and every phase advances by exactly one such step, so a clock shared
+ * with other solvers must land on this body's step ends (t = k·dt from the body's start): take smaller steps for the
+ * others in between and hand the body the load gathered over its step (DESIGN §8, step 5). */
+double dr_bem_solid_stable_dt(const DrBemSolid *s);
+
+/* Starts step s->step + 1: the history sums of eq. (9) and their H₀⁻¹ product (seconds in the solve's
+ * seconds_history). Always DR_OK; a second predict of the same step reuses the sums. */
+DR_NODISCARD DrStatus dr_bem_solid_predict(DrBemSolid *s, DrError *err);
+
+/* The points where the body meets other solvers: its N surface vertices, borrowed (the solid's own arrays, filled by
+ * this call and valid until the next call of it or of any phase). SI units, world frame. */
+typedef struct DrBemSamples {
+    int n;                /* N */
+    const double *x;      /* 3N positions at the start of the step (between steps: now), m */
+    const double *v;      /* 3N velocities Ṫ + ω × R(x − x̄ + u) + R u̇: of the last solve since predict (the end of
+                             the step it would commit, u̇ = (u₊ − u)/Δt); else of the start of the step (u̇ from the
+                             history window; the frame's motion alone when the window holds one step), m/s */
+    const double *normal; /* 3N unit outward normals at x (the normalised sum of the vertex's triangle areas) */
+    const double *area;   /* N: ∫Φ_j over the rest surface, m²: a force f at vertex j acts as the traction f/area_j */
+} DrBemSamples;
+DrBemSamples dr_bem_solid_samples(DrBemSolid *s);
+
+/* Solves the predicted step for the load p = traction + Rᵀ f / area_j (R the rotation at the start of the step):
+ * traction 3N, body frame, Pa, and force 3N, world frame, N at the vertices (either NULL: none; both NULL: the
+ * traction-free step). The load acts over the whole step (eqs. 10–12 are linear in it); there is no implicit
+ * force derivative, so a velocity-dependent law is applied explicitly, from the samples. Commits nothing:
+ * callable several times after one predict, each from the prediction alone. DR_ERR_RUNTIME if the state would turn
+ * non-finite (then a commit needs another solve). st (may be NULL) receives this solve's figures, seconds_history
+ * those of the prediction. */
+DR_NODISCARD DrStatus dr_bem_solid_solve(DrBemSolid *s, const double *traction, const double *force,
+                                         DrBemStepStats *st, DrError *err);
+
+/* Ends the step with the last solve: u, the frame, and the step's entry of the history window (ũ, p̃, b, α).
+ * st (may be NULL) receives that solve's figures. */
+void dr_bem_solid_commit(DrBemSolid *s, DrBemStepStats *st);
 
 const DrBemMatrices *dr_bem_solid_matrices(const DrBemSolid *s);
 long dr_bem_solid_steps(const DrBemSolid *s);                         /* steps taken */
@@ -309,18 +357,58 @@ typedef struct DrBemConstraintStats {
     int passes;                  /* linearisations solved (1 = the paper's single solve) */
     double residual;             /* largest fixed/joint position error or penetration after the step, m (0 when
                                     nothing was active) */
-    double seconds_trial;        /* trial steps (zero-force and re-linearisation passes) */
+    double seconds_trial;        /* trial steps (zero-force, external-force and re-linearisation passes) */
     double seconds_detect;       /* collider queries, body-pair detection, and measuring each pass's trial */
     double seconds_assembly;     /* the dense response blocks */
     double seconds_pgs;
-    double seconds_final;        /* the committed step */
+    double seconds_final;        /* the commit (bodies without constraints: their whole steps) */
 } DrBemConstraintStats;
 
 /* One step of every solid. Fails with DR_ERR_INPUT (nothing stepped) on an out-of-range body or vertex index, a
- * collider without sdf, negative friction or thickness, a non-positive tolerance, or solids with different Δt; DR_ERR_RUNTIME if a body's
- * step turns non-finite (the bodies stepped before it keep their step). DR_WARN_NOT_CONVERGED (all bodies stepped)
- * when the residual is still above the tolerance after max_passes. st may be NULL. */
+ * collider without sdf, negative friction or thickness, a non-positive tolerance, or solids with different Δt;
+ * DR_ERR_RUNTIME (nothing stepped) if a body's step would turn non-finite. DR_WARN_NOT_CONVERGED (all bodies stepped)
+ * when the residual is still above the tolerance after max_passes. st may be NULL. The same, bit for bit, as
+ * dr_bem_solids_predict + dr_bem_solids_solve(NULL) + dr_bem_solids_commit below.
+ *
+ * What the constrained step needs from step to step (the active lists, the response blocks, the constraints, the
+ * sweep's panel, the spatial hash) is kept by solids[0] and grows only when a step needs more than any before it, by
+ * half as much again: once the first step of a scene has run, a step whose active set stays within that headroom
+ * makes no heap allocation (the first constrained step of a body on a compressed set also builds the set's column
+ * copy of H₀⁻¹G′, once). */
 DR_NODISCARD DrStatus dr_bem_solids_step(DrBemSolid *const *solids, int count, const DrBemConstraints *c,
                                          DrBemConstraintStats *st, DrError *err);
+
+/* ---- the constrained step in phases (DESIGN §8) --------------------------------------------------------------------
+ * predict → samples (dr_bem_solid_samples of each solid) → solve(forces) … solve(forces) → commit, for one list of
+ * solids (the same pointers in the same order in every phase; solids[0] holds the prediction, a solid leads one at a
+ * time, and a new predict replaces one not committed). Between predict and commit every solid's state stays that of
+ * the start of the step; each solve starts again from the prediction (the constraints as detected, no constraint
+ * force), so it gives what that solve alone would have given, and commits nothing. c and what it points to must stay
+ * unchanged until commit (a solve calls the colliders' sdf again). Misuse asserts; dr_bem_solid_state_set on
+ * solids[0] drops the prediction.
+ *
+ * Predict: each body's history sums (dr_bem_solid_predict) and the trial step without forces that gives its
+ * unconstrained end-of-step positions; the active set found there (fixed vertices, joints, collider and body
+ * contacts); the dense response blocks of the active vertices and each constraint's own block. Fails as
+ * dr_bem_solids_step (DR_ERR_INPUT, DR_ERR_RUNTIME), nothing stepped. st (may be NULL) receives its counts and
+ * seconds. */
+DR_NODISCARD DrStatus dr_bem_solids_predict(DrBemSolid *const *solids, int count, const DrBemConstraints *c,
+                                            DrBemConstraintStats *st, DrError *err);
+
+/* Projected Gauss–Seidel and the trial passes of the predicted step, with external point forces: force NULL (none) or
+ * count pointers, force[i] NULL or 3N_i world-frame newtons at the vertices of solids[i]. They act over the whole step
+ * with the constraint forces (the solid's load is traction + Rᵀ(f_constraint + f_external)/area_j, see
+ * dr_bem_solid_solve); with them, the constraints start from a trial step with the external forces alone. The active
+ * set is the prediction's: a vertex the external forces push into a collider that the force-free trial kept clear of
+ * it gets no contact this step. Every solid ends with the solve of its last trial (dr_bem_solid_samples: the solved
+ * velocities). DR_WARN_NOT_CONVERGED as dr_bem_solids_step (the result may be committed); DR_ERR_RUNTIME if a trial
+ * would turn non-finite (no commit before another solve succeeds). st (may be NULL) receives the step's figures:
+ * the prediction's and this solve's. */
+DR_NODISCARD DrStatus dr_bem_solids_solve(DrBemSolid *const *solids, int count, const double *const *force,
+                                          DrBemConstraintStats *st, DrError *err);
+
+/* Every solid commits its last trial (the forces of the solve's last pass). st (may be NULL) receives the step's
+ * figures, seconds_final those of the commit. */
+void dr_bem_solids_commit(DrBemSolid *const *solids, int count, DrBemConstraintStats *st);
 
 #endif

@@ -26,7 +26,8 @@
  *     (a chord iteration with the same response blocks), and Gauss–Seidel continues from the current forces. With the
      frame update a single pass (the paper's solve) leaves errors of order 1e-5 m on a held beam end; a second pass
      brings them to 1e-7 m;
- *  6. the real step of every body with the final tractions.
+ *  6. the real step of every body with the final tractions: the last trial of step 5 had them, so each body commits
+ *     that trial (bem_solid.c keeps a solve until commit) and the step costs no solve of its own.
  * A vertex that is not active in step 2 gets no force in this step. */
 #include "bem_internal.h"
 
@@ -165,10 +166,12 @@ typedef struct Con {
     double knn, Ktt[4];    /* contact: nᵀKn and the tangential 2 × 2 block's inverse */
 } Con;
 
+/* One body of a group step. Its arrays are kept from step to step (in the group's BemGroupWork) and grow only when a
+   step needs more than any before, with headroom (grow below). */
 typedef struct Body {
     DrBemSolid *s;
-    int na, cap;      /* active vertices */
-    int *act;         /* active vertex → mesh vertex */
+    int na;           /* active vertices */
+    int *act;         /* active vertex → mesh vertex, room for nv */
     int *map;         /* mesh vertex → active index or −1, nv */
     double *V0;       /* 3N positions of the zero-force trial */
     double *Vstart;   /* 3N positions at the start of the step */
@@ -178,19 +181,27 @@ typedef struct Body {
                          precision halves the sweeps' memory traffic (see "the predictions during a sweep") */
     double *F;        /* 3·na summed vertex forces, world */
     double *P;        /* 3·na predicted positions of the active vertices */
+    const double *force; /* 3N external forces of the current solve (world, N), or NULL */
+    size_t map_cap, act_cap, v_cap, w_cap, f_cap, p_cap; /* capacities of map, act (ints), V0/Vstart/Vt/p, W
+                                                            (floats), F, P */
 } Body;
 
-static DrStatus body_add_active(Body *b, int v, DrError *err)
+/* *ptr holds at least `need` elements of `size` bytes (contents kept); a growth takes half as much again, so a step
+   needing slightly more than the last does not allocate. */
+static DrStatus grow(void *ptr, size_t *cap, size_t need, size_t size, DrError *err)
 {
-    if (b->map[v] >= 0) return DR_OK;
-    if (b->na == b->cap) {
-        int cap = b->cap ? 2 * b->cap : 16;
-        DR_TRY(dr_realloc((size_t)cap, sizeof(int), &b->act, err));
-        b->cap = cap;
-    }
+    if (need <= *cap) return DR_OK;
+    size_t want = need + need / 2 + 16;
+    DR_TRY(dr_realloc(want, size, ptr, err));
+    *cap = want;
+    return DR_OK;
+}
+
+static void body_add_active(Body *b, int v)
+{
+    if (b->map[v] >= 0) return;
     b->map[v] = b->na;
     b->act[b->na++] = v;
-    return DR_OK;
 }
 
 /* What the response blocks of one body's active vertices share (step 3 of the banner). */
@@ -278,17 +289,19 @@ static void assemble_slots(long begin, long end, void *ctx)
 
 /* The response blocks W of the active vertices (step 3 of the banner), stored by column: element (r, c) of the
    k3 × k3 matrix at W[c·k3 + r], so a force at one vertex updates the predictions from 3 contiguous columns. */
-static DrStatus body_assemble(Body *b, DrError *err)
+static DrStatus body_assemble(Body *b, double **work, size_t *work_cap, DrError *err)
 {
     DrBemSolid *s = b->s;
     const DrBemMatrices *m = s->m;
     int n = s->n, na = b->na, k3 = 3 * na;
     double dt = m->desc.dt;
-    free(b->W);
-    b->W = NULL;
-    DR_TRY(dr_calloc((size_t)k3 * k3, sizeof(float), &b->W, err));
-    DR_TRY(dr_calloc((size_t)k3, sizeof(double), &b->F, err));
-    DR_TRY(dr_calloc((size_t)k3, sizeof(double), &b->P, err));
+    if ((size_t)k3 * k3 > b->w_cap) { /* headroom in active vertices: W grows with their square */
+        size_t k3h = 3 * ((size_t)na + (size_t)na / 2 + 8);
+        DR_TRY(dr_realloc(k3h * k3h, sizeof(float), &b->W, err));
+        b->w_cap = k3h * k3h;
+    }
+    DR_TRY(grow(&b->F, &b->f_cap, (size_t)k3, sizeof(double), err));
+    DR_TRY(grow(&b->P, &b->p_cap, (size_t)k3, sizeof(double), err));
     if (na == 0) return DR_OK;
     if (!m->H0inv_Gp.dense && !s->rt->gp_cols) DR_TRY(columns_build(&m->layout, &m->H0inv_Gp, &s->rt->gp_cols, err));
     Assembly as = {.b = b, .frame = s->d.frame_update};
@@ -306,9 +319,9 @@ static DrStatus body_assemble(Body *b, DrError *err)
     int threads = dr_threads();
     as.slots = threads < 1 ? 1 : (threads < na ? threads : na);
     as.stride = (size_t)3 * k3 + (m->H0inv_Gp.dense ? 0 : (size_t)5 * n);
-    DR_TRY(dr_calloc((size_t)as.slots, as.stride * sizeof(double), &as.work, err));
+    DR_TRY(grow(work, work_cap, (size_t)as.slots * as.stride, sizeof(double), err)); /* every entry written before read */
+    as.work = *work;
     dr_parallel_for(as.slots, 1, assemble_slots, &as);
-    free(as.work);
     return DR_OK;
 }
 
@@ -367,6 +380,7 @@ typedef struct Sweep {
     int64_t *offset; /* nc: where each constraint's part of the panel begins */
     double *panel;   /* per constraint, end e, earlier end f of the block on the same body: W(rows of e, columns of f),
                         3 × 3 row-major */
+    size_t start_cap, offset_cap, panel_cap; /* kept from step to step */
 } Sweep;
 
 static void sweep_free(Sweep *sw)
@@ -381,12 +395,12 @@ static void sweep_free(Sweep *sw)
    threads; elsewhere each constraint is a block of its own and the panel is empty. */
 static DrStatus sweep_init(const Body *bodies, int count, const Con *cons, int nc, Sweep *sw, DrError *err)
 {
-    memset(sw, 0, sizeof *sw);
+    sw->nblocks = 0;
     long rows = 0;
     for (int i = 0; i < count; i++) rows = bodies[i].na > rows ? bodies[i].na : rows;
     rows *= 3;
     int max_ends = force_blocks || (dr_threads() > 1 && 3 * PGS_BLOCK * rows >= 2 * PAR_VALUES) ? PGS_BLOCK : 1;
-    DR_TRY(dr_calloc((size_t)nc + 1, sizeof(int), &sw->start, err));
+    DR_TRY(grow(&sw->start, &sw->start_cap, (size_t)nc + 1, sizeof(int), err));
     for (int i = 0, ends = max_ends; i < nc; i++) {
         if (ends + cons[i].ne > max_ends) {
             sw->start[sw->nblocks++] = i;
@@ -395,7 +409,7 @@ static DrStatus sweep_init(const Body *bodies, int count, const Con *cons, int n
         ends += cons[i].ne;
     }
     sw->start[sw->nblocks] = nc;
-    DR_TRY(dr_calloc((size_t)nc + 1, sizeof(int64_t), &sw->offset, err));
+    DR_TRY(grow(&sw->offset, &sw->offset_cap, (size_t)nc + 1, sizeof(int64_t), err));
     int64_t len = 0;
     for (int bl = 0; bl < sw->nblocks; bl++)
         for (int i = sw->start[bl]; i < sw->start[bl + 1]; i++) {
@@ -405,7 +419,7 @@ static DrStatus sweep_init(const Body *bodies, int count, const Con *cons, int n
                     for (int f = 0; f < cons[j].ne; f++) len += 9 * (cons[j].body[f] == cons[i].body[e]);
         }
     sw->offset[nc] = len;
-    DR_TRY(dr_calloc(len > 0 ? (size_t)len : 1, sizeof(double), &sw->panel, err));
+    DR_TRY(grow(&sw->panel, &sw->panel_cap, len > 0 ? (size_t)len : 1, sizeof(double), err)); /* filled below */
     for (int bl = 0; bl < sw->nblocks; bl++)
         for (int i = sw->start[bl]; i < sw->start[bl + 1]; i++) {
             double *pn = &sw->panel[sw->offset[i]];
@@ -728,11 +742,30 @@ static uint64_t cell_key(long i, long j, long k)
     return ((uint64_t)i * 73856093u) ^ ((uint64_t)j * 19349663u) ^ ((uint64_t)k * 83492791u);
 }
 
-static int entry_cmp(const void *pa, const void *pb)
+static bool entry_less(const HashEntry *a, const HashEntry *b)
 {
-    const HashEntry *a = pa, *b = pb;
-    if (a->key != b->key) return a->key < b->key ? -1 : 1;
-    return a->tri - b->tri;
+    return a->key != b->key ? a->key < b->key : a->tri < b->tri;
+}
+
+/* Bottom-up merge sort by (key, triangle) through the scratch tmp (n entries), ending in e: the library's qsort
+   sorts the same way but takes its buffer from the heap on every call. Equal entries are identical, so any correct
+   sort gives the same array. */
+static void entries_sort(HashEntry *e, HashEntry *tmp, int n)
+{
+    HashEntry *src = e, *dst = tmp;
+    for (int width = 1; width < n; width *= 2) {
+        for (int lo = 0; lo < n; lo += 2 * width) {
+            int mid = lo + width < n ? lo + width : n, hi = lo + 2 * width < n ? lo + 2 * width : n;
+            int i = lo, j = mid, k = lo;
+            while (i < mid && j < hi) dst[k++] = entry_less(&src[j], &src[i]) ? src[j++] : src[i++];
+            while (i < mid) dst[k++] = src[i++];
+            while (j < hi) dst[k++] = src[j++];
+        }
+        HashEntry *t = src;
+        src = dst;
+        dst = t;
+    }
+    if (src != e) memcpy(e, src, sizeof *e * (size_t)n);
 }
 
 /* The point of triangle (a, b, c) closest to x, as barycentric weights w. */
@@ -764,11 +797,14 @@ static void closest_on_triangle(const double *x, const double *a, const double *
 }
 
 /* Triangles of body b at positions V into the cells (size h) their bounding box, grown by h, overlaps, sorted by
-   cell key: a vertex then needs only its own cell. */
-static DrStatus hash_build(const DrBemMatrices *m, const double *V, double h, HashEntry **out, int *count, DrError *err)
+   cell key: a vertex then needs only its own cell. *out and the sort's scratch *tmp (capacities *cap_ and *tmp_cap,
+   kept between steps) grow as needed. */
+static DrStatus hash_build(const DrBemMatrices *m, const double *V, double h, HashEntry **out, size_t *cap_,
+                           HashEntry **tmp, size_t *tmp_cap, int *count, DrError *err)
 {
-    int cap = 0, ne = 0;
-    HashEntry *e = NULL;
+    int ne = 0;
+    size_t cap = *cap_;
+    HashEntry *e = *out;
     for (int t = 0; t < m->nt; t++) {
         double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
         for (int a = 0; a < 3; a++)
@@ -781,28 +817,29 @@ static DrStatus hash_build(const DrBemMatrices *m, const double *V, double h, Ha
         for (long i = l[0]; i <= u[0]; i++)
             for (long j = l[1]; j <= u[1]; j++)
                 for (long k = l[2]; k <= u[2]; k++) {
-                    if (ne == cap) {
-                        int nc = cap ? 2 * cap : 1024;
-                        DrStatus st = dr_realloc((size_t)nc, sizeof *e, &e, err);
-                        if (st != DR_OK) {
-                            free(e);
-                            return st;
-                        }
-                        cap = nc;
+                    if ((size_t)ne == cap) {
+                        size_t nc = cap ? 2 * cap : 1024;
+                        DrStatus st = dr_realloc(nc, sizeof *e, &e, err);
+                        *out = e;
+                        if (st != DR_OK) return st;
+                        *cap_ = cap = nc;
                     }
                     e[ne++] = (HashEntry){cell_key(i, j, k), t};
                 }
     }
-    qsort(e, (size_t)ne, sizeof *e, entry_cmp);
-    *out = e;
+    if ((size_t)ne > *tmp_cap) {
+        DR_TRY(dr_realloc(cap, sizeof *e, tmp, err));
+        *tmp_cap = cap;
+    }
+    entries_sort(e, *tmp, ne);
     *count = ne;
     return DR_OK;
 }
 
 /* Vertices of body a within 2·thickness of (or at most h inside) the surface of body b, at the trial positions. */
 static DrStatus detect_body_pair(Body *bodies, int ia, int ib, double *const *V0, double *const *Vs,
-                                 const DrBemConstraints *c, Con *cons, int *nc, DrBemConstraintStats *stats,
-                                 DrError *err)
+                                 const DrBemConstraints *c, HashEntry *hash[2], size_t hash_cap[2], Con *cons, int *nc,
+                                 DrBemConstraintStats *stats, DrError *err)
 {
     const DrBemMatrices *mb = bodies[ib].s->m;
     double h = 0; /* the mean edge length of b */
@@ -812,11 +849,10 @@ static DrStatus detect_body_pair(Body *bodies, int ia, int ib, double *const *V0
             h += sqrt(pow(p[0] - q[0], 2) + pow(p[1] - q[1], 2) + pow(p[2] - q[2], 2));
         }
     h = fmax(h / (3.0 * mb->nt), 4 * c->thickness);
-    HashEntry *e = NULL;
     int ne = 0;
-    DR_TRY(hash_build(mb, V0[ib], h, &e, &ne, err));
-    DrStatus status = DR_OK;
-    for (int v = 0; v < bodies[ia].s->nv && status == DR_OK; v++) {
+    DR_TRY(hash_build(mb, V0[ib], h, &hash[0], &hash_cap[0], &hash[1], &hash_cap[1], &ne, err));
+    const HashEntry *e = hash[0];
+    for (int v = 0; v < bodies[ia].s->nv; v++) {
         const double *x = &V0[ia][3 * v];
         uint64_t key = cell_key((long)floor(x[0] / h), (long)floor(x[1] / h), (long)floor(x[2] / h));
         int lo = 0, hi = ne;
@@ -860,80 +896,169 @@ static DrStatus detect_body_pair(Body *bodies, int ia, int ib, double *const *V0
             continue;
         }
         con_value_at(k, Vs, k->slip0); /* where the relative position was at the start of the step */
-        for (int en = 0; en < k->ne && status == DR_OK; en++)
-            status = body_add_active(&bodies[k->body[en]], k->vertex[en], err);
+        for (int en = 0; en < k->ne; en++) body_add_active(&bodies[k->body[en]], k->vertex[en]);
         stats->body_contacts++;
     }
-    free(e);
-    return status;
+    return DR_OK;
 }
 
-DrStatus dr_bem_solids_step(DrBemSolid *const *solids, int count, const DrBemConstraints *c,
-                            DrBemConstraintStats *st, DrError *err)
+/* ---- the group step in phases -----------------------------------------------------------------------------------
+ * Predict is steps 1–3 of the banner (the zero-force trial, the active set, the response blocks), solve steps 4–5
+ * (Gauss–Seidel and the trial passes, with the external forces in every trial), commit step 6 (the bodies take their
+ * last trial: the forces of the last pass, so the final step of the banner needs no solve of its own). */
+
+/* What a group step keeps between its phases and from step to step, held by the group's first solid. */
+struct BemGroupWork {
+    int phase;                  /* BEM_PHASE_* of the group step */
+    int count;                  /* bodies of the prediction */
+    size_t bodies_cap, lists_cap;
+    Body *bodies;               /* bodies_cap, zeroed past the used ones */
+    DrBemSolid **solids;        /* the prediction's solids (not owned) */
+    double **V0s, **Vts, **Vss; /* per body: trial, latest trial and start positions */
+    const DrBemConstraints *c;  /* the prediction's constraints (not owned) */
+    bool any;                   /* something to solve (else every body steps alone) */
+    int nc;
+    size_t cons_cap;
+    Con *cons, *cons0;          /* the active constraints; as predicted, where every solve starts */
+    Sweep sweep;
+    HashEntry *hash[2];         /* body–body detection: the entries and the sort's scratch */
+    size_t hash_cap[2];
+    double *work;               /* the assembly's */
+    size_t work_cap;
+    DrBemConstraintStats pred, stats; /* the prediction's figures; the step's so far */
+};
+
+void bem_group_work_free(BemGroupWork **pw)
+{
+    BemGroupWork *w = pw ? *pw : NULL;
+    if (!w) return;
+    for (size_t i = 0; i < w->bodies_cap; i++) body_free(&w->bodies[i]);
+    free(w->bodies);
+    free(w->solids);
+    free(w->V0s);
+    free(w->Vts);
+    free(w->Vss);
+    free(w->cons);
+    free(w->cons0);
+    sweep_free(&w->sweep);
+    free(w->hash[0]);
+    free(w->hash[1]);
+    free(w->work);
+    free(w);
+    *pw = NULL;
+}
+
+void bem_group_work_drop(BemGroupWork *w) { w->phase = BEM_PHASE_NONE; }
+
+/* Room for `count` bodies (new ones zeroed: no arrays yet). */
+static DrStatus group_reserve(BemGroupWork *w, int count, DrError *err)
+{
+    size_t need = (size_t)count;
+    if (need > w->bodies_cap) {
+        DR_TRY(dr_realloc(need, sizeof(Body), &w->bodies, err));
+        memset(w->bodies + w->bodies_cap, 0, sizeof(Body) * (need - w->bodies_cap));
+        w->bodies_cap = need;
+    }
+    if (need > w->lists_cap) {
+        DR_TRY(dr_realloc(need, sizeof(DrBemSolid *), &w->solids, err));
+        DR_TRY(dr_realloc(need, sizeof(double *), &w->V0s, err));
+        DR_TRY(dr_realloc(need, sizeof(double *), &w->Vts, err));
+        DR_TRY(dr_realloc(need, sizeof(double *), &w->Vss, err));
+        w->lists_cap = need;
+    }
+    return DR_OK;
+}
+
+/* A body's arrays for a step of solid s, no vertex active. */
+static DrStatus body_begin(Body *b, DrBemSolid *s, DrError *err)
+{
+    b->s = s;
+    b->na = 0;
+    b->force = NULL;
+    size_t n = (size_t)s->n;
+    DR_TRY(grow(&b->map, &b->map_cap, (size_t)s->nv, sizeof(int), err));
+    DR_TRY(grow(&b->act, &b->act_cap, (size_t)s->nv, sizeof(int), err));
+    if (n > b->v_cap) {
+        double **arr[] = {&b->V0, &b->Vstart, &b->Vt, &b->p};
+        for (int a = 0; a < 4; a++) DR_TRY(dr_realloc(n, sizeof(double), arr[a], err));
+        b->v_cap = n;
+    }
+    for (int v = 0; v < s->nv; v++) b->map[v] = -1;
+    return DR_OK;
+}
+
+/* A trial step of the body with the traction (body frame; NULL: none) and its external forces: V receives the world
+   positions it gives; the solid keeps it as its last solve. */
+static DrStatus trial(Body *b, const double *traction, double *V, DrError *err)
+{
+    DR_TRY(dr_bem_solid_solve(b->s, traction, b->force, NULL, err));
+    if (V) bem_solid_solved_positions(b->s, V);
+    return DR_OK;
+}
+
+DrStatus dr_bem_solids_predict(DrBemSolid *const *solids, int count, const DrBemConstraints *c,
+                               DrBemConstraintStats *st, DrError *err)
 {
     DrBemConstraintStats stats = {0};
-    DR_TRY(check_input(solids, count, c, err));
     if (st) *st = stats;
+    DR_TRY(check_input(solids, count, c, err));
     if (count == 0) return DR_OK;
-    bool any = c && (c->collider_count > 0 || c->fixed_count > 0 || c->joint_count > 0 ||
-                     (c->body_contact && count > 1));
-    if (!any) { /* nothing to solve: plain steps */
+    if (!solids[0]->group) DR_TRY(dr_calloc(1, sizeof(BemGroupWork), &solids[0]->group, err));
+    BemGroupWork *w = solids[0]->group;
+    w->phase = BEM_PHASE_NONE;
+    DR_TRY(group_reserve(w, count, err));
+    w->count = count;
+    memcpy(w->solids, solids, sizeof(DrBemSolid *) * (size_t)count);
+    w->c = c;
+    w->nc = 0;
+    w->any = c && (c->collider_count > 0 || c->fixed_count > 0 || c->joint_count > 0 || (c->body_contact && count > 1));
+    if (!w->any) { /* nothing to solve: plain steps */
         double t0 = dr_time_now();
-        for (int i = 0; i < count; i++) DR_TRY(dr_bem_solid_step(solids[i], NULL, NULL, err));
+        for (int i = 0; i < count; i++) DR_TRY(dr_bem_solid_predict(solids[i], err));
         stats.seconds_final = dr_time_now() - t0;
+        w->pred = w->stats = stats;
+        w->phase = BEM_PHASE_PREDICTED;
         if (st) *st = stats;
         return DR_OK;
     }
 
     DrStatus status = DR_OK;
-    Body *bodies = NULL;
-    Con *cons = NULL;
-    double **V0s = NULL, **Vts = NULL, **Vss = NULL; /* per body: trial, latest trial and start positions */
-    int nc = 0, ccap = 0;
+    Body *bodies = w->bodies;
+    double **V0s = w->V0s, **Vss = w->Vss;
     double dt = solids[0]->m->desc.dt;
-    status = dr_calloc((size_t)count, sizeof(Body), &bodies, err);
-    if (status == DR_OK) status = dr_calloc((size_t)count, sizeof(double *), &V0s, err);
-    if (status == DR_OK) status = dr_calloc((size_t)count, sizeof(double *), &Vts, err);
-    if (status == DR_OK) status = dr_calloc((size_t)count, sizeof(double *), &Vss, err);
-    if (status != DR_OK) {
-        free(bodies);
-        free(V0s);
-        free(Vts);
-        return status;
-    }
 
-    /* 1. start positions and the zero-force trial */
+    /* 1. start positions and the zero-force trial (not kept as the bodies' solve: their samples stay at the start) */
     for (int i = 0; i < count && status == DR_OK; i++) {
         Body *b = &bodies[i];
-        b->s = solids[i];
-        size_t n = (size_t)b->s->n;
-        status = dr_calloc((size_t)b->s->nv, sizeof(int), &b->map, err);
-        double **arr[] = {&b->V0, &b->Vstart, &b->Vt, &b->p};
-        for (int a = 0; status == DR_OK && a < 4; a++) status = dr_calloc(n, sizeof(double), arr[a], err);
+        status = body_begin(b, solids[i], err);
         if (status != DR_OK) break;
-        for (int v = 0; v < b->s->nv; v++) b->map[v] = -1;
-        V0s[i] = b->V0, Vts[i] = b->Vt, Vss[i] = b->Vstart;
+        V0s[i] = b->V0, w->Vts[i] = b->Vt, Vss[i] = b->Vstart;
         dr_bem_solid_positions(b->s, b->Vstart);
         double t0 = dr_time_now();
-        status = bem_solid_advance(b->s, NULL, false, NULL, b->V0, err);
+        status = dr_bem_solid_predict(b->s, err);
+        if (status == DR_OK) status = trial(b, NULL, b->V0, err);
+        b->s->phase = BEM_PHASE_PREDICTED;
         stats.seconds_trial += dr_time_now() - t0;
     }
 
     /* 2. the active set */
     double t_det = dr_time_now();
-    int want = c->fixed_count + c->joint_count;
+    size_t want = (size_t)c->fixed_count + (size_t)c->joint_count;
     for (int i = 0; i < count && status == DR_OK; i++)
-        want += (c->collider_count + (c->body_contact ? count - 1 : 0)) * bodies[i].s->nv;
-    if (status == DR_OK && want > 0) {
-        ccap = want;
-        status = dr_calloc((size_t)ccap, sizeof(Con), &cons, err);
+        want += (size_t)(c->collider_count + (c->body_contact ? count - 1 : 0)) * (size_t)bodies[i].s->nv;
+    if (status == DR_OK && want > w->cons_cap) {
+        status = dr_realloc(want, sizeof(Con), &w->cons, err);
+        if (status == DR_OK) status = dr_realloc(want, sizeof(Con), &w->cons0, err);
+        if (status == DR_OK) w->cons_cap = want;
     }
+    Con *cons = w->cons;
+    int nc = 0;
     for (int i = 0; i < c->fixed_count && status == DR_OK; i++) {
         const DrBemFixed *f = &c->fixed[i];
         Con *k = &cons[nc++];
         *k = (Con){.type = CON_FIXED, .ne = 1, .body = {f->body}, .vertex = {f->vertex}, .wt = {1}};
         memcpy(k->target, f->target, sizeof k->target);
-        status = body_add_active(&bodies[f->body], f->vertex, err);
+        body_add_active(&bodies[f->body], f->vertex);
         stats.fixed++;
     }
     for (int i = 0; i < c->joint_count && status == DR_OK; i++) {
@@ -941,7 +1066,7 @@ DrStatus dr_bem_solids_step(DrBemSolid *const *solids, int count, const DrBemCon
         Con *k = &cons[nc++];
         *k = (Con){.type = CON_JOINT, .ne = 2, .body = {j->body[0], j->body[1]}, .vertex = {j->vertex[0], j->vertex[1]},
                    .wt = {1, -1}};
-        for (int e = 0; e < 2 && status == DR_OK; e++) status = body_add_active(&bodies[j->body[e]], j->vertex[e], err);
+        for (int e = 0; e < 2; e++) body_add_active(&bodies[j->body[e]], j->vertex[e]);
         stats.joints++;
     }
     for (int i = 0; i < count && status == DR_OK; i++) {
@@ -962,25 +1087,21 @@ DrStatus dr_bem_solids_step(DrBemSolid *const *solids, int count, const DrBemCon
                 double vc[3] = {0, 0, 0};
                 if (col->velocity) col->velocity(x, vc, col->ctx);
                 for (int q = 0; q < 3; q++) k->slip0[q] = b->Vstart[3 * v + q] + dt * vc[q];
-                status = body_add_active(b, v, err);
+                body_add_active(b, v);
                 stats.contacts++;
             }
     }
     for (int ia = 0; c->body_contact && ia < count && status == DR_OK; ia++)
         for (int ib = 0; ib < count && status == DR_OK; ib++)
-            if (ia != ib) status = detect_body_pair(bodies, ia, ib, V0s, Vss, c, cons, &nc, &stats, err);
+            if (ia != ib)
+                status = detect_body_pair(bodies, ia, ib, V0s, Vss, c, w->hash, w->hash_cap, cons, &nc, &stats, err);
     for (int i = 0; i < nc; i++) /* local indices, now that every active list is final */
         for (int e = 0; e < cons[i].ne; e++) cons[i].local[e] = bodies[cons[i].body[e]].map[cons[i].vertex[e]];
     stats.seconds_detect = dr_time_now() - t_det;
 
-    /* 3. response blocks, predicted positions P = V_free, and each constraint's diagonal block */
+    /* 3. response blocks and each constraint's diagonal block */
     double t_as = dr_time_now();
-    for (int i = 0; i < count && status == DR_OK; i++) {
-        Body *b = &bodies[i];
-        status = body_assemble(b, err);
-        for (int a = 0; a < b->na && status == DR_OK; a++)
-            for (int q = 0; q < 3; q++) b->P[3 * a + q] = b->V0[3 * b->act[a] + q];
-    }
+    for (int i = 0; i < count && status == DR_OK; i++) status = body_assemble(&bodies[i], &w->work, &w->work_cap, err);
     for (int i = 0; i < nc && status == DR_OK; i++) {
         Con *k = &cons[i];
         if (k->type == CON_CONTACT || k->type == CON_BODY) {
@@ -996,16 +1117,72 @@ DrStatus dr_bem_solids_step(DrBemSolid *const *solids, int count, const DrBemCon
                                       k->type == CON_FIXED ? i : i - c->fixed_count, "fix the constraint description");
         }
     }
-    Sweep sweep = {0};
-    if (status == DR_OK && nc > 0) status = sweep_init(bodies, count, cons, nc, &sweep, err);
+    if (status == DR_OK && nc > 0) status = sweep_init(bodies, count, cons, nc, &w->sweep, err);
     stats.seconds_assembly = dr_time_now() - t_as;
+    if (status != DR_OK) return status;
+    if (nc > 0) memcpy(w->cons0, cons, sizeof(Con) * (size_t)nc);
+    w->nc = nc;
+    w->pred = w->stats = stats;
+    w->phase = BEM_PHASE_PREDICTED;
+    if (st) *st = stats;
+    return DR_OK;
+}
+
+DrStatus dr_bem_solids_solve(DrBemSolid *const *solids, int count, const double *const *force,
+                             DrBemConstraintStats *st, DrError *err)
+{
+    if (count == 0) {
+        if (st) *st = (DrBemConstraintStats){0};
+        return DR_OK;
+    }
+    BemGroupWork *w = solids[0]->group;
+    assert(w && w->phase != BEM_PHASE_NONE && w->count == count &&
+           memcmp(w->solids, solids, sizeof(DrBemSolid *) * (size_t)count) == 0 &&
+           "dr_bem_solids_solve: no prediction of these solids (dr_bem_solids_predict first)");
+    w->phase = BEM_PHASE_PREDICTED; /* until this solve succeeds */
+    DrBemConstraintStats stats = w->pred;
+    DrStatus status = DR_OK;
+    if (!w->any) {
+        double t0 = dr_time_now();
+        for (int i = 0; i < count && status == DR_OK; i++)
+            status = dr_bem_solid_solve(solids[i], NULL, force ? force[i] : NULL, NULL, err);
+        stats.seconds_final += dr_time_now() - t0;
+        w->stats = stats;
+        if (status == DR_OK) w->phase = BEM_PHASE_SOLVED;
+        if (st) *st = stats;
+        return status;
+    }
+    const DrBemConstraints *c = w->c;
+    Body *bodies = w->bodies;
+    Con *cons = w->cons;
+    int nc = w->nc;
+    double *const *Vts = w->Vts;
+
+    /* the prediction again: the constraints as detected and no constraint force; the positions the constraints start
+       from are those of the zero-force trial, or of a trial with the external forces */
+    if (nc > 0) memcpy(cons, w->cons0, sizeof(Con) * (size_t)nc);
+    double t_x = dr_time_now();
+    for (int i = 0; i < count && status == DR_OK; i++) {
+        Body *b = &bodies[i];
+        b->force = force ? force[i] : NULL;
+        if (b->na == 0) continue;
+        const double *V = b->V0;
+        if (b->force) {
+            status = trial(b, NULL, b->Vt, err);
+            V = b->Vt;
+        }
+        memset(b->F, 0, sizeof(double) * 3 * (size_t)b->na);
+        for (int a = 0; a < b->na; a++)
+            for (int q = 0; q < 3; q++) b->P[3 * a + q] = V[3 * b->act[a] + q];
+    }
+    stats.seconds_trial += dr_time_now() - t_x;
 
     /* 4–5. Gauss–Seidel, then trial steps with the forces found until the measured error is within tolerance */
     double residual = INFINITY;
     for (int pass = 0; pass < c->max_passes && status == DR_OK && nc > 0; pass++) {
         double t_p = dr_time_now();
         for (int it = 0; it < c->max_iterations; it++) {
-            double viol, dmax = pgs_sweep(bodies, count, cons, &sweep, c->thickness, &viol);
+            double viol, dmax = pgs_sweep(bodies, count, cons, &w->sweep, c->thickness, &viol);
             stats.iterations++;
             double fmax_ = 0;
             for (int i = 0; i < nc; i++) fmax_ = fmax(fmax_, sqrt(dot3(cons[i].f, cons[i].f)));
@@ -1016,7 +1193,7 @@ DrStatus dr_bem_solids_step(DrBemSolid *const *solids, int count, const DrBemCon
         double t_t = dr_time_now();
         for (int i = 0; i < count && status == DR_OK; i++) {
             body_tractions(&bodies[i]);
-            status = bem_solid_advance(bodies[i].s, bodies[i].p, false, NULL, bodies[i].Vt, err);
+            status = trial(&bodies[i], bodies[i].p, bodies[i].Vt, err);
         }
         stats.seconds_trial += dr_time_now() - t_t;
         if (status != DR_OK) break;
@@ -1035,7 +1212,12 @@ DrStatus dr_bem_solids_step(DrBemSolid *const *solids, int count, const DrBemCon
                 for (int q = 0; q < 3; q++) b->P[3 * a + q] = b->Vt[3 * b->act[a] + q];
         }
     }
-    if (nc == 0) residual = 0;
+    if (nc == 0) { /* nothing active: the bodies' steps with their external forces alone */
+        residual = 0;
+        double t_t = dr_time_now();
+        for (int i = 0; i < count && status == DR_OK; i++) status = trial(&bodies[i], NULL, NULL, err);
+        stats.seconds_trial += dr_time_now() - t_t;
+    }
     for (int i = 0; i < nc; i++) {
         const Con *k = &cons[i];
         if (k->type != CON_CONTACT && k->type != CON_BODY) continue;
@@ -1043,28 +1225,42 @@ DrStatus dr_bem_solids_step(DrBemSolid *const *solids, int count, const DrBemCon
         for (int q = 0; q < 3; q++) ft[q] = k->f[q] - fn * k->n[q];
         if (fn > 0 && sqrt(dot3(ft, ft)) < k->mu * fn * (1 - 1e-9)) stats.sticking++;
     }
-
-    /* 6. the real step */
-    double t_f = dr_time_now();
-    for (int i = 0; i < count && status == DR_OK; i++) {
-        Body *b = &bodies[i];
-        if (b->na > 0) body_tractions(b);
-        status = dr_bem_solid_step(b->s, b->na > 0 ? b->p : NULL, NULL, err);
-    }
-    stats.seconds_final = dr_time_now() - t_f;
     stats.residual = residual;
     if (status == DR_OK && residual > c->tolerance)
         status = dr_error_set(err, DR_WARN_NOT_CONVERGED, NULL, 0, 0,
                               "BEM constraints: the constraint error is %.3g m after %d passes (tolerance %.3g m); "
                               "raise max_passes or max_iterations, or take a smaller time step",
                               residual, stats.passes, c->tolerance);
-    sweep_free(&sweep);
-    for (int i = 0; i < count; i++) body_free(&bodies[i]);
-    free(bodies);
-    free(cons);
-    free(V0s);
-    free(Vts);
-    free(Vss);
+    if (status >= 0) w->phase = BEM_PHASE_SOLVED;
+    w->stats = stats;
     if (st) *st = stats;
+    return status;
+}
+
+void dr_bem_solids_commit(DrBemSolid *const *solids, int count, DrBemConstraintStats *st)
+{
+    if (count == 0) {
+        if (st) *st = (DrBemConstraintStats){0};
+        return;
+    }
+    BemGroupWork *w = solids[0]->group;
+    assert(w && w->phase == BEM_PHASE_SOLVED && w->count == count &&
+           memcmp(w->solids, solids, sizeof(DrBemSolid *) * (size_t)count) == 0 &&
+           "dr_bem_solids_commit: no successful solve of these solids since predict");
+    /* 6. every body takes its last trial */
+    double t_f = dr_time_now();
+    for (int i = 0; i < count; i++) dr_bem_solid_commit(solids[i], NULL);
+    w->stats.seconds_final += dr_time_now() - t_f;
+    w->phase = BEM_PHASE_NONE;
+    if (st) *st = w->stats;
+}
+
+DrStatus dr_bem_solids_step(DrBemSolid *const *solids, int count, const DrBemConstraints *c,
+                            DrBemConstraintStats *st, DrError *err)
+{
+    DR_TRY(dr_bem_solids_predict(solids, count, c, st, err));
+    DrStatus status = dr_bem_solids_solve(solids, count, NULL, st, err);
+    if (status < 0) return status;
+    dr_bem_solids_commit(solids, count, st);
     return status;
 }

@@ -166,17 +166,34 @@ struct DrBemSolid {
     const BemCMatQ **sum_mats; /* 2·nmax: the history sum's matrices, vectors and signs (bem_cmatq_sum) */
     const double **sum_x;
     double *sum_sign;
-    double *hz;             /* H₀⁻¹h of the history sum for step hz_step: trial steps of one step share it */
+    double *hz;             /* H₀⁻¹h of the history sum for step hz_step: every solve of one step shares it */
     long hz_step;           /* 0: none */
+    /* the step in phases (bem.h): predict fills hz; a solve leaves its u in s_u and its p in s_p, and the rest
+       below; commit takes them */
+    int phase;              /* BEM_PHASE_* */
+    double pred_seconds;    /* the prediction's history sums, s */
+    double pR[9], pT[3], pTdot[3], pomega[3]; /* the frame at the end of the solved step */
+    double pb[3], pal[3];   /* its b = a − g′ and α, for the history window */
+    DrBemStepStats pstats;
+    double *smp_x, *smp_v, *smp_n, *smp_w; /* 3N each: the samples (dr_bem_solid_samples) and their scratch */
+    struct BemGroupWork *group; /* the constraint solver's scratch and prediction for the groups this solid leads
+                                   (is solids[0] of), bem_constraint.c; NULL until its first constrained step */
 };
+
+enum { BEM_PHASE_NONE = 0, BEM_PHASE_PREDICTED, BEM_PHASE_SOLVED };
+
+/* World positions V (3N) of the last solve since predict: the end of the step it would commit. */
+void bem_solid_solved_positions(const DrBemSolid *s, double *V);
+
+/* The constraint solver's kept scratch (bem_constraint.c): freed with the solid that holds it; dropped (its
+   prediction forgotten) when that solid's state is set. */
+typedef struct BemGroupWork BemGroupWork;
+void bem_group_work_free(BemGroupWork **w);
+void bem_group_work_drop(BemGroupWork *w);
 
 /* Tests: true makes every Gauss–Seidel sweep collect its changes in blocks (bem_constraint.c), as it does on several
  * threads for large contact sets; the results must not change. */
 void bem_constraints_force_blocks(bool on);
 
-/* dr_bem_solid_step with commit = true; with commit = false a trial step: V_out (3N) receives the world positions
- * the step would give and the solid is left as it was (the constraint solver's linearisation, eq. 14). */
-DR_NODISCARD DrStatus bem_solid_advance(DrBemSolid *s, const double *traction, bool commit, DrBemStepStats *st,
-                                        double *V_out, DrError *err);
 
 #endif

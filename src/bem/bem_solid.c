@@ -160,9 +160,9 @@ static void runtime_make(BemRuntime *rt, const DrBemMatrices *m)
     rt->made_for[0] = m->H, rt->made_for[1] = m->G, rt->made_for[2] = m->H0inv.val;
     if (m->H0inv.dense) return;
     rt->nmax = m->n_max;
-    rt->Hq = calloc((size_t)rt->nmax + 1, sizeof(BemCMatQ));
-    rt->Gq = calloc((size_t)rt->nmax + 1, sizeof(BemCMatQ));
-    bool ok = rt->Hq && rt->Gq && bem_cmat_compact(&m->H0inv, &rt->H0q) && bem_cmat_compact(&m->H0inv_Gp, &rt->Gpq);
+    DrError err; /* no room for the copies is no failure: the double products serve */
+    bool ok = dr_calloc((size_t)rt->nmax + 1, sizeof(BemCMatQ), &rt->Hq, &err) == DR_OK &&
+              dr_calloc((size_t)rt->nmax + 1, sizeof(BemCMatQ), &rt->Gq, &err) == DR_OK && bem_cmat_compact(&m->H0inv, &rt->H0q) && bem_cmat_compact(&m->H0inv_Gp, &rt->Gpq);
     for (int k = 1; ok && k <= rt->nmax; k++)
         ok = bem_cmat_compact(&m->H[k], &rt->Hq[k]) && bem_cmat_compact(&m->G[k], &rt->Gq[k]);
     if (!ok) {
@@ -200,6 +200,11 @@ void dr_bem_solid_destroy(DrBemSolid **ps)
     free(s->s_z);
     free(s->s_r);
     free(s->s_coeff);
+    free(s->smp_x);
+    free(s->smp_v);
+    free(s->smp_n);
+    free(s->smp_w);
+    bem_group_work_free(&s->group);
     free(s);
     *ps = NULL;
 }
@@ -239,8 +244,9 @@ DrStatus dr_bem_solid_create(const DrBemMatrices *m, const DrBemSolidDesc *d, Dr
     if (st == DR_OK) st = dr_calloc(nh * 3, sizeof(double), &s->al_hist, err);
     double **n3[] = {&s->E, &s->F, &s->Epinv, &s->Fpinv};
     for (int i = 0; st == DR_OK && i < 4; i++) st = dr_calloc(3 * n, sizeof(double), n3[i], err);
-    double **scratch[] = {&s->s_ht, &s->s_tmp, &s->s_h, &s->s_p, &s->s_u, &s->s_z, &s->s_r};
-    for (int i = 0; st == DR_OK && i < 7; i++) st = dr_calloc(n, sizeof(double), scratch[i], err);
+    double **scratch[] = {&s->s_ht, &s->s_tmp, &s->s_h,   &s->s_p,   &s->s_u,   &s->s_z,
+                          &s->s_r,  &s->smp_x, &s->smp_v, &s->smp_n, &s->smp_w};
+    for (int i = 0; st == DR_OK && i < 11; i++) st = dr_calloc(n, sizeof(double), scratch[i], err);
     if (st == DR_OK) st = dr_calloc((2 + BEM_COLUMN_GROUPS) * n, sizeof(double), &s->s_coeff, err);
     if (st == DR_OK) st = dr_calloc(n, sizeof(double), &s->hz, err);
     if (st == DR_OK) st = dr_calloc(2 * nh, sizeof *s->sum_mats, &s->sum_mats, err);
@@ -336,24 +342,21 @@ static void add_history_forces(const DrBemSolid *s, long step, double *h)
     }
 }
 
-DrStatus dr_bem_solid_step(DrBemSolid *s, const double *traction, DrBemStepStats *st, DrError *err)
-{
-    return bem_solid_advance(s, traction, true, st, NULL, err);
-}
+/* ---- the step in phases: predict (the history), solve (eqs. 9–12 and §3.2.1 for a traction), commit ---------- */
 
-DrStatus bem_solid_advance(DrBemSolid *s, const double *traction, bool commit, DrBemStepStats *st, double *V_out,
-                           DrError *err)
+double dr_bem_solid_stable_dt(const DrBemSolid *s) { return s->m->desc.dt; }
+
+DrStatus dr_bem_solid_predict(DrBemSolid *s, DrError *err)
 {
+    (void)err;
     const DrBemMatrices *m = s->m;
     int n = s->n;
     size_t nb = sizeof(double) * (size_t)n;
-    double dt = m->desc.dt;
-    DrBemStepStats stats = {0};
     double t0 = dr_time_now();
     long step = s->step + 1; /* the step being taken */
 
-    /* 1. history: h = Σ_{k=1}^{n_max} (−H_k u_{n−k} + G_k p_{n−k} + D_k b_{n−k} + Q_k α_{n−k}) (eq. 9), and H₀⁻¹h.
-          It depends on past steps only, so the trial steps of the constraint solver and the final step share it. */
+    /* h = Σ_{k=1}^{n_max} (−H_k u_{n−k} + G_k p_{n−k} + D_k b_{n−k} + Q_k α_{n−k}) (eq. 9), and H₀⁻¹h. It depends on
+       past steps only, so every solve of the step shares it (and a second predict of the same step reuses it). */
     double *tmp = s->s_tmp;
     if (s->hz_step != step) {
         double *ht = s->s_ht, *h = s->s_h;
@@ -385,19 +388,40 @@ DrStatus bem_solid_advance(DrBemSolid *s, const double *traction, bool commit, D
         else memset(s->hz, 0, nb);
         s->hz_step = step;
     }
+    s->pred_seconds = dr_time_now() - t0;
+    s->phase = BEM_PHASE_PREDICTED;
+    return DR_OK;
+}
+
+DrStatus dr_bem_solid_solve(DrBemSolid *s, const double *traction, const double *force, DrBemStepStats *st,
+                            DrError *err)
+{
+    assert(s->phase != BEM_PHASE_NONE && "dr_bem_solid_solve: no prediction (dr_bem_solid_predict first)");
+    s->phase = BEM_PHASE_PREDICTED; /* until this solve succeeds */
+    const DrBemMatrices *m = s->m;
+    int n = s->n;
+    size_t nb = sizeof(double) * (size_t)n;
+    double dt = m->desc.dt;
+    DrBemStepStats stats = {.seconds_history = s->pred_seconds};
     double t1 = dr_time_now();
-    stats.seconds_history = t1 - t0;
+    long step = s->step + 1;
+
+    /* 1. the load: p = traction + Rᵀ f / area_j (body frame, the start-of-step rotation as in eqs. 11d–e) */
+    double *p = s->s_p;
+    bool loaded = false;
+    if (traction) memcpy(p, traction, nb);
+    else memset(p, 0, nb);
+    if (force)
+        for (int v = 0; v < s->nv; v++) {
+            double fb[3];
+            m3_tvec(s->R, &force[3 * v], fb);
+            for (int c = 0; c < 3; c++) p[3 * v + c] += fb[c] / m->area[v];
+        }
+    if (traction || force)
+        for (int i = 0; i < n && !loaded; i++) loaded = p[i] != 0.0;
 
     /* 2. eq. (9) solved for u given the frame accelerations b = a − g′ and α: u = z + E b + F α with
           z = H₀⁻¹(G₀p + h) = H₀⁻¹G′p − E A p − F C p + H₀⁻¹h (G′ = G₀ + D₀A + Q₀C, eq. 12) */
-    double *p = s->s_p;
-    bool loaded = false;
-    if (traction) {
-        memcpy(p, traction, nb);
-        for (int i = 0; i < n && !loaded; i++) loaded = p[i] != 0.0;
-    } else {
-        memset(p, 0, nb);
-    }
     double gp[3], b0[3] = {0, 0, 0}, al0[3] = {0, 0, 0};
     m3_tvec(s->R, s->d.gravity, gp); /* g′ = Rᵀ g (11a) */
     double *u = s->s_u, *z = s->s_z, *r = s->s_r;
@@ -504,31 +528,120 @@ DrStatus bem_solid_advance(DrBemSolid *s, const double *traction, bool commit, D
                             "tractions applied to it and its time step",
                             step);
 
-    if (!commit) { /* a trial step: the positions it would give, the state untouched */
-        for (int v = 0; v < s->nv; v++) {
-            double y[3];
-            for (int c = 0; c < 3; c++) y[c] = s->ref[3 * v + c] + u[3 * v + c];
-            bem_m3_vec(R, y, &V_out[3 * v]);
-            for (int c = 0; c < 3; c++) V_out[3 * v + c] += T[c];
-        }
-        if (st) *st = stats;
-        return DR_OK;
-    }
-
-    /* 5. commit: the state and this step's entry of the history window */
-    memcpy(s->u, u, nb);
-    memcpy(s->R, R, sizeof R);
-    memcpy(s->T, T, sizeof T);
-    memcpy(s->Tdot, Tdot, sizeof Tdot);
-    memcpy(s->omega, omega, sizeof omega);
-    int sl = slot(s, step);
-    dr_bem_layout_to_coeff(&m->layout, s->dense, u, s->ut_hist + (size_t)sl * n, s->s_coeff);
-    dr_bem_layout_to_coeff(&m->layout, s->dense, p, s->pt_hist + (size_t)sl * n, s->s_coeff);
-    memcpy(s->b_hist + 3 * sl, b, sizeof b);
-    memcpy(s->al_hist + 3 * sl, al, sizeof al);
-    s->step = step;
+    /* 5. kept for commit (and the samples): the state stays that of the start of the step */
+    memcpy(s->pR, R, sizeof R);
+    memcpy(s->pT, T, sizeof T);
+    memcpy(s->pTdot, Tdot, sizeof Tdot);
+    memcpy(s->pomega, omega, sizeof omega);
+    memcpy(s->pb, b, sizeof b);
+    memcpy(s->pal, al, sizeof al);
+    s->pstats = stats;
+    s->phase = BEM_PHASE_SOLVED;
     if (st) *st = stats;
     return DR_OK;
+}
+
+void dr_bem_solid_commit(DrBemSolid *s, DrBemStepStats *st)
+{
+    assert(s->phase == BEM_PHASE_SOLVED && "dr_bem_solid_commit: no successful solve since predict");
+    const DrBemMatrices *m = s->m;
+    int n = s->n;
+    long step = s->step + 1;
+    memcpy(s->u, s->s_u, sizeof(double) * (size_t)n);
+    memcpy(s->R, s->pR, sizeof s->R);
+    memcpy(s->T, s->pT, sizeof s->T);
+    memcpy(s->Tdot, s->pTdot, sizeof s->Tdot);
+    memcpy(s->omega, s->pomega, sizeof s->omega);
+    int sl = slot(s, step); /* this step's entry of the history window */
+    dr_bem_layout_to_coeff(&m->layout, s->dense, s->u, s->ut_hist + (size_t)sl * n, s->s_coeff);
+    dr_bem_layout_to_coeff(&m->layout, s->dense, s->s_p, s->pt_hist + (size_t)sl * n, s->s_coeff);
+    memcpy(s->b_hist + 3 * sl, s->pb, sizeof s->pb);
+    memcpy(s->al_hist + 3 * sl, s->pal, sizeof s->pal);
+    s->step = step;
+    s->phase = BEM_PHASE_NONE;
+    if (st) *st = s->pstats;
+}
+
+DrStatus dr_bem_solid_step(DrBemSolid *s, const double *traction, DrBemStepStats *st, DrError *err)
+{
+    DR_TRY(dr_bem_solid_predict(s, err));
+    DR_TRY(dr_bem_solid_solve(s, traction, NULL, st, err));
+    dr_bem_solid_commit(s, st);
+    return DR_OK;
+}
+
+/* V = R (ref + u) + T for a frame and displacement. */
+static void world_positions(const DrBemSolid *s, const double *R, const double *T, const double *u, double *V)
+{
+    for (int v = 0; v < s->nv; v++) {
+        double y[3];
+        for (int c = 0; c < 3; c++) y[c] = s->ref[3 * v + c] + u[3 * v + c];
+        bem_m3_vec(R, y, &V[3 * v]);
+        for (int c = 0; c < 3; c++) V[3 * v + c] += T[c];
+    }
+}
+
+void bem_solid_solved_positions(const DrBemSolid *s, double *V)
+{
+    assert(s->phase == BEM_PHASE_SOLVED);
+    world_positions(s, s->pR, s->pT, s->s_u, V);
+}
+
+/* Vertex velocities V̇ = Ṫ + ω × R y + R u̇ (y = ref + u) of a frame, a displacement u and its rate u̇ (NULL: 0). */
+static void world_velocities(const DrBemSolid *s, const double *R, const double *Tdot, const double *omega,
+                             const double *u, const double *udot, double *Vd)
+{
+    for (int v = 0; v < s->nv; v++) {
+        double y[3], Ry[3], Rud[3] = {0, 0, 0};
+        for (int c = 0; c < 3; c++) y[c] = s->ref[3 * v + c] + u[3 * v + c];
+        bem_m3_vec(R, y, Ry);
+        if (udot) bem_m3_vec(R, &udot[3 * v], Rud);
+        double wx[3] = {omega[1] * Ry[2] - omega[2] * Ry[1], omega[2] * Ry[0] - omega[0] * Ry[2],
+                        omega[0] * Ry[1] - omega[1] * Ry[0]};
+        for (int c = 0; c < 3; c++) Vd[3 * v + c] = Tdot[c] + wx[c] + Rud[c];
+    }
+}
+
+DrBemSamples dr_bem_solid_samples(DrBemSolid *s)
+{
+    const DrBemMatrices *m = s->m;
+    int n = s->n;
+    double dt = m->desc.dt, *w = s->smp_w;
+    world_positions(s, s->R, s->T, s->u, s->smp_x);
+    /* u̇ over the step: solved (u₊ − u_n)/Δt, else (u_n − u_{n−1})/Δt with u_{n−1} from the history window (u_0 = 0;
+       a window of one step holds u_n alone) */
+    const double *udot = w;
+    if (s->phase == BEM_PHASE_SOLVED) {
+        for (int i = 0; i < n; i++) w[i] = (s->s_u[i] - s->u[i]) / dt;
+        world_velocities(s, s->pR, s->pTdot, s->pomega, s->s_u, udot, s->smp_v);
+    } else {
+        if (s->step >= 2 && s->nmax >= 2)
+            dr_bem_layout_from_coeff(&m->layout, s->dense, s->ut_hist + (size_t)slot(s, s->step - 1) * n, w,
+                                     s->s_coeff);
+        else
+            memset(w, 0, sizeof(double) * (size_t)n);
+        if (s->step >= 1 && (s->step == 1 || s->nmax >= 2))
+            for (int i = 0; i < n; i++) w[i] = (s->u[i] - w[i]) / dt;
+        else
+            udot = NULL;
+        world_velocities(s, s->R, s->Tdot, s->omega, s->u, udot, s->smp_v);
+    }
+    /* normals: the sum of the area vectors of a vertex's triangles, normalised */
+    double *nrm = s->smp_n;
+    memset(nrm, 0, sizeof(double) * (size_t)n);
+    for (int t = 0; t < m->nt; t++) {
+        const int *tt = &m->tri[3 * t];
+        const double *a = &s->smp_x[3 * tt[0]], *b = &s->smp_x[3 * tt[1]], *c = &s->smp_x[3 * tt[2]];
+        double e1[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]}, e2[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+        double cr[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]};
+        for (int k = 0; k < 3; k++)
+            for (int q = 0; q < 3; q++) nrm[3 * tt[k] + q] += cr[q];
+    }
+    for (int v = 0; v < s->nv; v++) {
+        double *q = &nrm[3 * v], l = sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2]);
+        for (int c = 0; c < 3; c++) q[c] = l > 0 ? q[c] / l : 0.0;
+    }
+    return (DrBemSamples){.n = s->nv, .x = s->smp_x, .v = s->smp_v, .normal = nrm, .area = m->area};
 }
 
 /* ---- readers ----------------------------------------------------------------------------------------------- */
@@ -550,15 +663,7 @@ void dr_bem_solid_frame_velocity(const DrBemSolid *s, double v[3], double w[3])
     memcpy(w, s->omega, sizeof s->omega);
 }
 
-void dr_bem_solid_positions(const DrBemSolid *s, double *V)
-{
-    for (int v = 0; v < s->nv; v++) {
-        double y[3];
-        for (int c = 0; c < 3; c++) y[c] = s->ref[3 * v + c] + s->u[3 * v + c];
-        bem_m3_vec(s->R, y, &V[3 * v]);
-        for (int c = 0; c < 3; c++) V[3 * v + c] += s->T[c];
-    }
-}
+void dr_bem_solid_positions(const DrBemSolid *s, double *V) { world_positions(s, s->R, s->T, s->u, V); }
 
 void dr_bem_solid_diagnostics(const DrBemSolid *s, DrBemSolidDiag *out)
 {
@@ -647,5 +752,7 @@ DrStatus dr_bem_solid_state_set(DrBemSolid *s, const double *st, size_t size, Dr
     memcpy(s->omega, st + 15, sizeof s->omega);
     s->step = (long)st[18];
     s->hz_step = 0;
+    s->phase = BEM_PHASE_NONE; /* a prediction of the old state is dropped */
+    if (s->group) bem_group_work_drop(s->group);
     return DR_OK;
 }

@@ -181,7 +181,7 @@ static void test_sudden_pressure_runtime(void **state)
 static void test_trial_and_checkpoint(void **state)
 {
     (void)state;
-    /* A trial step predicts exactly the positions the committed step gives and leaves the state alone; the state
+    /* A solve predicts exactly the positions the committed step gives and leaves the state alone; the state
        arrays restore a solid that continues bit-identically. */
     DrBemMatrices *bm = build(1, 4, 5e-3, 4);
     DrBemSolidDesc d;
@@ -198,10 +198,12 @@ static void test_trial_and_checkpoint(void **state)
     size_t size = dr_bem_solid_state_size(s);
     double *st0 = malloc(sizeof(double) * size), *st1 = malloc(sizeof(double) * size);
     dr_bem_solid_state_get(s, st0);
-    assert_int_equal(bem_solid_advance(s, p, false, NULL, V1, &err), DR_OK);
+    assert_int_equal(dr_bem_solid_predict(s, &err), DR_OK);
+    assert_int_equal(dr_bem_solid_solve(s, p, NULL, NULL, &err), DR_OK);
+    bem_solid_solved_positions(s, V1);
     dr_bem_solid_state_get(s, st1);
     assert_memory_equal(st0, st1, sizeof(double) * size);
-    assert_int_equal(dr_bem_solid_step(s, p, NULL, &err), DR_OK);
+    dr_bem_solid_commit(s, NULL);
     dr_bem_solid_positions(s, V2);
     assert_memory_equal(V1, V2, sizeof(double) * n);
     assert_true(max_abs(dr_bem_solid_displacement(s), n) > 1e-7);
