@@ -58,6 +58,7 @@ struct DrLag {
     const unsigned char *prescribed;
     const double *qdot_prescribed;
     bool assembled;           /* K_G built by the first solve since begin: no more groups this step */
+    bool slack;               /* reserve_slack done (after the first assembly) */
     double *b, *b_local;      /* right-hand side; the part of it from intra-object terms only */
     double *rhs, *rhs_local;  /* b and b_local with a solve's load */
     double *diag;             /* diag(A) for Jacobi */
@@ -137,13 +138,13 @@ void dr_lag_set_desc(DrLag *s, const DrLagDesc *desc) { s->desc = *desc; }
 int dr_lag_object_count(const DrLag *s) { return s->nobj; }
 int dr_lag_dof_count(const DrLag *s) { return s->ndof; }
 
-/* Grows *p (elements of size `size`) to hold at least `need`: twice that at first, by half again later. The
-   buffer is kept from step to step, so a step that fits what an earlier one reserved allocates nothing (groups
-   and contacts vary from step to step: the first step's slack keeps the next ones from growing). */
+/* Grows *p (elements of size `size`) to hold at least `need`, by half again when it must grow. The buffer is
+   kept from step to step, so a step that fits what an earlier one reserved allocates nothing (see
+   reserve_slack for the first step's). */
 static DrStatus grow(void **p, size_t *cap, size_t need, size_t size, DrError *err)
 {
     if (need <= *cap) return DR_OK;
-    size_t n = *cap ? *cap + *cap / 2 : 2 * need;
+    size_t n = *cap + *cap / 2;
     if (n < need) n = need;
     if (n < 16) n = 16;
     DR_TRY(dr_realloc(n, size, p, err));
@@ -276,6 +277,15 @@ static DrStatus check_group(const DrLag *s, const DrLagGroup *g, DrError *err)
                             "a constraint over DOFs %d..%d has a non-finite value, compliance or Jacobian (the "
                             "configuration has blown up or is degenerate: a zero-length edge?)",
                             g->dof[0], g->dof[g->ndof - 1]);
+    return DR_OK;
+}
+
+/* Room for twice what the records hold. */
+static DrStatus records_slack(LagRecords *r, DrError *err)
+{
+    DR_TRY(grow((void **)&r->ints, &r->cap_ints, 2 * r->nints, sizeof(int), err));
+    DR_TRY(grow((void **)&r->reals, &r->cap_reals, 2 * r->nreals, sizeof(double), err));
+    DR_TRY(grow((void **)&r->lambda, &r->cap_groups, 2 * r->ngroups, sizeof(double *), err));
     return DR_OK;
 }
 
@@ -549,7 +559,7 @@ void dr_lag_apply(const DrLag *s, const double *x, double *y)
 
 typedef struct FactorCtx {
     DrLag *s;
-    int *status;  /* per object: 0 ok, 1 dropped geometric part, 2 failed */
+    int *status;  /* per object: 0 ok, 1 dropped geometric part, 2 failed; | 4: preconditioned without pre */
 } FactorCtx;
 
 /* Positive definiteness is decided on the block's own operator (mat + geo): with it positive definite and
@@ -583,7 +593,14 @@ static void factor_blocks(long begin, long end, void *vctx)
         if (!o->has_pre) continue;
         for (size_t k = 0; k < band; k++) o->factor->ab[k] = o->op[k] + o->pre[k];
         o->factor->factored = false;
-        if (dr_banded_factor(o->factor, &e) != DR_OK) c->status[oi] = 2; /* op PD + pre PSD: cannot happen */
+        if (dr_banded_factor(o->factor, &e) == DR_OK) continue;
+        /* pre need not be positive semidefinite: a contact between two edges of one strand that lie further apart
+           than the band leaves only part of its (PSD) self terms in the band, and a PSD matrix cut to a band can
+           be indefinite, enough to outweigh a soft block's smallest eigenvalues (a twist's inertia). The block is
+           then preconditioned by its own operator, factored above. */
+        for (size_t k = 0; k < band; k++) o->factor->ab[k] = o->op[k];
+        o->factor->factored = false;
+        c->status[oi] = dr_banded_factor(o->factor, &e) == DR_OK ? c->status[oi] | 4 : 2;
     }
 }
 
@@ -662,6 +679,19 @@ static void lambda_blocks(long begin, long end, void *vctx)
     for (long oi = begin; oi < end; oi++) update_lambdas(&c->s->obj[oi].rec, c->v);
 }
 
+/* After the first step's groups: room for twice as many, in every buffer whose use follows the number of groups
+   (records, K_G triplets and their sort). Contacts come and go from step to step; with this slack a step after
+   the first allocates only when it needs more than twice what the first one did, and the buffers grow by half
+   again from there. */
+static DrStatus reserve_slack(DrLag *s, DrError *err)
+{
+    for (int i = 0; i < s->nobj; i++) DR_TRY(records_slack(&s->obj[i].rec, err));
+    DR_TRY(records_slack(&s->grec, err));
+    DR_TRY(grow((void **)&s->trip, &s->cap_trip, 2 * s->ntrip, sizeof(LagTriplet), err));
+    s->slack = true;
+    return DR_OK;
+}
+
 /* The load's share of the right-hand side (h f on free DOFs, the known velocities of prescribed columns of its
    blocks) into rhs and rhs_local, and its blocks −h ½(D + Dᵀ) into the objects' ext bands. */
 static void apply_load(DrLag *s, const DrLagLoad *load)
@@ -711,6 +741,7 @@ DrStatus dr_lag_solve_load(DrLag *s, const DrLagLoad *load, double *x, DrLagStat
     for (int i = 0; i < s->nobj; i++) st.groups_block += (int)s->obj[i].rec.ngroups;
     st.groups_global = s->groups_global;
     if (!s->assembled) {
+        if (!s->slack) DR_TRY(reserve_slack(s, err));
         DR_TRY(build_kg(s, err));
         s->assembled = true;
     }
@@ -737,7 +768,8 @@ DrStatus dr_lag_solve_load(DrLag *s, const DrLagLoad *load, double *x, DrLagStat
     FactorCtx fc = {s, status};
     dr_parallel_for(s->nobj, 16, factor_blocks, &fc);
     for (int i = 0; i < s->nobj; i++) {
-        if (status[i] == 1) st.indefinite_blocks++;
+        if (status[i] != 2 && (status[i] & 1)) st.indefinite_blocks++;
+        if (status[i] != 2 && (status[i] & 4)) st.contact_blocks_dropped++;
         if (status[i] == 2)
             return dr_error_set(err, DR_ERR_RUNTIME, NULL, 0, 0,
                                 "object %d's block is not positive definite even without geometric stiffness "

@@ -431,6 +431,40 @@ static void test_bad_groups(void **state)
     dr_lag_destroy(&s);
 }
 
+/* A K_G group on DOFs of one object spread wider than its band: its in-band part, [1 1 0; 1 1 1; 0 1 1] h²k for
+   J = (1, 1, 1), has the eigenvalue (1 − √2) h²k, which outweighs masses of 1e-6; the block is preconditioned
+   without it and the whole system (positive definite) is solved. */
+static void test_contact_terms_beyond_band(void **state)
+{
+    (void)state;
+    DrLagPrecond pcs[2] = {DR_LAG_PRECOND_BLOCK, DR_LAG_PRECOND_JACOBI};
+    for (int p = 0; p < 2; p++) {
+        DrLagDesc d;
+        dr_lag_desc_default(&d);
+        d.precond = pcs[p];
+        d.tol = 1e-13;
+        DrLag *s = NULL;
+        DrError err;
+        assert_int_equal(dr_lag_create(&d, &s, &err), DR_OK);
+        int id, d0;
+        assert_int_equal(dr_lag_add_object(s, 3, 1, &id, &d0, &err), DR_OK);
+        double m[3] = {1e-6, 1e-6, 1e-6}, v[3] = {0.1, -0.2, 0.3}, h = 0.01, k = 10, lambda = 0;
+        assert_int_equal(dr_lag_begin(s, h, m, v, NULL, NULL, NULL, &err), DR_OK);
+        DrLagGroup g = {.kind = DR_LAG_POSITIONAL, .nrows = 1, .ndof = 3, .dof = {0, 1, 2}, .phi = {0.01},
+                        .cinv = {k}, .J = {1, 1, 1}, .lambda = &lambda};
+        assert_int_equal(dr_lag_add(s, &g, &err), DR_ERR_INPUT); /* wider than the band */
+        assert_int_equal(dr_lag_add_global(s, &g, &err), DR_OK);
+        double x[3];
+        DrLagStats st;
+        assert_int_equal(dr_lag_solve(s, x, &st, &err), DR_OK);
+        assert_int_equal(st.contact_blocks_dropped, 1); /* every preconditioner factors the blocks */
+        /* (m + h² k 1 1ᵀ) x = m v − h k φ 1, by hand: x = v − 1 (h k (φ + h 1ᵀv)) / (m + 3 h² k) */
+        double sv = v[0] + v[1] + v[2], c = h * k * (0.01 + h * sv) / (m[0] + 3 * h * h * k);
+        for (int a = 0; a < 3; a++) assert_near(x[a], v[a] - c, 1e-9 * fabs(c));
+        dr_lag_destroy(&s);
+    }
+}
+
 /* ---- solves with an external load ------------------------------------------------------------------------ */
 
 /* One object of 3 DOFs (a vertex), D = −c I and a force F: (m + h c) v₊ = m v + h (f + F) per DOF. */
@@ -676,7 +710,7 @@ int main(void)
         cmocka_unit_test(test_bad_groups),           cmocka_unit_test(test_iteration_cap),
         cmocka_unit_test(test_threads_bit_identical), cmocka_unit_test(test_contact_hides_indefinite_block),
         cmocka_unit_test(test_load_by_hand),         cmocka_unit_test(test_load_dense),
-        cmocka_unit_test(test_load_resolve),
+        cmocka_unit_test(test_load_resolve),         cmocka_unit_test(test_contact_terms_beyond_band),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
