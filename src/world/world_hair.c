@@ -156,6 +156,9 @@ DrStatus dr_world_hair_create_(DrWorld *w, DrError *err)
     return DR_OK;
 }
 
+/* The hair's clock: HairSolver.substeps equal steps per frame (the rod set's own stable_dt is INFINITY, its solve
+   being implicit), each dr_rod_set_step = predict + solve + commit with the colliders posed at its start and the
+   scalps at its end. */
 DrStatus dr_world_hair_step_(DrWorld *w, double t0, double t1, DrFrameStats *stats, DrError *err)
 {
     WorldHair *h = w->hair;
