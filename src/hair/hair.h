@@ -185,8 +185,7 @@ DR_NODISCARD DrStatus dr_rod_set_step(DrRodSet *rods, double h, const DrXform *s
 
 /* The set's own limit on the step: INFINITY. Every elastic, damping and contact force is implicit (the
  * linearised backward Euler of src/lagrangian), so no step makes the solve unstable; the step is chosen for
- * accuracy by the caller. The world takes (1/fps) / HairSolver.substeps for the hair, the smaller of that
- * and every other solver's stable_dt when they are stepped together. */
+ * accuracy by the caller: the world steps the hair at (1/fps) / HairSolver.substeps (world_hair.c). */
 double dr_rod_set_stable_dt(const DrRodSet *rods);
 
 /* Starts a step of h > 0 seconds: the root (and held tip) velocities that land them on scalp_end (as in

@@ -450,6 +450,51 @@ static void test_drag_damps_uniform_velocity(void **state)
     dr_groom_free(&g);
 }
 
+/* A commit whose state turns non-finite (here: forces of ±1e158 N, alternating along the strand, tear its vertices
+   ~1e155 m apart, where an edge's squared length overflows) leaves the whole state as it was before the step,
+   multipliers included. */
+static void test_commit_restores_on_failure(void **state)
+{
+    (void)state;
+    DrGroom g;
+    DrRodSet *r = free_strand(&g, 1e-8);
+    DrRodState st = dr_rod_set_state(r);
+    for (int i = 0; i < st.nverts; i++) st.v[3 * i + 1] = 0.2 * sin(i);
+    for (int k = 0; k < 3; k++) CHECK(dr_rod_set_step(r, H, NULL, NULL, 0, NULL, ERR));
+    size_t nx = 3 * sizeof(double) * (size_t)st.nverts, ne = sizeof(double) * (size_t)st.nedges;
+    size_t ni = sizeof(double) * (size_t)(st.nverts - 2 * st.nstrands), nl = sizeof(double) * (size_t)st.nlambda;
+    char *before = malloc(2 * nx + 5 * ne + ni + nl), *p = before;
+    memcpy(p, st.x, nx), p += nx;
+    memcpy(p, st.v, nx), p += nx;
+    memcpy(p, st.theta, ne), p += ne;
+    memcpy(p, st.theta_dot, ne), p += ne;
+    memcpy(p, st.a1, 3 * ne), p += 3 * ne;
+    memcpy(p, st.ref_twist, ni), p += ni;
+    memcpy(p, st.lambda, nl);
+    double *force = calloc(3 * (size_t)st.nverts, sizeof(double));
+    for (int i = 0; i < st.nverts; i++) force[3 * i] = i % 2 ? 1e158 : -1e158;
+    CHECK(dr_rod_set_predict(r, H, NULL, NULL, 0, ERR));
+    DrError err;
+    DrStatus s = dr_rod_set_solve(r, force, NULL, NULL, &err);
+    assert_true(s >= 0);
+    assert_int_equal(dr_rod_set_commit(r, NULL, &err), DR_ERR_RUNTIME);
+    assert_non_null(strstr(err.message, "non-finite"));
+    p = before;
+    assert_memory_equal(p, st.x, nx), p += nx;
+    assert_memory_equal(p, st.v, nx), p += nx;
+    assert_memory_equal(p, st.theta, ne), p += ne;
+    assert_memory_equal(p, st.theta_dot, ne), p += ne;
+    assert_memory_equal(p, st.a1, 3 * ne), p += 3 * ne;
+    assert_memory_equal(p, st.ref_twist, ni), p += ni;
+    assert_memory_equal(p, st.lambda, nl);
+    /* and the set steps on from there */
+    CHECK(dr_rod_set_step(r, H, NULL, NULL, 0, NULL, ERR));
+    free(force);
+    free(before);
+    dr_rod_set_destroy(&r);
+    dr_groom_free(&g);
+}
+
 /* After the first substep, a substep allocates nothing: dr_alloc_count stays put over substeps 2..12, both for
    dr_rod_set_step and for predict / samples / two solves with a load / commit, on 1 and 2 threads. (The
    contact buffers hold twice the first substep's contacts; this scene stays within that.) */
@@ -518,6 +563,7 @@ int main(void)
         cmocka_unit_test(test_samples),
         cmocka_unit_test(test_load_momentum_ledger),
         cmocka_unit_test(test_drag_damps_uniform_velocity),
+        cmocka_unit_test(test_commit_restores_on_failure),
         cmocka_unit_test(test_no_allocation_after_first_substep),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
