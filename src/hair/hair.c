@@ -1,13 +1,14 @@
 /* Rod sets: discrete elastic rods stepped by the Lagrangian solver (see hair.h; fei2017 §S4, PHYSICS §4).
  *
- * One step:
- *   1. the reference state is the current one (tangents, time-transported directors a1, reference twists);
- *   2. root DOFs get the velocity that lands them on the scalp pose at the end of the step;
- *   3. per strand (in parallel, one Lagrangian object each): stretching, bending and twisting groups with
- *      last step's λ for the geometric stiffness, their viscous copies for internal damping, and vertex–
- *      collider contacts; then hair–hair contacts (inter-object, K_G) from a spatial hash;
- *   4. the solve (block-preconditioned PCG), then Coulomb friction at collider contacts;
- *   5. positions and twists advance, directors are transported in time, reference twists follow.
+ * One step, in the phases of hair.h:
+ *   predict 1. the reference state is the current one (tangents, time-transported directors a1, reference twists);
+ *           2. root DOFs get the velocity that lands them on the scalp pose at the end of the step;
+ *           3. per strand (in parallel, one Lagrangian object each): stretching, bending and twisting groups with
+ *              last step's λ for the geometric stiffness, their viscous copies for internal damping, and vertex–
+ *              collider contacts; then hair–hair contacts (inter-object, K_G) from a spatial hash;
+ *   solve   4. the solve (block-preconditioned PCG) with the external load, re-callable;
+ *   commit  5. multipliers, then Coulomb friction at collider contacts;
+ *           6. positions and twists advance, directors are transported in time, reference twists follow.
  * The DOF vector of a strand interleaves x_j and θ^j (src/hair/rod.h), so its block has half-bandwidth 10. */
 #include "hair/hair.h"
 
@@ -17,6 +18,9 @@
 #include "hair/rod.h"
 
 #define ROD_KD 10
+
+/* Phases of a step (hair.h): what the last phase call left. */
+enum { PHASE_NONE, PHASE_PREDICTED, PHASE_SOLVED };
 
 void dr_rod_set_desc_default(DrRodSetDesc *d)
 {
@@ -82,13 +86,23 @@ struct DrRodSet {
     /* hair contacts */
     HairContact *hc;
     size_t nhc, cap_hc;
-    struct HashEntry *hash_entries; /* scratch for the broad phase */
+    bool hc_slack;             /* the first step's contacts sized hc */
+    struct HashEntry *hash_entries, *hash_tmp; /* scratch for the broad phase and its sort */
     size_t cap_hash;
     /* step scratch to restore on failure */
     double *save;
     double *t_old;             /* 3 E: tangents at the start of the step */
     int *edge_strand, *edge_local; /* E: each edge's strand and its index along it */
     double h_step;             /* the step being taken */
+    DrArena *arena;            /* per-step scratch, reset by predict */
+    int phase;
+    int ncollider_contacts;    /* of the prediction */
+    double seconds_build, seconds_contact; /* of the prediction */
+    /* the external load of a solve and the samples (hair.h) */
+    int *vdof;                 /* V: first DOF of each vertex */
+    double *fload;             /* ndof: the load's forces as generalised forces */
+    double *s_v, *s_radius, *s_length, *s_tangent;
+    unsigned char *s_held;
 };
 
 static inline int edge_index(const DrRodSet *r, int s, int local) { return r->offsets[s] - s + local; }
@@ -115,9 +129,11 @@ void dr_rod_set_destroy(DrRodSet **rp)
                       r->lbar, r->kbar, r->tbar, r->lv, r->vmass, r->tinertia, r->radius, r->stiff, r->root_rest,
                       r->m1_rest, r->tip_rest, r->t_old, r->edge_strand, r->edge_local, r->x, r->v, r->theta, r->theta_dot, r->a1, r->m, r->t, r->len, r->lambda,
                       r->dof0, r->dmass, r->qdot, r->fext, r->qdot_p, r->qdot_out, r->pres, r->cflag, r->cnormal,
-                      r->cvel, r->clambda, r->cfric, r->hc, r->hash_entries, r->save};
+                      r->cvel, r->clambda, r->cfric, r->hc, r->hash_entries, r->hash_tmp, r->save, r->vdof,
+                      r->fload, r->s_v, r->s_radius, r->s_length, r->s_tangent, r->s_held};
     for (size_t k = 0; k < sizeof arrays / sizeof arrays[0]; k++) free(arrays[k]);
     dr_lag_destroy(&r->lag);
+    dr_arena_destroy(&r->arena);
     free(r);
     *rp = NULL;
 }
@@ -199,10 +215,24 @@ DrStatus dr_rod_set_create(const DrRodSetDesc *desc, const DrRodBatch *batches, 
     ALLOC(r->cvel, 3 * V);
     ALLOC(r->clambda, V);
     ALLOC(r->cfric, V);
-    ALLOC(r->save, 6 * V + 2 * r->E + 3 * r->E + r->I);
+    ALLOC(r->save, 6 * V + 2 * r->E + 3 * r->E + r->I + r->nlambda);
     ALLOC(r->t_old, 3 * r->E);
     ALLOC(r->edge_strand, r->E);
     ALLOC(r->edge_local, r->E);
+    ALLOC(r->vdof, V);
+    ALLOC(r->s_v, 3 * V);
+    ALLOC(r->s_radius, V);
+    ALLOC(r->s_length, V);
+    ALLOC(r->s_tangent, 3 * V);
+    ALLOC(r->s_held, V);
+    if (desc->hair_contact) { /* an edge's box meets at most 2 cells per axis (find_hair_contacts) */
+        ALLOC(r->hash_entries, 8 * (size_t)r->E);
+        ALLOC(r->hash_tmp, 8 * (size_t)r->E);
+        r->cap_hash = 8 * (size_t)r->E;
+    }
+    /* the step's scratch: per strand a status, a contact count and an error record pointer */
+    s = dr_arena_create(S * (sizeof(DrStatus) + sizeof(int) + sizeof(DrError *)) + 3 * 64, &r->arena, err);
+    if (s != DR_OK) goto fail;
 
     /* strands, in batch order */
     int si = 0, vi = 0;
@@ -286,6 +316,12 @@ DrStatus dr_rod_set_create(const DrRodSetDesc *desc, const DrRodBatch *batches, 
     ALLOC(r->qdot_p, r->ndof);
     ALLOC(r->qdot_out, r->ndof);
     ALLOC(r->pres, r->ndof);
+    ALLOC(r->fload, r->ndof);
+    for (int k = 0; k < r->S; k++)
+        for (int j = r->offsets[k]; j < r->offsets[k + 1]; j++) {
+            r->vdof[j] = r->dof0[k] + 4 * (j - r->offsets[k]);
+            r->s_radius[j] = r->radius[k];
+        }
     *out = r;
     return DR_OK;
 fail:
@@ -423,7 +459,7 @@ typedef struct BuildCtx {
     const DrRodCollider *col;
     int ncol;
     DrStatus *status;  /* per strand */
-    DrError *errs;     /* per strand */
+    DrError **errs;    /* per strand: NULL, or the error record of a strand that failed (heap, failure only) */
     int *ncontacts;    /* per strand */
 } BuildCtx;
 
@@ -527,11 +563,15 @@ static DrStatus build_strand(DrRodSet *r, int k, double h, const DrRodCollider *
     return DR_OK;
 }
 
+/* A strand's error goes to a record of its own only when it fails: ~3 KB per strand and step otherwise. */
 static void build_range(long begin, long end, void *vctx)
 {
     BuildCtx *c = vctx;
-    for (long k = begin; k < end; k++)
-        c->status[k] = build_strand(c->r, (int)k, c->h, c->col, c->ncol, &c->ncontacts[k], &c->errs[k]);
+    DrError e;
+    for (long k = begin; k < end; k++) {
+        c->status[k] = build_strand(c->r, (int)k, c->h, c->col, c->ncol, &c->ncontacts[k], &e);
+        if (c->status[k] != DR_OK && dr_calloc(1, sizeof e, &c->errs[k], NULL) == DR_OK) *c->errs[k] = e;
+    }
 }
 
 /* ---- hair–hair contact ------------------------------------------------------------------------------------ */
@@ -569,13 +609,46 @@ static double segment_closest(const double *p0, const double *p1, const double *
 }
 
 
-static int hash_cmp(const void *pa, const void *pb)
+static inline bool hash_less(const HashEntry *a, const HashEntry *b)
 {
-    const HashEntry *a = pa, *b = pb;
-    if (a->cx != b->cx) return a->cx < b->cx ? -1 : 1;
-    if (a->cy != b->cy) return a->cy < b->cy ? -1 : 1;
-    if (a->cz != b->cz) return a->cz < b->cz ? -1 : 1;
-    return a->edge < b->edge ? -1 : (a->edge > b->edge);
+    if (a->cx != b->cx) return a->cx < b->cx;
+    if (a->cy != b->cy) return a->cy < b->cy;
+    if (a->cz != b->cz) return a->cz < b->cz;
+    return a->edge < b->edge;
+}
+
+/* Sorts n entries by (cell, edge) with tmp (n entries) as scratch, which the set keeps (glibc's qsort would take
+   its own from the heap at every step): runs of 16 by insertion, then bottom-up merges. The keys are distinct
+   (an edge enters a cell once), so the order is the one any sort gives. */
+static void hash_sort(HashEntry *a, HashEntry *tmp, size_t n)
+{
+    enum { RUN = 16 };
+    for (size_t lo = 0; lo < n; lo += RUN) {
+        size_t hi = lo + RUN < n ? lo + RUN : n;
+        for (size_t k = lo + 1; k < hi; k++) {
+            HashEntry t = a[k];
+            size_t m = k;
+            while (m > lo && hash_less(&t, &a[m - 1])) {
+                a[m] = a[m - 1];
+                m--;
+            }
+            a[m] = t;
+        }
+    }
+    HashEntry *src = a, *dst = tmp;
+    for (size_t w = RUN; w < n; w *= 2) {
+        for (size_t lo = 0; lo < n; lo += 2 * w) {
+            size_t mid = lo + w < n ? lo + w : n, hi = lo + 2 * w < n ? lo + 2 * w : n;
+            size_t i = lo, j = mid, o = lo;
+            while (i < mid && j < hi) dst[o++] = hash_less(&src[j], &src[i]) ? src[j++] : src[i++];
+            while (i < mid) dst[o++] = src[i++];
+            while (j < hi) dst[o++] = src[j++];
+        }
+        HashEntry *t = src;
+        src = dst;
+        dst = t;
+    }
+    if (src != a) memcpy(a, src, n * sizeof *a);
 }
 
 static bool may_touch(const DrRodSet *r, int sa, int sb)
@@ -598,15 +671,7 @@ static DrStatus find_hair_contacts(DrRodSet *r, DrError *err)
     for (int k = 0; k < r->S; k++) maxr = fmax(maxr, r->radius[k] + r->batch[r->strand_batch[k]].contact_thickness);
     double reach = 2 * maxr;
     double cell = maxlen + reach;
-    size_t need = 8 * (size_t)r->E;
-    if (need > r->cap_hash) {
-        free(r->hash_entries);
-        r->hash_entries = NULL;
-        r->cap_hash = 0;
-        DR_TRY(dr_calloc(need, sizeof(HashEntry), &r->hash_entries, err));
-        r->cap_hash = need;
-    }
-    HashEntry *he = r->hash_entries;
+    HashEntry *he = r->hash_entries; /* 8 E entries from create: 2 cells per axis */
     size_t n = 0;
     const int *edge_strand = r->edge_strand, *edge_local = r->edge_local;
     for (int k = 0; k < r->S; k++) {
@@ -619,12 +684,21 @@ static DrStatus find_hair_contacts(DrRodSet *r, DrError *err)
                 lo[a] = (int)floor((fmin(p[a], q[a]) - 0.5 * reach) / cell);
                 hi[a] = (int)floor((fmax(p[a], q[a]) + 0.5 * reach) / cell);
             }
+            /* a box as wide as a cell can still meet 3 of them by rounding: grow then (and keep) */
+            size_t cells = (size_t)(hi[0] - lo[0] + 1) * (size_t)(hi[1] - lo[1] + 1) * (size_t)(hi[2] - lo[2] + 1);
+            if (n + cells > r->cap_hash) {
+                size_t cap = 2 * (n + cells);
+                DR_TRY(dr_realloc(cap, sizeof *he, &r->hash_entries, err));
+                DR_TRY(dr_realloc(cap, sizeof *he, &r->hash_tmp, err));
+                r->cap_hash = cap;
+                he = r->hash_entries;
+            }
             for (int cx = lo[0]; cx <= hi[0]; cx++)
                 for (int cy = lo[1]; cy <= hi[1]; cy++)
                     for (int cz = lo[2]; cz <= hi[2]; cz++) he[n++] = (HashEntry){cx, cy, cz, e};
         }
     }
-    qsort(he, n, sizeof *he, hash_cmp);
+    hash_sort(he, r->hash_tmp, n);
     for (size_t a = 0; a < n;) {
         size_t b = a;
         while (b < n && he[b].cx == he[a].cx && he[b].cy == he[a].cy && he[b].cz == he[a].cz) b++;
@@ -650,13 +724,9 @@ static DrStatus find_hair_contacts(DrRodSet *r, DrError *err)
                 double rr = r->radius[sa] + r->radius[sb] + r->batch[r->strand_batch[sa]].contact_thickness +
                             r->batch[r->strand_batch[sb]].contact_thickness;
                 if (d >= rr || d < 1e-12 * rr) continue;
-                if (r->nhc == r->cap_hc) {
+                if (r->nhc == r->cap_hc) { /* doubled and kept */
                     size_t cap = r->cap_hc ? 2 * r->cap_hc : 256;
-                    HairContact *q = realloc(r->hc, cap * sizeof *q);
-                    if (!q) {
-                        return dr_error_set(err, DR_ERR_NOMEM, NULL, 0, 0, "out of memory for %zu hair contacts", cap);
-                    }
-                    r->hc = q;
+                    DR_TRY(dr_realloc(cap, sizeof *r->hc, &r->hc, err));
                     r->cap_hc = cap;
                 }
                 const DrRodBatch *pa = &r->batch[r->strand_batch[sa]], *pb = &r->batch[r->strand_batch[sb]];
@@ -672,6 +742,11 @@ static DrStatus find_hair_contacts(DrRodSet *r, DrError *err)
             }
         a = b;
     }
+    if (!r->hc_slack && 2 * r->nhc > r->cap_hc) { /* the first step leaves room for twice its contacts */
+        DR_TRY(dr_realloc(2 * r->nhc, sizeof *r->hc, &r->hc, err));
+        r->cap_hc = 2 * r->nhc;
+    }
+    r->hc_slack = true;
     return DR_OK;
 }
 
@@ -748,11 +823,19 @@ static DrStatus add_hair_contacts(DrRodSet *r, DrError *err)
 
 /* ---- the step ------------------------------------------------------------------------------------------------ */
 
-DrStatus dr_rod_set_step(DrRodSet *r, double h, const DrXform *scalp_end, const DrRodCollider *col, int ncol,
-                         DrRodStats *stats, DrError *err)
+double dr_rod_set_stable_dt(const DrRodSet *r)
+{
+    (void)r;
+    return INFINITY;
+}
+
+DrStatus dr_rod_set_predict(DrRodSet *r, double h, const DrXform *scalp_end, const DrRodCollider *col, int ncol,
+                            DrError *err)
 {
     assert(h > 0);
+    r->phase = PHASE_NONE;
     r->h_step = h;
+    dr_arena_reset(r->arena);
     double t0 = dr_time_now();
     /* 1–2. DOF vectors, masses, gravity, roots */
     for (int k = 0; k < r->S; k++) {
@@ -780,43 +863,120 @@ DrStatus dr_rod_set_step(DrRodSet *r, double h, const DrXform *scalp_end, const 
     DR_TRY(dr_lag_begin(r->lag, h, r->dmass, r->qdot, r->fext, r->pres, r->qdot_p, err));
 
     /* 3. groups, per strand in parallel */
-    DrStatus *status = NULL;
-    DrError *errs = NULL;
-    int *ncont = NULL;
-    DrStatus s = dr_calloc((size_t)r->S, sizeof *status, &status, err);
-    if (s == DR_OK) s = dr_calloc((size_t)r->S, sizeof *errs, &errs, err);
-    if (s == DR_OK) s = dr_calloc((size_t)r->S, sizeof *ncont, &ncont, err);
-    if (s == DR_OK) {
-        BuildCtx bc = {r, h, col, ncol, status, errs, ncont};
-        dr_parallel_for(r->S, 8, build_range, &bc);
-        int total = 0;
-        for (int k = 0; k < r->S && s == DR_OK; k++) {
-            if (status[k] != DR_OK) {
-                *err = errs[k];
-                s = status[k];
-            }
-            total += ncont[k];
+    DrStatus *status = dr_arena_alloc(r->arena, (size_t)r->S, sizeof *status);
+    DrError **errs = dr_arena_alloc(r->arena, (size_t)r->S, sizeof *errs);
+    int *ncont = dr_arena_alloc(r->arena, (size_t)r->S, sizeof *ncont);
+    if (!status || !errs || !ncont)
+        return dr_error_set(err, DR_ERR_NOMEM, NULL, 0, 0, "out of memory for the scratch of a hair step (%d strands)",
+                            r->S);
+    BuildCtx bc = {r, h, col, ncol, status, errs, ncont};
+    dr_parallel_for(r->S, 8, build_range, &bc);
+    DrStatus s = DR_OK;
+    int total = 0;
+    for (int k = 0; k < r->S && s == DR_OK; k++) {
+        if (status[k] != DR_OK) {
+            s = status[k];
+            if (errs[k]) *err = *errs[k];
+            else dr_error_set(err, s, NULL, 0, 0, "hair strand %d: its constraints could not be built", k);
         }
-        if (stats) stats->collider_contacts = total;
+        total += ncont[k];
     }
-    free(status);
-    free(errs);
-    free(ncont);
+    for (int k = 0; k < r->S; k++) free(errs[k]);
     if (s != DR_OK) return s;
+    r->ncollider_contacts = total;
     double t1 = dr_time_now();
     DR_TRY(find_hair_contacts(r, err));
     DR_TRY(add_hair_contacts(r, err));
     double t2 = dr_time_now();
+    r->seconds_build = t1 - t0;
+    r->seconds_contact = t2 - t1;
+    r->phase = PHASE_PREDICTED;
+    return DR_OK;
+}
 
-    /* 4. solve, then Coulomb friction at the collider contacts: the tangential velocity relative to the
-       collider loses up to μ times the normal velocity change the contact force λ gave (h λ / m) */
+DrRodSamples dr_rod_set_samples(DrRodSet *r)
+{
+    assert(r->phase != PHASE_NONE);
+    /* velocities: the last solve's, or the prediction's (held DOFs at their prescribed velocity) */
+    const double *q = r->phase == PHASE_SOLVED ? r->qdot_out : r->qdot;
+    for (int k = 0; k < r->S; k++) {
+        int o = r->offsets[k], nv = r->offsets[k + 1] - o, e0 = edge_index(r, k, 0);
+        for (int j = 0; j < nv; j++) {
+            int vid = o + j, dof = r->vdof[vid];
+            r->s_held[vid] = r->pres[dof];
+            for (int a = 0; a < 3; a++) {
+                bool held = r->pres[dof + a] && r->phase != PHASE_SOLVED;
+                r->s_v[3 * vid + a] = held ? r->qdot_p[dof + a] : q[dof + a];
+            }
+            /* edges j − 1 and j meet at vertex j */
+            const double *ta = j > 0 ? r->t + 3 * (e0 + j - 1) : NULL, *tb = j < nv - 1 ? r->t + 3 * (e0 + j) : NULL;
+            double la = ta ? r->len[e0 + j - 1] : 0, lb = tb ? r->len[e0 + j] : 0;
+            r->s_length[vid] = 0.5 * (la + lb);
+            DrVec3 d = dr_v3(0, 0, 0);
+            if (ta) d = dr_v3_add(d, dr_v3(ta[0], ta[1], ta[2]));
+            if (tb) d = dr_v3_add(d, dr_v3(tb[0], tb[1], tb[2]));
+            double dn = dr_v3_norm(d);
+            if (dn < 1e-12) d = dr_v3(tb ? tb[0] : ta[0], tb ? tb[1] : ta[1], tb ? tb[2] : ta[2]), dn = 1; /* folded */
+            r->s_tangent[3 * vid] = d.x / dn;
+            r->s_tangent[3 * vid + 1] = d.y / dn;
+            r->s_tangent[3 * vid + 2] = d.z / dn;
+        }
+    }
+    DrRodSamples sm = {r->V, r->x, r->s_v, r->vmass, r->s_radius, r->s_length, r->s_tangent, r->s_held};
+    return sm;
+}
+
+DrStatus dr_rod_set_solve(DrRodSet *r, const double *force, const double *dforce_dv, DrRodStats *stats,
+                          DrError *err)
+{
+    assert(r->phase != PHASE_NONE);
+    r->phase = PHASE_PREDICTED;
+    double t2 = dr_time_now();
+    /* 4. the solve; vertex forces as generalised forces (the twists get none) */
+    DrLagLoad load = {NULL, 0, NULL, NULL};
+    if (force) {
+        for (int v = 0; v < r->V; v++) {
+            int dof = r->vdof[v];
+            for (int a = 0; a < 3; a++) r->fload[dof + a] = force[3 * v + a];
+        }
+        load.force = r->fload;
+    }
+    if (dforce_dv) {
+        load.nblocks = r->V;
+        load.block_dof = r->vdof;
+        load.dforce_dv = dforce_dv;
+    }
     DrLagStats ls;
-    DrStatus solved = dr_lag_solve(r->lag, r->qdot_out, &ls, err);
+    DrStatus solved = dr_lag_solve_load(r->lag, force || dforce_dv ? &load : NULL, r->qdot_out, &ls, err);
     if (solved < 0) return solved;
-    double t3 = dr_time_now();
+    r->phase = PHASE_SOLVED;
+    if (stats) {
+        stats->iterations += ls.iterations;
+        stats->residual = ls.residual;
+        stats->not_converged += ls.converged ? 0 : 1;
+        stats->indefinite_blocks += ls.indefinite_blocks;
+        stats->seconds_solve += dr_time_now() - t2;
+    }
+    if (solved == DR_WARN_NOT_CONVERGED)
+        return dr_error_set(err, DR_WARN_NOT_CONVERGED, NULL, 0, 0,
+                            "hair solve stopped at its iteration cap (%d) with relative residual %.2e",
+                            r->desc.solver.max_iter, ls.residual);
+    return DR_OK;
+}
 
-    /* 5. advance (keeping the old state to restore if it turns non-finite) */
+DrStatus dr_rod_set_commit(DrRodSet *r, DrRodStats *stats, DrError *err)
+{
+    assert(r->phase == PHASE_SOLVED);
+    r->phase = PHASE_NONE;
+    double h = r->h_step;
+    /* 5. multipliers (eqs. S24, S25, kept for the next step's geometric stiffness, and the collider contacts'
+       force for friction), then Coulomb friction at the collider contacts: the tangential velocity relative to
+       the collider loses up to μ times the normal velocity change the contact force λ gave (h λ / m) */
     double *save = r->save;
+    memcpy(save + 6 * r->V + 5 * r->E + r->I, r->lambda, (size_t)r->nlambda * sizeof(double));
+    dr_lag_update_multipliers(r->lag, r->qdot_out);
+
+    /* 6. advance (keeping the old state to restore if it turns non-finite) */
     memcpy(save, r->x, 3 * (size_t)r->V * sizeof(double));
     memcpy(save + 3 * r->V, r->v, 3 * (size_t)r->V * sizeof(double));
     memcpy(save + 6 * r->V, r->theta, (size_t)r->E * sizeof(double));
@@ -869,6 +1029,7 @@ DrStatus dr_rod_set_step(DrRodSet *r, double h, const DrXform *scalp_end, const 
         memcpy(r->theta_dot, save + 6 * r->V + r->E, (size_t)r->E * sizeof(double));
         memcpy(r->a1, save + 6 * r->V + 2 * r->E, 3 * (size_t)r->E * sizeof(double));
         memcpy(r->m, save + 6 * r->V + 5 * r->E, (size_t)r->I * sizeof(double));
+        memcpy(r->lambda, save + 6 * r->V + 5 * r->E + r->I, (size_t)r->nlambda * sizeof(double));
         dr_rod_set_refresh(r);
         return dr_error_set(err, DR_ERR_RUNTIME, NULL, 0, 0,
                             "hair state became non-finite (time step %g s too large for the stiffness, or a collider "
@@ -877,19 +1038,21 @@ DrStatus dr_rod_set_step(DrRodSet *r, double h, const DrXform *scalp_end, const 
     }
     if (stats) {
         stats->steps++;
-        stats->iterations += ls.iterations;
-        stats->residual = ls.residual;
-        stats->not_converged += ls.converged ? 0 : 1;
+        stats->collider_contacts = r->ncollider_contacts;
         stats->hair_contacts = (int)r->nhc;
-        stats->indefinite_blocks += ls.indefinite_blocks;
-        stats->seconds_build += t1 - t0;
-        stats->seconds_contact += t2 - t1;
-        stats->seconds_solve += t3 - t2;
+        stats->seconds_build += r->seconds_build;
+        stats->seconds_contact += r->seconds_contact;
         dr_rod_set_measure(r, stats);
     }
-    if (solved == DR_WARN_NOT_CONVERGED)
-        return dr_error_set(err, DR_WARN_NOT_CONVERGED, NULL, 0, 0,
-                            "hair solve stopped at its iteration cap (%d) with relative residual %.2e",
-                            r->desc.solver.max_iter, ls.residual);
     return DR_OK;
+}
+
+DrStatus dr_rod_set_step(DrRodSet *r, double h, const DrXform *scalp_end, const DrRodCollider *col, int ncol,
+                         DrRodStats *stats, DrError *err)
+{
+    DR_TRY(dr_rod_set_predict(r, h, scalp_end, col, ncol, err));
+    DrStatus solved = dr_rod_set_solve(r, NULL, NULL, stats, err);
+    if (solved < 0) return solved;
+    DR_TRY(dr_rod_set_commit(r, stats, err));
+    return solved;
 }

@@ -153,7 +153,7 @@ void dr_rod_set_refresh(DrRodSet *rods);
 
 typedef struct DrRodStats {
     int steps;
-    int iterations;          /* CG iterations, summed */
+    int iterations;          /* CG iterations, summed over solves */
     double residual;         /* last relative residual */
     int not_converged;       /* solves that hit the iteration cap */
     int collider_contacts;   /* vertex–collider contacts of the last step */
@@ -169,10 +169,73 @@ typedef struct DrRodStats {
  * stay), colliders act through constraints in the
  * solve and Coulomb friction after it, hair–hair contacts when desc.hair_contact. stats accumulates (zero
  * it first). DR_WARN_NOT_CONVERGED when the solve hit its cap (the step is kept); DR_ERR_RUNTIME when the
- * state becomes non-finite (the state is then left as it was before the step). */
+ * state becomes non-finite (the state is then left as it was before the step). The same, bit for bit, as
+ * dr_rod_set_predict + dr_rod_set_solve(NULL, NULL) + dr_rod_set_commit below. */
 DR_NODISCARD DrStatus dr_rod_set_step(DrRodSet *rods, double h, const DrXform *scalp_end,
                                       const DrRodCollider *colliders, int ncolliders, DrRodStats *stats,
                                       DrError *err);
+
+/* ---- the step in phases (DESIGN §8) ------------------------------------------------------------------------
+ * predict(h) → samples → solve(forces) … solve(forces) → commit. Between predict and commit the state
+ * (dr_rod_set_state: x, v, θ, θ̇, a1, reference twists, λ) stays that of the start of the step; each solve
+ * starts again from the prediction, and commit keeps the last one. After the first step, a step allocates
+ * nothing on the heap while its contacts fit the buffers: the first step leaves room for twice its own, and a
+ * step that needs more grows them geometrically (they are kept). Per-step scratch comes from an arena the
+ * set owns, reset by predict. */
+
+/* The set's own limit on the step: INFINITY. Every elastic, damping and contact force is implicit (the
+ * linearised backward Euler of src/lagrangian), so no step makes the solve unstable; the step is chosen for
+ * accuracy by the caller: the world steps the hair at (1/fps) / HairSolver.substeps (world_hair.c). */
+double dr_rod_set_stable_dt(const DrRodSet *rods);
+
+/* Starts a step of h > 0 seconds: the root (and held tip) velocities that land them on scalp_end (as in
+ * dr_rod_set_step) at t + h, the elastic and damping groups on the current state with the last λ, the
+ * vertex–collider contacts (colliders evaluated now) and the hair–hair contacts. A prediction not committed
+ * is simply replaced by the next predict. Failures as dr_rod_set_step's (DR_ERR_RUNTIME: non-finite groups). */
+DR_NODISCARD DrStatus dr_rod_set_predict(DrRodSet *rods, double h, const DrXform *scalp_end,
+                                         const DrRodCollider *colliders, int ncolliders, DrError *err);
+
+/* The points where the hair meets other solvers: its vertices, n = nverts, vertex j of strand s at
+ * offsets[s] + j as everywhere else. Borrowed: the set's own arrays, filled by dr_rod_set_samples and valid
+ * until the next call of any phase. SI units. */
+typedef struct DrRodSamples {
+    int n;
+    const double *x;        /* n × 3, m: positions at the start of the step (at its end: x + h v) */
+    const double *v;        /* n × 3, m/s: velocities of the last solve since predict (before collider
+                               friction, which commit applies); before any solve, the velocities at the start
+                               of the step, held vertices at the velocity that lands them on the scalp */
+    const double *mass;     /* n, kg */
+    const double *radius;   /* n, m: the strand's radius */
+    const double *length;   /* n, m: the length of strand a vertex stands for (half of each adjacent edge, at
+                               the start of the step): the vertex's volume is π r² length */
+    const double *tangent;  /* n × 3, unit: the strand's direction at the vertex (mean of the adjacent edges'
+                               tangents, from root to tip) */
+    const unsigned char *held; /* n: 1 for a vertex whose motion is prescribed (roots, held tips): forces on it
+                               are ignored */
+} DrRodSamples;
+/* Between predict and commit. */
+DrRodSamples dr_rod_set_samples(DrRodSet *rods);
+
+/* Solves the predicted step with external forces at the vertices: force (NULL: none) 3 nverts N and dforce_dv
+ * (NULL: none) 9 nverts, a row-major 3×3 per vertex, N·s/m. Over the step the force on vertex i is
+ *     force_i + dforce_dv_i · v₊_i        (v₊ the solved velocity),
+ * so −h dforce_dv enters the implicit system on the vertex's own 3×3 block like extra mass (damping when
+ * negative definite): a law f(v) linearised about v* passes force = f(v*) − (∂f/∂v) v*; a drag −c (v − u)
+ * passes c u and −c I. Only the symmetric part of dforce_dv enters (the solve is symmetric); it must keep
+ * the system positive definite. Held vertices ignore both; twists get no external torque. Callable several
+ * times after one predict, each from the prediction alone (never from an earlier solve) and committing
+ * nothing: with the same arguments it gives the same bits. stats (may be NULL) accumulates iterations,
+ * residual, not_converged, indefinite_blocks, seconds_solve. DR_WARN_NOT_CONVERGED when the solve hit its
+ * cap (the result is usable); DR_ERR_RUNTIME on a breakdown (the prediction stays and can be solved again). */
+DR_NODISCARD DrStatus dr_rod_set_solve(DrRodSet *rods, const double *force, const double *dforce_dv,
+                                       DrRodStats *stats, DrError *err);
+
+/* Ends the step with the last solve: multipliers λ₊, Coulomb friction at the collider contacts, positions,
+ * twists, time-transported directors and reference twists; stats (may be NULL) counts the step and takes its
+ * contacts, timings, energies and momenta. DR_ERR_RUNTIME when the state becomes non-finite (the state,
+ * multipliers included, is then left as it was before the step). Needs a solve that did not fail since
+ * predict. */
+DR_NODISCARD DrStatus dr_rod_set_commit(DrRodSet *rods, DrRodStats *stats, DrError *err);
 
 /* Energies and momenta of the current state (what stats reports after a step). */
 void dr_rod_set_measure(const DrRodSet *rods, DrRodStats *stats);

@@ -10,6 +10,7 @@
  * standard PCG (z from the residual r, w = A p), which is what the text around it describes. */
 #include "lagrangian/lagrangian.h"
 
+#include <limits.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -30,10 +31,13 @@ typedef struct LagObject {
     double *geo;      /* (kd + 1) × ndof lower band: −h² G */
     double *pre;      /* (kd + 1) × ndof lower band: the in-band part of K_G on this object's DOFs, for the
                          preconditioner only (the operator takes K_G whole) */
-    double *op;       /* (kd + 1) × ndof lower band of the operator: mat + geo, or mat when geo was dropped */
+    double *ext;      /* (kd + 1) × ndof lower band: −h ½(D + Dᵀ) of the current solve's load blocks */
+    double *op;       /* (kd + 1) × ndof lower band of the operator: mat + geo (+ ext), or mat (+ ext) when geo
+                         was dropped */
     DrBanded *factor;
-    bool dropped;     /* geometric part dropped this step */
+    bool dropped;     /* geometric part dropped in the last solve */
     bool has_pre;     /* pre holds contact terms this step */
+    bool has_ext;     /* ext holds load blocks in the current solve */
     LagRecords rec;
 } LagObject;
 
@@ -45,6 +49,7 @@ struct DrLag {
     int nobj, cap_obj;
     int ndof;
     int *dof_object;          /* object of each DOF */
+    int *obj_status;          /* cap_obj: per object, the outcome of its factorisation in a solve */
 
     /* per step */
     double h;
@@ -52,11 +57,16 @@ struct DrLag {
     const double *mass, *qdot;
     const unsigned char *prescribed;
     const double *qdot_prescribed;
+    bool assembled;           /* K_G built by the first solve since begin: no more groups this step */
+    bool slack;               /* reserve_slack done (after the first assembly) */
     double *b, *b_local;      /* right-hand side; the part of it from intra-object terms only */
+    double *rhs, *rhs_local;  /* b and b_local with a solve's load */
     double *diag;             /* diag(A) for Jacobi */
     double *inv_mass;
     LagTriplet *trip;
     size_t ntrip, cap_trip;
+    LagTriplet *trip_tmp;     /* cap_trip_tmp: scratch of the triplet sort */
+    size_t cap_trip_tmp;
     LagRecords grec;          /* records of the K_G groups */
     DrCsr *kg;
     int groups_block, groups_global;
@@ -101,17 +111,22 @@ void dr_lag_destroy(DrLag **sp)
         free(s->obj[i].mat);
         free(s->obj[i].geo);
         free(s->obj[i].pre);
+        free(s->obj[i].ext);
         free(s->obj[i].op);
         dr_banded_destroy(&s->obj[i].factor);
         records_free(&s->obj[i].rec);
     }
     free(s->obj);
     free(s->dof_object);
+    free(s->obj_status);
     free(s->b);
     free(s->b_local);
+    free(s->rhs);
+    free(s->rhs_local);
     free(s->diag);
     free(s->inv_mass);
     free(s->trip);
+    free(s->trip_tmp);
     records_free(&s->grec);
     dr_csr_destroy(&s->kg);
     free(s->work);
@@ -123,16 +138,16 @@ void dr_lag_set_desc(DrLag *s, const DrLagDesc *desc) { s->desc = *desc; }
 int dr_lag_object_count(const DrLag *s) { return s->nobj; }
 int dr_lag_dof_count(const DrLag *s) { return s->ndof; }
 
-/* Grows *p (elements of size `size`) to hold at least `need`, by half again when it must grow. */
+/* Grows *p (elements of size `size`) to hold at least `need`, by half again when it must grow. The buffer is
+   kept from step to step, so a step that fits what an earlier one reserved allocates nothing (see
+   reserve_slack for the first step's). */
 static DrStatus grow(void **p, size_t *cap, size_t need, size_t size, DrError *err)
 {
     if (need <= *cap) return DR_OK;
     size_t n = *cap + *cap / 2;
     if (n < need) n = need;
     if (n < 16) n = 16;
-    void *q = realloc(*p, n * size);
-    if (!q) return dr_error_set(err, DR_ERR_NOMEM, NULL, 0, 0, "out of memory growing a solver buffer to %zu items", n);
-    *p = q;
+    DR_TRY(dr_realloc(n, size, p, err));
     *cap = n;
     return DR_OK;
 }
@@ -147,6 +162,7 @@ DrStatus dr_lag_add_object(DrLag *s, int ndof, int kd, int *id, int *dof_begin, 
         return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "too many DOFs in one Lagrangian system (over 2^31)");
     size_t cap = (size_t)s->cap_obj;
     DR_TRY(grow((void **)&s->obj, &cap, (size_t)s->nobj + 1, sizeof *s->obj, err));
+    if (cap > (size_t)s->cap_obj) DR_TRY(dr_realloc(cap, sizeof(int), &s->obj_status, err));
     s->cap_obj = (int)cap;
     LagObject *o = &s->obj[s->nobj];
     memset(o, 0, sizeof *o);
@@ -157,6 +173,7 @@ DrStatus dr_lag_add_object(DrLag *s, int ndof, int kd, int *id, int *dof_begin, 
     DrStatus st = dr_calloc(band, sizeof(double), &o->mat, err);
     if (st == DR_OK) st = dr_calloc(band, sizeof(double), &o->geo, err);
     if (st == DR_OK) st = dr_calloc(band, sizeof(double), &o->pre, err);
+    if (st == DR_OK) st = dr_calloc(band, sizeof(double), &o->ext, err);
     if (st == DR_OK) st = dr_calloc(band, sizeof(double), &o->op, err);
     if (st == DR_OK) st = dr_banded_create(ndof, kd, &o->factor, err);
     if (st == DR_OK) {
@@ -168,6 +185,7 @@ DrStatus dr_lag_add_object(DrLag *s, int ndof, int kd, int *id, int *dof_begin, 
         free(o->mat);
         free(o->geo);
         free(o->pre);
+        free(o->ext);
         free(o->op);
         dr_banded_destroy(&o->factor);
         return st;
@@ -189,14 +207,18 @@ DrStatus dr_lag_begin(DrLag *s, double h, const double *mass, const double *qdot
     if ((size_t)n > s->cap_work || !s->b) {
         free(s->b);
         free(s->b_local);
+        free(s->rhs);
+        free(s->rhs_local);
         free(s->diag);
         free(s->inv_mass);
         free(s->work);
-        s->b = s->b_local = s->diag = s->inv_mass = s->work = NULL;
+        s->b = s->b_local = s->rhs = s->rhs_local = s->diag = s->inv_mass = s->work = NULL;
         s->cap_work = 0;
         size_t m = cap ? cap : 1;
         DR_TRY(dr_calloc(m, sizeof(double), &s->b, err));
         DR_TRY(dr_calloc(m, sizeof(double), &s->b_local, err));
+        DR_TRY(dr_calloc(m, sizeof(double), &s->rhs, err));
+        DR_TRY(dr_calloc(m, sizeof(double), &s->rhs_local, err));
         DR_TRY(dr_calloc(m, sizeof(double), &s->diag, err));
         DR_TRY(dr_calloc(m, sizeof(double), &s->inv_mass, err));
         DR_TRY(dr_calloc(5 * m, sizeof(double), &s->work, err));
@@ -232,6 +254,7 @@ DrStatus dr_lag_begin(DrLag *s, double h, const double *mass, const double *qdot
     s->qdot_prescribed = qdot_prescribed;
     s->groups_block = s->groups_global = 0;
     s->begun = true;
+    s->assembled = false;
     s->t_assemble0 = dr_time_now();
     return DR_OK;
 }
@@ -254,6 +277,15 @@ static DrStatus check_group(const DrLag *s, const DrLagGroup *g, DrError *err)
                             "a constraint over DOFs %d..%d has a non-finite value, compliance or Jacobian (the "
                             "configuration has blown up or is degenerate: a zero-length edge?)",
                             g->dof[0], g->dof[g->ndof - 1]);
+    return DR_OK;
+}
+
+/* Room for twice what the records hold. */
+static DrStatus records_slack(LagRecords *r, DrError *err)
+{
+    DR_TRY(grow((void **)&r->ints, &r->cap_ints, 2 * r->nints, sizeof(int), err));
+    DR_TRY(grow((void **)&r->reals, &r->cap_reals, 2 * r->nreals, sizeof(double), err));
+    DR_TRY(grow((void **)&r->lambda, &r->cap_groups, 2 * r->ngroups, sizeof(double *), err));
     return DR_OK;
 }
 
@@ -300,7 +332,7 @@ static void local_terms(const DrLag *s, const DrLagGroup *g, double *mat, double
 
 DrStatus dr_lag_add(DrLag *s, const DrLagGroup *g, DrError *err)
 {
-    assert(s->begun);
+    assert(s->begun && !s->assembled);
     DR_TRY(check_group(s, g, err));
     int obj = s->dof_object[g->dof[0]];
     LagObject *o = &s->obj[obj];
@@ -345,7 +377,7 @@ DrStatus dr_lag_add(DrLag *s, const DrLagGroup *g, DrError *err)
 
 DrStatus dr_lag_add_global(DrLag *s, const DrLagGroup *g, DrError *err)
 {
-    assert(s->begun);
+    assert(s->begun && !s->assembled);
     DR_TRY(check_group(s, g, err));
     double mat[DR_LAG_MAX_DOFS * DR_LAG_MAX_DOFS], geo[DR_LAG_MAX_DOFS * DR_LAG_MAX_DOFS], rhs[DR_LAG_MAX_DOFS];
     local_terms(s, g, mat, geo, rhs);
@@ -376,23 +408,60 @@ DrStatus dr_lag_add_global(DrLag *s, const DrLagGroup *g, DrError *err)
     return record(&s->grec, g, g->kind == DR_LAG_POSITIONAL ? s->h : 1.0, err);
 }
 
-static int trip_cmp(const void *pa, const void *pb)
+static inline bool trip_less(const LagTriplet *a, const LagTriplet *b)
 {
-    const LagTriplet *a = pa, *b = pb;
-    if (a->i != b->i) return a->i < b->i ? -1 : 1;
-    if (a->j != b->j) return a->j < b->j ? -1 : 1;
-    return 0;
+    return a->i != b->i ? a->i < b->i : a->j < b->j;
 }
 
-/* K_G triplets → CSR (sorted, duplicates summed in their sorted order: qsort is not stable, but equal (i, j)
-   keys are summed in an order fixed by the input order only when the sort is deterministic, which glibc's
-   qsort on the same input is; the triplets are generated in a fixed order for any thread count). */
+/* Sorts the n triplets of a by (i, j), stably (equal keys keep their input order), with tmp (n entries) as
+   scratch: runs of 16 by insertion, then bottom-up merges that take from the left run on ties. Being stable, its
+   result is unique, whatever the algorithm; its scratch is kept from step to step (glibc's qsort, a merge sort
+   too, takes its own from the heap at every call). */
+static void trip_sort(LagTriplet *a, LagTriplet *tmp, size_t n)
+{
+    enum { RUN = 16 };
+    for (size_t lo = 0; lo < n; lo += RUN) {
+        size_t hi = lo + RUN < n ? lo + RUN : n;
+        for (size_t k = lo + 1; k < hi; k++) {
+            LagTriplet t = a[k];
+            size_t m = k;
+            while (m > lo && trip_less(&t, &a[m - 1])) {
+                a[m] = a[m - 1];
+                m--;
+            }
+            a[m] = t;
+        }
+    }
+    LagTriplet *src = a, *dst = tmp;
+    for (size_t w = RUN; w < n; w *= 2) {
+        for (size_t lo = 0; lo < n; lo += 2 * w) {
+            size_t mid = lo + w < n ? lo + w : n, hi = lo + 2 * w < n ? lo + 2 * w : n;
+            size_t i = lo, j = mid, o = lo;
+            while (i < mid && j < hi) dst[o++] = trip_less(&src[j], &src[i]) ? src[j++] : src[i++];
+            while (i < mid) dst[o++] = src[i++];
+            while (j < hi) dst[o++] = src[j++];
+        }
+        LagTriplet *t = src;
+        src = dst;
+        dst = t;
+    }
+    if (src != a) memcpy(a, src, n * sizeof *a);
+}
+
+/* K_G triplets → CSR (sorted stably, so duplicates are summed in the order they were added; the triplets are
+   generated in a fixed order for any thread count). */
 static DrStatus build_kg(DrLag *s, DrError *err)
 {
     int n = s->ndof;
-    if (!s->kg) DR_TRY(dr_csr_create(n, (int)(s->ntrip > 0 ? s->ntrip : 1), &s->kg, err));
-    qsort(s->trip, s->ntrip, sizeof *s->trip, trip_cmp);
-    DR_TRY(dr_csr_reserve(s->kg, n, (int)(s->ntrip > 0 ? s->ntrip : 1), err));
+    /* K_G has at most one entry per triplet: sized by the triplets' capacity, it grows when they do */
+    int cap = s->cap_trip > 0 ? (s->cap_trip < INT_MAX ? (int)s->cap_trip : INT_MAX - 1) : 1;
+    if (!s->kg) DR_TRY(dr_csr_create(n, cap, &s->kg, err));
+    if (s->cap_trip_tmp < s->cap_trip) {
+        DR_TRY(dr_realloc(s->cap_trip, sizeof(LagTriplet), &s->trip_tmp, err));
+        s->cap_trip_tmp = s->cap_trip;
+    }
+    trip_sort(s->trip, s->trip_tmp, s->ntrip);
+    DR_TRY(dr_csr_reserve(s->kg, n, cap, err));
     DrCsr *A = s->kg;
     int nnz = 0;
     for (size_t t = 0; t < s->ntrip;) {
@@ -490,7 +559,7 @@ void dr_lag_apply(const DrLag *s, const double *x, double *y)
 
 typedef struct FactorCtx {
     DrLag *s;
-    int *status;  /* per object: 0 ok, 1 dropped geometric part, 2 failed */
+    int *status;  /* per object: 0 ok, 1 dropped geometric part, 2 failed; | 4: preconditioned without pre */
 } FactorCtx;
 
 /* Positive definiteness is decided on the block's own operator (mat + geo): with it positive definite and
@@ -504,11 +573,18 @@ static void factor_blocks(long begin, long end, void *vctx)
         LagObject *o = &c->s->obj[oi];
         size_t band = (size_t)(o->kd + 1) * (size_t)o->ndof;
         DrError e;
-        for (size_t k = 0; k < band; k++) o->factor->ab[k] = o->op[k] = o->mat[k] + o->geo[k];
+        o->dropped = false;
+        if (o->has_ext)
+            for (size_t k = 0; k < band; k++) o->factor->ab[k] = o->op[k] = o->mat[k] + o->geo[k] + o->ext[k];
+        else
+            for (size_t k = 0; k < band; k++) o->factor->ab[k] = o->op[k] = o->mat[k] + o->geo[k];
         o->factor->factored = false;
         c->status[oi] = 0;
         if (dr_banded_factor(o->factor, &e) != DR_OK) {
-            for (size_t k = 0; k < band; k++) o->factor->ab[k] = o->op[k] = o->mat[k];
+            if (o->has_ext)
+                for (size_t k = 0; k < band; k++) o->factor->ab[k] = o->op[k] = o->mat[k] + o->ext[k];
+            else
+                for (size_t k = 0; k < band; k++) o->factor->ab[k] = o->op[k] = o->mat[k];
             o->factor->factored = false;
             o->dropped = true;
             c->status[oi] = dr_banded_factor(o->factor, &e) == DR_OK ? 1 : 2;
@@ -517,7 +593,14 @@ static void factor_blocks(long begin, long end, void *vctx)
         if (!o->has_pre) continue;
         for (size_t k = 0; k < band; k++) o->factor->ab[k] = o->op[k] + o->pre[k];
         o->factor->factored = false;
-        if (dr_banded_factor(o->factor, &e) != DR_OK) c->status[oi] = 2; /* op PD + pre PSD: cannot happen */
+        if (dr_banded_factor(o->factor, &e) == DR_OK) continue;
+        /* pre need not be positive semidefinite: a contact between two edges of one strand that lie further apart
+           than the band leaves only part of its (PSD) self terms in the band, and a PSD matrix cut to a band can
+           be indefinite, enough to outweigh a soft block's smallest eigenvalues (a twist's inertia). The block is
+           then preconditioned by its own operator, factored above. */
+        for (size_t k = 0; k < band; k++) o->factor->ab[k] = o->op[k];
+        o->factor->factored = false;
+        c->status[oi] = dr_banded_factor(o->factor, &e) == DR_OK ? c->status[oi] | 4 : 2;
     }
 }
 
@@ -596,43 +679,111 @@ static void lambda_blocks(long begin, long end, void *vctx)
     for (long oi = begin; oi < end; oi++) update_lambdas(&c->s->obj[oi].rec, c->v);
 }
 
-DrStatus dr_lag_solve(DrLag *s, double *x, DrLagStats *stats, DrError *err)
+/* After the first step's groups: room for twice as many, in every buffer whose use follows the number of groups
+   (records, K_G triplets and their sort). Contacts come and go from step to step; with this slack a step after
+   the first allocates only when it needs more than twice what the first one did, and the buffers grow by half
+   again from there. */
+static DrStatus reserve_slack(DrLag *s, DrError *err)
+{
+    for (int i = 0; i < s->nobj; i++) DR_TRY(records_slack(&s->obj[i].rec, err));
+    DR_TRY(records_slack(&s->grec, err));
+    DR_TRY(grow((void **)&s->trip, &s->cap_trip, 2 * s->ntrip, sizeof(LagTriplet), err));
+    s->slack = true;
+    return DR_OK;
+}
+
+/* The load's share of the right-hand side (h f on free DOFs, the known velocities of prescribed columns of its
+   blocks) into rhs and rhs_local, and its blocks −h ½(D + Dᵀ) into the objects' ext bands. */
+static void apply_load(DrLag *s, const DrLagLoad *load)
+{
+    int n = s->ndof;
+    double h = s->h;
+    memcpy(s->rhs, s->b, (size_t)n * sizeof(double));
+    memcpy(s->rhs_local, s->b_local, (size_t)n * sizeof(double));
+    if (load->force)
+        for (int k = 0; k < n; k++) {
+            if (is_prescribed(s, k)) continue;
+            s->rhs[k] += h * load->force[k];
+            s->rhs_local[k] += h * load->force[k];
+        }
+    if (!load->dforce_dv) return;
+    for (int k = 0; k < load->nblocks; k++) {
+        int d0 = load->block_dof[k];
+        assert(d0 >= 0 && d0 + 2 < n);
+        LagObject *o = &s->obj[s->dof_object[d0]];
+        assert(s->dof_object[d0 + 2] == s->dof_object[d0] && o->kd >= 2);
+        const double *D = load->dforce_dv + 9 * (size_t)k;
+        int ld = o->kd + 1;
+        for (int a = 0; a < 3; a++) {
+            int da = d0 + a;
+            if (is_prescribed(s, da)) continue;
+            for (int c = 0; c < 3; c++) {
+                int dc = d0 + c;
+                double v = -h * 0.5 * (D[3 * a + c] + D[3 * c + a]);
+                if (is_prescribed(s, dc)) {
+                    s->rhs[da] -= v * s->qdot_prescribed[dc];
+                    s->rhs_local[da] -= v * s->qdot_prescribed[dc];
+                    continue;
+                }
+                if (dc > da) continue;
+                o->ext[(size_t)(da - dc) + (size_t)ld * (size_t)(dc - o->dof0)] += v;
+                o->has_ext = true;
+            }
+        }
+    }
+}
+
+DrStatus dr_lag_solve_load(DrLag *s, const DrLagLoad *load, double *x, DrLagStats *stats, DrError *err)
 {
     assert(s->begun);
     DrLagStats st = {0};
     int n = s->ndof;
     for (int i = 0; i < s->nobj; i++) st.groups_block += (int)s->obj[i].rec.ngroups;
     st.groups_global = s->groups_global;
-    DR_TRY(build_kg(s, err));
+    if (!s->assembled) {
+        if (!s->slack) DR_TRY(reserve_slack(s, err));
+        DR_TRY(build_kg(s, err));
+        s->assembled = true;
+    }
     double t1 = dr_time_now();
     st.seconds_assemble = t1 - s->t_assemble0;
+    s->t_assemble0 = t1; /* a further solve from this assembly reports no assembly time */
+
+    /* 0. the load: a right-hand side of its own (b stays that of the groups), blocks in ext */
+    for (int i = 0; i < s->nobj; i++) {
+        LagObject *o = &s->obj[i];
+        if (!o->has_ext) continue;
+        memset(o->ext, 0, (size_t)(o->kd + 1) * (size_t)o->ndof * sizeof(double));
+        o->has_ext = false;
+    }
+    bool loaded = load && (load->force || (load->dforce_dv && load->nblocks > 0));
+    if (loaded) apply_load(s, load);
+    const double *b = loaded ? s->rhs : s->b, *b_local = loaded ? s->rhs_local : s->b_local;
 
     /* 1. factor every block: the block preconditioner and the local guess need the factors, and every
        preconditioner needs the same decision on which blocks keep their geometric stiffness (Cholesky is
        the test of positive definiteness), so that all three solve one and the same system. */
     bool need_factor = s->desc.precond == DR_LAG_PRECOND_BLOCK;
-    int *status = NULL;
-    DR_TRY(dr_calloc((size_t)(s->nobj > 0 ? s->nobj : 1), sizeof(int), &status, err));
+    int *status = s->obj_status;
     FactorCtx fc = {s, status};
     dr_parallel_for(s->nobj, 16, factor_blocks, &fc);
     for (int i = 0; i < s->nobj; i++) {
-        if (status[i] == 1) st.indefinite_blocks++;
-        if (status[i] == 2) {
-            free(status);
-            s->begun = false;
+        if (status[i] != 2 && (status[i] & 1)) st.indefinite_blocks++;
+        if (status[i] != 2 && (status[i] & 4)) st.contact_blocks_dropped++;
+        if (status[i] == 2)
             return dr_error_set(err, DR_ERR_RUNTIME, NULL, 0, 0,
                                 "object %d's block is not positive definite even without geometric stiffness "
                                 "(non-positive compliance, or a degenerate configuration)",
                                 i);
-        }
     }
-    free(status);
     /* diag(A) for Jacobi */
     for (int oi = 0; oi < s->nobj; oi++) {
         const LagObject *o = &s->obj[oi];
         int ld = o->kd + 1;
         for (int k = 0; k < o->ndof; k++)
             s->diag[o->dof0 + k] = o->mat[(size_t)ld * k] + (o->dropped ? 0 : o->geo[(size_t)ld * k]);
+        if (o->has_ext)
+            for (int k = 0; k < o->ndof; k++) s->diag[o->dof0 + k] += o->ext[(size_t)ld * k];
     }
     if (s->kg)
         for (int i = 0; i < n; i++)
@@ -644,7 +795,7 @@ DrStatus dr_lag_solve(DrLag *s, double *x, DrLagStats *stats, DrError *err)
     /* 2. initial guess: the local solves A_i* q̇_i = b_i* (S1 lines 1–3), or the current velocity */
     double *r = s->work, *z = r + n, *p = z + n, *w = p + n;
     if (need_factor && s->desc.local_guess) {
-        SolveCtx c = {s, s->b_local, x};
+        SolveCtx c = {s, b_local, x};
         dr_parallel_for(s->nobj, 16, solve_blocks, &c);
     } else {
         for (int k = 0; k < n; k++) x[k] = is_prescribed(s, k) ? s->qdot_prescribed[k] : s->qdot[k];
@@ -654,8 +805,8 @@ DrStatus dr_lag_solve(DrLag *s, double *x, DrLagStats *stats, DrError *err)
 
     /* 3. PCG on the whole system (S1 lines 4–22) */
     dr_lag_apply(s, x, w);
-    for (int k = 0; k < n; k++) r[k] = s->b[k] - w[k];
-    double bnorm = sqrt(wdot(s->b, s->b, s->inv_mass, n));
+    for (int k = 0; k < n; k++) r[k] = b[k] - w[k];
+    double bnorm = sqrt(wdot(b, b, s->inv_mass, n));
     double target = s->desc.tol * (bnorm > 0 ? bnorm : 1.0);
     double rnorm = sqrt(wdot(r, r, s->inv_mass, n));
     precondition(s, r, z);
@@ -670,13 +821,11 @@ DrStatus dr_lag_solve(DrLag *s, double *x, DrLagStats *stats, DrError *err)
         }
         dr_lag_apply(s, p, w);
         double pw = dr_dot(p, w, n);
-        if (!(pw > 0) || !(gamma > 0)) {
-            s->begun = false;
+        if (!(pw > 0) || !(gamma > 0))
             return dr_error_set(err, DR_ERR_RUNTIME, NULL, 0, 0,
                                 "conjugate gradients broke down after %d iterations (pᵀAp = %g, rᵀz = %g): the "
                                 "system is not positive definite or holds non-finite values",
                                 it, pw, gamma);
-        }
         double alpha = gamma / pw;
         double *rm = s->work + 4 * (size_t)n; /* r ∘ M⁻¹ */
         vec((VecCtx){.op = VEC_STEP, .a = alpha, .x = x, .r = r, .p = p, .w = w, .q = rm, .v = s->inv_mass}, n);
@@ -687,22 +836,34 @@ DrStatus dr_lag_solve(DrLag *s, double *x, DrLagStats *stats, DrError *err)
         vec((VecCtx){.op = VEC_DIRECTION, .a = beta, .p = p, .u = z}, n);
         rnorm = sqrt(dr_dot(r, rm, n));
         it++;
-        if (!isfinite(rnorm)) {
-            s->begun = false;
+        if (!isfinite(rnorm))
             return dr_error_set(err, DR_ERR_RUNTIME, NULL, 0, 0,
                                 "conjugate gradients produced a non-finite residual after %d iterations", it);
-        }
     }
     st.iterations = it;
     st.residual = bnorm > 0 ? rnorm / bnorm : rnorm;
     st.converged = result == DR_OK;
-
-    /* 4. multipliers from the new velocity (S24, S25) */
-    LambdaCtx lc = {s, x};
-    dr_parallel_for(s->nobj, 64, lambda_blocks, &lc);
-    update_lambdas(&s->grec, x);
     st.seconds_solve = dr_time_now() - t2;
-    s->begun = false;
     if (stats) *stats = st;
+    return result;
+}
+
+void dr_lag_update_multipliers(DrLag *s, const double *qdot)
+{
+    assert(s->begun);
+    LambdaCtx lc = {s, qdot};
+    dr_parallel_for(s->nobj, 64, lambda_blocks, &lc);
+    update_lambdas(&s->grec, qdot);
+}
+
+DrStatus dr_lag_solve(DrLag *s, double *x, DrLagStats *stats, DrError *err)
+{
+    DrStatus result = dr_lag_solve_load(s, NULL, x, stats, err);
+    if (result >= 0) {
+        double t = dr_time_now();
+        dr_lag_update_multipliers(s, x);
+        if (stats) stats->seconds_solve += dr_time_now() - t;
+    }
+    s->begun = false;
     return result;
 }

@@ -24,7 +24,10 @@
  * system. Beyond the paper's A_i*, the part of K_G that falls on one object's own DOFs inside its band (a
  * contact's self terms) joins that object's preconditioner block, making it the block-Jacobi
  * preconditioner of the whole A: one step of a 1,024-hair groom with 29,000 stiff contacts (1e3 N/m, 1e-4 s)
- * took 495 iterations with it against 839 without.
+ * took 495 iterations with it against 839 without. Those terms are the in-band part of a positive semidefinite
+ * matrix, which can be indefinite when a contact's DOFs on one object spread wider than the band (two edges
+ * of one strand); a block whose factorisation fails with them is preconditioned without them (Stats counts
+ * those blocks), A itself is untouched.
  * Jacobi (diag A) and unpreconditioned CG are there for comparison. A block whose geometric stiffness
  * makes it indefinite drops its geometric stiffness (operator and preconditioner alike, so CG still sees
  * one SPD matrix); Stats counts those blocks.
@@ -37,7 +40,8 @@
  * eliminated symmetrically, so A stays SPD and their velocity enters the right-hand side.
  *
  * Ownership and threads: the system owns its matrices; a group's data are copied at dr_lag_add time
- * except λ, whose storage belongs to the caller and must stay put until dr_lag_solve returns.
+ * except λ, whose storage belongs to the caller and must stay put until dr_lag_solve (or
+ * dr_lag_update_multipliers) returns.
  * dr_lag_add may be called concurrently for groups of different objects (each object has its own
  * record buffer); groups that go to K_G must be added from one thread (dr_lag_add_global). Loops run
  * through dr_parallel_for; results are bit-identical for any thread count. */
@@ -86,6 +90,8 @@ typedef struct DrLagStats {
     int groups_block;      /* groups assembled into the object blocks */
     int groups_global;     /* groups in K_G */
     int indefinite_blocks; /* blocks that dropped their geometric stiffness */
+    int contact_blocks_dropped; /* blocks preconditioned without their in-band contact terms (which made the
+                                   preconditioner block indefinite; see the header) */
     double seconds_assemble, seconds_factor, seconds_solve;
 } DrLagStats;
 
@@ -115,10 +121,40 @@ DR_NODISCARD DrStatus dr_lag_add(DrLag *s, const DrLagGroup *g, DrError *err);
 DR_NODISCARD DrStatus dr_lag_add_global(DrLag *s, const DrLagGroup *g, DrError *err);
 
 /* Factors the blocks, solves (S26) for q̇₊ (qdot_out, length dof count; prescribed DOFs get their
- * prescribed velocity) and writes λ₊ of every group with a λ pointer. DR_WARN_NOT_CONVERGED when CG
- * stops at max_iter (q̇₊ is the last iterate, λ updated from it); DR_ERR_RUNTIME on a non-finite
- * iterate or a breakdown (A not positive definite even after dropping geometric stiffness). */
+ * prescribed velocity) and writes λ₊ of every group with a λ pointer, ending the step (the next call is
+ * dr_lag_begin). The same as dr_lag_solve_load(s, NULL, …) then dr_lag_update_multipliers(s, qdot_out), bit
+ * for bit. DR_WARN_NOT_CONVERGED when CG stops at max_iter (q̇₊ is the last iterate, λ updated from it);
+ * DR_ERR_RUNTIME on a non-finite iterate or a breakdown (A not positive definite even after dropping
+ * geometric stiffness). */
 DR_NODISCARD DrStatus dr_lag_solve(DrLag *s, double *qdot_out, DrLagStats *stats, DrError *err);
+
+/* External load on one solve: generalised forces, and 3×3 velocity derivatives on triples of DOFs (a vertex's
+ * x, y, z), for forces that come from outside the constraint system (drag from a fluid) and change from one
+ * solve to the next while the groups stay. Over the step the load's force on the DOFs of block k is
+ *     f + D_k q̇₊        (D_k = dforce_dv of block k, row-major, N·s/m for positions),
+ * so (S26) becomes (M − h²K − h D) q̇₊ = M q̇ + h [f_e + f − …]: D enters A like extra mass (damping, for D
+ * negative definite) on the block's own DOFs; a law f(q̇) linearised about q̇* passes f = f(q̇*) − D q̇*.
+ * A needs to stay symmetric, so the symmetric part ½(D + Dᵀ) enters; it must leave A positive definite (D
+ * negative semidefinite always does). Forces and blocks on prescribed DOFs are ignored (their velocity is
+ * given); a block coupling a free DOF to a prescribed one moves the known velocity to the right-hand side. */
+typedef struct DrLagLoad {
+    const double *force;     /* NULL or dof count values (N, or N·m on a twist) */
+    int nblocks;             /* 0 when dforce_dv is NULL */
+    const int *block_dof;    /* nblocks: block k acts on DOFs block_dof[k] + 0, 1, 2, all of one object within its
+                                band (kd ≥ 2) */
+    const double *dforce_dv; /* NULL or nblocks × 9: ∂f/∂q̇ of block k, row-major */
+} DrLagLoad;
+
+/* Solves (S26) with the groups added since dr_lag_begin plus `load` (NULL: none) for q̇₊ (qdot_out) without
+ * touching any λ: callable any number of times between one begin and the next (adding groups after the first
+ * call is a programmer error), each solve independent of the ones before it (the same load gives the same bits).
+ * Stats and failures as dr_lag_solve; after a failure the step can still be solved again. */
+DR_NODISCARD DrStatus dr_lag_solve_load(DrLag *s, const DrLagLoad *load, double *qdot_out, DrLagStats *stats,
+                                        DrError *err);
+
+/* Writes λ₊ = −C⁻¹(φ + h J q̇₊), λ_v₊ = −C_v⁻¹(φ_v + J_v (q̇₊ − q̇)) (S24, S25) of every group with a λ pointer,
+ * for the velocity q̇₊ = qdot (normally the solve's result that is kept). Between begin and the next begin. */
+void dr_lag_update_multipliers(DrLag *s, const double *qdot);
 
 /* y = A x with the matrix the last dr_lag_solve used (prescribed DOFs eliminated, geometric stiffness as kept). */
 void dr_lag_apply(const DrLag *s, const double *x, double *y);

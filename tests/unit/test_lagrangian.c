@@ -1,6 +1,8 @@
 /* Unit tests for src/lagrangian: the linearised implicit Euler step against hand and dense solutions (assembly
  * checked independently of the solver), the λ updates of eqs. (S24)–(S25), prescribed DOFs, the three
- * preconditioners agreeing, indefinite blocks, bad groups, the iteration cap, and thread-count determinism. */
+ * preconditioners agreeing, indefinite blocks, bad groups, the iteration cap, and thread-count determinism;
+ * solves with an external load (forces and 3×3 velocity derivatives) against hand and dense solutions,
+ * re-solving from one assembly, and dr_lag_solve as solve_load + update_multipliers. */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -429,6 +431,228 @@ static void test_bad_groups(void **state)
     dr_lag_destroy(&s);
 }
 
+/* A K_G group on DOFs of one object spread wider than its band: its in-band part, [1 1 0; 1 1 1; 0 1 1] h²k for
+   J = (1, 1, 1), has the eigenvalue (1 − √2) h²k, which outweighs masses of 1e-6; the block is preconditioned
+   without it and the whole system (positive definite) is solved. */
+static void test_contact_terms_beyond_band(void **state)
+{
+    (void)state;
+    DrLagPrecond pcs[2] = {DR_LAG_PRECOND_BLOCK, DR_LAG_PRECOND_JACOBI};
+    for (int p = 0; p < 2; p++) {
+        DrLagDesc d;
+        dr_lag_desc_default(&d);
+        d.precond = pcs[p];
+        d.tol = 1e-13;
+        DrLag *s = NULL;
+        DrError err;
+        assert_int_equal(dr_lag_create(&d, &s, &err), DR_OK);
+        int id, d0;
+        assert_int_equal(dr_lag_add_object(s, 3, 1, &id, &d0, &err), DR_OK);
+        double m[3] = {1e-6, 1e-6, 1e-6}, v[3] = {0.1, -0.2, 0.3}, h = 0.01, k = 10, lambda = 0;
+        assert_int_equal(dr_lag_begin(s, h, m, v, NULL, NULL, NULL, &err), DR_OK);
+        DrLagGroup g = {.kind = DR_LAG_POSITIONAL, .nrows = 1, .ndof = 3, .dof = {0, 1, 2}, .phi = {0.01},
+                        .cinv = {k}, .J = {1, 1, 1}, .lambda = &lambda};
+        assert_int_equal(dr_lag_add(s, &g, &err), DR_ERR_INPUT); /* wider than the band */
+        assert_int_equal(dr_lag_add_global(s, &g, &err), DR_OK);
+        double x[3];
+        DrLagStats st;
+        assert_int_equal(dr_lag_solve(s, x, &st, &err), DR_OK);
+        assert_int_equal(st.contact_blocks_dropped, 1); /* every preconditioner factors the blocks */
+        /* (m + h² k 1 1ᵀ) x = m v − h k φ 1, by hand: x = v − 1 (h k (φ + h 1ᵀv)) / (m + 3 h² k) */
+        double sv = v[0] + v[1] + v[2], c = h * k * (0.01 + h * sv) / (m[0] + 3 * h * h * k);
+        for (int a = 0; a < 3; a++) assert_near(x[a], v[a] - c, 1e-9 * fabs(c));
+        dr_lag_destroy(&s);
+    }
+}
+
+/* ---- solves with an external load ------------------------------------------------------------------------ */
+
+/* One object of 3 DOFs (a vertex), D = −c I and a force F: (m + h c) v₊ = m v + h (f + F) per DOF. */
+static void test_load_by_hand(void **state)
+{
+    (void)state;
+    DrLag *s = NULL;
+    DrError err;
+    assert_int_equal(dr_lag_create(NULL, &s, &err), DR_OK);
+    int id, d0;
+    assert_int_equal(dr_lag_add_object(s, 3, 2, &id, &d0, &err), DR_OK);
+    double m[3] = {2, 2, 2}, v[3] = {0.3, -1, 0.5}, f[3] = {0, -19.6, 0}, h = 0.01, c = 40;
+    double F[3] = {1, 2, -3}, D[9] = {-c, 0, 0, 0, -c, 0, 0, 0, -c};
+    int block = 0;
+    DrLagLoad load = {F, 1, &block, D};
+    assert_int_equal(dr_lag_begin(s, h, m, v, f, NULL, NULL, &err), DR_OK);
+    double x[3];
+    assert_int_equal(dr_lag_solve_load(s, &load, x, NULL, &err), DR_OK);
+    for (int a = 0; a < 3; a++) assert_near(x[a], (m[a] * v[a] + h * (f[a] + F[a])) / (m[a] + h * c), 1e-14);
+    /* the antisymmetric part of D does not enter: D + S with S antisymmetric gives the same velocity */
+    double DS[9] = {-c, 5, -2, -5, -c, 7, 2, -7, -c};
+    DrLagLoad load2 = {F, 1, &block, DS};
+    double y[3];
+    assert_int_equal(dr_lag_solve_load(s, &load2, y, NULL, &err), DR_OK);
+    for (int a = 0; a < 3; a++) assert_near(y[a], x[a], 1e-14);
+    dr_lag_destroy(&s);
+}
+
+/* A random load on a random system: forces everywhere, blocks on DOF triples of every object, some of them over
+   prescribed DOFs, D = −(c I + K) + S (K SPD, S antisymmetric, random). The solution against the dense system
+   with −h ½(D + Dᵀ) added on each block, h f on the free DOFs, and prescribed columns moved to the right. */
+typedef struct TestLoad {
+    int nblocks;
+    int *block_dof;
+    double *force, *D;
+} TestLoad;
+
+static void load_make(const TestSystem *t, TestLoad *L, uint64_t seed)
+{
+    DrRng rng;
+    dr_rng_seed(&rng, seed);
+    L->nblocks = 0;
+    L->block_dof = calloc((size_t)t->n, sizeof(int));
+    L->force = calloc((size_t)t->n, sizeof(double));
+    L->D = calloc((size_t)t->n * 9, sizeof(double));
+    for (int i = 0; i < t->n; i++) L->force[i] = 4 * dr_rng_uniform(&rng) - 2;
+    for (int o = 0; o < t->nobj; o++)
+        for (int k = 0; k + 2 < t->per; k += 4) {
+            double *D = L->D + 9 * L->nblocks, K[9], S[9];
+            L->block_dof[L->nblocks++] = o * t->per + k;
+            for (int a = 0; a < 9; a++) K[a] = dr_rng_uniform(&rng) - 0.5;
+            for (int a = 0; a < 3; a++)
+                for (int b = 0; b < 3; b++) S[3 * a + b] = a < b ? 3 * (dr_rng_uniform(&rng) - 0.5) : 0;
+            for (int a = 0; a < 3; a++)
+                for (int b = 0; b < 3; b++) {
+                    double kk = 0;
+                    for (int c = 0; c < 3; c++) kk += K[3 * a + c] * K[3 * b + c];
+                    D[3 * a + b] = -(a == b ? 20.0 : 0.0) - 10 * kk + S[3 * a + b] - S[3 * b + a];
+                }
+        }
+}
+
+static void load_free(TestLoad *L)
+{
+    free(L->block_dof);
+    free(L->force);
+    free(L->D);
+}
+
+static void load_dense(const TestSystem *t, const TestLoad *L, double *A, double *b)
+{
+    int n = t->n;
+    sys_dense(t, A, b);
+    for (int i = 0; i < n; i++)
+        if (!t->pres[i]) b[i] += t->h * L->force[i];
+    for (int k = 0; k < L->nblocks; k++)
+        for (int a = 0; a < 3; a++)
+            for (int c = 0; c < 3; c++) {
+                int da = L->block_dof[k] + a, dc = L->block_dof[k] + c;
+                double v = -t->h * 0.5 * (L->D[9 * k + 3 * a + c] + L->D[9 * k + 3 * c + a]);
+                if (t->pres[da]) continue;
+                if (t->pres[dc]) b[da] -= v * t->vp[dc];
+                else A[da * n + dc] += v;
+            }
+}
+
+static double residual_dense(const double *A, const double *b, const double *x, int n)
+{
+    double worst = 0, scale = 0;
+    for (int i = 0; i < n; i++) {
+        double r = -b[i];
+        for (int j = 0; j < n; j++) r += A[i * n + j] * x[j];
+        worst = fmax(worst, fabs(r));
+        scale = fmax(scale, fabs(b[i]));
+    }
+    return worst / scale;
+}
+
+static void test_load_dense(void **state)
+{
+    (void)state;
+    TestSystem t;
+    sys_make(&t, 6, 14, 4, 12, 17);
+    for (int o = 0; o < t.nobj; o += 2) { /* the first DOF of every other object is held, inside a block */
+        t.pres[o * t.per] = 1;
+        t.vp[o * t.per] = 0.4;
+    }
+    TestLoad L;
+    load_make(&t, &L, 5);
+    DrLagLoad load = {L.force, L.nblocks, L.block_dof, L.D};
+    int n = t.n;
+    double *A = malloc((size_t)n * n * sizeof(double)), *b = malloc((size_t)n * sizeof(double));
+    load_dense(&t, &L, A, b);
+    DrLagPrecond pcs[3] = {DR_LAG_PRECOND_BLOCK, DR_LAG_PRECOND_JACOBI, DR_LAG_PRECOND_NONE};
+    for (int p = 0; p < 3; p++) {
+        DrLag *s = sys_solver(&t, pcs[p], 1e-12);
+        DrError err;
+        assert_int_equal(dr_lag_begin(s, t.h, t.mass, t.v, t.f, t.pres, t.vp, &err), DR_OK);
+        for (int k = 0; k < t.ngroups; k++)
+            assert_int_equal(t.global[k] ? dr_lag_add_global(s, &t.groups[k], &err) : dr_lag_add(s, &t.groups[k], &err),
+                             DR_OK);
+        double *x = calloc((size_t)n, sizeof(double));
+        DrLagStats st;
+        assert_int_equal(dr_lag_solve_load(s, &load, x, &st, &err), DR_OK);
+        /* as in test_preconditioners_agree: ‖r‖_{M⁻¹} ≤ 1e-12 ‖b‖_{M⁻¹} bounds the dense residual near 1e-11 */
+        double res = residual_dense(A, b, x, n);
+        print_message("load, preconditioner %d: %d iterations, dense residual %.2e\n", p, st.iterations, res);
+        assert_true(res < 1e-10);
+        for (int o = 0; o < t.nobj; o += 2) assert_true(x[o * t.per] == 0.4);
+        free(x);
+        dr_lag_destroy(&s);
+    }
+    free(A);
+    free(b);
+    load_free(&L);
+    sys_free(&t);
+}
+
+/* One assembly, several solves: a solve does not touch λ, the same load gives the same bits whatever was solved
+   before it, and dr_lag_solve equals solve_load(NULL) + update_multipliers bit for bit. */
+static void test_load_resolve(void **state)
+{
+    (void)state;
+    TestSystem t;
+    sys_make(&t, 8, 16, 5, 20, 23);
+    TestLoad L;
+    load_make(&t, &L, 9);
+    DrLagLoad load = {L.force, L.nblocks, L.block_dof, L.D};
+    int n = t.n;
+    size_t nl = (size_t)t.ngroups * DR_LAG_MAX_ROWS;
+    double *x0 = calloc((size_t)n, sizeof(double)), *x1 = calloc((size_t)n, sizeof(double));
+    double *x2 = calloc((size_t)n, sizeof(double)), *x3 = calloc((size_t)n, sizeof(double));
+    double *lam = malloc(nl * sizeof(double));
+    /* reference: the one-call solve */
+    DrLag *s = sys_solver(&t, DR_LAG_PRECOND_BLOCK, 1e-12);
+    assert_int_equal(sys_step(&t, s, x0, NULL), DR_OK);
+    memcpy(lam, t.lambda, nl * sizeof(double));
+    /* the same system solved with the load, without, with it again, then the multipliers */
+    for (size_t k = 0; k < nl; k++) t.lambda[k] = -7.0;
+    DrError err;
+    assert_int_equal(dr_lag_begin(s, t.h, t.mass, t.v, t.f, NULL, NULL, &err), DR_OK);
+    for (int k = 0; k < t.ngroups; k++)
+        assert_int_equal(t.global[k] ? dr_lag_add_global(s, &t.groups[k], &err) : dr_lag_add(s, &t.groups[k], &err),
+                         DR_OK);
+    assert_int_equal(dr_lag_solve_load(s, &load, x1, NULL, &err), DR_OK);
+    assert_int_equal(dr_lag_solve_load(s, NULL, x2, NULL, &err), DR_OK);
+    assert_int_equal(dr_lag_solve_load(s, &load, x3, NULL, &err), DR_OK);
+    for (size_t k = 0; k < nl; k++) assert_true(t.lambda[k] == -7.0);
+    assert_memory_equal(x2, x0, (size_t)n * sizeof(double));
+    assert_memory_equal(x3, x1, (size_t)n * sizeof(double));
+    /* the load changed the answer */
+    double diff = 0;
+    for (int i = 0; i < n; i++) diff = fmax(diff, fabs(x1[i] - x0[i]));
+    assert_true(diff > 1e-6);
+    dr_lag_update_multipliers(s, x2);
+    for (int k = 0; k < t.ngroups; k++) /* each group's rows */
+        assert_memory_equal(t.lambda + DR_LAG_MAX_ROWS * k, lam + DR_LAG_MAX_ROWS * k,
+                            (size_t)t.groups[k].nrows * sizeof(double));
+    dr_lag_destroy(&s);
+    free(x0);
+    free(x1);
+    free(x2);
+    free(x3);
+    free(lam);
+    load_free(&L);
+    sys_free(&t);
+}
+
 static void test_iteration_cap(void **state)
 {
     (void)state;
@@ -485,6 +709,8 @@ int main(void)
         cmocka_unit_test(test_prescribed),           cmocka_unit_test(test_indefinite_block),
         cmocka_unit_test(test_bad_groups),           cmocka_unit_test(test_iteration_cap),
         cmocka_unit_test(test_threads_bit_identical), cmocka_unit_test(test_contact_hides_indefinite_block),
+        cmocka_unit_test(test_load_by_hand),         cmocka_unit_test(test_load_dense),
+        cmocka_unit_test(test_load_resolve),         cmocka_unit_test(test_contact_terms_beyond_band),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

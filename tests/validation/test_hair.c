@@ -4,7 +4,8 @@
  *   3. a pendulum chain without damping never gains energy (implicit Euler's loss quantified, shrinking with
  *      the step); a free rod in zero gravity keeps its momentum to round-off;
  *   4. the block preconditioner against Jacobi and plain CG on a 1,000-hair groom with hair–hair contact;
- *   5. stress: stiff hair at frame-rate steps, and a scalp shaking at 10 Hz. */
+ *   5. stress: stiff hair at frame-rate steps, and a scalp shaking at 10 Hz;
+ *   6. tests/data/hair_small.json in the world: after the first frame, frames allocate nothing on the heap. */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -17,6 +18,8 @@
 
 #include "core/core.h"
 #include "hair/hair.h"
+#include "scene/scene.h"
+#include "world/world.h"
 
 /* ---- helpers ---------------------------------------------------------------------------------------------- */
 
@@ -471,6 +474,36 @@ static void test_floor_contact(void **state)
     dr_groom_free(&g);
 }
 
+/* ---- 6. no allocation per substep in the world ------------------------------------------------------------ */
+
+/* The furry ball of tests/data/hair_small.json (60 curly strands, self contact, the head as a collider, the scalp
+   shaken) through the world: frame 1 sizes every buffer; frames 2–5 (4 hair substeps each) allocate nothing.
+   Run from the repository root. */
+static void test_world_frames_allocate_nothing(void **state)
+{
+    (void)state;
+    DrScene *scene = NULL;
+    DrError err;
+    if (dr_scene_load("tests/data/hair_small.json", &scene, &err) < 0) fail_msg("%s", err.message);
+    DrWorld *w = NULL;
+    if (dr_world_create(scene, &w, &err) < 0) fail_msg("%s", err.message);
+    int contacts = 0;
+    for (int f = 1; f <= 5; f++) {
+        uint64_t before = dr_alloc_count();
+        DrFrameStats fs;
+        if (dr_world_step_frame(w, &fs, &err) < 0) fail_msg("frame %d: %s", f, err.message);
+        uint64_t made = dr_alloc_count() - before;
+        print_message("frame %d: %llu allocations, %d hair contacts in its last substep\n", f,
+                      (unsigned long long)made, fs.hair_contacts);
+        if (f == 1) assert_true(made > 0);
+        else assert_true(made == 0);
+        contacts += fs.hair_contacts;
+    }
+    assert_true(contacts > 0);
+    dr_world_destroy(&w);
+    dr_scene_destroy(&scene);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -478,6 +511,7 @@ int main(void)
         cmocka_unit_test(test_pendulum_energy),   cmocka_unit_test(test_free_rod_momentum),
         cmocka_unit_test(test_block_preconditioner), cmocka_unit_test(test_stiff_frame_rate),
         cmocka_unit_test(test_shaking_scalp),     cmocka_unit_test(test_floor_contact),
+        cmocka_unit_test(test_world_frames_allocate_nothing),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
