@@ -123,67 +123,67 @@ static void append_progress(const char *path, const DrFrameStats *fs, const Fram
             "{\"frame\":%d,\"time\":%.9g,\"substeps\":%d,\"particles\":%ld,\"pressure_iterations_max\":%d,"
             "\"pressure_iterations_total\":%ld,\"pressure_not_converged\":%d,\"liquid_volume\":%.9g,"
             "\"volume_drift\":%.6g,\"kinetic_energy\":%.9g,",
-            fs->frame, fs->time, fs->substeps, fs->particles, fs->pressure_iterations_max,
-            fs->pressure_iterations_total, fs->pressure_not_converged, fs->liquid_volume, fs->volume_drift,
+            fs->frame, fs->time, fs->substeps, fs->liquid.particles, fs->liquid.pressure_iterations_max,
+            fs->liquid.pressure_iterations_total, fs->liquid.pressure_not_converged, fs->liquid.volume, fs->liquid.drift,
             fs->kinetic_energy);
-    if (fs->liquid) fprintf(f, "\"liquid_substeps\":%d,", fs->liquid_substeps);
+    if (fs->liquid.present) fprintf(f, "\"liquid_substeps\":%d,", fs->liquid.substeps);
     /* MPM solids, only in scenes that have them; the names follow render/plots.c's rules (…_iterations,
        …_energy, momentum.*, seconds.*) so the plots pick them up */
-    if (fs->mpm)
+    if (fs->mpm.present)
         fprintf(f,
                 "\"mpm_particles\":%ld,\"mpm_substeps\":%d,\"mpm_newton_iterations\":%ld,\"mpm_cg_iterations\":%ld,"
                 "\"mpm_newton_residual\":%.6g,\"mpm_newton_not_converged\":%d,\"mpm_kinetic_energy\":%.9g,"
                 "\"mpm_elastic_energy\":%.9g,\"mpm_gravity_energy\":%.9g,\"mpm_total_energy\":%.9g,",
-                fs->mpm_particles, fs->mpm_substeps, fs->mpm_newton_iterations, fs->mpm_cg_iterations,
-                fs->mpm_newton_residual, fs->mpm_not_converged, fs->mpm_kinetic_energy, fs->mpm_elastic_energy,
-                fs->mpm_gravity_energy, fs->mpm_kinetic_energy + fs->mpm_elastic_energy + fs->mpm_gravity_energy);
+                fs->mpm.particles, fs->mpm.substeps, fs->mpm.newton_iterations, fs->mpm.cg_iterations,
+                fs->mpm.newton_residual, fs->mpm.not_converged, fs->mpm.kinetic_energy, fs->mpm.elastic_energy,
+                fs->mpm.gravity_energy, fs->mpm.kinetic_energy + fs->mpm.elastic_energy + fs->mpm.gravity_energy);
     /* boundary-element bodies: the energies of their rigid frames (kinetic and gravity's) */
-    if (fs->bem)
+    if (fs->bem.present)
         fprintf(f,
                 "\"bem_bodies\":%d,\"bem_steps\":%ld,\"bem_kinetic_energy\":%.9g,\"bem_potential_energy\":%.9g,"
                 "\"bem_total_energy\":%.9g,\"bem_max_displacement\":%.9g,\"bem_translation_error\":%.6g,"
                 "\"bem_rotation_error\":%.6g,\"bem_contacts\":%d,\"bem_body_contacts\":%d,\"bem_fixed\":%d,"
                 "\"bem_joints\":%d,\"bem_pgs_iterations\":%ld,\"bem_residual\":%.6g,\"bem_not_converged\":%d,",
-                fs->bem_bodies, fs->bem_steps, fs->bem_kinetic_energy, fs->bem_potential_energy,
-                fs->bem_kinetic_energy + fs->bem_potential_energy, fs->bem_max_displacement, fs->bem_translation_error,
-                fs->bem_rotation_error, fs->bem_contacts, fs->bem_body_contacts, fs->bem_fixed, fs->bem_joints,
-                fs->bem_pgs_iterations, fs->bem_residual, fs->bem_not_converged);
+                fs->bem.bodies, fs->bem.steps, fs->bem.kinetic_energy, fs->bem.potential_energy,
+                fs->bem.kinetic_energy + fs->bem.potential_energy, fs->bem.max_displacement, fs->bem.translation_error,
+                fs->bem.rotation_error, fs->bem.contacts, fs->bem.body_contacts, fs->bem.fixed, fs->bem.joints,
+                fs->bem.pgs_iterations, fs->bem.residual, fs->bem.not_converged);
     /* one "momentum" object: a panel per vector */
-    if (fs->mpm || fs->bem) {
+    if (fs->mpm.present || fs->bem.present) {
         fprintf(f, "\"momentum\":{");
-        if (fs->mpm) {
-            DrVec3 p = fs->mpm_momentum, l = fs->mpm_angular_momentum;
+        if (fs->mpm.present) {
+            DrVec3 p = fs->mpm.momentum, l = fs->mpm.angular_momentum;
             fprintf(f,
                     "\"mpm_linear\":{\"x\":%.9g,\"y\":%.9g,\"z\":%.9g},\"mpm_angular\":{\"x\":%.9g,\"y\":%.9g,"
                     "\"z\":%.9g}%s",
-                    p.x, p.y, p.z, l.x, l.y, l.z, fs->bem ? "," : "");
+                    p.x, p.y, p.z, l.x, l.y, l.z, fs->bem.present ? "," : "");
         }
-        if (fs->bem)
-            fprintf(f, "\"bem_linear\":{\"x\":%.9g,\"y\":%.9g,\"z\":%.9g}", fs->bem_momentum.x, fs->bem_momentum.y,
-                    fs->bem_momentum.z);
+        if (fs->bem.present)
+            fprintf(f, "\"bem_linear\":{\"x\":%.9g,\"y\":%.9g,\"z\":%.9g}", fs->bem.momentum.x, fs->bem.momentum.y,
+                    fs->bem.momentum.z);
         fprintf(f, "},");
     }
-    if (fs->hair)
+    if (fs->hair.present)
         fprintf(f,
                 "\"hair_vertices\":%ld,\"hair_substeps\":%d,\"hair_cg_iterations\":%ld,\"hair_residual\":%.6g,"
                 "\"hair_not_converged\":%d,\"hair_collider_contacts\":%d,\"hair_contacts\":%d,"
                 "\"hair_kinetic_energy\":%.9g,\"hair_elastic_energy\":%.9g,\"hair_gravity_energy\":%.9g,"
                 "\"hair_total_energy\":%.9g,",
-                fs->hair_vertices, fs->hair_substeps, fs->hair_cg_iterations, fs->hair_residual, fs->hair_not_converged,
-                fs->hair_collider_contacts, fs->hair_contacts, fs->hair_kinetic_energy, fs->hair_elastic_energy,
-                fs->hair_gravity_energy, fs->hair_kinetic_energy + fs->hair_elastic_energy + fs->hair_gravity_energy);
+                fs->hair.vertices, fs->hair.substeps, fs->hair.cg_iterations, fs->hair.residual, fs->hair.not_converged,
+                fs->hair.collider_contacts, fs->hair.contacts, fs->hair.kinetic_energy, fs->hair.elastic_energy,
+                fs->hair.gravity_energy, fs->hair.kinetic_energy + fs->hair.elastic_energy + fs->hair.gravity_energy);
     fprintf(f,
             "\"seconds\":{\"p2g\":%.6f,\"pressure\":%.6f,\"g2p\":%.6f,\"advect\":%.6f,\"other\":%.6f,",
-            fs->seconds_p2g, fs->seconds_pressure, fs->seconds_g2p, fs->seconds_advect, fs->seconds_other);
-    if (fs->mpm)
-        fprintf(f, "\"mpm_transfer\":%.6f,\"mpm_solve\":%.6f,", fs->seconds_mpm_transfer, fs->seconds_mpm_solve);
-    if (fs->hair) fprintf(f, "\"hair\":%.6f,", fs->seconds_hair);
-    if (fs->bem)
+            fs->liquid.seconds_p2g, fs->liquid.seconds_pressure, fs->liquid.seconds_g2p, fs->liquid.seconds_advect, fs->liquid.seconds_other);
+    if (fs->mpm.present)
+        fprintf(f, "\"mpm_transfer\":%.6f,\"mpm_solve\":%.6f,", fs->mpm.seconds_transfer, fs->mpm.seconds_solve);
+    if (fs->hair.present) fprintf(f, "\"hair\":%.6f,", fs->hair.seconds);
+    if (fs->bem.present)
         fprintf(f,
                 "\"bem_history\":%.6f,\"bem_solve\":%.6f,\"bem_correction\":%.6f,\"bem_trial\":%.6f,"
                 "\"bem_detect\":%.6f,\"bem_assembly\":%.6f,\"bem_pgs\":%.6f,\"bem_final\":%.6f,",
-                fs->seconds_bem_history, fs->seconds_bem_solve, fs->seconds_bem_correction, fs->seconds_bem_trial,
-                fs->seconds_bem_detect, fs->seconds_bem_assembly, fs->seconds_bem_pgs, fs->seconds_bem_final);
+                fs->bem.seconds_history, fs->bem.seconds_solve, fs->bem.seconds_correction, fs->bem.seconds_trial,
+                fs->bem.seconds_detect, fs->bem.seconds_assembly, fs->bem.seconds_pgs, fs->bem.seconds_final);
     fprintf(f, "\"io\":%.6f,\"frame\":%.6f},", io->io, fs->seconds + io->io);
     /* outside "seconds", whose keys the plots stack as shares of the frame: the writer's seconds overlap
        the next frame's simulation and the wait is part of seconds.io */
@@ -391,60 +391,60 @@ int main(int argc, char **argv)
             writer_seconds = ws.seconds;
         }
         append_progress(progress, &fs, &fio);
-        if (tot.frames == 0) tot.particles_first = fs.particles;
+        if (tot.frames == 0) tot.particles_first = fs.liquid.particles;
         tot.frames++;
-        tot.particles_last = fs.particles;
-        tot.p2g += fs.seconds_p2g;
-        tot.pressure += fs.seconds_pressure;
-        tot.g2p += fs.seconds_g2p;
-        tot.advect += fs.seconds_advect;
-        tot.other += fs.seconds_other;
+        tot.particles_last = fs.liquid.particles;
+        tot.p2g += fs.liquid.seconds_p2g;
+        tot.pressure += fs.liquid.seconds_pressure;
+        tot.g2p += fs.liquid.seconds_g2p;
+        tot.advect += fs.liquid.seconds_advect;
+        tot.other += fs.liquid.seconds_other;
         tot.io += io;
         tot.io_wait += fio.wait;
-        tot.pressure_total += fs.pressure_iterations_total;
-        if (fs.pressure_iterations_max > tot.pressure_max) tot.pressure_max = fs.pressure_iterations_max;
+        tot.pressure_total += fs.liquid.pressure_iterations_total;
+        if (fs.liquid.pressure_iterations_max > tot.pressure_max) tot.pressure_max = fs.liquid.pressure_iterations_max;
         if (fs.substeps > tot.substeps_max) tot.substeps_max = fs.substeps;
-        tot.not_converged += fs.pressure_not_converged;
-        if (fabs(fs.volume_drift) > fabs(tot.volume_drift_max)) tot.volume_drift_max = fs.volume_drift;
-        tot.mpm |= fs.mpm;
-        tot.mpm_particles = fs.mpm_particles;
-        tot.mpm_newton += fs.mpm_newton_iterations;
-        tot.mpm_cg += fs.mpm_cg_iterations;
-        tot.mpm_not_converged += fs.mpm_not_converged;
-        tot.mpm_transfer += fs.seconds_mpm_transfer;
-        tot.mpm_solve += fs.seconds_mpm_solve;
-        tot.hair |= fs.hair;
-        tot.hair_vertices = fs.hair_vertices;
-        tot.hair_cg += fs.hair_cg_iterations;
-        tot.hair_not_converged += fs.hair_not_converged;
-        tot.hair_seconds += fs.seconds_hair;
-        tot.bem |= fs.bem;
-        tot.bem_bodies = fs.bem_bodies;
-        tot.bem_steps += fs.bem_steps;
-        tot.bem_seconds += fs.seconds_bem_history + fs.seconds_bem_solve + fs.seconds_bem_correction +
-                           fs.seconds_bem_trial + fs.seconds_bem_detect + fs.seconds_bem_assembly + fs.seconds_bem_pgs +
-                           fs.seconds_bem_final;
-        tot.bem_pgs_iterations += fs.bem_pgs_iterations;
-        tot.bem_not_converged += fs.bem_not_converged;
-        tot.bem_residual_max = fmax(tot.bem_residual_max, fs.bem_residual);
-        tot.bem_seconds_trial += fs.seconds_bem_trial;
-        tot.bem_seconds_detect += fs.seconds_bem_detect;
-        tot.bem_seconds_assembly += fs.seconds_bem_assembly;
-        tot.bem_seconds_pgs += fs.seconds_bem_pgs;
-        tot.bem_seconds_final += fs.seconds_bem_final;
-        tot.bem_max_displacement = fmax(tot.bem_max_displacement, fs.bem_max_displacement);
+        tot.not_converged += fs.liquid.pressure_not_converged;
+        if (fabs(fs.liquid.drift) > fabs(tot.volume_drift_max)) tot.volume_drift_max = fs.liquid.drift;
+        tot.mpm |= fs.mpm.present;
+        tot.mpm_particles = fs.mpm.particles;
+        tot.mpm_newton += fs.mpm.newton_iterations;
+        tot.mpm_cg += fs.mpm.cg_iterations;
+        tot.mpm_not_converged += fs.mpm.not_converged;
+        tot.mpm_transfer += fs.mpm.seconds_transfer;
+        tot.mpm_solve += fs.mpm.seconds_solve;
+        tot.hair |= fs.hair.present;
+        tot.hair_vertices = fs.hair.vertices;
+        tot.hair_cg += fs.hair.cg_iterations;
+        tot.hair_not_converged += fs.hair.not_converged;
+        tot.hair_seconds += fs.hair.seconds;
+        tot.bem |= fs.bem.present;
+        tot.bem_bodies = fs.bem.bodies;
+        tot.bem_steps += fs.bem.steps;
+        tot.bem_seconds += fs.bem.seconds_history + fs.bem.seconds_solve + fs.bem.seconds_correction +
+                           fs.bem.seconds_trial + fs.bem.seconds_detect + fs.bem.seconds_assembly + fs.bem.seconds_pgs +
+                           fs.bem.seconds_final;
+        tot.bem_pgs_iterations += fs.bem.pgs_iterations;
+        tot.bem_not_converged += fs.bem.not_converged;
+        tot.bem_residual_max = fmax(tot.bem_residual_max, fs.bem.residual);
+        tot.bem_seconds_trial += fs.bem.seconds_trial;
+        tot.bem_seconds_detect += fs.bem.seconds_detect;
+        tot.bem_seconds_assembly += fs.bem.seconds_assembly;
+        tot.bem_seconds_pgs += fs.bem.seconds_pgs;
+        tot.bem_seconds_final += fs.bem.seconds_final;
+        tot.bem_max_displacement = fmax(tot.bem_max_displacement, fs.bem.max_displacement);
         char detail[400], mpm[96] = "", hair[96] = "", bem[96] = "";
-        if (fs.mpm)
-            snprintf(mpm, sizeof mpm, " mpm %ld newton %ld cg %ld", fs.mpm_particles, fs.mpm_newton_iterations,
-                     fs.mpm_cg_iterations);
-        if (fs.hair)
-            snprintf(hair, sizeof hair, " hair %ld cg %ld contacts %d+%d", fs.hair_vertices, fs.hair_cg_iterations,
-                     fs.hair_collider_contacts, fs.hair_contacts);
-        if (fs.bem)
-            snprintf(bem, sizeof bem, " bem %d steps %ld max|u| %.3g m", fs.bem_bodies, fs.bem_steps,
-                     fs.bem_max_displacement);
+        if (fs.mpm.present)
+            snprintf(mpm, sizeof mpm, " mpm %ld newton %ld cg %ld", fs.mpm.particles, fs.mpm.newton_iterations,
+                     fs.mpm.cg_iterations);
+        if (fs.hair.present)
+            snprintf(hair, sizeof hair, " hair %ld cg %ld contacts %d+%d", fs.hair.vertices, fs.hair.cg_iterations,
+                     fs.hair.collider_contacts, fs.hair.contacts);
+        if (fs.bem.present)
+            snprintf(bem, sizeof bem, " bem %d steps %ld max|u| %.3g m", fs.bem.bodies, fs.bem.steps,
+                     fs.bem.max_displacement);
         snprintf(detail, sizeof detail, "frame %d substeps %d iters %d particles %ld cells %+.1f%%%s%s%s %.2fs",
-                 fs.frame, fs.substeps, fs.pressure_iterations_max, fs.particles, 100.0 * fs.volume_drift, mpm, hair,
+                 fs.frame, fs.substeps, fs.liquid.pressure_iterations_max, fs.liquid.particles, 100.0 * fs.liquid.drift, mpm, hair,
                  bem, fs.seconds + io);
         dr_progress_step(&prog, detail);
         if (stop_signal && dr_world_frame(world) < last) break;

@@ -181,7 +181,7 @@ DR_NODISCARD DrStatus dr_liquid_advance(DrLiquid *liq, const DrCollider *const *
  *   DR_ERR_RUNTIME for non-finite velocities; DR_ERR_NOMEM. *h is 0 on failure. */
 DR_NODISCARD DrStatus dr_liquid_stable_dt(DrLiquid *liq, const DrCollider *const *colliders, int ncolliders,
                                           double t, double t_end, double *h, DrError *err);
-/* begin: the substep from t (the t of the stable_dt call just before) over h, 0 < h ≤ the stable_dt
+/* begin: the substep from t (the t of the stable_dt call just before) over h, 0 < h ≤ (1 + 1e-9)·the stable_dt
    result: the colliders posed at t + h, gravity and viscosity on the grid, the colliders' face coupling
    (their face weights and velocities) and the cells' open fractions; keeps a copy of the face velocities
    the projection starts from. DR_ERR_INPUT for h out of range or a bad collider count; DR_ERR_NOMEM (the

@@ -15,57 +15,75 @@
 
 typedef struct DrWorld DrWorld;
 
-/* What one frame cost and did, summed over every solver (written to progress.jsonl and diagnostics). */
+/* What one frame cost and did (progress.jsonl, report.json, the frame cache's diagnostics): a common part, then one
+ * block per solver kind, each written by that solver's adapter (all zero, present false, when the scene has none). */
+typedef struct DrLiquidFrameStats {
+    bool present;
+    int substeps;            /* the largest substep count of a liquid element */
+    long particles;          /* every liquid element's */
+    int pressure_iterations_max;
+    long pressure_iterations_total;
+    int pressure_not_converged;
+    double volume, volume0;  /* m³: liquid cells × dx³ now and in the first frame (a cheap frame-to-frame estimate) */
+    double drift;            /* volume / volume0 − 1 */
+    double kinetic_energy;   /* J */
+    double seconds_p2g, seconds_pressure, seconds_g2p, seconds_advect, seconds_other;
+} DrLiquidFrameStats;
+
+typedef struct DrMpmFrameStats {
+    bool present;
+    long particles;
+    int substeps;
+    long newton_iterations, cg_iterations; /* summed over the frame's substeps */
+    double newton_residual;  /* last relative Newton residual */
+    int not_converged;       /* 1 when a Newton iteration of the frame stopped at its cap (a warning) */
+    double kinetic_energy, elastic_energy, gravity_energy; /* J: ½Σmv², ΣV₀Ψ(F), −Σm g·x */
+    DrVec3 momentum, angular_momentum; /* kg·m/s, kg·m²/s about the origin (with the affine part) */
+    double seconds_transfer, seconds_solve;
+} DrMpmFrameStats;
+
+typedef struct DrHairFrameStats {
+    bool present;
+    long vertices;
+    int substeps;
+    long cg_iterations;      /* summed over the frame's substeps */
+    double residual;         /* last relative residual */
+    int not_converged;       /* substeps whose solve stopped at its cap (a warning) */
+    int collider_contacts, contacts; /* of the last substep */
+    double kinetic_energy, elastic_energy, gravity_energy; /* J */
+    double seconds;
+} DrHairFrameStats;
+
+typedef struct DrBemFrameStats {
+    bool present;
+    int bodies;
+    int substeps;            /* the most steps a body took in the frame */
+    long steps;              /* steps of every body in the frame */
+    double kinetic_energy, potential_energy; /* J: of the bodies' rigid frames, −Σ m g·T */
+    DrVec3 momentum;         /* kg·m/s, Σ m Ṫ */
+    double max_displacement; /* m: the largest |u| of any body's vertex */
+    double translation_error, rotation_error; /* m, rad: the largest drift error correction moved in a step */
+    double seconds_history, seconds_solve, seconds_correction;
+    /* their constraints (BEM §3.4; all zero when no group of bodies has any): counts of the frame's last step */
+    int contacts, body_contacts, fixed, joints;
+    long pgs_iterations;     /* PGS sweeps, summed over the frame's steps */
+    double residual;         /* m: the largest after a step */
+    int not_converged;       /* steps kept above the tolerance (a warning) */
+    double seconds_trial, seconds_detect, seconds_assembly, seconds_pgs, seconds_final;
+} DrBemFrameStats;
+
 typedef struct DrFrameStats {
     int frame;
     double time;             /* s, at the end of the frame */
     int substeps;            /* largest substep count of any solver this frame */
-    bool liquid;             /* the scene has liquid */
-    int liquid_substeps;     /* largest substep count of a liquid this frame (0 without liquid) */
-    long particles;          /* liquid particles, all elements */
-    int pressure_iterations_max;
-    long pressure_iterations_total;
-    int pressure_not_converged;
-    double liquid_volume;    /* m³: liquid cells × dx³ (a cheap frame-to-frame estimate) */
-    double volume_drift;     /* relative to the first frame's estimate */
+    int clock_steps;         /* steps of the world's clock (every solver's steps land on its times) */
     double kinetic_energy;   /* J, every solver (liquid, MPM, hair, the BEM bodies' frames) */
-    double seconds_p2g, seconds_pressure, seconds_g2p, seconds_advect, seconds_other, seconds_io;
-    /* MPM solids (all zero in a scene without mpm_solid elements) */
-    bool mpm;                         /* the scene has MPM solids */
-    long mpm_particles;
-    int mpm_substeps;
-    long mpm_newton_iterations, mpm_cg_iterations; /* summed over the frame's substeps */
-    double mpm_newton_residual;       /* last relative Newton residual */
-    int mpm_not_converged;            /* 1 when a Newton iteration of the frame stopped at its cap (a warning) */
-    double mpm_kinetic_energy, mpm_elastic_energy, mpm_gravity_energy; /* J: ½Σmv², ΣV₀Ψ(F), −Σm g·x */
-    DrVec3 mpm_momentum, mpm_angular_momentum; /* kg·m/s, kg·m²/s about the origin (with the affine part) */
-    double seconds_mpm_transfer, seconds_mpm_solve;
-    /* hair (all zero in a scene without hair elements) */
-    bool hair;                        /* the scene has hair */
-    long hair_vertices;
-    int hair_substeps;
-    long hair_cg_iterations;          /* summed over the frame's substeps */
-    double hair_residual;             /* last relative residual */
-    int hair_not_converged;           /* substeps whose solve stopped at its cap (a warning) */
-    int hair_collider_contacts, hair_contacts; /* of the last substep */
-    double hair_kinetic_energy, hair_elastic_energy, hair_gravity_energy; /* J */
-    double seconds_hair;
-    /* boundary-element bodies (all zero in a scene without bem_solid elements) */
-    bool bem;                         /* the scene has bem_solid bodies */
-    int bem_bodies;
-    long bem_steps;                   /* steps of every body in the frame */
-    double bem_kinetic_energy, bem_potential_energy; /* J: of the bodies' rigid frames, −Σ m g·T */
-    DrVec3 bem_momentum;              /* kg·m/s, Σ m Ṫ */
-    double bem_max_displacement;      /* m: the largest |u| of any body's vertex */
-    double bem_translation_error, bem_rotation_error; /* m, rad: the largest drift error correction moved in a step */
-    double seconds_bem_history, seconds_bem_solve, seconds_bem_correction;
-    /* their constraints (BEM §3.4; all zero when no group of bodies has any): counts of the frame's last step */
-    int bem_contacts, bem_body_contacts, bem_fixed, bem_joints;
-    long bem_pgs_iterations;          /* PGS sweeps, summed over the frame's steps */
-    double bem_residual;              /* m: the largest after a step */
-    int bem_not_converged;            /* steps kept above the tolerance (a warning) */
-    double seconds_bem_trial, seconds_bem_detect, seconds_bem_assembly, seconds_bem_pgs, seconds_bem_final;
     double seconds;          /* wall time of the frame */
+    double seconds_io;       /* set by the caller that writes the frame */
+    DrLiquidFrameStats liquid;
+    DrMpmFrameStats mpm;
+    DrHairFrameStats hair;
+    DrBemFrameStats bem;
 } DrFrameStats;
 
 /* Loads every asset the scene references (meshes through assimp, collider SDFs through OpenVDB) and builds

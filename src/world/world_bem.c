@@ -15,10 +15,61 @@
  *
  * Also the one preparation of a bem_solid element (mesh, build parameters, cache key) that precompute and the
  * world share. */
-#include "world_internal.h"
+#include "world_adapter.h"
 
+#include <math.h>
 #include <stdlib.h>
 #include <string.h>
+
+#include "stage/stage.h"
+
+/* One bem_solid element: a DrBemSolid on a shared matrix set. */
+typedef struct WorldBemBody {
+    const DrElement *element;
+    DrBemSolid *solid;
+    int steps_per_frame;     /* (1/fps) / BemSolver.time_step, whole (the scene checks it) */
+    double *state;           /* dr_bem_solid_state_size() doubles: scratch of checkpoints and hashes */
+    size_t state_size;
+    long last_steps;         /* steps of the last frame */
+    DrBemStepStats frame;    /* the frame being advanced: seconds summed, errors the largest of its steps */
+    DrBemStepStats last;     /* the last frame's */
+} WorldBemBody;
+
+/* The bem_solid bodies with one BemSolver.time_step, stepped together by dr_bem_solids_step with the constraints the
+   scene gives them (bodies of different steps never meet each other; each group meets every collider). */
+typedef struct WorldBemGroup {
+    int *members;            /* indices into WorldBem.bodies, in element order: the constraints' body indices */
+    DrBemSolid **solids;     /* the members' solids, in that order */
+    int count;
+    double dt;               /* s */
+    int steps_per_frame;
+    int done;                /* steps of the frame being advanced */
+    DrBemConstraints constraints; /* points into colliders, fixed and joints */
+    DrBemCollider *colliders;     /* one per scene collider, on WorldBem.posed */
+    DrBemFixed *fixed;
+    DrBemJoint *joints;
+    bool constrained;        /* anything to solve; else each member is stepped alone, as without contact */
+} WorldBemGroup;
+
+typedef struct WorldBem {
+    WorldBemBody *bodies;
+    int nbodies;
+    const DrBemSolid **solids; /* the bodies' solids and elements, for the kinematics */
+    const DrElement **elements;
+    DrBemMatrices **sets;    /* one per distinct cache key, read once */
+    char (*keys)[33];
+    int nsets;
+    WorldBemGroup *groups;
+    int ngroups;
+    WorldPosedCollider *posed; /* every scene collider, posed at the end time of the BEM step being taken */
+    DrCollider **own;        /* SDFs built here when the kinematics built none (no liquid, MPM or hair); else NULL */
+    int ncolliders;
+    DrBemConstraintStats contact; /* the frame being advanced, all groups: counts of its last step, iterations and
+                                     passes summed, residual the largest, seconds summed */
+    int not_converged;       /* steps of the frame that returned DR_WARN_NOT_CONVERGED */
+    DrBemConstraintStats last_contact; /* the last frame's */
+    int last_not_converged;
+} WorldBem;
 
 /* ---- the element as the BEM takes it ------------------------------------------------------------------------ */
 
@@ -94,10 +145,10 @@ void dr_world_bem_asset_free(DrWorldBemAsset *a) { dr_trimesh_free(&a->mesh); }
 
 /* ---- the bodies --------------------------------------------------------------------------------------------- */
 
-void dr_world_bem_destroy_(WorldBem **bp)
+static void bem_destroy(void *self)
 {
-    if (!bp || !*bp) return;
-    WorldBem *b = *bp;
+    WorldBem *b = self;
+    if (!b) return;
     for (int g = 0; g < b->ngroups; g++) {
         WorldBemGroup *gr = &b->groups[g];
         free(gr->members);
@@ -119,8 +170,9 @@ void dr_world_bem_destroy_(WorldBem **bp)
     free(b->bodies);
     free(b->sets);
     free(b->keys);
+    free(b->solids);
+    free(b->elements);
     free(b);
-    *bp = NULL;
 }
 
 /* Prefixes "bem_solid '<name>'" context to a failure the BEM runtime reported. */
@@ -173,11 +225,11 @@ static DrStatus matrices_of(WorldBem *b, const DrScene *scene, const DrWorldBemA
 
 /* The body's state at t = 0. The cached rest mesh x is in the mesh file's coordinates; the Transform (scale 1,
    a scene rule) places it at R₀x + t, so with V = R(x − x̄ + u) + T the frame starts at R = R₀ and T = R₀x̄ + t. */
-static void solid_desc_of(const DrWorld *w, const DrElement *e, const DrBemMatrices *m, DrBemSolidDesc *d)
+static void solid_desc_of(const WorldCtx *w, const DrElement *e, const DrBemMatrices *m, DrBemSolidDesc *d)
 {
     dr_bem_solid_desc_default(d);
     double scale;
-    DrXform X = dr_world_transform_(e, &scale);
+    DrXform X = dr_stage_element_transform(e, &scale);
     assert(scale == 1.0);
     DrVec3 c = dr_v3(m->body.centroid[0], m->body.centroid[1], m->body.centroid[2]);
     DrVec3 T = dr_v3_add(dr_m3_apply(X.R, c), X.t);
@@ -197,7 +249,7 @@ static void solid_desc_of(const DrWorld *w, const DrElement *e, const DrBemMatri
     d->error_correction = dr_component_bool(sol, "error_correction");
 }
 
-static DrStatus add_body(DrWorld *w, WorldBem *b, const DrElement *e, const char *cache_root, WorldBemBody *wb,
+static DrStatus add_body(const WorldCtx *w, WorldBem *b, const DrElement *e, const char *cache_root, WorldBemBody *wb,
                          DrError *err)
 {
     wb->element = e;
@@ -230,14 +282,14 @@ static DrStatus add_body(DrWorld *w, WorldBem *b, const DrElement *e, const char
 static double posed_sdf(const double x[3], double grad[3], void *ctx)
 {
     DrVec3 n;
-    double d = dr_world_posed_sdf_(dr_v3(x[0], x[1], x[2]), grad ? &n : NULL, ctx);
+    double d = world_posed_sdf(dr_v3(x[0], x[1], x[2]), grad ? &n : NULL, ctx);
     if (grad) grad[0] = n.x, grad[1] = n.y, grad[2] = n.z;
     return d;
 }
 
 static void posed_velocity(const double x[3], double v[3], void *ctx)
 {
-    DrVec3 u = dr_world_posed_velocity_(dr_v3(x[0], x[1], x[2]), ctx);
+    DrVec3 u = world_posed_velocity(dr_v3(x[0], x[1], x[2]), ctx);
     v[0] = u.x, v[1] = u.y, v[2] = u.z;
 }
 
@@ -258,12 +310,12 @@ static double mean_edge(const DrBemMatrices *m)
     return sum / (3.0 * m->nt);
 }
 
-static DrStatus own_collider(const DrWorld *w, const WorldBem *b, const DrElement *e, DrCollider **out, DrError *err)
+static DrStatus own_collider(const WorldCtx *w, const WorldBem *b, const DrElement *e, DrCollider **out, DrError *err)
 {
     double dx = INFINITY;
     for (int i = 0; i < b->nbodies; i++) dx = fmin(dx, 0.5 * mean_edge(dr_bem_solid_matrices(b->bodies[i].solid)));
     DrTriMesh mesh = {0};
-    DR_TRY(dr_world_load_collider_mesh(e, &mesh, err));
+    DR_TRY(dr_stage_load_collider_mesh(e, &mesh, err));
     DrVec3 lo, hi;
     if (dr_trimesh_bounds(&mesh, &lo, &hi)) {
         DrVec3 ext = dr_v3_sub(hi, lo);
@@ -272,42 +324,36 @@ static DrStatus own_collider(const DrWorld *w, const WorldBem *b, const DrElemen
         if (nodes > OWN_SDF_NODES_MAX) dx *= cbrt(nodes / OWN_SDF_NODES_MAX);
     }
     const DrComponent *c = dr_element_component(e, "Collider");
-    const double *rows = NULL;
-    int nrows = dr_component_table(dr_element_component(e, "Motion"), "keys", &rows);
     double *keys = NULL;
-    DrStatus s = dr_calloc((size_t)nrows * 7 + 1, sizeof(double), &keys, err);
-    for (int k = 0; s == DR_OK && k < nrows; k++) { /* as the world's colliders: frames to seconds, degrees to radians */
-        keys[7 * k] = (rows[7 * k] - w->first_frame + 1) / w->fps;
-        for (int j = 1; j < 4; j++) keys[7 * k + j] = rows[7 * k + j];
-        for (int j = 4; j < 7; j++) keys[7 * k + j] = rows[7 * k + j] * DR_PI / 180.0;
-    }
+    int nrows = 0;
+    DrStatus s = dr_stage_motion_keys(e, w->first_frame, w->fps, &keys, &nrows, err);
     if (s == DR_OK)
-        s = dr_world_make_collider_(&mesh, dx, dr_component_num(c, "friction"),
-                                    strcmp(dr_component_str(c, "boundary"), "no_slip") == 0,
-                                    dr_component_num(c, "thickness"), nrows, keys, out, err);
+        s = world_make_collider(&mesh, dx, dr_component_num(c, "friction"),
+                                strcmp(dr_component_str(c, "boundary"), "no_slip") == 0,
+                                dr_component_num(c, "thickness"), nrows, keys, out, err);
     free(keys);
     dr_trimesh_free(&mesh);
-    return dr_world_asset_context_(s, e->name, "Mesh.file", err);
+    return dr_error_prefix(s, err, "%s.Mesh.file", e->name);
 }
 
-/* Every scene collider as the bodies see it: the world's SDF when it built one, else one built here. */
-static DrStatus build_colliders(DrWorld *w, WorldBem *b, DrError *err)
+/* Every scene collider as the bodies see it: the kinematics' SDF when it built one, else one built here. */
+static DrStatus build_colliders(const WorldCtx *w, WorldBem *b, DrError *err)
 {
-    b->ncolliders = w->ncolliders;
+    b->ncolliders = world_kinematics_collider_count(w->kin);
     if (b->ncolliders == 0) return DR_OK;
     DR_TRY(dr_calloc((size_t)b->ncolliders, sizeof *b->posed, &b->posed, err));
-    for (int i = 0; i < w->ncolliders; i++) {
-        const WorldCollider *wc = &w->colliders[i];
-        const DrCollider *c = wc->collider;
+    for (int i = 0; i < b->ncolliders; i++) {
+        const DrElement *e = NULL;
+        const DrCollider *c = world_kinematics_collider(w->kin, i, &e);
         if (!c) {
             if (!b->own) DR_TRY(dr_calloc((size_t)b->ncolliders, sizeof *b->own, &b->own, err));
-            DR_TRY(own_collider(w, b, wc->element, &b->own[i], err));
+            DR_TRY(own_collider(w, b, e, &b->own[i], err));
             c = b->own[i];
         }
         const double *rows;
         b->posed[i].collider = c;
         b->posed[i].frame = dr_collider_frame(c, 0.0);
-        b->posed[i].moving = dr_component_table(dr_element_component(wc->element, "Motion"), "keys", &rows) > 0;
+        b->posed[i].moving = dr_component_table(dr_element_component(e, "Motion"), "keys", &rows) > 0;
     }
     return DR_OK;
 }
@@ -319,7 +365,7 @@ static const char *member_name(const WorldBem *b, const WorldBemGroup *g, int k)
 
 /* The members' vertices held by their FixedVertices: every vertex inside the box at t = 0 (the placed rest pose). An
    empty selection is bad input. */
-static DrStatus add_fixed(const DrWorld *w, const WorldBem *b, WorldBemGroup *g, DrError *err)
+static DrStatus add_fixed(const WorldCtx *w, const WorldBem *b, WorldBemGroup *g, DrError *err)
 {
     int n = 0, cap = 0;
     for (int k = 0; k < g->count; k++)
@@ -385,7 +431,7 @@ static int nearest_vertex(const double *V, int nv, DrVec3 p, double *dist)
 }
 
 /* One bem_joint element whose bodies are members a and b of the group: its vertex pairs appended to *joints. */
-static DrStatus add_joint(const DrWorld *w, const DrElement *e, WorldBemGroup *g, int a, int bb, DrBemJoint **joints,
+static DrStatus add_joint(const WorldCtx *w, const DrElement *e, WorldBemGroup *g, int a, int bb, DrBemJoint **joints,
                           int *n, int *cap, DrError *err)
 {
     const DrComponent *j = dr_element_component(e, "Joint");
@@ -447,12 +493,12 @@ static DrStatus add_joint(const DrWorld *w, const DrElement *e, WorldBemGroup *g
     return s;
 }
 
-static DrStatus add_joints(const DrWorld *w, const WorldBem *b, WorldBemGroup *g, DrError *err)
+static DrStatus add_joints(const WorldCtx *w, const WorldBem *b, WorldBemGroup *g, DrError *err)
 {
     int n = 0, cap = 0;
     for (int i = 0; i < dr_scene_element_count(w->scene); i++) {
         const DrElement *e = dr_scene_element(w->scene, i);
-        if (strcmp(e->type, "bem_joint") != 0) continue;
+        if (e->kind != DR_ELEMENT_BEM_JOINT) continue;
         const DrComponent *j = dr_element_component(e, "Joint");
         int a = member_index(b, g, dr_scene_find(w->scene, dr_component_str(j, "body_a")));
         int c = member_index(b, g, dr_scene_find(w->scene, dr_component_str(j, "body_b")));
@@ -466,7 +512,7 @@ static DrStatus add_joints(const DrWorld *w, const WorldBem *b, WorldBemGroup *g
 }
 
 /* The groups of bodies with one Δt, in the order of their first body, and their constraints. */
-static DrStatus build_groups(DrWorld *w, WorldBem *b, DrError *err)
+static DrStatus build_groups(const WorldCtx *w, WorldBem *b, DrError *err)
 {
     DR_TRY(dr_calloc((size_t)b->nbodies, sizeof *b->groups, &b->groups, err));
     for (int i = 0; i < b->nbodies; i++) {
@@ -502,7 +548,9 @@ static DrStatus build_groups(DrWorld *w, WorldBem *b, DrError *err)
         if (b->ncolliders > 0) {
             DR_TRY(dr_calloc((size_t)b->ncolliders, sizeof *gr->colliders, &gr->colliders, err));
             for (int k = 0; k < b->ncolliders; k++) {
-                const DrComponent *cc = dr_element_component(w->colliders[k].element, "Collider");
+                const DrElement *ce = NULL;
+                (void)world_kinematics_collider(w->kin, k, &ce);
+                const DrComponent *cc = dr_element_component(ce, "Collider");
                 gr->colliders[k] = (DrBemCollider){.sdf = posed_sdf,
                                                    .velocity = b->posed[k].moving ? posed_velocity : NULL,
                                                    .ctx = &b->posed[k],
@@ -524,20 +572,21 @@ static DrStatus build_groups(DrWorld *w, WorldBem *b, DrError *err)
     return DR_OK;
 }
 
-DrStatus dr_world_bem_create_(DrWorld *w, const char *cache_root, DrError *err)
+static DrStatus build_bem(const WorldCtx *w, WorldBem *b, int n, const char *cache_root, DrError *err)
 {
-    int n = dr_scene_count_type(w->scene, "bem_solid");
-    if (n == 0) return DR_OK;
-    WorldBem *b = NULL;
-    DR_TRY(dr_calloc(1, sizeof *b, &b, err));
-    w->bem = b;
     DR_TRY(dr_calloc((size_t)n, sizeof *b->bodies, &b->bodies, err));
     DR_TRY(dr_calloc((size_t)n, sizeof *b->sets, &b->sets, err));
     DR_TRY(dr_calloc((size_t)n, sizeof *b->keys, &b->keys, err));
+    DR_TRY(dr_calloc((size_t)n, sizeof *b->solids, &b->solids, err));
+    DR_TRY(dr_calloc((size_t)n, sizeof *b->elements, &b->elements, err));
     for (int i = 0; i < dr_scene_element_count(w->scene); i++) {
         const DrElement *e = dr_scene_element(w->scene, i);
-        if (strcmp(e->type, "bem_solid") != 0) continue;
-        DR_TRY(add_body(w, b, e, cache_root, &b->bodies[b->nbodies++], err));
+        if (e->kind != DR_ELEMENT_BEM_SOLID) continue;
+        WorldBemBody *wb = &b->bodies[b->nbodies];
+        DR_TRY(add_body(w, b, e, cache_root, wb, err));
+        b->solids[b->nbodies] = wb->solid;
+        b->elements[b->nbodies] = e;
+        b->nbodies++;
     }
     DR_TRY(build_colliders(w, b, err));
     return build_groups(w, b, err);
@@ -562,112 +611,157 @@ static void group_names(const WorldBem *b, const WorldBemGroup *g, char *buf, si
     }
 }
 
-/* One frame of a group without anything to solve: each member alone, with its step figures. */
+/* One step of a group without anything to solve: each member alone, with its step figures. */
 static DrStatus step_alone(WorldBem *b, WorldBemGroup *g, int frame, DrError *err)
 {
     for (int k = 0; k < g->count; k++) {
         WorldBemBody *wb = &b->bodies[g->members[k]];
         const char *name = wb->element->name;
-        DrBemStepStats sum = {0};
-        for (int n = 0; n < g->steps_per_frame; n++) {
-            DrBemStepStats st;
-            DrStatus s = dr_bem_solid_step(wb->solid, NULL, &st, err);
-            if (s < 0) {
-                char what[64];
-                snprintf(what, sizeof what, "failed in frame %d", frame);
-                return body_context(s, name, what, err);
-            }
-            if (s > 0) dr_log_warn("bem: %s: frame %d: %s", name, frame, err->message);
-            sum.seconds_history += st.seconds_history;
-            sum.seconds_solve += st.seconds_solve;
-            sum.seconds_correction += st.seconds_correction;
-            sum.translation_error = fmax(sum.translation_error, st.translation_error);
-            sum.rotation_error = fmax(sum.rotation_error, st.rotation_error);
-            wb->last_steps++;
-        }
-        wb->last = sum;
-    }
-    return DR_OK;
-}
-
-/* One frame of a group with constraints: every step poses the colliders at the step's end time (the constraints hold
-   positions at the end of the step) and advances all members together. A step that stops above the tolerance is a
-   warning: the bodies are stepped with the forces found. */
-static DrStatus step_together(WorldBem *b, WorldBemGroup *g, double t0, int frame, DrError *err)
-{
-    for (int n = 0; n < g->steps_per_frame; n++) {
-        double t = t0 + (n + 1) * g->dt;
-        for (int c = 0; c < b->ncolliders; c++)
-            if (b->posed[c].moving) b->posed[c].frame = dr_collider_frame(b->posed[c].collider, t);
-        DrBemConstraintStats st;
-        DrStatus s = dr_bem_solids_step(g->solids, g->count, &g->constraints, &st, err);
+        DrBemStepStats *sum = &wb->frame;
+        DrBemStepStats st;
+        DrStatus s = dr_bem_solid_step(wb->solid, NULL, &st, err);
         if (s < 0) {
-            char names[256];
-            group_names(b, g, names, sizeof names);
-            char msg[sizeof err->message];
-            int len = snprintf(msg, sizeof msg, "bem_solid %s failed with contact in frame %d (step %d of %d): %s", names,
-                               frame, n + 1, g->steps_per_frame, err->message);
-            if (len >= (int)sizeof msg) msg[sizeof msg - 2] = '.';
-            memcpy(err->message, msg, sizeof msg);
-            return s;
+            char what[64];
+            snprintf(what, sizeof what, "failed in frame %d", frame);
+            return body_context(s, name, what, err);
         }
-        if (s > 0) {
-            char names[256];
-            group_names(b, g, names, sizeof names);
-            dr_log_warn("bem: %s: frame %d, step %d: constraints not converged (residual %.3g m after %d passes, %d "
-                        "sweeps); the step is kept: %s", names, frame, n + 1, st.residual, st.passes, st.iterations,
-                        err->message);
-            b->not_converged++;
-        }
-        DrBemConstraintStats *sum = &b->contact;
-        if (n + 1 == g->steps_per_frame) { /* counts: of the frame's last step */
-            sum->fixed += st.fixed;
-            sum->contacts += st.contacts;
-            sum->joints += st.joints;
-            sum->body_contacts += st.body_contacts;
-            sum->sticking += st.sticking;
-        }
-        sum->iterations += st.iterations;
-        sum->passes += st.passes;
-        sum->residual = fmax(sum->residual, st.residual);
-        sum->seconds_trial += st.seconds_trial;
-        sum->seconds_detect += st.seconds_detect;
-        sum->seconds_assembly += st.seconds_assembly;
-        sum->seconds_pgs += st.seconds_pgs;
-        sum->seconds_final += st.seconds_final;
-        for (int k = 0; k < g->count; k++) b->bodies[g->members[k]].last_steps++;
+        if (s > 0) dr_log_warn("bem: %s: frame %d: %s", name, frame, err->message);
+        sum->seconds_history += st.seconds_history;
+        sum->seconds_solve += st.seconds_solve;
+        sum->seconds_correction += st.seconds_correction;
+        sum->translation_error = fmax(sum->translation_error, st.translation_error);
+        sum->rotation_error = fmax(sum->rotation_error, st.rotation_error);
+        wb->last_steps++;
     }
-    for (int k = 0; k < g->count; k++) memset(&b->bodies[g->members[k]].last, 0, sizeof(DrBemStepStats));
     return DR_OK;
 }
 
-DrStatus dr_world_bem_step_(DrWorld *w, int frame, DrFrameStats *stats, DrError *err)
+/* Step n (from 0) of the frame of a group with constraints: the colliders posed at the step's end time (the
+   constraints hold positions at the end of the step), all members advanced together. A step that stops above the
+   tolerance is a warning: the bodies are stepped with the forces found. */
+static DrStatus step_together(WorldBem *b, WorldBemGroup *g, double t0, int n, int frame, DrError *err)
 {
-    WorldBem *b = w->bem;
-    if (!b) return DR_OK;
-    stats->bem = true;
-    stats->bem_bodies = b->nbodies;
+    double t = t0 + (n + 1) * g->dt;
+    for (int c = 0; c < b->ncolliders; c++)
+        if (b->posed[c].moving) b->posed[c].frame = dr_collider_frame(b->posed[c].collider, t);
+    DrBemConstraintStats st;
+    DrStatus s = dr_bem_solids_step(g->solids, g->count, &g->constraints, &st, err);
+    if (s < 0) {
+        char names[256];
+        group_names(b, g, names, sizeof names);
+        return dr_error_prefix(s, err, "bem_solid %s failed with contact in frame %d (step %d of %d)", names, frame,
+                               n + 1, g->steps_per_frame);
+    }
+    if (s > 0) {
+        char names[256];
+        group_names(b, g, names, sizeof names);
+        dr_log_warn("bem: %s: frame %d, step %d: constraints not converged (residual %.3g m after %d passes, %d "
+                    "sweeps); the step is kept: %s", names, frame, n + 1, st.residual, st.passes, st.iterations,
+                    err->message);
+        b->not_converged++;
+    }
+    DrBemConstraintStats *sum = &b->contact;
+    if (n + 1 == g->steps_per_frame) { /* counts: of the frame's last step */
+        sum->fixed += st.fixed;
+        sum->contacts += st.contacts;
+        sum->joints += st.joints;
+        sum->body_contacts += st.body_contacts;
+        sum->sticking += st.sticking;
+    }
+    sum->iterations += st.iterations;
+    sum->passes += st.passes;
+    sum->residual = fmax(sum->residual, st.residual);
+    sum->seconds_trial += st.seconds_trial;
+    sum->seconds_detect += st.seconds_detect;
+    sum->seconds_assembly += st.seconds_assembly;
+    sum->seconds_pgs += st.seconds_pgs;
+    sum->seconds_final += st.seconds_final;
+    for (int k = 0; k < g->count; k++) b->bodies[g->members[k]].last_steps++;
+    return DR_OK;
+}
+
+/* ---- the clock ------------------------------------------------------------------------------------------------
+ * A group takes its steps_per_frame whole steps of its Δt each frame; the clock lands on every step end. A group
+ * takes step n when the clock reaches its start, t0 + nΔt (step_first): the other solvers then see the bodies move
+ * through the step (their colliders of the liquid carry them from the step's start to its end). Nothing acts on the
+ * bodies but their own constraints (one-way). */
+
+static double group_step_end(const WorldBemGroup *g, const WorldCtx *c, int n)
+{
+    return n == g->steps_per_frame ? c->t1 : c->t0 + n * g->dt;
+}
+
+static void bem_begin_frame(void *self, const WorldCtx *c)
+{
+    (void)c;
+    WorldBem *b = self;
     memset(&b->contact, 0, sizeof b->contact);
     b->not_converged = 0;
-    for (int i = 0; i < b->nbodies; i++) b->bodies[i].last_steps = 0;
-    double t0 = dr_world_frame_time(w, frame - 1);
+    for (int i = 0; i < b->nbodies; i++) {
+        b->bodies[i].last_steps = 0;
+        memset(&b->bodies[i].frame, 0, sizeof b->bodies[i].frame);
+    }
+    for (int g = 0; g < b->ngroups; g++) b->groups[g].done = 0;
+}
+
+static double bem_landing(const void *self, const WorldCtx *c, double t)
+{
+    const WorldBem *b = self;
+    double next = INFINITY;
+    for (int g = 0; g < b->ngroups; g++) {
+        const WorldBemGroup *gr = &b->groups[g];
+        if (gr->done > 0 && gr->done <= gr->steps_per_frame) next = fmin(next, group_step_end(gr, c, gr->done));
+    }
+    (void)t;
+    return next;
+}
+
+static DrStatus bem_step_first(void *self, const WorldCtx *c, double t, double t_next, DrError *err)
+{
+    (void)t_next;
+    WorldBem *b = self;
     for (int g = 0; g < b->ngroups; g++) {
         WorldBemGroup *gr = &b->groups[g];
-        DR_TRY(gr->constrained ? step_together(b, gr, t0, frame, err) : step_alone(b, gr, frame, err));
+        if (gr->done >= gr->steps_per_frame) continue;
+        /* the group's step n starts at the end of its step n − 1 (the frame's start for n = 0) */
+        double start = gr->done == 0 ? c->t0 : group_step_end(gr, c, gr->done);
+        if (t != start) continue;
+        int n = gr->done;
+        for (int k = 0; k < gr->count; k++) world_kinematics_body_begin(c->kin, gr->members[k]);
+        DR_TRY(gr->constrained ? step_together(b, gr, c->t0, n, c->frame, err) : step_alone(b, gr, c->frame, err));
+        gr->done++;
+        for (int k = 0; k < gr->count; k++)
+            DR_TRY(world_kinematics_body_end(c->kin, gr->members[k], start, group_step_end(gr, c, gr->done), err));
     }
+    return DR_OK;
+}
+
+static DrStatus bem_end_frame(void *self, const WorldCtx *c, DrFrameStats *stats, DrError *err)
+{
+    WorldBem *b = self;
+    int frame = c->frame;
+    for (int g = 0; g < b->ngroups; g++)
+        if (b->groups[g].constrained)
+            for (int k = 0; k < b->groups[g].count; k++)
+                memset(&b->bodies[b->groups[g].members[k]].frame, 0, sizeof(DrBemStepStats));
+    b->last_contact = b->contact;
+    b->last_not_converged = b->not_converged;
+    DrBemFrameStats *o = &stats->bem;
+    o->present = true;
+    o->bodies = b->nbodies;
     const DrBemConstraintStats *cs = &b->contact;
-    stats->bem_contacts = cs->contacts;
-    stats->bem_body_contacts = cs->body_contacts;
-    stats->bem_fixed = cs->fixed;
-    stats->bem_joints = cs->joints;
-    stats->bem_pgs_iterations = cs->iterations;
-    stats->bem_residual = cs->residual;
-    stats->bem_not_converged = b->not_converged;
-    stats->seconds_bem_trial = cs->seconds_trial;
-    stats->seconds_bem_detect = cs->seconds_detect;
-    stats->seconds_bem_assembly = cs->seconds_assembly;
-    stats->seconds_bem_pgs = cs->seconds_pgs;
-    stats->seconds_bem_final = cs->seconds_final;
+    o->contacts = cs->contacts;
+    o->body_contacts = cs->body_contacts;
+    o->fixed = cs->fixed;
+    o->joints = cs->joints;
+    o->pgs_iterations = cs->iterations;
+    o->residual = cs->residual;
+    o->not_converged = b->not_converged;
+    o->seconds_trial = cs->seconds_trial;
+    o->seconds_detect = cs->seconds_detect;
+    o->seconds_assembly = cs->seconds_assembly;
+    o->seconds_pgs = cs->seconds_pgs;
+    o->seconds_final = cs->seconds_final;
     if (cs->passes > 0)
         dr_log_debug("bem: frame %d: %d collider contact(s), %d body contact(s), %d fixed, %d joint(s), %d PGS sweep(s) "
                      "in %d pass(es), residual %.3g m; seconds trial %.3f detect %.3f assembly %.3f pgs %.3f final %.3f",
@@ -677,6 +771,7 @@ DrStatus dr_world_bem_step_(DrWorld *w, int frame, DrFrameStats *stats, DrError 
     for (int i = 0; i < b->nbodies; i++) {
         WorldBemBody *wb = &b->bodies[i];
         const char *name = wb->element->name;
+        wb->last = wb->frame;
         const DrBemStepStats sum = wb->last;
         /* the runtime refuses a non-finite step; the pose is checked here as well because everything downstream
            (frame cache, mesh, render) is built from it */
@@ -690,18 +785,17 @@ DrStatus dr_world_bem_step_(DrWorld *w, int frame, DrFrameStats *stats, DrError 
                                 name, frame, name);
         DrBemSolidDiag dg;
         dr_bem_solid_diagnostics(wb->solid, &dg);
-        stats->bem_steps += wb->last_steps;
-        stats->bem_kinetic_energy += dg.kinetic;
-        stats->bem_potential_energy += dg.potential;
-        stats->bem_momentum = dr_v3_add(stats->bem_momentum, dr_v3(dg.momentum[0], dg.momentum[1], dg.momentum[2]));
-        stats->bem_max_displacement = fmax(stats->bem_max_displacement, dg.max_displacement);
-        stats->bem_translation_error = fmax(stats->bem_translation_error, sum.translation_error);
-        stats->bem_rotation_error = fmax(stats->bem_rotation_error, sum.rotation_error);
-        stats->seconds_bem_history += sum.seconds_history;
-        stats->seconds_bem_solve += sum.seconds_solve;
-        stats->seconds_bem_correction += sum.seconds_correction;
-        stats->kinetic_energy += dg.kinetic;
-        if (wb->steps_per_frame > stats->substeps) stats->substeps = wb->steps_per_frame;
+        o->steps += wb->last_steps;
+        o->kinetic_energy += dg.kinetic;
+        o->potential_energy += dg.potential;
+        o->momentum = dr_v3_add(o->momentum, dr_v3(dg.momentum[0], dg.momentum[1], dg.momentum[2]));
+        o->max_displacement = fmax(o->max_displacement, dg.max_displacement);
+        o->translation_error = fmax(o->translation_error, sum.translation_error);
+        o->rotation_error = fmax(o->rotation_error, sum.rotation_error);
+        o->seconds_history += sum.seconds_history;
+        o->seconds_solve += sum.seconds_solve;
+        o->seconds_correction += sum.seconds_correction;
+        if (wb->steps_per_frame > o->substeps) o->substeps = wb->steps_per_frame;
     }
     return DR_OK;
 }
@@ -752,20 +846,20 @@ static DrStatus write_body_diagnostics(DrH5 *h, const WorldBemBody *wb, const Dr
     char g[512];
     PATHF(g, "/diagnostics/%s", wb->element->name);
     const DrBemMatrices *m = dr_bem_solid_matrices(wb->solid);
-    DR_TRY(dr_world_write_vec_(h, g, "linear_momentum", dr_v3(dg->momentum[0], dg->momentum[1], dg->momentum[2]),
+    DR_TRY(dr_h5_write_vec3(h, g, "linear_momentum", dr_v3(dg->momentum[0], dg->momentum[1], dg->momentum[2]),
                                "kg*m/s", err));
-    DR_TRY(dr_world_write_vec_(h, g, "angular_momentum",
+    DR_TRY(dr_h5_write_vec3(h, g, "angular_momentum",
                                dr_v3(dg->angular_momentum[0], dg->angular_momentum[1], dg->angular_momentum[2]),
                                "kg*m^2/s", err));
-    DR_TRY(dr_world_write_scalar_(h, g, "kinetic_energy", dg->kinetic, "J", err));
-    DR_TRY(dr_world_write_scalar_(h, g, "potential_energy", dg->potential, "J", err));
-    DR_TRY(dr_world_write_scalar_(h, g, "volume", dg->volume, "m^3", err));
-    DR_TRY(dr_world_write_scalar_(h, g, "max_displacement", dg->max_displacement, "m", err));
-    DR_TRY(dr_world_write_scalar_(h, g, "mass", m->body.mass, "kg", err));
-    DR_TRY(dr_world_write_scalar_(h, g, "steps", (double)wb->last_steps, "1", err));
-    DR_TRY(dr_world_write_scalar_(h, g, "time_step", m->desc.dt, "s", err));
-    DR_TRY(dr_world_write_scalar_(h, g, "translation_error", wb->last.translation_error, "m", err));
-    DR_TRY(dr_world_write_scalar_(h, g, "rotation_error", wb->last.rotation_error, "rad", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "kinetic_energy", dg->kinetic, "J", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "potential_energy", dg->potential, "J", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "volume", dg->volume, "m^3", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "max_displacement", dg->max_displacement, "m", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "mass", m->body.mass, "kg", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "steps", (double)wb->last_steps, "1", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "time_step", m->desc.dt, "s", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "translation_error", wb->last.translation_error, "m", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "rotation_error", wb->last.rotation_error, "rad", err));
     return DR_OK;
 }
 
@@ -795,35 +889,35 @@ static DrStatus write_frame(const WorldBem *b, DrH5 *h, DrError *err)
         steps += wb->last_steps;
     }
     const char *g = "/diagnostics";
-    DR_TRY(dr_world_write_scalar_(h, g, "bem_bodies", b->nbodies, "1", err));
-    DR_TRY(dr_world_write_scalar_(h, g, "bem_steps", (double)steps, "1", err));
-    DR_TRY(dr_world_write_vec_(h, g, "bem_linear_momentum", dr_v3(tot.momentum[0], tot.momentum[1], tot.momentum[2]),
+    DR_TRY(dr_h5_write_scalar(h, g, "bem_bodies", b->nbodies, "1", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "bem_steps", (double)steps, "1", err));
+    DR_TRY(dr_h5_write_vec3(h, g, "bem_linear_momentum", dr_v3(tot.momentum[0], tot.momentum[1], tot.momentum[2]),
                                "kg*m/s", err));
-    DR_TRY(dr_world_write_vec_(h, g, "bem_angular_momentum", L, "kg*m^2/s", err));
-    DR_TRY(dr_world_write_scalar_(h, g, "bem_kinetic_energy", tot.kinetic, "J", err));
-    DR_TRY(dr_world_write_scalar_(h, g, "bem_potential_energy", tot.potential, "J", err));
-    DR_TRY(dr_world_write_scalar_(h, g, "bem_total_energy", tot.kinetic + tot.potential, "J", err));
-    DR_TRY(dr_world_write_scalar_(h, g, "bem_volume", tot.volume, "m^3", err));
-    DR_TRY(dr_world_write_scalar_(h, g, "bem_max_displacement", tot.max_displacement, "m", err));
+    DR_TRY(dr_h5_write_vec3(h, g, "bem_angular_momentum", L, "kg*m^2/s", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "bem_kinetic_energy", tot.kinetic, "J", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "bem_potential_energy", tot.potential, "J", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "bem_total_energy", tot.kinetic + tot.potential, "J", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "bem_volume", tot.volume, "m^3", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "bem_max_displacement", tot.max_displacement, "m", err));
     /* constraints (BEM §3.4): counts of the frame's last step, sweeps and passes of all its steps, the largest
        residual; the seconds per phase are wall clock and stay out */
-    const DrBemConstraintStats *c = &b->contact;
-    DR_TRY(dr_world_write_scalar_(h, g, "bem_contacts", c->contacts, "1", err));
-    DR_TRY(dr_world_write_scalar_(h, g, "bem_body_contacts", c->body_contacts, "1", err));
-    DR_TRY(dr_world_write_scalar_(h, g, "bem_sticking", c->sticking, "1", err));
-    DR_TRY(dr_world_write_scalar_(h, g, "bem_fixed", c->fixed, "1", err));
-    DR_TRY(dr_world_write_scalar_(h, g, "bem_joints", c->joints, "1", err));
-    DR_TRY(dr_world_write_scalar_(h, g, "bem_pgs_iterations", c->iterations, "1", err));
-    DR_TRY(dr_world_write_scalar_(h, g, "bem_passes", c->passes, "1", err));
-    DR_TRY(dr_world_write_scalar_(h, g, "bem_residual", c->residual, "m", err));
-    DR_TRY(dr_world_write_scalar_(h, g, "bem_not_converged", b->not_converged, "1", err));
+    const DrBemConstraintStats *c = &b->last_contact;
+    DR_TRY(dr_h5_write_scalar(h, g, "bem_contacts", c->contacts, "1", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "bem_body_contacts", c->body_contacts, "1", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "bem_sticking", c->sticking, "1", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "bem_fixed", c->fixed, "1", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "bem_joints", c->joints, "1", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "bem_pgs_iterations", c->iterations, "1", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "bem_passes", c->passes, "1", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "bem_residual", c->residual, "m", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "bem_not_converged", b->last_not_converged, "1", err));
     return DR_OK;
 }
 
-DrStatus dr_world_bem_write_(const DrWorld *w, DrH5 *h, bool frame_cache, DrError *err)
+static DrStatus bem_write(const void *self, const WorldCtx *c, DrH5 *h, bool frame_cache, DrError *err)
 {
-    const WorldBem *b = w->bem;
-    if (!b) return DR_OK;
+    (void)c;
+    const WorldBem *b = self;
     if (frame_cache) return write_frame(b, h, err);
     for (int i = 0; i < b->nbodies; i++) {
         const WorldBemBody *wb = &b->bodies[i];
@@ -838,10 +932,9 @@ DrStatus dr_world_bem_write_(const DrWorld *w, DrH5 *h, bool frame_cache, DrErro
     return DR_OK;
 }
 
-DrStatus dr_world_bem_read_(DrWorld *w, DrH5 *h, const char *file, int frame, DrError *err)
+static DrStatus bem_read(void *self, const WorldCtx *w, DrH5 *h, const char *file, int frame, DrError *err)
 {
-    WorldBem *b = w->bem;
-    if (!b) return DR_OK;
+    WorldBem *b = self;
     for (int i = 0; i < b->nbodies; i++) {
         WorldBemBody *wb = &b->bodies[i];
         const char *name = wb->element->name;
@@ -881,13 +974,54 @@ DrStatus dr_world_bem_read_(DrWorld *w, DrH5 *h, const char *file, int frame, Dr
     return DR_OK;
 }
 
-void dr_world_bem_hash_(const DrWorld *w, DrHasher *h)
+static void bem_hash(const void *self, DrHasher *h)
 {
-    const WorldBem *b = w->bem;
-    if (!b) return;
+    const WorldBem *b = self;
     for (int i = 0; i < b->nbodies; i++) {
         const WorldBemBody *wb = &b->bodies[i];
         dr_bem_solid_state_get(wb->solid, wb->state);
         dr_hasher_update(h, wb->state, wb->state_size * sizeof(double));
     }
+}
+
+DrStatus world_bem_adapter(const WorldCtx *c, const char *cache_root, WorldSolver *out, DrError *err)
+{
+    memset(out, 0, sizeof *out);
+    int n = dr_scene_count_kind(c->scene, DR_ELEMENT_BEM_SOLID);
+    if (n == 0) return DR_OK;
+    WorldBem *b = NULL;
+    DR_TRY(dr_calloc(1, sizeof *b, &b, err));
+    DrStatus s = build_bem(c, b, n, cache_root, err);
+    if (s < 0) {
+        bem_destroy(b);
+        return s;
+    }
+    *out = (WorldSolver){.name = "bem",
+                         .self = b,
+                         .begin_frame = bem_begin_frame,
+                         .landing = bem_landing,
+                         .step_first = bem_step_first,
+                         .end_frame = bem_end_frame,
+                         .write = bem_write,
+                         .read = bem_read,
+                         .hash = bem_hash,
+                         .destroy = bem_destroy};
+    return DR_OK;
+}
+
+int world_bem_solids(const WorldSolver *bem, const DrBemSolid *const **solids, const DrElement *const **elements)
+{
+    const WorldBem *b = bem->self;
+    *solids = (const DrBemSolid *const *)b->solids;
+    *elements = (const DrElement *const *)b->elements;
+    return b->nbodies;
+}
+
+void world_bem_counts(const WorldSolver *s, int *bodies, long *vertices, int *sets)
+{
+    const WorldBem *b = s->self;
+    *bodies = b->nbodies;
+    *vertices = 0;
+    for (int i = 0; i < b->nbodies; i++) *vertices += dr_bem_solid_matrices(b->bodies[i].solid)->nv;
+    *sets = b->nsets;
 }

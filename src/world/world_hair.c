@@ -1,24 +1,46 @@
-/* The world's hair: every hair element of a scene is one batch of a single DrRodSet (they are solved together,
- * so strands of different elements can touch), stepped with the scene colliders and the scalp motion. */
-#include "world_internal.h"
+/* The hair adapter: every hair element of a scene is one batch of a single DrRodSet (they are solved together, so
+ * strands of different elements can touch), stepped on the world's clock with the scene colliders (posed by the
+ * kinematics) and the scalp motion. */
+#include "world_adapter.h"
 
 #include <stdlib.h>
 #include <string.h>
 
-void dr_world_hair_destroy_(WorldHair **hp)
+#include "hair/hair.h"
+#include "stage/stage.h"
+
+typedef struct WorldHair {
+    DrRodSet *rods;
+    const DrElement **elements;
+    int nelements;
+    double **keys;           /* per element: scalp motion keys (rows of 7: s, m, rad) */
+    int *nkeys;
+    bool any_motion;
+    DrXform *poses;          /* per element, the step's end pose */
+    DrRodCollider *colliders;
+    int ncolliders;
+    int substeps;            /* HairSolver.substeps: the hair's steps per frame when nothing else is faster */
+    int reached;             /* of the frame's substep ends t0 + k (t1 − t0)/substeps, the last the clock reached */
+    int steps;               /* steps taken in the frame (more than substeps when another solver cut them) */
+    int not_converged_steps;
+    double seconds;          /* wall time of the frame's steps */
+    DrRodStats frame;        /* the frame being advanced, summed over its steps */
+    DrRodStats last;         /* the last frame's */
+    int not_converged;
+} WorldHair;
+
+static void hair_destroy(void *self)
 {
-    if (!hp || !*hp) return;
-    WorldHair *h = *hp;
+    WorldHair *h = self;
+    if (!h) return;
     dr_rod_set_destroy(&h->rods);
-    for (int i = 0; i < h->nelements; i++) free(h->keys[i]);
+    for (int i = 0; h->keys && i < h->nelements; i++) free(h->keys[i]);
     free(h->keys);
     free(h->nkeys);
     free(h->elements);
     free(h->poses);
     free(h->colliders);
-    free(h->ctx);
     free(h);
-    *hp = NULL;
 }
 
 /* The strands of one hair element in its scene pose: grown from its Transform-posed scalp, or read from its
@@ -28,7 +50,7 @@ static DrStatus load_groom(const DrElement *e, DrGroom *g, DrError *err)
     const DrComponent *gc = dr_element_component(e, "Groom");
     if (dr_component_is_set(gc, "scalp")) {
         DrTriMesh scalp = {0};
-        DR_TRY(dr_world_load_posed_mesh_(e, dr_component_str(gc, "scalp"), "Groom.scalp", &scalp, err));
+        DR_TRY(dr_stage_load_posed_mesh(e, dr_component_str(gc, "scalp"), "Groom.scalp", &scalp, err));
         DrGroomDesc d;
         dr_groom_desc_default(&d);
         d.count = dr_component_int(gc, "count");
@@ -40,12 +62,11 @@ static DrStatus load_groom(const DrElement *e, DrGroom *g, DrError *err)
         d.seed = (uint64_t)dr_component_int(gc, "seed");
         DrStatus s = dr_groom_grow(&scalp, &d, g, err);
         dr_trimesh_free(&scalp);
-        return dr_world_asset_context_(s, e->name, "Groom.scalp", err);
+        return dr_error_prefix(s, err, "%s.Groom.scalp", e->name);
     }
-    DR_TRY(dr_world_asset_context_(dr_groom_read_obj(dr_component_str(gc, "curves"), g, err), e->name, "Groom.curves",
-                                   err));
+    DR_TRY(dr_error_prefix(dr_groom_read_obj(dr_component_str(gc, "curves"), g, err), err, "%s.Groom.curves", e->name));
     double sc;
-    DrXform X = dr_world_transform_(e, &sc);
+    DrXform X = dr_stage_element_transform(e, &sc);
     DrMat3 R = X.R;
     DrVec3 t = X.t;
     for (int i = 0; i < g->offsets[g->nstrands]; i++) {
@@ -63,14 +84,9 @@ static DrStatus load_groom(const DrElement *e, DrGroom *g, DrError *err)
     return DR_OK;
 }
 
-DrStatus dr_world_hair_create_(DrWorld *w, DrError *err)
+static DrStatus build_hair(const WorldCtx *c, WorldHair *h, int n, DrError *err)
 {
-    const DrScene *scene = w->scene;
-    int n = dr_scene_count_type(scene, "hair");
-    if (n == 0) return DR_OK;
-    WorldHair *h = NULL;
-    DR_TRY(dr_calloc(1, sizeof *h, &h, err));
-    w->hair = h;
+    const DrScene *scene = c->scene;
     DR_TRY(dr_calloc((size_t)n, sizeof *h->elements, &h->elements, err));
     DR_TRY(dr_calloc((size_t)n, sizeof *h->keys, &h->keys, err));
     DR_TRY(dr_calloc((size_t)n, sizeof *h->nkeys, &h->nkeys, err));
@@ -83,7 +99,7 @@ DrStatus dr_world_hair_create_(DrWorld *w, DrError *err)
     bool contact = false;
     for (int i = 0; s == DR_OK && i < dr_scene_element_count(scene); i++) {
         const DrElement *e = dr_scene_element(scene, i);
-        if (strcmp(e->type, "hair") != 0) continue;
+        if (e->kind != DR_ELEMENT_HAIR) continue;
         int b = h->nelements++;
         h->elements[b] = e;
         solver = dr_element_component(e, "HairSolver"); /* equal on every hair element (scene rule) */
@@ -108,23 +124,13 @@ DrStatus dr_world_hair_create_(DrWorld *w, DrError *err)
         bt->collider_thickness = dr_component_num(co, "thickness");
         contact = contact || bt->self_contact || n > 1;
         /* scalp motion keys: times in s, angles in radians, as the colliders take them */
-        const double *rows = NULL;
-        int nrows = dr_component_table(dr_element_component(e, "Motion"), "keys", &rows);
-        h->nkeys[b] = nrows;
-        if (nrows > 0) {
-            s = dr_calloc((size_t)nrows * 7, sizeof(double), &h->keys[b], err);
-            for (int k = 0; s == DR_OK && k < nrows; k++) {
-                h->keys[b][7 * k] = (rows[7 * k] - w->first_frame + 1) / w->fps;
-                for (int j = 1; j < 4; j++) h->keys[b][7 * k + j] = rows[7 * k + j];
-                for (int j = 4; j < 7; j++) h->keys[b][7 * k + j] = rows[7 * k + j] * DR_PI / 180.0;
-            }
-            h->any_motion = true;
-        }
+        if (s == DR_OK) s = dr_stage_motion_keys(e, c->first_frame, c->fps, &h->keys[b], &h->nkeys[b], err);
+        if (s == DR_OK && h->nkeys[b] > 0) h->any_motion = true;
     }
     if (s == DR_OK) {
         DrRodSetDesc d;
         dr_rod_set_desc_default(&d);
-        d.gravity = w->gravity;
+        d.gravity = c->gravity;
         d.hair_contact = contact;
         d.geometric_stiffness = dr_component_bool(solver, "geometric_stiffness");
         const char *pc = dr_component_str(solver, "preconditioner");
@@ -135,70 +141,96 @@ DrStatus dr_world_hair_create_(DrWorld *w, DrError *err)
         d.solver.max_iter = dr_component_int(solver, "max_iterations");
         h->substeps = dr_component_int(solver, "substeps");
         s = dr_rod_set_create(&d, batches, h->nelements, &h->rods, err);
-        if (s != DR_OK && h->nelements == 1) s = dr_world_asset_context_(s, h->elements[0]->name, "Groom", err);
+        if (s != DR_OK && h->nelements == 1) s = dr_error_prefix(s, err, "%s.Groom", h->elements[0]->name);
     }
     for (int b = 0; b < n; b++) dr_groom_free(&grooms[b]);
     free(grooms);
     free(batches);
     if (s != DR_OK) return s;
-    /* the live colliders, posed per substep */
-    if (w->nlive > 0) {
-        DR_TRY(dr_calloc((size_t)w->nlive, sizeof *h->colliders, &h->colliders, err));
-        DR_TRY(dr_calloc((size_t)w->nlive, sizeof *h->ctx, &h->ctx, err));
-        for (int c = 0; c < w->nlive; c++) {
-            h->ctx[c].collider = w->collider_ptrs[c];
-            h->colliders[c] = (DrRodCollider){dr_world_posed_sdf_, dr_world_posed_velocity_, &h->ctx[c],
-                                              dr_collider_friction(w->collider_ptrs[c]), 0};
-        }
-        h->ncolliders = w->nlive;
+    /* the live colliders, posed by the kinematics at every clock step's end */
+    const DrCollider *const *live = NULL;
+    int nlive = world_kinematics_colliders(c->kin, &live);
+    WorldPosedCollider *posed = world_kinematics_posed(c->kin);
+    if (nlive > 0) {
+        DR_TRY(dr_calloc((size_t)nlive, sizeof *h->colliders, &h->colliders, err));
+        for (int k = 0; k < nlive; k++)
+            h->colliders[k] = (DrRodCollider){world_posed_sdf, world_posed_velocity, &posed[k],
+                                              dr_collider_friction(live[k]), 0};
+        h->ncolliders = nlive;
     }
-    h->time = 0;
     return DR_OK;
 }
 
-DrStatus dr_world_hair_step_(DrWorld *w, double t0, double t1, DrFrameStats *stats, DrError *err)
+/* ---- the clock --------------------------------------------------------------------------------------------------
+ * The hair takes HairSolver.substeps equal steps per frame; a step of the world's clock that ends first (a faster
+ * solver, a BEM step end) cuts the hair's step there, and the hair goes on to the same next substep end. */
+
+static double substep_end(const WorldHair *h, const WorldCtx *c, int k)
 {
-    WorldHair *h = w->hair;
-    if (!h) return DR_OK;
+    return k == h->substeps ? c->t1 : c->t0 + k * ((c->t1 - c->t0) / h->substeps);
+}
+
+static void hair_begin_frame(void *self, const WorldCtx *c)
+{
+    (void)c;
+    WorldHair *h = self;
+    h->reached = 0;
+    h->steps = 0;
+    h->not_converged_steps = 0;
+    h->seconds = 0.0;
+    memset(&h->frame, 0, sizeof h->frame);
+}
+
+static DrStatus hair_next_time(void *self, const WorldCtx *c, double t, double *t_next, DrError *err)
+{
+    (void)t;
+    (void)err;
+    const WorldHair *h = self;
+    *t_next = substep_end(h, c, h->reached < h->substeps ? h->reached + 1 : h->substeps);
+    return DR_OK;
+}
+
+static DrStatus hair_step(void *self, const WorldCtx *c, double t, double t_next, DrError *err)
+{
+    WorldHair *h = self;
     double t_start = dr_time_now();
-    int n = h->substeps;
-    double dt = (t1 - t0) / n;
-    DrRodStats st = {0};
-    int not_converged = 0;
-    for (int k = 0; k < n; k++) {
-        double ta = t0 + k * dt, tb = (k + 1 == n) ? t1 : t0 + (k + 1) * dt;
-        for (int c = 0; c < h->ncolliders; c++) h->ctx[c].frame = dr_collider_frame(h->ctx[c].collider, ta);
-        for (int b = 0; b < h->nelements; b++) h->poses[b] = dr_motion_pose(h->keys[b], h->nkeys[b], tb);
-        DrStatus s = dr_rod_set_step(h->rods, tb - ta, h->any_motion ? h->poses : NULL, h->colliders, h->ncolliders,
-                                     &st, err);
-        if (s == DR_WARN_NOT_CONVERGED) {
-            not_converged++;
-            continue;
-        }
-        if (s != DR_OK) return s;
-    }
-    if (not_converged)
+    for (int b = 0; b < h->nelements; b++) h->poses[b] = dr_motion_pose(h->keys[b], h->nkeys[b], t_next);
+    DrStatus s = dr_rod_set_step(h->rods, t_next - t, h->any_motion ? h->poses : NULL, h->colliders, h->ncolliders,
+                                 &h->frame, err);
+    h->steps++;
+    h->seconds += dr_time_now() - t_start;
+    if (s == DR_WARN_NOT_CONVERGED) h->not_converged_steps++;
+    else if (s != DR_OK) return s;
+    if (h->reached < h->substeps && t_next == substep_end(h, c, h->reached + 1)) h->reached++;
+    return DR_OK;
+}
+
+static DrStatus hair_end_frame(void *self, const WorldCtx *c, DrFrameStats *stats, DrError *err)
+{
+    (void)c;
+    (void)err;
+    WorldHair *h = self;
+    const DrRodStats *st = &h->frame;
+    if (h->not_converged_steps)
         dr_log_warn("hair: %d of %d solves stopped at HairSolver.max_iterations (last relative residual %.2e); raise "
                     "max_iterations or substeps",
-                    not_converged, n, st.residual);
-    h->last = st;
-    h->not_converged = not_converged;
-    h->time = t1;
+                    h->not_converged_steps, h->steps, st->residual);
+    h->last = *st;
+    h->not_converged = h->not_converged_steps;
     DrRodState rs = dr_rod_set_state(h->rods);
-    stats->hair = true;
-    stats->hair_vertices = rs.nverts;
-    stats->hair_substeps = n;
-    stats->hair_cg_iterations = st.iterations;
-    stats->hair_residual = st.residual;
-    stats->hair_not_converged = not_converged;
-    stats->hair_collider_contacts = st.collider_contacts;
-    stats->hair_contacts = st.hair_contacts;
-    stats->hair_kinetic_energy = st.kinetic;
-    stats->hair_elastic_energy = st.elastic;
-    stats->hair_gravity_energy = st.gravity_potential;
-    stats->kinetic_energy += st.kinetic;
-    if (n > stats->substeps) stats->substeps = n;
-    stats->seconds_hair = dr_time_now() - t_start;
+    DrHairFrameStats *b = &stats->hair;
+    b->present = true;
+    b->vertices = rs.nverts;
+    b->substeps = h->steps;
+    b->cg_iterations = st->iterations;
+    b->residual = st->residual;
+    b->not_converged = h->not_converged_steps;
+    b->collider_contacts = st->collider_contacts;
+    b->contacts = st->hair_contacts;
+    b->kinetic_energy = st->kinetic;
+    b->elastic_energy = st->elastic;
+    b->gravity_energy = st->gravity_potential;
+    b->seconds = h->seconds;
     return DR_OK;
 }
 
@@ -215,10 +247,10 @@ static BatchSpan batch_span(const DrRodState *rs, int b)
     return sp;
 }
 
-DrStatus dr_world_hair_write_(const DrWorld *w, DrH5 *hf, bool frame_cache, DrError *err)
+static DrStatus hair_write(const void *self, const WorldCtx *c, DrH5 *hf, bool frame_cache, DrError *err)
 {
-    const WorldHair *h = w->hair;
-    if (!h) return DR_OK;
+    (void)c;
+    const WorldHair *h = self;
     DrRodState rs = dr_rod_set_state(h->rods);
     for (int b = 0; b < h->nelements; b++) {
         const char *name = h->elements[b]->name;
@@ -261,16 +293,16 @@ DrStatus dr_world_hair_write_(const DrWorld *w, DrH5 *hf, bool frame_cache, DrEr
         return DR_OK;
     }
     const char *g = "/diagnostics";
-    DR_TRY(dr_world_write_scalar_(hf, g, "hair_substeps", h->substeps, "1", err));
-    DR_TRY(dr_world_write_scalar_(hf, g, "hair_cg_iterations", h->last.iterations, "1", err));
-    DR_TRY(dr_world_write_scalar_(hf, g, "hair_residual", h->last.residual, "1", err));
-    DR_TRY(dr_world_write_scalar_(hf, g, "hair_not_converged", h->not_converged, "1", err));
-    DR_TRY(dr_world_write_scalar_(hf, g, "hair_collider_contacts", h->last.collider_contacts, "1", err));
-    DR_TRY(dr_world_write_scalar_(hf, g, "hair_contacts", h->last.hair_contacts, "1", err));
-    DR_TRY(dr_world_write_scalar_(hf, g, "hair_kinetic_energy", h->last.kinetic, "J", err));
-    DR_TRY(dr_world_write_scalar_(hf, g, "hair_elastic_energy", h->last.elastic, "J", err));
-    DR_TRY(dr_world_write_scalar_(hf, g, "hair_gravity_energy", h->last.gravity_potential, "J", err));
-    DR_TRY(dr_world_write_vec_(hf, g, "hair_linear_momentum", h->last.momentum, "kg*m/s", err));
+    DR_TRY(dr_h5_write_scalar(hf, g, "hair_substeps", h->substeps, "1", err));
+    DR_TRY(dr_h5_write_scalar(hf, g, "hair_cg_iterations", h->last.iterations, "1", err));
+    DR_TRY(dr_h5_write_scalar(hf, g, "hair_residual", h->last.residual, "1", err));
+    DR_TRY(dr_h5_write_scalar(hf, g, "hair_not_converged", h->not_converged, "1", err));
+    DR_TRY(dr_h5_write_scalar(hf, g, "hair_collider_contacts", h->last.collider_contacts, "1", err));
+    DR_TRY(dr_h5_write_scalar(hf, g, "hair_contacts", h->last.hair_contacts, "1", err));
+    DR_TRY(dr_h5_write_scalar(hf, g, "hair_kinetic_energy", h->last.kinetic, "J", err));
+    DR_TRY(dr_h5_write_scalar(hf, g, "hair_elastic_energy", h->last.elastic, "J", err));
+    DR_TRY(dr_h5_write_scalar(hf, g, "hair_gravity_energy", h->last.gravity_potential, "J", err));
+    DR_TRY(dr_h5_write_vec3(hf, g, "hair_linear_momentum", h->last.momentum, "kg*m/s", err));
     return DR_OK;
 }
 
@@ -295,10 +327,11 @@ static DrStatus read_exact(DrH5 *hf, const char *file, const char *path, uint64_
     return DR_OK;
 }
 
-DrStatus dr_world_hair_read_(DrWorld *w, DrH5 *hf, const char *file, DrError *err)
+static DrStatus hair_read(void *self, const WorldCtx *c, DrH5 *hf, const char *file, int frame, DrError *err)
 {
-    WorldHair *h = w->hair;
-    if (!h) return DR_OK;
+    (void)c;
+    (void)frame;
+    WorldHair *h = self;
     DrRodState rs = dr_rod_set_state(h->rods);
     for (int b = 0; b < h->nelements; b++) {
         const char *name = h->elements[b]->name;
@@ -324,10 +357,10 @@ DrStatus dr_world_hair_read_(DrWorld *w, DrH5 *hf, const char *file, DrError *er
     return DR_OK;
 }
 
-void dr_world_hair_hash_(const DrWorld *w, DrHasher *hs)
+static void hair_hash(const void *self, DrHasher *hs)
 {
-    if (!w->hair) return;
-    DrRodState rs = dr_rod_set_state(w->hair->rods);
+    const WorldHair *h = self;
+    DrRodState rs = dr_rod_set_state(h->rods);
     long ni = rs.nverts - 2L * rs.nstrands;
     dr_hasher_update(hs, rs.x, 3 * sizeof(double) * (size_t)rs.nverts);
     dr_hasher_update(hs, rs.v, 3 * sizeof(double) * (size_t)rs.nverts);
@@ -336,4 +369,36 @@ void dr_world_hair_hash_(const DrWorld *w, DrHasher *hs)
     dr_hasher_update(hs, rs.a1, 3 * sizeof(double) * (size_t)rs.nedges);
     if (ni > 0) dr_hasher_update(hs, rs.ref_twist, sizeof(double) * (size_t)ni);
     dr_hasher_update(hs, rs.lambda, sizeof(double) * (size_t)rs.nlambda);
+}
+
+DrStatus world_hair_adapter(const WorldCtx *c, WorldSolver *out, DrError *err)
+{
+    memset(out, 0, sizeof *out);
+    int n = dr_scene_count_kind(c->scene, DR_ELEMENT_HAIR);
+    if (n == 0) return DR_OK;
+    WorldHair *h = NULL;
+    DR_TRY(dr_calloc(1, sizeof *h, &h, err));
+    DrStatus s = build_hair(c, h, n, err);
+    if (s < 0) {
+        hair_destroy(h);
+        return s;
+    }
+    *out = (WorldSolver){.name = "hair",
+                         .self = h,
+                         .begin_frame = hair_begin_frame,
+                         .next_time = hair_next_time,
+                         .step = hair_step,
+                         .end_frame = hair_end_frame,
+                         .write = hair_write,
+                         .read = hair_read,
+                         .hash = hair_hash,
+                         .destroy = hair_destroy};
+    return DR_OK;
+}
+
+void world_hair_counts(const WorldSolver *s, int *strands, int *vertices)
+{
+    DrRodState rs = dr_rod_set_state(((const WorldHair *)s->self)->rods);
+    *strands = rs.nstrands;
+    *vertices = rs.nverts;
 }

@@ -1,10 +1,37 @@
-/* MPM solids in the world: the one DrMpm that every mpm_solid element of a scene shares (one grid, so the
- * bodies collide through it), the scene colliders as grid boundary conditions, substepping a frame, and the
- * bodies' datasets in frame caches and checkpoints. */
-#include "world_internal.h"
+/* The MPM adapter: the one DrMpm that every mpm_solid element of a scene shares (one grid, so the bodies collide
+ * through it), the scene colliders as grid boundary conditions (posed by the kinematics), its steps on the world's
+ * clock, and the bodies' datasets in frame caches and checkpoints. */
+#include "world_adapter.h"
 
+#include <math.h>
 #include <stdlib.h>
 #include <string.h>
+
+#include "mpm/mpm.h"
+#include "stage/stage.h"
+
+/* One mpm_solid element: a body of the shared DrMpm. */
+typedef struct WorldMpmBody {
+    const DrElement *element;
+    int body;                /* DrMpm body id */
+    long count;              /* its particles */
+} WorldMpmBody;
+
+typedef struct WorldMpm {
+    DrMpm *mpm;
+    WorldMpmBody *bodies;
+    int nbodies;
+    int max_substeps;
+    /* the frame being advanced: dr_mpm_advance's substepping on the world's clock */
+    int done;                /* substeps taken */
+    double left;             /* s, to the frame's end */
+    double from, dt;         /* the substep proposed from t = from */
+    bool last;               /* and whether it ends the frame */
+    DrMpmStats frame;        /* summed over the frame's substeps */
+    DrStatus worst;          /* DR_WARN_NOT_CONVERGED when a Newton iteration of the frame stopped at its cap */
+    DrMpmStats last_frame;   /* the last frame's stats */
+    int not_converged;       /* 1 when a Newton iteration of the last frame stopped at its cap */
+} WorldMpm;
 
 /* ---- shapes ------------------------------------------------------------------------------------------ */
 
@@ -54,7 +81,7 @@ static DrStatus load_mesh_shape(const DrElement *e, const char *path, double spa
                                 DrVec3 *hi, DrVec3 *centre, DrError *err)
 {
     DrTriMesh mesh = {0};
-    DR_TRY(dr_world_load_posed_mesh_(e, path, "MpmShape.mesh", &mesh, err));
+    DR_TRY(dr_stage_load_posed_mesh(e, path, "MpmShape.mesh", &mesh, err));
     DrStatus s = DR_OK;
     if (!dr_trimesh_is_closed(&mesh))
         s = dr_error_set(err, DR_ERR_INPUT, path, 0, 0,
@@ -66,8 +93,8 @@ static DrStatus load_mesh_shape(const DrElement *e, const char *path, double spa
         dr_trimesh_bounds(&mesh, lo, hi);
         *centre = mesh_centroid(&mesh, *lo, *hi);
         /* half the particle spacing: the inside test resolves the surface finer than the lattice samples it */
-        s = dr_world_asset_context_(dr_world_make_collider_(&mesh, 0.5 * spacing, 0, false, 0, 0, NULL, &sh->sdf, err),
-                                    e->name, "MpmShape.mesh", err);
+        s = dr_error_prefix(world_make_collider(&mesh, 0.5 * spacing, 0, false, 0, 0, NULL, &sh->sdf, err), err,
+                            "%s.MpmShape.mesh", e->name);
     }
     dr_trimesh_free(&mesh);
     return s;
@@ -76,7 +103,7 @@ static DrStatus load_mesh_shape(const DrElement *e, const char *path, double spa
 static void fmt_v3(DrVec3 v, char *buf, size_t size) { snprintf(buf, size, "[%.6g, %.6g, %.6g]", v.x, v.y, v.z); }
 
 /* Samples element e's MpmShape into the solver as one body. */
-static DrStatus add_body(DrWorld *w, WorldMpm *m, const DrElement *e, double dx, WorldMpmBody *wb, DrError *err)
+static DrStatus add_body(const WorldCtx *c, WorldMpm *m, const DrElement *e, double dx, WorldMpmBody *wb, DrError *err)
 {
     const DrComponent *shape = dr_element_component(e, "MpmShape");
     const DrComponent *mat = dr_element_component(e, "MpmMaterial");
@@ -85,7 +112,7 @@ static DrStatus add_body(DrWorld *w, WorldMpm *m, const DrElement *e, double dx,
     int per_axis = dr_component_int(shape, "particles_per_axis");
     double spacing = dx / per_axis;
     Shape sh = {0};
-    sh.X = dr_world_transform_(e, &sh.scale);
+    sh.X = dr_stage_element_transform(e, &sh.scale);
     DrVec3 lo, hi, centre;
     if (dr_component_is_set(shape, "box")) {
         sh.kind = SHAPE_BOX;
@@ -116,15 +143,15 @@ static DrStatus add_body(DrWorld *w, WorldMpm *m, const DrElement *e, double dx,
     dr_component_box(dr_element_component(e, "Domain"), "box", &dlo, &dhi);
     DrStatus s = DR_OK;
     if (lo.x < dlo.x || lo.y < dlo.y || lo.z < dlo.z || hi.x > dhi.x || hi.y > dhi.y || hi.z > dhi.z) {
-        char a[96], b[96], c[96], d[96];
+        char a[96], b[96], cl[96], d[96];
         fmt_v3(lo, a, sizeof a);
         fmt_v3(hi, b, sizeof b);
-        fmt_v3(dlo, c, sizeof c);
+        fmt_v3(dlo, cl, sizeof cl);
         fmt_v3(dhi, d, sizeof d);
-        s = dr_error_set(err, DR_ERR_INPUT, dr_scene_path(w->scene), 0, 0,
+        s = dr_error_set(err, DR_ERR_INPUT, dr_scene_path(c->scene), 0, 0,
                          "%s.MpmShape: the body spans %s to %s, outside %s.Domain.box [%s, %s]; move the shape (or its "
                          "Transform) into the domain or enlarge the Domain box",
-                         e->name, a, b, e->name, c, d);
+                         e->name, a, b, e->name, cl, d);
     }
     DrMpmMaterial mm = {
         .model = strcmp(dr_component_str(mat, "model"), "neo_hookean") == 0 ? DR_MPM_NEOHOOKEAN : DR_MPM_FIXED_COROTATED,
@@ -140,10 +167,10 @@ static DrStatus add_body(DrWorld *w, WorldMpm *m, const DrElement *e, double dx,
     if (s < 0 && err->file[0] == '\0') {
         char msg[sizeof err->message];
         snprintf(msg, sizeof msg, "%s", err->message);
-        dr_error_set(err, s, dr_scene_path(w->scene), 0, 0, "%s.MpmShape: %s", e->name, msg);
+        dr_error_set(err, s, dr_scene_path(c->scene), 0, 0, "%s.MpmShape: %s", e->name, msg);
     }
     if (s == DR_OK && wb->count == 0)
-        s = dr_error_set(err, DR_ERR_INPUT, dr_scene_path(w->scene), 0, 0,
+        s = dr_error_set(err, DR_ERR_INPUT, dr_scene_path(c->scene), 0, 0,
                          "%s.MpmShape: no particle lies inside the shape (it is thinner than the particle spacing "
                          "%.3g m = Domain.voxel_size / particles_per_axis); enlarge the shape, raise "
                          "MpmShape.particles_per_axis or lower Domain.voxel_size",
@@ -176,16 +203,19 @@ static DrKernel kernel_of(const char *s)
     return DR_KERNEL_QUADRATIC;
 }
 
-DrStatus dr_world_mpm_create_(DrWorld *w, DrError *err)
+static void mpm_destroy(void *self)
 {
-    const DrScene *scene = w->scene;
-    int n = dr_scene_count_type(scene, "mpm_solid");
-    if (n == 0) return DR_OK; /* nothing MPM is allocated */
-    WorldMpm *m = NULL;
-    DR_TRY(dr_calloc(1, sizeof *m, &m, err));
-    w->mpm = m;
+    WorldMpm *m = self;
+    if (!m) return;
+    dr_mpm_destroy(&m->mpm);
+    free(m->bodies);
+    free(m);
+}
+
+static DrStatus build_mpm(const WorldCtx *c, WorldMpm *m, int n, DrError *err)
+{
+    const DrScene *scene = c->scene;
     DR_TRY(dr_calloc((size_t)n, sizeof *m->bodies, &m->bodies, err));
-    DR_TRY(dr_calloc((size_t)w->ncolliders + 1, sizeof *m->colliders, &m->colliders, err));
 
     /* The scene parser made every mpm_solid agree on Domain.voxel_size and wall_boundary, Transfer and
        Integrator, so the first element speaks for all; the grid box is the union of the Domain boxes. */
@@ -193,7 +223,7 @@ DrStatus dr_world_mpm_create_(DrWorld *w, DrError *err)
     DrVec3 lo = dr_v3(INFINITY, INFINITY, INFINITY), hi = dr_v3(-INFINITY, -INFINITY, -INFINITY);
     for (int i = 0; i < dr_scene_element_count(scene); i++) {
         const DrElement *e = dr_scene_element(scene, i);
-        if (strcmp(e->type, "mpm_solid") != 0) continue;
+        if (e->kind != DR_ELEMENT_MPM_SOLID) continue;
         if (!first) first = e;
         DrVec3 a, b;
         dr_component_box(dr_element_component(e, "Domain"), "box", &a, &b);
@@ -220,45 +250,30 @@ DrStatus dr_world_mpm_create_(DrWorld *w, DrError *err)
     d.newton_max_iterations = dr_component_int(in, "newton_max_iterations");
     d.cg_tolerance = dr_component_num(in, "cg_tolerance");
     d.cg_max_iterations = dr_component_int(in, "cg_max_iterations");
-    d.gravity = w->gravity;
+    d.gravity = c->gravity;
     DrMpmWall wall = strcmp(dr_component_str(dom, "wall_boundary"), "no_slip") == 0 ? DR_MPM_WALL_NO_SLIP : DR_MPM_WALL_SLIP;
     for (int f = 0; f < 6; f++) d.wall[f] = wall;
     d.cfl = dr_component_num(solver, "cfl");
     m->max_substeps = dr_component_int(solver, "max_substeps");
     DR_TRY(dr_mpm_create(&d, &m->mpm, err));
 
-    for (int i = 0; i < w->ncolliders; i++) {
-        const WorldCollider *c = &w->colliders[i];
-        if (!c->collider) continue;
-        WorldPosedCollider *mc = &m->colliders[m->ncolliders++];
-        const double *rows;
-        mc->collider = c->collider;
-        mc->frame = dr_collider_frame(c->collider, 0.0);
-        mc->moving = dr_component_table(dr_element_component(c->element, "Motion"), "keys", &rows) > 0;
-        m->any_moving |= mc->moving;
-        /* posed at every substep; its surface velocity (keyframed motion) goes into the contacts */
-        DrMpmCollider desc = {dr_world_posed_sdf_, mc, dr_v3(0, 0, 0), dr_collider_friction(c->collider),
-                              dr_collider_no_slip(c->collider), dr_world_posed_velocity_};
+    /* the scene colliders, posed by the kinematics at every clock step's end; their surface velocity (keyframed
+       motion) goes into the contacts */
+    const DrCollider *const *live = NULL;
+    int nlive = world_kinematics_colliders(c->kin, &live);
+    WorldPosedCollider *posed = world_kinematics_posed(c->kin);
+    for (int i = 0; i < nlive; i++) {
+        DrMpmCollider desc = {world_posed_sdf, &posed[i], dr_v3(0, 0, 0), dr_collider_friction(live[i]),
+                              dr_collider_no_slip(live[i]), world_posed_velocity};
         DR_TRY(dr_mpm_add_collider(m->mpm, &desc, err));
     }
 
     for (int i = 0; i < dr_scene_element_count(scene); i++) {
         const DrElement *e = dr_scene_element(scene, i);
-        if (strcmp(e->type, "mpm_solid") != 0) continue;
-        DR_TRY(add_body(w, m, e, d.dx, &m->bodies[m->nbodies++], err));
+        if (e->kind != DR_ELEMENT_MPM_SOLID) continue;
+        DR_TRY(add_body(c, m, e, d.dx, &m->bodies[m->nbodies++], err));
     }
     return DR_OK;
-}
-
-void dr_world_mpm_destroy_(WorldMpm **mp)
-{
-    if (!mp || !*mp) return;
-    WorldMpm *m = *mp;
-    dr_mpm_destroy(&m->mpm);
-    free(m->bodies);
-    free(m->colliders);
-    free(m);
-    *mp = NULL;
 }
 
 static DrStatus step_failed(DrStatus s, int frame, DrError *err)
@@ -271,59 +286,77 @@ static DrStatus step_failed(DrStatus s, int frame, DrError *err)
                         frame, msg);
 }
 
-/* dr_mpm_advance's substepping (each substep the solver's stable step dr_mpm_stable_dt, evened out over what
-   is left of the frame, at most max_substeps), taken here one dr_mpm_step at a time so that moving colliders
-   are posed at each substep's midpoint. The same limit as dr_mpm_advance, so a moving collider the bodies
-   never touch leaves the substeps as they are without it. */
-static DrStatus advance_posing_colliders(WorldMpm *m, double duration, DrMpmStats *sum, DrError *err)
+/* ---- the clock ----------------------------------------------------------------------------------------------
+ * dr_mpm_advance's substepping (each substep the solver's stable step dr_mpm_stable_dt, evened out over what is left
+ * of the frame, at most max_substeps), one proposal at a time: when the clock takes the proposed substep, what is
+ * left shrinks by it as in dr_mpm_advance (the same bits); when another solver's step ends first, the substep is
+ * cut there and what is left is counted from there. */
+
+static void mpm_begin_frame(void *self, const WorldCtx *c)
 {
-    memset(sum, 0, sizeof *sum);
-    DrStatus worst = DR_OK;
-    double left = duration, t = m->time;
-    while (left > 0.0 && sum->substeps < m->max_substeps) {
-        double lim = dr_mpm_stable_dt(m->mpm);
-        double need = isfinite(lim) ? ceil(left / lim - 1e-9) : 1.0;
-        int budget = m->max_substeps - sum->substeps;
-        double k = need < 1.0 ? 1.0 : (need > budget ? budget : need);
-        double dt = k <= 1.0 ? left : left / k;
-        for (int c = 0; c < m->ncolliders; c++)
-            if (m->colliders[c].moving) m->colliders[c].frame = dr_collider_frame(m->colliders[c].collider, t + 0.5 * dt);
-        DrMpmStats st;
-        DrStatus s = dr_mpm_step(m->mpm, dt, &st, err);
-        sum->newton_iterations += st.newton_iterations;
-        sum->cg_iterations += st.cg_iterations;
-        sum->newton_residual = st.newton_residual;
-        sum->seconds_transfer += st.seconds_transfer;
-        sum->seconds_solve += st.seconds_solve;
-        sum->substeps++;
-        if (s < 0) return s;
-        if (s > worst) worst = s;
-        left = k <= 1.0 ? 0.0 : left - dt;
-        t += dt;
-    }
-    return worst;
+    WorldMpm *m = self;
+    m->done = 0;
+    m->left = c->t1 - c->t0;
+    m->from = c->t0;
+    m->worst = DR_OK;
+    memset(&m->frame, 0, sizeof m->frame);
 }
 
-DrStatus dr_world_mpm_step_(DrWorld *w, double t0, double t1, DrFrameStats *stats, DrError *err)
+static DrStatus mpm_next_time(void *self, const WorldCtx *c, double t, double *t_next, DrError *err)
 {
-    WorldMpm *m = w->mpm;
-    if (!m) return DR_OK;
-    int frame = w->frame + 1;
-    m->time = t0;
-    DrMpmStats sum = {0};
-    DrStatus s = m->any_moving ? advance_posing_colliders(m, t1 - t0, &sum, err)
-                               : dr_mpm_advance(m->mpm, t1 - t0, m->max_substeps, &sum, err);
-    if (s < 0) return step_failed(s, frame, err);
-    int not_converged = s == DR_WARN_NOT_CONVERGED;
-    int k = sum.substeps;
+    (void)err;
+    WorldMpm *m = self;
+    if (t != m->from) m->left = c->t1 - t; /* a step of the clock ended before this solver's proposal */
+    m->from = t;
+    double lim = dr_mpm_stable_dt(m->mpm);
+    double need = isfinite(lim) ? ceil(m->left / lim - 1e-9) : 1.0;
+    int budget = m->max_substeps - m->done;
+    if (budget < 1) budget = 1;
+    double k = need < 1.0 ? 1.0 : (need > budget ? budget : need);
+    m->last = k <= 1.0;
+    m->dt = m->last ? m->left : m->left / k;
+    *t_next = m->last ? c->t1 : t + m->dt;
+    return DR_OK;
+}
+
+static DrStatus mpm_step(void *self, const WorldCtx *c, double t, double t_next, DrError *err)
+{
+    WorldMpm *m = self;
+    assert(t == m->from);
+    double proposed_end = m->last ? c->t1 : t + m->dt;
+    bool as_proposed = t_next == proposed_end;
+    double dt = as_proposed ? m->dt : t_next - t;
+    DrMpmStats st;
+    DrStatus s = dr_mpm_step(m->mpm, dt, &st, err);
+    m->frame.newton_iterations += st.newton_iterations;
+    m->frame.cg_iterations += st.cg_iterations;
+    m->frame.newton_residual = st.newton_residual;
+    m->frame.seconds_transfer += st.seconds_transfer;
+    m->frame.seconds_solve += st.seconds_solve;
+    m->frame.substeps++;
+    m->done++;
+    if (s < 0) return step_failed(s, c->frame, err);
+    if (s > m->worst) m->worst = s;
+    if (as_proposed) m->left = m->last ? 0.0 : m->left - dt;
+    else m->left = c->t1 - t_next;
+    m->from = t_next;
+    return DR_OK;
+}
+
+static DrStatus mpm_end_frame(void *self, const WorldCtx *c, DrFrameStats *stats, DrError *err)
+{
+    WorldMpm *m = self;
+    int frame = c->frame;
+    int not_converged = m->worst == DR_WARN_NOT_CONVERGED;
+    int k = m->frame.substeps;
     if (k >= m->max_substeps)
         dr_log_warn("frame %d: the MPM solids took all solver.max_substeps = %d substeps; if the time step limit "
                     "asked for more, the substeps are longer than it allows (raise solver.max_substeps)",
                     frame, m->max_substeps);
     if (not_converged)
         dr_log_warn("frame %d: a Newton iteration of the MPM solids stopped at Integrator.newton_max_iterations (last "
-                    "relative residual %.3g); the steps are kept", frame, sum.newton_residual);
-    m->last = sum;
+                    "relative residual %.3g); the steps are kept", frame, m->frame.newton_residual);
+    m->last_frame = m->frame;
     m->not_converged = not_converged;
 
     DrMpmState st = dr_mpm_state(m->mpm);
@@ -333,22 +366,21 @@ DrStatus dr_world_mpm_step_(DrWorld *w, double t0, double t1, DrFrameStats *stat
                                 "MPM solids became non-finite in frame %d; lower solver.cfl or raise solver.max_substeps",
                                 frame);
     DrMpmTotals tot = dr_mpm_totals(m->mpm, -1);
-    stats->mpm = true;
-    stats->mpm_particles = st.n;
-    stats->mpm_substeps = k;
-    if (k > stats->substeps) stats->substeps = k;
-    stats->mpm_newton_iterations = sum.newton_iterations;
-    stats->mpm_cg_iterations = sum.cg_iterations;
-    stats->mpm_newton_residual = sum.newton_residual;
-    stats->mpm_not_converged = not_converged;
-    stats->mpm_kinetic_energy = tot.kinetic;
-    stats->mpm_elastic_energy = tot.elastic;
-    stats->mpm_gravity_energy = tot.gravity_potential;
-    stats->mpm_momentum = tot.momentum;
-    stats->mpm_angular_momentum = tot.angular;
-    stats->kinetic_energy += tot.kinetic;
-    stats->seconds_mpm_transfer = sum.seconds_transfer;
-    stats->seconds_mpm_solve = sum.seconds_solve;
+    DrMpmFrameStats *b = &stats->mpm;
+    b->present = true;
+    b->particles = st.n;
+    b->substeps = k;
+    b->newton_iterations = m->frame.newton_iterations;
+    b->cg_iterations = m->frame.cg_iterations;
+    b->newton_residual = m->frame.newton_residual;
+    b->not_converged = not_converged;
+    b->kinetic_energy = tot.kinetic;
+    b->elastic_energy = tot.elastic;
+    b->gravity_energy = tot.gravity_potential;
+    b->momentum = tot.momentum;
+    b->angular_momentum = tot.angular;
+    b->seconds_transfer = m->frame.seconds_transfer;
+    b->seconds_solve = m->frame.seconds_solve;
     return DR_OK;
 }
 
@@ -376,7 +408,7 @@ static DrStatus body_arrays_alloc(long n, BodyArrays *a, DrError *err)
     return dr_calloc(k, sizeof(double), &a->vol, err);
 }
 
-/* The particles of one body, in solver order (the order dr_world_mpm_read_ puts them back in). */
+/* The particles of one body, in solver order (the order mpm_read puts them back in). */
 static void gather_body(const DrMpmState *st, int body, BodyArrays *a)
 {
     long j = 0;
@@ -396,7 +428,7 @@ static DrStatus write_body(DrH5 *h, const WorldMpmBody *wb, const BodyArrays *a,
     char path[512];
     const char *name = wb->element->name;
     uint64_t n = (uint64_t)wb->count, d1[1] = {n}, d3[3] = {n, 3, 3};
-    DR_TRY(dr_world_write_particles_(h, name, wb->count, a->x, a->v, a->C, frame_cache, err));
+    DR_TRY(dr_h5_write_particles(h, name, wb->count, a->x, a->v, a->C, frame_cache, err));
     PATHF(path, "/%s/deformation_gradient", name);
     DR_TRY(dr_h5_write_f64(h, path, 3, d3, a->F, "1", frame_cache, err));
     if (!frame_cache) return DR_OK; /* rest volumes come from the scene again on resume */
@@ -405,12 +437,12 @@ static DrStatus write_body(DrH5 *h, const WorldMpmBody *wb, const BodyArrays *a,
     return DR_OK;
 }
 
-static DrStatus write_body_diagnostics(const DrWorld *w, DrH5 *h, const DrMpmState *st, const WorldMpmBody *wb,
+static DrStatus write_body_diagnostics(const WorldMpm *m, DrH5 *h, const DrMpmState *st, const WorldMpmBody *wb,
                                        DrError *err)
 {
     char g[512];
     PATHF(g, "/diagnostics/%s", wb->element->name);
-    DrMpmTotals t = dr_mpm_totals(w->mpm->mpm, wb->body);
+    DrMpmTotals t = dr_mpm_totals(m->mpm, wb->body);
     double mass = 0.0;
     DrVec3 mx = dr_v3(0, 0, 0);
     for (long p = 0; p < st->n; p++) {
@@ -418,14 +450,14 @@ static DrStatus write_body_diagnostics(const DrWorld *w, DrH5 *h, const DrMpmSta
         mass += st->mass[p];
         mx = dr_v3_add(mx, dr_v3_scale(dr_v3(st->x[3 * p], st->x[3 * p + 1], st->x[3 * p + 2]), st->mass[p]));
     }
-    DR_TRY(dr_world_write_scalar_(h, g, "particles", (double)wb->count, "1", err));
-    DR_TRY(dr_world_write_scalar_(h, g, "mass", mass, "kg", err));
-    DR_TRY(dr_world_write_vec_(h, g, "centre_of_mass", dr_v3_scale(mx, mass > 0 ? 1.0 / mass : 0.0), "m", err));
-    DR_TRY(dr_world_write_scalar_(h, g, "kinetic_energy", t.kinetic, "J", err));
-    DR_TRY(dr_world_write_scalar_(h, g, "elastic_energy", t.elastic, "J", err));
-    DR_TRY(dr_world_write_scalar_(h, g, "gravity_energy", t.gravity_potential, "J", err));
-    DR_TRY(dr_world_write_vec_(h, g, "linear_momentum", t.momentum, "kg*m/s", err));
-    DR_TRY(dr_world_write_vec_(h, g, "angular_momentum", t.angular, "kg*m^2/s", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "particles", (double)wb->count, "1", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "mass", mass, "kg", err));
+    DR_TRY(dr_h5_write_vec3(h, g, "centre_of_mass", dr_v3_scale(mx, mass > 0 ? 1.0 / mass : 0.0), "m", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "kinetic_energy", t.kinetic, "J", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "elastic_energy", t.elastic, "J", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "gravity_energy", t.gravity_potential, "J", err));
+    DR_TRY(dr_h5_write_vec3(h, g, "linear_momentum", t.momentum, "kg*m/s", err));
+    DR_TRY(dr_h5_write_vec3(h, g, "angular_momentum", t.angular, "kg*m^2/s", err));
     return DR_OK;
 }
 
@@ -433,24 +465,24 @@ static DrStatus write_solver_diagnostics(const WorldMpm *m, DrH5 *h, DrError *er
 {
     const char *g = "/diagnostics";
     DrMpmTotals t = dr_mpm_totals(m->mpm, -1);
-    DR_TRY(dr_world_write_scalar_(h, g, "mpm_substeps", m->last.substeps, "1", err));
-    DR_TRY(dr_world_write_scalar_(h, g, "mpm_newton_iterations", m->last.newton_iterations, "1", err));
-    DR_TRY(dr_world_write_scalar_(h, g, "mpm_cg_iterations", m->last.cg_iterations, "1", err));
-    DR_TRY(dr_world_write_scalar_(h, g, "mpm_newton_residual", m->last.newton_residual, "1", err));
-    DR_TRY(dr_world_write_scalar_(h, g, "mpm_newton_not_converged", m->not_converged, "1", err));
-    DR_TRY(dr_world_write_scalar_(h, g, "mpm_kinetic_energy", t.kinetic, "J", err));
-    DR_TRY(dr_world_write_scalar_(h, g, "mpm_elastic_energy", t.elastic, "J", err));
-    DR_TRY(dr_world_write_scalar_(h, g, "mpm_gravity_energy", t.gravity_potential, "J", err));
-    DR_TRY(dr_world_write_scalar_(h, g, "mpm_total_energy", t.kinetic + t.elastic + t.gravity_potential, "J", err));
-    DR_TRY(dr_world_write_vec_(h, g, "mpm_linear_momentum", t.momentum, "kg*m/s", err));
-    DR_TRY(dr_world_write_vec_(h, g, "mpm_angular_momentum", t.angular, "kg*m^2/s", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "mpm_substeps", m->last_frame.substeps, "1", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "mpm_newton_iterations", m->last_frame.newton_iterations, "1", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "mpm_cg_iterations", m->last_frame.cg_iterations, "1", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "mpm_newton_residual", m->last_frame.newton_residual, "1", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "mpm_newton_not_converged", m->not_converged, "1", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "mpm_kinetic_energy", t.kinetic, "J", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "mpm_elastic_energy", t.elastic, "J", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "mpm_gravity_energy", t.gravity_potential, "J", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "mpm_total_energy", t.kinetic + t.elastic + t.gravity_potential, "J", err));
+    DR_TRY(dr_h5_write_vec3(h, g, "mpm_linear_momentum", t.momentum, "kg*m/s", err));
+    DR_TRY(dr_h5_write_vec3(h, g, "mpm_angular_momentum", t.angular, "kg*m^2/s", err));
     return DR_OK;
 }
 
-DrStatus dr_world_mpm_write_(const DrWorld *w, DrH5 *h, bool frame_cache, DrError *err)
+static DrStatus mpm_write(const void *self, const WorldCtx *c, DrH5 *h, bool frame_cache, DrError *err)
 {
-    const WorldMpm *m = w->mpm;
-    if (!m) return DR_OK;
+    (void)c;
+    const WorldMpm *m = self;
     DrMpmState st = dr_mpm_state(m->mpm);
     long most = 0;
     for (int b = 0; b < m->nbodies; b++)
@@ -470,7 +502,7 @@ DrStatus dr_world_mpm_write_(const DrWorld *w, DrH5 *h, bool frame_cache, DrErro
         if (s == DR_OK)
             s = dr_h5_attr_f64(h, g, "particle_spacing",
                                dr_component_num(dom, "voxel_size") / dr_component_int(shape, "particles_per_axis"), err);
-        if (s == DR_OK) s = write_body_diagnostics(w, h, &st, wb, err);
+        if (s == DR_OK) s = write_body_diagnostics(m, h, &st, wb, err);
     }
     body_arrays_free(&a);
     if (s == DR_OK && frame_cache) s = write_solver_diagnostics(m, h, err);
@@ -499,10 +531,11 @@ static DrStatus read_rows(DrH5 *h, const char *file, const char *name, const cha
     return DR_OK;
 }
 
-DrStatus dr_world_mpm_read_(DrWorld *w, DrH5 *h, const char *path, DrError *err)
+static DrStatus mpm_read(void *self, const WorldCtx *c, DrH5 *h, const char *path, int frame, DrError *err)
 {
-    WorldMpm *m = w->mpm;
-    if (!m) return DR_OK;
+    (void)c;
+    (void)frame;
+    WorldMpm *m = self;
     DrMpmState st = dr_mpm_state(m->mpm);
     BodyArrays all = {0};
     DrStatus s = body_arrays_alloc(st.n, &all, err);
@@ -531,10 +564,10 @@ DrStatus dr_world_mpm_read_(DrWorld *w, DrH5 *h, const char *path, DrError *err)
     return s;
 }
 
-void dr_world_mpm_hash_(const DrWorld *w, DrHasher *h)
+static void mpm_hash(const void *self, DrHasher *h)
 {
-    if (!w->mpm) return;
-    DrMpmState st = dr_mpm_state(w->mpm->mpm);
+    const WorldMpm *m = self;
+    DrMpmState st = dr_mpm_state(m->mpm);
     size_t n = (size_t)st.n;
     dr_hasher_update(h, &st.n, sizeof st.n);
     dr_hasher_update(h, st.x, 3 * sizeof(double) * n);
@@ -542,3 +575,31 @@ void dr_world_mpm_hash_(const DrWorld *w, DrHasher *h)
     dr_hasher_update(h, st.C, 9 * sizeof(double) * n);
     dr_hasher_update(h, st.F, 9 * sizeof(double) * n);
 }
+
+DrStatus world_mpm_adapter(const WorldCtx *c, WorldSolver *out, DrError *err)
+{
+    memset(out, 0, sizeof *out);
+    int n = dr_scene_count_kind(c->scene, DR_ELEMENT_MPM_SOLID);
+    if (n == 0) return DR_OK; /* nothing MPM is allocated */
+    WorldMpm *m = NULL;
+    DR_TRY(dr_calloc(1, sizeof *m, &m, err));
+    DrStatus s = build_mpm(c, m, n, err);
+    if (s < 0) {
+        mpm_destroy(m);
+        return s;
+    }
+    *out = (WorldSolver){.name = "mpm",
+                         .self = m,
+                         .begin_frame = mpm_begin_frame,
+                         .next_time = mpm_next_time,
+                         .step = mpm_step,
+                         .end_frame = mpm_end_frame,
+                         .write = mpm_write,
+                         .read = mpm_read,
+                         .hash = mpm_hash,
+                         .destroy = mpm_destroy};
+    return DR_OK;
+}
+
+long world_mpm_particles(const WorldSolver *s) { return s->self ? dr_mpm_state(((const WorldMpm *)s->self)->mpm).n : 0; }
+int world_mpm_bodies(const WorldSolver *s) { return s->self ? ((const WorldMpm *)s->self)->nbodies : 0; }

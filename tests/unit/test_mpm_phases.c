@@ -502,7 +502,7 @@ static void run_world(const char *path, int frames, int *substeps, DrHash *hash)
     for (int f = 0; f < frames; f++) {
         DrFrameStats fs;
         if (dr_world_step_frame(w, &fs, &err) < 0) fail_msg("%s frame %d: %s", path, f + 1, err.message);
-        substeps[f] = fs.mpm_substeps;
+        substeps[f] = fs.mpm.substeps;
     }
     *hash = dr_world_state_hash(w);
     dr_world_destroy(&w);

@@ -1,0 +1,124 @@
+/* Private to src/world: what the orchestrator (world.c) and the per-solver adapters (world_liquid.c, world_mpm.c,
+ * world_hair.c, world_bem.c) and the kinematics (world_kinematics.c) share: the read-only context of a step, the
+ * posed colliders, and the adapter table. An adapter file includes this header only; it never calls into world.c
+ * or into another adapter: the orchestrator hands each one its own struct and the context. */
+#ifndef DR_WORLD_ADAPTER_H
+#define DR_WORLD_ADAPTER_H
+
+#include "world/world.h"
+
+#include "bem/bem.h"
+#include "grid/grid.h"
+#include "io/io.h"
+
+/* snprintf into an array that must hold the result: element names are at most 128 characters, so the
+ * HDF5 paths built here always fit; a truncation would be a programming error. */
+#define PATHF(buf, ...)                                                                                     \
+    do {                                                                                                    \
+        int n_ = snprintf(buf, sizeof buf, __VA_ARGS__);                                                    \
+        assert(n_ >= 0 && (size_t)n_ < sizeof buf);                                                         \
+    } while (0)
+
+/* ---- kinematics: every scene collider, and each bem_solid body as the liquid sees it (world_kinematics.c) ---- */
+
+/* A scene collider as the MPM grid and the hair see it: its SDF and surface velocity posed at the end time of the
+   clock step being taken, once for every solver. */
+typedef struct WorldPosedCollider {
+    const DrCollider *collider;
+    DrColliderFrame frame;
+    bool moving;
+} WorldPosedCollider;
+/* Callbacks on a WorldPosedCollider (ctx): signed distance with the outward unit normal, and surface velocity. */
+double world_posed_sdf(DrVec3 x, DrVec3 *normal, void *ctx);
+DrVec3 world_posed_velocity(DrVec3 x, void *ctx);
+
+/* A collider from a closed mesh: its SDF at spacing dx (OpenVDB) with optional motion keys (rows of 7, s and rad). */
+DR_NODISCARD DrStatus world_make_collider(const DrTriMesh *mesh, double dx, double friction, bool no_slip,
+                                          double thickness, int nkeys, const double *keys, DrCollider **out,
+                                          DrError *err);
+
+typedef struct WorldKinematics WorldKinematics;
+/* Loads every collider element's mesh (errors name element and field); builds their SDFs at half the smallest cell
+   of any solver that samples colliders (none when nothing does). */
+DR_NODISCARD DrStatus world_kinematics_create(const DrScene *scene, int first_frame, double fps, WorldKinematics **out,
+                                              DrError *err);
+void world_kinematics_destroy(WorldKinematics **k);
+/* The bem_solid bodies as colliders of the liquid: one SDF per body, of its deformed surface in the body frame,
+   carried by the body's rigid frame; built only when the scene has a liquid. */
+DR_NODISCARD DrStatus world_kinematics_add_bodies(WorldKinematics *k, const DrScene *scene,
+                                                  const DrBemSolid *const *solids, const DrElement *const *elements,
+                                                  int n, DrError *err);
+/* Every collider element (element order) and its SDF, NULL when the kinematics built none (no solver but the BEM
+   bodies samples colliders: they build their own at their own resolution). */
+int world_kinematics_collider_count(const WorldKinematics *k);
+const DrCollider *world_kinematics_collider(const WorldKinematics *k, int i, const DrElement **element);
+/* The SDF spacing of the scene's colliders (m), 0 when no solver samples colliders. */
+double world_kinematics_dx(const WorldKinematics *k);
+/* The live colliders (those with an SDF), in element order, and what the liquid takes: those, then the bodies. */
+int world_kinematics_colliders(const WorldKinematics *k, const DrCollider *const **out);
+int world_kinematics_liquid_colliders(const WorldKinematics *k, const DrCollider *const **out);
+/* Every live collider posed at t (the shared array the MPM and hair colliders point into). */
+WorldPosedCollider *world_kinematics_posed(WorldKinematics *k);
+void world_kinematics_pose(WorldKinematics *k, double t);
+/* Before body i (in the order given to world_kinematics_add_bodies) takes a step from t0: its frame there. After it
+   (to t1): its collider carries it from its frame at t0 to its frame at t1, and its SDF follows the deformed surface
+   when that moved by more than a quarter of an SDF cell since the SDF was built. No-ops without a liquid. */
+void world_kinematics_body_begin(WorldKinematics *k, int i);
+DR_NODISCARD DrStatus world_kinematics_body_end(WorldKinematics *k, int i, double t0, double t1, DrError *err);
+int world_kinematics_body_rebuilds(const WorldKinematics *k); /* SDF rebuilds of the bodies so far */
+/* The frame cache's collider groups: rotation and translation of each live collider at t. */
+DR_NODISCARD DrStatus world_kinematics_write(const WorldKinematics *k, DrH5 *h, double t, DrError *err);
+
+/* ---- the adapters ------------------------------------------------------------------------------------------- */
+
+/* What every adapter may read during a frame. */
+typedef struct WorldCtx {
+    const DrScene *scene;
+    int first_frame;
+    double fps;
+    DrVec3 gravity;
+    int frame;                 /* the frame being advanced (or, writing, the last one completed) */
+    double t0, t1;             /* its start and end, s */
+    WorldKinematics *kin;      /* colliders posed at the end of the clock step being taken */
+} WorldCtx;
+
+/* One solver of the scene as the orchestrator drives it. Every callback gets `self`, the adapter's own struct. */
+typedef struct WorldSolver {
+    const char *name;
+    void *self;
+    /* The frame begins: per-frame sums are zeroed. */
+    void (*begin_frame)(void *self, const WorldCtx *c);
+    /* The end time of the solver's next step from t towards the frame end (its stable_dt turned into steps that
+       land on c->t1); exactly c->t1 when it can reach it. NULL: no limit of its own. */
+    DR_NODISCARD DrStatus (*next_time)(void *self, const WorldCtx *c, double t, double *t_next, DrError *err);
+    /* The first time after t the clock must land on (a BEM step end), INFINITY if none. NULL: none. */
+    double (*landing)(const void *self, const WorldCtx *c, double t);
+    /* Called before the kinematics of a clock step from t to t_next (BEM bodies take their whole step here, at its
+       start, so that the solvers stepped after them see the bodies' motion through the step). NULL: nothing. */
+    DR_NODISCARD DrStatus (*step_first)(void *self, const WorldCtx *c, double t, double t_next, DrError *err);
+    /* Advances from t to t_next (predict, solve without coupling forces, commit). NULL: nothing. */
+    DR_NODISCARD DrStatus (*step)(void *self, const WorldCtx *c, double t, double t_next, DrError *err);
+    /* The frame ended: non-finite checks, warnings, the solver's block of stats. */
+    DR_NODISCARD DrStatus (*end_frame)(void *self, const WorldCtx *c, DrFrameStats *stats, DrError *err);
+    /* Frame cache (frame_cache) or checkpoint contents; restore from a checkpoint taken after `frame`. */
+    DR_NODISCARD DrStatus (*write)(const void *self, const WorldCtx *c, DrH5 *h, bool frame_cache, DrError *err);
+    DR_NODISCARD DrStatus (*read)(void *self, const WorldCtx *c, DrH5 *h, const char *path, int frame, DrError *err);
+    void (*hash)(const void *self, DrHasher *h);
+    void (*destroy)(void *self);
+} WorldSolver;
+
+/* The adapters' constructors: each fills *out (out->self NULL when the scene has nothing for it) and logs nothing.
+   The BEM bodies are built first (the liquid seeds no particle inside them), then the liquids, MPM and hair. */
+DR_NODISCARD DrStatus world_bem_adapter(const WorldCtx *c, const char *cache_root, WorldSolver *out, DrError *err);
+/* The bodies' solids and elements (borrowed), for the kinematics; 0 without bodies. */
+int world_bem_solids(const WorldSolver *bem, const DrBemSolid *const **solids, const DrElement *const **elements);
+DR_NODISCARD DrStatus world_liquid_adapter(const WorldCtx *c, const DrElement *e, WorldSolver *out, DrError *err);
+const DrLiquid *world_liquid_solver(const WorldSolver *s);
+DR_NODISCARD DrStatus world_mpm_adapter(const WorldCtx *c, WorldSolver *out, DrError *err);
+long world_mpm_particles(const WorldSolver *s);
+int world_mpm_bodies(const WorldSolver *s);
+DR_NODISCARD DrStatus world_hair_adapter(const WorldCtx *c, WorldSolver *out, DrError *err);
+void world_hair_counts(const WorldSolver *s, int *strands, int *vertices);
+void world_bem_counts(const WorldSolver *s, int *bodies, long *vertices, int *sets);
+
+#endif

@@ -1,0 +1,446 @@
+/* Kinematics: every scene collider (its SDF, its motion keys, posed once per clock step for every solver) and each
+ * bem_solid body as a moving collider of the liquid (one-way: the liquid does not push the bodies). */
+#include "world_adapter.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "stage/stage.h"
+#include "vdb/vdb.h"
+
+typedef struct WorldCollider {
+    const DrElement *element;
+    DrCollider *collider;    /* NULL when no solver needs an SDF (a scene with neither liquid, MPM nor hair) */
+} WorldCollider;
+
+/* A bem_solid body as the liquid sees it. The signed distance of its surface in the body frame, x − x̄ + u (the
+   reference and displacement of V = R(x − x̄ + u) + T), is carried by the body's rigid frame through motion keys
+   over each BEM step (body_keys); it is rebuilt from the deformed surface when u moved a vertex by more than a
+   quarter of the SDF's cell since it was built. */
+typedef struct WorldBodyCollider {
+    const DrBemSolid *solid;
+    const DrElement *element;
+    float *phi;              /* body-frame SDF nodes, x fastest */
+    int nx, ny, nz;
+    DrVec3 origin;
+    double dx;
+    double *built_u;         /* u when the SDF was built (3N) */
+    DrXform start;           /* the body's frame (R, T) at the start of the step being taken */
+    DrVec3 start_velocity;   /* and its Ṫ */
+    double *keys;            /* the step's key rows (7 each) */
+    int nkeys;
+    DrCollider *collider;    /* the SDF posed by keys; rebuilt every BEM step */
+} WorldBodyCollider;
+
+struct WorldKinematics {
+    WorldCollider *colliders;
+    int ncolliders;
+    const DrCollider **live; /* the live colliders, in element order, as the solvers take them */
+    int nlive;
+    WorldPosedCollider *posed; /* one per live collider */
+    double dx;               /* SDF spacing, 0 when nothing samples colliders */
+    WorldBodyCollider *bodies;
+    int nbodies;
+    int rebuilds;
+    const DrCollider **liquid; /* what the liquid sees: the live colliders, then the bodies */
+    int nliquid;
+};
+
+double world_posed_sdf(DrVec3 x, DrVec3 *normal, void *ctx)
+{
+    const WorldPosedCollider *c = ctx;
+    return dr_collider_frame_phi(&c->frame, x, normal);
+}
+
+DrVec3 world_posed_velocity(DrVec3 x, void *ctx)
+{
+    const WorldPosedCollider *c = ctx;
+    return dr_collider_frame_velocity(&c->frame, x);
+}
+
+DrStatus world_make_collider(const DrTriMesh *mesh, double dx, double friction, bool no_slip, double thickness,
+                                 int nkeys, const double *keys, DrCollider **out, DrError *err)
+{
+    DrDenseSdf sdf = {0};
+    DR_TRY(dr_vdb_mesh_to_sdf(mesh, dx, 4, &sdf, err));
+    DrColliderDesc d = {0};
+    d.phi = sdf.phi;
+    d.nx = sdf.nx;
+    d.ny = sdf.ny;
+    d.nz = sdf.nz;
+    d.origin = sdf.origin;
+    d.dx = sdf.dx;
+    d.friction = friction;
+    d.no_slip = no_slip;
+    d.thickness = thickness;
+    d.nkeys = nkeys;
+    d.keys = keys;
+    DrStatus s = dr_collider_create(&d, out, err);
+    dr_dense_sdf_free(&sdf);
+    return s;
+}
+
+/* The smallest cell of any grid that samples colliders (liquid and MPM) or, for hair, a grown groom's segment
+   length (4 mm for curves read from a file), 0 when nothing samples colliders. */
+static double smallest_grid_dx(const DrScene *scene)
+{
+    double dx = 0.0;
+    for (int i = 0; i < dr_scene_element_count(scene); i++) {
+        const DrElement *e = dr_scene_element(scene, i);
+        double d;
+        if (e->kind == DR_ELEMENT_HAIR) {
+            const DrComponent *g = dr_element_component(e, "Groom");
+            d = dr_component_is_set(g, "scalp") ? dr_component_num(g, "length") / dr_component_int(g, "segments") : 0.004;
+        } else if (e->kind == DR_ELEMENT_LIQUID || e->kind == DR_ELEMENT_MPM_SOLID) {
+            d = dr_component_num(dr_element_component(e, "Domain"), "voxel_size");
+        } else {
+            continue;
+        }
+        if (dx == 0.0 || d < dx) dx = d;
+    }
+    return dx;
+}
+
+static DrStatus build_colliders(WorldKinematics *k, const DrScene *scene, int first_frame, double fps, DrError *err)
+{
+    int n = dr_scene_count_kind(scene, DR_ELEMENT_COLLIDER);
+    DR_TRY(dr_calloc((size_t)n + 1, sizeof(WorldCollider), &k->colliders, err));
+    DR_TRY(dr_calloc((size_t)n + 1, sizeof(DrCollider *), &k->live, err));
+    DR_TRY(dr_calloc((size_t)n + 1, sizeof(WorldPosedCollider), &k->posed, err));
+    /* The SDF resolves the smallest grid cell twice so face fractions see the collider's shape. */
+    double dx = smallest_grid_dx(scene) * 0.5;
+    k->dx = dx;
+    for (int i = 0; i < dr_scene_element_count(scene); i++) {
+        const DrElement *e = dr_scene_element(scene, i);
+        if (e->kind != DR_ELEMENT_COLLIDER) continue;
+        WorldCollider *wc = &k->colliders[k->ncolliders++];
+        wc->element = e;
+        DrTriMesh mesh = {0};
+        DR_TRY(dr_stage_load_collider_mesh(e, &mesh, err));
+        if (dx <= 0.0) { /* nothing in the scene samples colliders: validate the asset, build nothing */
+            dr_trimesh_free(&mesh);
+            continue;
+        }
+        const DrComponent *c = dr_element_component(e, "Collider");
+        double *keys = NULL;
+        int nrows = 0;
+        DrStatus s = dr_stage_motion_keys(e, first_frame, fps, &keys, &nrows, err);
+        if (s == DR_OK)
+            s = world_make_collider(&mesh, dx, dr_component_num(c, "friction"),
+                                    strcmp(dr_component_str(c, "boundary"), "no_slip") == 0,
+                                    dr_component_num(c, "thickness"), nrows, keys, &wc->collider, err);
+        free(keys);
+        dr_trimesh_free(&mesh);
+        DR_TRY(dr_error_prefix(s, err, "%s.Mesh.file", e->name));
+        WorldPosedCollider *p = &k->posed[k->nlive];
+        p->collider = wc->collider;
+        p->frame = dr_collider_frame(wc->collider, 0.0);
+        p->moving = nrows > 0;
+        k->live[k->nlive++] = wc->collider;
+    }
+    return DR_OK;
+}
+
+#define BODY_KEY_INTERVALS 16
+
+static DrMat3 skew_exp(DrVec3 w) /* rotation by |w| about w (Rodrigues) */
+{
+    double th = dr_v3_norm(w);
+    DrMat3 R = dr_m3_identity();
+    if (!(th > 0.0)) return R;
+    DrVec3 a = dr_v3_scale(w, 1.0 / th);
+    double K[3][3] = {{0, -a.z, a.y}, {a.z, 0, -a.x}, {-a.y, a.x, 0}};
+    double s = sin(th), c = 1.0 - cos(th);
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++) {
+            double k2 = 0.0;
+            for (int l = 0; l < 3; l++) k2 += K[i][l] * K[l][j];
+            R.m[i][j] += s * K[i][j] + c * k2;
+        }
+    return R;
+}
+
+static DrVec3 rotation_log(DrMat3 M) /* the rotation vector w with skew_exp(w) = M, |w| ≤ π */
+{
+    double c = 0.5 * (M.m[0][0] + M.m[1][1] + M.m[2][2] - 1.0);
+    c = c > 1.0 ? 1.0 : (c < -1.0 ? -1.0 : c);
+    double th = acos(c);
+    DrVec3 v = dr_v3(M.m[2][1] - M.m[1][2], M.m[0][2] - M.m[2][0], M.m[1][0] - M.m[0][1]); /* 2 sin θ · axis */
+    if (th < 1e-6) return dr_v3_scale(v, 0.5);
+    if (DR_PI - th > 1e-6) return dr_v3_scale(v, th / (2.0 * sin(th)));
+    /* near a half turn: the axis from the symmetric part (M + I)/2 = a aᵀ, its sign from v */
+    int k = 0;
+    for (int i = 1; i < 3; i++)
+        if (M.m[i][i] > M.m[k][k]) k = i;
+    double col[3];
+    for (int i = 0; i < 3; i++) col[i] = 0.5 * (M.m[i][k] + (i == k ? 1.0 : 0.0));
+    DrVec3 a = dr_v3_normalize(dr_v3(col[0], col[1], col[2]));
+    if (dr_v3_dot(a, v) < 0.0) a = dr_v3_scale(a, -1.0);
+    return dr_v3_scale(a, th);
+}
+
+static double unwrap_angle(double a, double near) { return a + 2.0 * DR_PI * floor((near - a) / (2.0 * DR_PI) + 0.5); }
+
+/* XYZ Euler angles of R (R = Rz·Ry·Rx as dr_m3_from_euler_xyz), of the two triples (and their 2π shifts) the one
+   nearest `near`, so that keys interpolate along the short way. */
+static DrVec3 euler_near(DrMat3 R, DrVec3 near)
+{
+    double cy = hypot(R.m[0][0], R.m[1][0]);
+    DrVec3 e[2];
+    int n = 1;
+    if (cy > 1e-9) {
+        double ry = atan2(-R.m[2][0], cy), rx = atan2(R.m[2][1], R.m[2][2]), rz = atan2(R.m[1][0], R.m[0][0]);
+        e[0] = dr_v3(rx, ry, rz);
+        e[1] = dr_v3(rx + DR_PI, DR_PI - ry, rz + DR_PI);
+        n = 2;
+    } else { /* ry = ±90°: only rx − rz or rx + rz is fixed; keep rz, take rx from Rz(rz)ᵀ R = Ry Rx */
+        double rz = near.z, cz = cos(rz), sz = sin(rz);
+        double m11 = -sz * R.m[0][1] + cz * R.m[1][1], m12 = -sz * R.m[0][2] + cz * R.m[1][2];
+        e[0] = dr_v3(atan2(-m12, m11), atan2(-R.m[2][0], cy), rz);
+    }
+    int best = 0;
+    double dbest = INFINITY;
+    for (int i = 0; i < n; i++) {
+        e[i] = dr_v3(unwrap_angle(e[i].x, near.x), unwrap_angle(e[i].y, near.y), unwrap_angle(e[i].z, near.z));
+        DrVec3 d = dr_v3_sub(e[i], near);
+        if (dr_v3_dot(d, d) < dbest) {
+            dbest = dr_v3_dot(d, d);
+            best = i;
+        }
+    }
+    return e[best];
+}
+
+/* The body's frame now: R, T and Ṫ. */
+static void body_frame(const DrBemSolid *s, DrXform *X, DrVec3 *v)
+{
+    double R[9], T[3], va[3], wa[3];
+    dr_bem_solid_pose(s, R, T);
+    dr_bem_solid_frame_velocity(s, va, wa);
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++) X->R.m[i][j] = R[3 * i + j];
+    X->t = dr_v3(T[0], T[1], T[2]);
+    *v = dr_v3(va[0], va[1], va[2]);
+}
+
+static void put_key(double *row, double t, DrVec3 T, DrVec3 e)
+{
+    double r[7] = {t, T.x, T.y, T.z, e.x, e.y, e.z};
+    memcpy(row, r, sizeof r);
+}
+
+/* (Re)builds the body's DrCollider from its SDF and its current keys. */
+static DrStatus pose_body_collider(WorldBodyCollider *bc, DrError *err)
+{
+    dr_collider_destroy(&bc->collider);
+    DrColliderDesc d = {0};
+    d.phi = bc->phi;
+    d.nx = bc->nx;
+    d.ny = bc->ny;
+    d.nz = bc->nz;
+    d.origin = bc->origin;
+    d.dx = bc->dx;
+    d.friction = 0.0; /* slip, frictionless: the liquid slides along the jelly */
+    d.nkeys = bc->nkeys;
+    d.keys = bc->keys;
+    return dr_collider_create(&d, &bc->collider, err);
+}
+
+/* Keys carrying the body from bc->start (at t0) to its frame now (at t1): BODY_KEY_INTERVALS + 1 rows, the position
+   on the cubic Hermite curve through T and Ṫ at both ends (exact for a free fall), the rotation along the shortest
+   arc from R(t0) to R(t1). Between keys the pose is linear (rotation in XYZ Euler angles, as every collider's), so
+   the surface velocity the liquid sees is the rate of that pose: Ṫ + ω × r to within the key spacing. The rate of
+   the deformation u̇ is not seen. */
+static void body_keys(WorldBodyCollider *bc, double t0, double t1)
+{
+    DrXform X1;
+    DrVec3 V1, V0 = bc->start_velocity;
+    body_frame(bc->solid, &X1, &V1);
+    DrMat3 R0 = bc->start.R;
+    DrVec3 T0 = bc->start.t, w = rotation_log(dr_m3_mul(dr_m3_transpose(R0), X1.R));
+    double h = t1 - t0;
+    DrVec3 e = euler_near(R0, dr_v3(0, 0, 0));
+    for (int k = 0; k <= BODY_KEY_INTERVALS; k++) {
+        double s = (double)k / BODY_KEY_INTERVALS, s2 = s * s, s3 = s2 * s;
+        DrVec3 T = dr_v3_add(dr_v3_add(dr_v3_scale(T0, 2 * s3 - 3 * s2 + 1), dr_v3_scale(V0, h * (s3 - 2 * s2 + s))),
+                             dr_v3_add(dr_v3_scale(X1.t, 3 * s2 - 2 * s3), dr_v3_scale(V1, h * (s3 - s2))));
+        DrMat3 R = k == BODY_KEY_INTERVALS ? X1.R : dr_m3_mul(R0, skew_exp(dr_v3_scale(w, s)));
+        if (k == BODY_KEY_INTERVALS) T = X1.t;
+        e = euler_near(R, e);
+        put_key(bc->keys + 7 * k, k == BODY_KEY_INTERVALS ? t1 : t0 + s * h, T, e);
+    }
+    bc->nkeys = BODY_KEY_INTERVALS + 1;
+}
+
+/* The SDF of the body's surface in its frame, x − x̄ + u, at spacing dx; remembers u. */
+static DrStatus build_body_sdf(WorldBodyCollider *bc, double dx, DrError *err)
+{
+    const DrBemMatrices *m = dr_bem_solid_matrices(bc->solid);
+    size_t n3 = 3 * (size_t)m->nv;
+    const double *ref = dr_bem_solid_reference(bc->solid), *u = dr_bem_solid_displacement(bc->solid);
+    DrTriMesh surf = {.nv = m->nv, .nt = m->nt, .tri = m->tri};
+    DR_TRY(dr_calloc(n3, sizeof(double), &surf.v, err));
+    for (size_t i = 0; i < n3; i++) surf.v[i] = ref[i] + u[i];
+    DrDenseSdf sdf = {0};
+    DrStatus s = dr_vdb_mesh_to_sdf(&surf, dx, 4, &sdf, err);
+    free(surf.v);
+    DR_TRY(dr_error_prefix(s, err, "%s.Mesh.file", bc->element->name));
+    free(bc->phi);
+    bc->phi = sdf.phi; /* owned from here */
+    bc->nx = sdf.nx;
+    bc->ny = sdf.ny;
+    bc->nz = sdf.nz;
+    bc->origin = sdf.origin;
+    bc->dx = sdf.dx;
+    memcpy(bc->built_u, u, n3 * sizeof(double));
+    return DR_OK;
+}
+
+/* Whether u moved any vertex by more than a quarter of the SDF's cell since the SDF was built. */
+static bool deformed_since_built(const WorldBodyCollider *bc)
+{
+    const DrBemMatrices *m = dr_bem_solid_matrices(bc->solid);
+    const double *u = dr_bem_solid_displacement(bc->solid);
+    double lim2 = 0.0625 * bc->dx * bc->dx;
+    for (int i = 0; i < m->nv; i++) {
+        double d[3] = {u[3 * i] - bc->built_u[3 * i], u[3 * i + 1] - bc->built_u[3 * i + 1],
+                       u[3 * i + 2] - bc->built_u[3 * i + 2]};
+        if (d[0] * d[0] + d[1] * d[1] + d[2] * d[2] > lim2) return true;
+    }
+    return false;
+}
+
+DrStatus world_kinematics_add_bodies(WorldKinematics *k, const DrScene *scene, const DrBemSolid *const *solids,
+                                     const DrElement *const *elements, int n, DrError *err)
+{
+    if (dr_scene_count_kind(scene, DR_ELEMENT_LIQUID) == 0) n = 0;
+    DR_TRY(dr_calloc((size_t)k->nlive + (size_t)n + 1, sizeof(DrCollider *), &k->liquid, err));
+    for (int i = 0; i < k->nlive; i++) k->liquid[i] = k->live[i];
+    k->nliquid = k->nlive;
+    if (n == 0) return DR_OK;
+    DR_TRY(dr_calloc((size_t)n, sizeof(WorldBodyCollider), &k->bodies, err));
+    for (int i = 0; i < n; i++) {
+        WorldBodyCollider *bc = &k->bodies[k->nbodies++];
+        bc->solid = solids[i];
+        bc->element = elements[i];
+        DR_TRY(dr_calloc(3 * (size_t)dr_bem_solid_matrices(bc->solid)->nv, sizeof(double), &bc->built_u, err));
+        DR_TRY(build_body_sdf(bc, k->dx, err));
+        DR_TRY(dr_calloc(7 * (BODY_KEY_INTERVALS + 1), sizeof(double), &bc->keys, err));
+        body_frame(bc->solid, &bc->start, &bc->start_velocity);
+        put_key(bc->keys, 0.0, bc->start.t, euler_near(bc->start.R, dr_v3(0, 0, 0)));
+        bc->nkeys = 1; /* at rest where the Transform put it: no liquid is seeded inside it */
+        DR_TRY(pose_body_collider(bc, err));
+        k->liquid[k->nliquid++] = bc->collider;
+    }
+    dr_log_info("world: the liquid sees %d bem_solid bod%s as moving collider(s) (the deformed surface, rebuilt when "
+                "it moved by a quarter of an SDF cell, carried by the body's frame)",
+                k->nbodies, k->nbodies == 1 ? "y" : "ies");
+    return DR_OK;
+}
+
+void world_kinematics_body_begin(WorldKinematics *k, int i)
+{
+    if (i >= k->nbodies) return; /* no liquid sees the bodies */
+    body_frame(k->bodies[i].solid, &k->bodies[i].start, &k->bodies[i].start_velocity);
+}
+
+DrStatus world_kinematics_body_end(WorldKinematics *k, int i, double t0, double t1, DrError *err)
+{
+    if (i >= k->nbodies) return DR_OK;
+    WorldBodyCollider *bc = &k->bodies[i];
+    if (deformed_since_built(bc)) {
+        DR_TRY(build_body_sdf(bc, k->dx, err));
+        k->rebuilds++;
+    }
+    body_keys(bc, t0, t1);
+    DR_TRY(dr_error_prefix(pose_body_collider(bc, err), err, "%s.BemSolver", bc->element->name));
+    k->liquid[k->nlive + i] = bc->collider;
+    return DR_OK;
+}
+
+int world_kinematics_body_rebuilds(const WorldKinematics *k) { return k->rebuilds; }
+
+/* ---- the kinematics object ------------------------------------------------------------------------------------ */
+
+DrStatus world_kinematics_create(const DrScene *scene, int first_frame, double fps, WorldKinematics **out, DrError *err)
+{
+    WorldKinematics *k = NULL;
+    DR_TRY(dr_calloc(1, sizeof *k, &k, err));
+    DrStatus s = build_colliders(k, scene, first_frame, fps, err);
+    if (s < 0) {
+        world_kinematics_destroy(&k);
+        return s;
+    }
+    *out = k;
+    return DR_OK;
+}
+
+void world_kinematics_destroy(WorldKinematics **kp)
+{
+    if (!kp || !*kp) return;
+    WorldKinematics *k = *kp;
+    for (int i = 0; i < k->nbodies; i++) {
+        dr_collider_destroy(&k->bodies[i].collider);
+        free(k->bodies[i].phi);
+        free(k->bodies[i].keys);
+        free(k->bodies[i].built_u);
+    }
+    free(k->bodies);
+    free(k->liquid);
+    for (int i = 0; i < k->ncolliders; i++) dr_collider_destroy(&k->colliders[i].collider);
+    free(k->colliders);
+    free(k->live);
+    free(k->posed);
+    free(k);
+    *kp = NULL;
+}
+
+double world_kinematics_dx(const WorldKinematics *k) { return k->dx; }
+
+int world_kinematics_collider_count(const WorldKinematics *k) { return k->ncolliders; }
+
+const DrCollider *world_kinematics_collider(const WorldKinematics *k, int i, const DrElement **element)
+{
+    *element = k->colliders[i].element;
+    return k->colliders[i].collider;
+}
+
+int world_kinematics_colliders(const WorldKinematics *k, const DrCollider *const **out)
+{
+    *out = k->live;
+    return k->nlive;
+}
+
+int world_kinematics_liquid_colliders(const WorldKinematics *k, const DrCollider *const **out)
+{
+    *out = k->liquid;
+    return k->nliquid;
+}
+
+WorldPosedCollider *world_kinematics_posed(WorldKinematics *k) { return k->posed; }
+
+void world_kinematics_pose(WorldKinematics *k, double t)
+{
+    for (int i = 0; i < k->nlive; i++)
+        if (k->posed[i].moving) k->posed[i].frame = dr_collider_frame(k->posed[i].collider, t);
+}
+
+DrStatus world_kinematics_write(const WorldKinematics *k, DrH5 *h, double t, DrError *err)
+{
+    for (int i = 0; i < k->ncolliders; i++) {
+        const WorldCollider *wc = &k->colliders[i];
+        if (!wc->collider) continue;
+        DrXform X = dr_collider_pose(wc->collider, t);
+        char path[512];
+        PATHF(path, "/%s/rotation", wc->element->name);
+        uint64_t d33[2] = {3, 3}, d3[1] = {3};
+        DR_TRY(dr_h5_write_f64(h, path, 2, d33, &X.R.m[0][0], "1", false, err));
+        PATHF(path, "/%s/translation", wc->element->name);
+        double tr[3] = {X.t.x, X.t.y, X.t.z};
+        DR_TRY(dr_h5_write_f64(h, path, 1, d3, tr, "m", false, err));
+        PATHF(path, "/%s", wc->element->name);
+        DR_TRY(dr_h5_attr_str(h, path, "type", "collider", err));
+    }
+    return DR_OK;
+}

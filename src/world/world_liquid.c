@@ -1,0 +1,323 @@
+/* The liquid adapter: one liquid element's solver on the world's clock (its substeps from dr_liquid_stable_dt, each
+ * one begin, project and end), its frame cache and checkpoint groups and its block of the frame's stats. */
+#include "world_adapter.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "liquid/liquid.h"
+
+typedef struct WorldLiquid {
+    const DrElement *element;
+    DrLiquid *liquid;
+    DrCollider **shapes;     /* LiquidSource mesh volumes, needed at creation only */
+    int nshapes;
+    double volume0;          /* first frame's liquid-cell volume, for the drift diagnostic */
+    DrLiquidStats frame;     /* the frame being advanced, summed over its substeps */
+    DrLiquidStats last;      /* the last completed frame's */
+    double from, h;          /* the substep dr_liquid_stable_dt proposed from t = from */
+} WorldLiquid;
+
+static void box_of(const DrComponent *c, const char *field, DrVec3 *lo, DrVec3 *hi) { dr_component_box(c, field, lo, hi); }
+
+static DrStatus build_liquid(const WorldCtx *c, const DrElement *e, WorldLiquid *wl, DrError *err)
+{
+    const DrScene *scene = c->scene;
+    const DrComponent *solver = dr_scene_section(scene, "solver");
+    const DrComponent *shot = dr_scene_section(scene, "shot");
+    const DrComponent *dom = dr_element_component(e, "Domain");
+    const DrComponent *src = dr_element_component(e, "LiquidSource");
+    const DrComponent *emit = dr_element_component(e, "Emitter");
+    const DrComponent *kill = dr_element_component(e, "KillBox");
+    const DrComponent *mat = dr_element_component(e, "LiquidMaterial");
+    const DrComponent *tr = dr_element_component(e, "Transfer");
+    const DrComponent *par = dr_element_component(e, "Particles");
+    wl->element = e;
+
+    DrLiquidDesc d;
+    dr_liquid_desc_default(&d);
+    box_of(dom, "box", &d.domain_lo, &d.domain_hi);
+    d.dx = dr_component_num(dom, "voxel_size");
+    d.wall_no_slip = strcmp(dr_component_str(dom, "wall_boundary"), "no_slip") == 0;
+    d.density = dr_component_num(mat, "density");
+    d.viscosity = dr_component_num(mat, "viscosity");
+    const char *scheme = dr_component_str(tr, "scheme");
+    d.scheme = !strcmp(scheme, "pic") ? DR_TRANSFER_PIC : !strcmp(scheme, "flip") ? DR_TRANSFER_FLIP : DR_TRANSFER_APIC;
+    /* the scene gives the FLIP fraction of the blend; the liquid takes the PIC fraction */
+    d.flip_blend = 1.0 - dr_component_num(tr, "flip_blend");
+    d.pressure = strcmp(dr_component_str(dr_element_component(e, "Pressure"), "formulation"), "mass_weighted") == 0
+                     ? DR_PRESSURE_MASS_WEIGHTED
+                     : DR_PRESSURE_GHOST_FLUID;
+    d.volume_correction = dr_component_num(dr_element_component(e, "Pressure"), "volume_correction");
+    d.per_cell = dr_component_int(par, "per_cell");
+    d.jitter = dr_component_num(par, "jitter");
+    /* the element's seed mixed with the shot's so two shots of one asset differ only if asked to */
+    d.seed = (uint64_t)dr_component_int(par, "seed") * 0x9e3779b97f4a7c15ULL + (uint64_t)dr_component_int(shot, "seed");
+    d.gravity = c->gravity;
+    d.cfl = dr_component_num(solver, "cfl");
+    d.max_substeps = dr_component_int(solver, "max_substeps");
+    d.pressure_tol = dr_component_num(solver, "pressure_tolerance");
+    d.pressure_max_iter = dr_component_int(solver, "pressure_max_iterations");
+
+    DrBoxVel source = {0}, emitter = {0};
+    DrVec3 kill_lo, kill_hi, shape_vel = dr_v3(0, 0, 0);
+    if (dr_component_present(src)) {
+        shape_vel = dr_component_vec3(src, "velocity");
+        if (dr_component_is_set(src, "box")) {
+            box_of(src, "box", &source.lo, &source.hi);
+            source.velocity = shape_vel;
+            d.nsource_boxes = 1;
+            d.source_boxes = &source;
+        }
+        if (dr_component_is_set(src, "mesh")) {
+            DrTriMesh mesh = {0};
+            DR_TRY(dr_error_prefix(dr_io_load_mesh(dr_component_str(src, "mesh"), &mesh, err), err, "%s.LiquidSource.mesh",
+                                   e->name));
+            DR_TRY(dr_calloc(1, sizeof(DrCollider *), &wl->shapes, err));
+            DrStatus s = world_make_collider(&mesh, d.dx * 0.5, 0, false, 0, 0, NULL, &wl->shapes[0], err);
+            dr_trimesh_free(&mesh);
+            DR_TRY(dr_error_prefix(s, err, "%s.LiquidSource.mesh", e->name));
+            wl->nshapes = 1;
+            d.nsource_shapes = 1;
+            d.source_shapes = (const DrCollider *const *)wl->shapes;
+            d.source_shape_velocity = &shape_vel;
+        }
+    }
+    if (dr_component_present(emit)) {
+        box_of(emit, "box", &emitter.lo, &emitter.hi);
+        emitter.velocity = dr_component_vec3(emit, "velocity");
+        emitter.start = dr_component_num(emit, "start");
+        emitter.end = dr_component_num(emit, "end");
+        d.nemitters = 1;
+        d.emitters = &emitter;
+    }
+    if (dr_component_present(kill)) {
+        box_of(kill, "box", &kill_lo, &kill_hi);
+        d.nkill_boxes = 1;
+        d.kill_lo = &kill_lo;
+        d.kill_hi = &kill_hi;
+    }
+    const DrCollider *const *cols = NULL;
+    int ncols = world_kinematics_liquid_colliders(c->kin, &cols);
+    return dr_liquid_create(&d, cols, ncols, &wl->liquid, err);
+}
+
+static DrStatus liquid_next_time(void *self, const WorldCtx *c, double t, double *t_next, DrError *err)
+{
+    WorldLiquid *wl = self;
+    const DrCollider *const *cols = NULL;
+    int n = world_kinematics_liquid_colliders(c->kin, &cols);
+    DR_TRY(dr_liquid_stable_dt(wl->liquid, cols, n, t, c->t1, &wl->h, err));
+    wl->from = t;
+    *t_next = wl->h == c->t1 - t ? c->t1 : t + wl->h;
+    return DR_OK;
+}
+
+/* The substep the clock chose: the one proposed when it ends where the proposal ended, else shorter. */
+static DrStatus liquid_step(void *self, const WorldCtx *c, double t, double t_next, DrError *err)
+{
+    WorldLiquid *wl = self;
+    assert(t == wl->from);
+    double proposed_end = wl->h == c->t1 - t ? c->t1 : t + wl->h;
+    double h = t_next == proposed_end ? wl->h : t_next - t;
+    const DrCollider *const *cols = NULL;
+    int n = world_kinematics_liquid_colliders(c->kin, &cols);
+    DR_TRY(dr_liquid_begin(wl->liquid, cols, n, t, h, err));
+    DR_TRY(dr_liquid_project(wl->liquid, NULL, &wl->frame, err));
+    return dr_liquid_end(wl->liquid, &wl->frame, err);
+}
+
+static void liquid_begin_frame(void *self, const WorldCtx *c)
+{
+    (void)c;
+    WorldLiquid *wl = self;
+    memset(&wl->frame, 0, sizeof wl->frame);
+}
+
+static bool all_finite(const double *a, long n)
+{
+    for (long i = 0; i < n; i++)
+        if (!isfinite(a[i])) return false;
+    return true;
+}
+
+static DrStatus liquid_end_frame(void *self, const WorldCtx *c, DrFrameStats *stats, DrError *err)
+{
+    WorldLiquid *wl = self;
+    const DrLiquidState *st = dr_liquid_state(wl->liquid);
+    if (!all_finite(st->x, 3 * st->n) || !all_finite(st->v, 3 * st->n))
+        return dr_error_set(err, DR_ERR_RUNTIME, NULL, 0, 0,
+                            "liquid '%s' became non-finite in frame %d; lower solver.cfl or raise solver.max_substeps",
+                            wl->element->name, c->frame);
+    const DrLiquidStats *ls = &wl->frame;
+    wl->last = *ls;
+    double dx = dr_liquid_grid(wl->liquid)->dx;
+    double vol = (double)ls->liquid_cells * dx * dx * dx;
+    if (wl->volume0 == 0.0) wl->volume0 = vol;
+    double mass, ke;
+    DrVec3 p, l;
+    dr_liquid_totals(wl->liquid, &mass, &p, &l, &ke);
+    /* the block sums over liquid elements; the drift is of their summed volumes */
+    DrLiquidFrameStats *b = &stats->liquid;
+    b->present = true;
+    b->volume += vol;
+    b->volume0 += wl->volume0;
+    b->drift = b->volume0 > 0 ? b->volume / b->volume0 - 1.0 : 0.0;
+    b->kinetic_energy += ke;
+    if (ls->substeps > b->substeps) b->substeps = ls->substeps;
+    b->particles += ls->particles;
+    if (ls->pressure_iterations_max > b->pressure_iterations_max) b->pressure_iterations_max = ls->pressure_iterations_max;
+    b->pressure_iterations_total += ls->pressure_iterations_total;
+    b->pressure_not_converged += ls->pressure_not_converged;
+    b->seconds_p2g += ls->seconds_p2g;
+    b->seconds_pressure += ls->seconds_pressure;
+    b->seconds_g2p += ls->seconds_g2p;
+    b->seconds_advect += ls->seconds_advect;
+    b->seconds_other += ls->seconds_other;
+    return DR_OK;
+}
+
+static DrStatus write_liquid_arrays(DrH5 *h, const WorldLiquid *wl, bool compress, DrError *err)
+{
+    const DrLiquidState *st = dr_liquid_state(wl->liquid);
+    return dr_h5_write_particles(h, wl->element->name, st->n, st->x, st->v, st->c, compress, err);
+}
+
+static DrStatus liquid_write(const void *self, const WorldCtx *c, DrH5 *h, bool frame_cache, DrError *err)
+{
+    (void)c;
+    const WorldLiquid *wl = self;
+    char g[512];
+    if (!frame_cache) {
+        /* uncompressed: a checkpoint is written every frame and read rarely */
+        DR_TRY(write_liquid_arrays(h, wl, false, err));
+        DrLiquidResume rs;
+        dr_liquid_resume_state(wl->liquid, &rs);
+        uint64_t d[1] = {4}, d1[1] = {1};
+        PATHF(g, "/%s/rng", wl->element->name);
+        DR_TRY(dr_h5_write_u64(h, g, 1, d, rs.rng, false, err));
+        PATHF(g, "/%s/cfl_acceleration", wl->element->name);
+        DR_TRY(dr_h5_write_f64(h, g, 1, d1, &rs.cfl_accel, "m/s^2", false, err));
+        PATHF(g, "/%s/volume0", wl->element->name);
+        return dr_h5_write_f64(h, g, 1, d1, &wl->volume0, "m^3", false, err);
+    }
+    PATHF(g, "/%s", wl->element->name);
+    DR_TRY(write_liquid_arrays(h, wl, true, err));
+    DR_TRY(dr_h5_attr_str(h, g, "type", "liquid", err));
+    double mass, ke;
+    DrVec3 p, l;
+    dr_liquid_totals(wl->liquid, &mass, &p, &l, &ke);
+    const DrLiquidStats *ls = &wl->last;
+    double dx = dr_liquid_grid(wl->liquid)->dx;
+    PATHF(g, "/diagnostics/%s", wl->element->name);
+    DR_TRY(dr_h5_write_scalar(h, g, "particles", (double)ls->particles, "1", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "mass", mass, "kg", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "kinetic_energy", ke, "J", err));
+    DR_TRY(dr_h5_write_vec3(h, g, "linear_momentum", p, "kg*m/s", err));
+    DR_TRY(dr_h5_write_vec3(h, g, "angular_momentum", l, "kg*m^2/s", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "volume_cells", (double)ls->liquid_cells * dx * dx * dx, "m^3", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "max_speed", ls->max_speed, "m/s", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "divergence_mean", ls->divergence_mean, "1", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "pressure_iterations_max", ls->pressure_iterations_max, "1", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "pressure_iterations_total", (double)ls->pressure_iterations_total, "1", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "pressure_residual_max", ls->pressure_residual_max, "1", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "emitted", (double)ls->emitted, "1", err));
+    return dr_h5_write_scalar(h, g, "killed", (double)ls->killed, "1", err);
+}
+
+static DrStatus read_liquid(DrH5 *h, const char *path, WorldLiquid *wl, DrError *err)
+{
+    const char *name = wl->element->name;
+    char p[512];
+    int rank;
+    uint64_t dx[4], dv[4], dc[4], dr[4], d0[4], da[4];
+    double *x = NULL, *v = NULL, *c = NULL, *v0 = NULL, *acc = NULL;
+    uint64_t *rng = NULL;
+    DrStatus s;
+    PATHF(p, "/%s/position", name);
+    s = dr_h5_read_f64(h, p, &rank, dx, &x, err);
+    PATHF(p, "/%s/velocity", name);
+    if (s == DR_OK) s = dr_h5_read_f64(h, p, &rank, dv, &v, err);
+    PATHF(p, "/%s/affine", name);
+    if (s == DR_OK) s = dr_h5_read_f64(h, p, &rank, dc, &c, err);
+    PATHF(p, "/%s/rng", name);
+    if (s == DR_OK) s = dr_h5_read_u64(h, p, &rank, dr, &rng, err);
+    PATHF(p, "/%s/volume0", name);
+    if (s == DR_OK) s = dr_h5_read_f64(h, p, &rank, d0, &v0, err);
+    PATHF(p, "/%s/cfl_acceleration", name);
+    if (s == DR_OK) s = dr_h5_read_f64(h, p, &rank, da, &acc, err);
+    if (s == DR_OK && (dx[0] != dv[0] || dx[0] != dc[0] || dr[0] != 4 || d0[0] != 1 || da[0] != 1))
+        s = dr_error_set(err, DR_ERR_INPUT, path, 0, 0, "checkpoint arrays of '%s' disagree in size; delete the "
+                         "checkpoint and bake without --resume", name);
+    if (s == DR_OK) {
+        DrLiquidResume rs;
+        memcpy(rs.rng, rng, sizeof rs.rng);
+        rs.cfl_accel = acc[0];
+        s = dr_liquid_restore(wl->liquid, (long)dx[0], x, v, c, &rs, err);
+    }
+    if (s == DR_OK) wl->volume0 = v0[0];
+    free(x);
+    free(v);
+    free(c);
+    free(rng);
+    free(v0);
+    free(acc);
+    return s;
+}
+
+static DrStatus liquid_read(void *self, const WorldCtx *c, DrH5 *h, const char *path, int frame, DrError *err)
+{
+    (void)c;
+    (void)frame;
+    return read_liquid(h, path, self, err);
+}
+
+static void liquid_hash(const void *self, DrHasher *h)
+{
+    const WorldLiquid *wl = self;
+    const DrLiquidState *st = dr_liquid_state(wl->liquid);
+    dr_hasher_update(h, &st->n, sizeof st->n);
+    dr_hasher_update(h, st->x, 3 * sizeof(double) * (size_t)st->n);
+    dr_hasher_update(h, st->v, 3 * sizeof(double) * (size_t)st->n);
+    dr_hasher_update(h, st->c, 9 * sizeof(double) * (size_t)st->n);
+    DrLiquidResume rs;
+    dr_liquid_resume_state(wl->liquid, &rs);
+    dr_hasher_update(h, rs.rng, sizeof rs.rng);
+    dr_hasher_update(h, &rs.cfl_accel, sizeof rs.cfl_accel);
+}
+
+static void liquid_destroy(void *self)
+{
+    WorldLiquid *wl = self;
+    if (!wl) return;
+    dr_liquid_destroy(&wl->liquid);
+    for (int k = 0; k < wl->nshapes; k++) dr_collider_destroy(&wl->shapes[k]);
+    free(wl->shapes);
+    free(wl);
+}
+
+DrStatus world_liquid_adapter(const WorldCtx *c, const DrElement *e, WorldSolver *out, DrError *err)
+{
+    memset(out, 0, sizeof *out);
+    WorldLiquid *wl = NULL;
+    DR_TRY(dr_calloc(1, sizeof *wl, &wl, err));
+    DrStatus s = build_liquid(c, e, wl, err);
+    if (s < 0) {
+        liquid_destroy(wl);
+        return s;
+    }
+    *out = (WorldSolver){.name = "liquid",
+                         .self = wl,
+                         .begin_frame = liquid_begin_frame,
+                         .next_time = liquid_next_time,
+                         .step = liquid_step,
+                         .end_frame = liquid_end_frame,
+                         .write = liquid_write,
+                         .read = liquid_read,
+                         .hash = liquid_hash,
+                         .destroy = liquid_destroy};
+    return DR_OK;
+}
+
+const DrLiquid *world_liquid_solver(const WorldSolver *s) { return ((const WorldLiquid *)s->self)->liquid; }
