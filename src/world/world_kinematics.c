@@ -224,6 +224,13 @@ static void body_frame(const DrBemSolid *s, DrXform *X, DrVec3 *v)
     *v = dr_v3(va[0], va[1], va[2]);
 }
 
+static DrVec3 body_angular_velocity(const DrBemSolid *s) /* ω of the body's frame, world axes */
+{
+    double va[3], wa[3];
+    dr_bem_solid_frame_velocity(s, va, wa);
+    return dr_v3(wa[0], wa[1], wa[2]);
+}
+
 static void put_key(double *row, double t, DrVec3 T, DrVec3 e)
 {
     double r[7] = {t, T.x, T.y, T.z, e.x, e.y, e.z};
@@ -270,7 +277,13 @@ static void body_keys(WorldBodyCollider *bc, double t0, double t1)
         e = euler_near(R, e);
         put_key(bc->keys + 7 * k, k == BODY_KEY_INTERVALS ? t1 : t0 + s * h, T, e);
     }
-    bc->nkeys = BODY_KEY_INTERVALS + 1;
+    /* One key past t1 along the body's velocity there: a collider holds still after its last key, and the liquid
+       takes a collider's velocity at the end of its substep, which is t1 whenever the clock lands on a BEM step. */
+    DrVec3 W1 = body_angular_velocity(bc->solid);
+    DrMat3 Rx = dr_m3_mul(skew_exp(dr_v3_scale(W1, h)), X1.R);
+    e = euler_near(Rx, e);
+    put_key(bc->keys + 7 * (BODY_KEY_INTERVALS + 1), t1 + h, dr_v3_add(X1.t, dr_v3_scale(V1, h)), e);
+    bc->nkeys = BODY_KEY_INTERVALS + 2;
 }
 
 /* The SDF of the body's surface in its frame, x − x̄ + u, at spacing dx; remembers u. */
@@ -326,7 +339,7 @@ DrStatus world_kinematics_add_bodies(WorldKinematics *k, const DrScene *scene, c
         bc->element = elements[i];
         DR_TRY(dr_calloc(3 * (size_t)dr_bem_solid_matrices(bc->solid)->nv, sizeof(double), &bc->built_u, err));
         DR_TRY(build_body_sdf(bc, k->dx, err));
-        DR_TRY(dr_calloc(7 * (BODY_KEY_INTERVALS + 1), sizeof(double), &bc->keys, err));
+        DR_TRY(dr_calloc(7 * (BODY_KEY_INTERVALS + 2), sizeof(double), &bc->keys, err));
         body_frame(bc->solid, &bc->start, &bc->start_velocity);
         put_key(bc->keys, 0.0, bc->start.t, euler_near(bc->start.R, dr_v3(0, 0, 0)));
         bc->nkeys = 1; /* at rest where the Transform put it: no liquid is seeded inside it */

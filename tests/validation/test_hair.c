@@ -494,10 +494,10 @@ static void test_world_frames_allocate_nothing(void **state)
         if (dr_world_step_frame(w, &fs, &err) < 0) fail_msg("frame %d: %s", f, err.message);
         uint64_t made = dr_alloc_count() - before;
         print_message("frame %d: %llu allocations, %d hair contacts in its last substep\n", f,
-                      (unsigned long long)made, fs.hair_contacts);
+                      (unsigned long long)made, fs.hair.contacts);
         if (f == 1) assert_true(made > 0);
         else assert_true(made == 0);
-        contacts += fs.hair_contacts;
+        contacts += fs.hair.contacts;
     }
     assert_true(contacts > 0);
     dr_world_destroy(&w);
