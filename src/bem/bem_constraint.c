@@ -35,6 +35,8 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "core/sort.h"
+
 void dr_bem_constraints_default(DrBemConstraints *c)
 {
     *c = (DrBemConstraints){
@@ -747,26 +749,8 @@ static bool entry_less(const HashEntry *a, const HashEntry *b)
     return a->key != b->key ? a->key < b->key : a->tri < b->tri;
 }
 
-/* Bottom-up merge sort by (key, triangle) through the scratch tmp (n entries), ending in e: the library's qsort
-   sorts the same way but takes its buffer from the heap on every call. Equal entries are identical, so any correct
-   sort gives the same array. */
-static void entries_sort(HashEntry *e, HashEntry *tmp, int n)
-{
-    HashEntry *src = e, *dst = tmp;
-    for (int width = 1; width < n; width *= 2) {
-        for (int lo = 0; lo < n; lo += 2 * width) {
-            int mid = lo + width < n ? lo + width : n, hi = lo + 2 * width < n ? lo + 2 * width : n;
-            int i = lo, j = mid, k = lo;
-            while (i < mid && j < hi) dst[k++] = entry_less(&src[j], &src[i]) ? src[j++] : src[i++];
-            while (i < mid) dst[k++] = src[i++];
-            while (j < hi) dst[k++] = src[j++];
-        }
-        HashEntry *t = src;
-        src = dst;
-        dst = t;
-    }
-    if (src != e) memcpy(e, src, sizeof *e * (size_t)n);
-}
+/* By (key, triangle): equal entries are identical, so the order is the one any sort gives. */
+DR_DEFINE_STABLE_SORT(entries_sort, HashEntry, entry_less)
 
 /* The point of triangle (a, b, c) closest to x, as barycentric weights w. */
 static void closest_on_triangle(const double *x, const double *a, const double *b, const double *c, double w[3])
@@ -831,7 +815,7 @@ static DrStatus hash_build(const DrBemMatrices *m, const double *V, double h, Ha
         DR_TRY(dr_realloc(cap, sizeof *e, tmp, err));
         *tmp_cap = cap;
     }
-    entries_sort(e, *tmp, ne);
+    entries_sort(e, *tmp, (size_t)ne);
     *count = ne;
     return DR_OK;
 }

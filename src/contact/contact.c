@@ -5,6 +5,8 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "core/sort.h"
+
 bool dr_shape_pair_allowed(const DrShape *a, const DrShape *b)
 {
     return (a->group & b->mask) != 0 && (b->group & a->mask) != 0;
@@ -33,7 +35,7 @@ typedef struct CellEntry { int cx, cy, cz, box; } CellEntry;
 struct DrBroadPhase {
     double *box;           /* 6 per box: lo xyz, hi xyz */
     int nbox, cap_box;
-    CellEntry *cells;
+    CellEntry *cells, *cells_tmp; /* the entries and their sort's scratch */
     size_t ncells, cap_cells;
     DrBroadPair *pairs;
     long npairs, cap_pairs;
@@ -46,6 +48,7 @@ void dr_broad_phase_destroy(DrBroadPhase **bp)
     if (!bp || !*bp) return;
     free((*bp)->box);
     free((*bp)->cells);
+    free((*bp)->cells_tmp);
     free((*bp)->pairs);
     free(*bp);
     *bp = NULL;
@@ -71,14 +74,15 @@ DrStatus dr_broad_phase_add(DrBroadPhase *bp, DrVec3 lo, DrVec3 hi, DrError *err
     return DR_OK;
 }
 
-static int cell_cmp(const void *pa, const void *pb)
+static inline bool cell_less(const CellEntry *a, const CellEntry *b)
 {
-    const CellEntry *a = pa, *b = pb;
-    if (a->cx != b->cx) return a->cx < b->cx ? -1 : 1;
-    if (a->cy != b->cy) return a->cy < b->cy ? -1 : 1;
-    if (a->cz != b->cz) return a->cz < b->cz ? -1 : 1;
-    return a->box < b->box ? -1 : (a->box > b->box);
+    if (a->cx != b->cx) return a->cx < b->cx;
+    if (a->cy != b->cy) return a->cy < b->cy;
+    if (a->cz != b->cz) return a->cz < b->cz;
+    return a->box < b->box;
 }
+
+DR_DEFINE_STABLE_SORT(cells_sort, CellEntry, cell_less) /* keys are distinct: a box enters a cell once */
 
 #define CELL_LIMIT 1073741824.0 /* 2^30 cells from the origin */
 
@@ -115,6 +119,7 @@ DrStatus dr_broad_phase_pairs(DrBroadPhase *bp, double cell, const DrBroadPair *
         size_t cap = bp->cap_cells ? bp->cap_cells : 1024;
         while (cap < need) cap *= 2;
         DR_TRY(dr_realloc(cap, sizeof(CellEntry), &bp->cells, err));
+        DR_TRY(dr_realloc(cap, sizeof(CellEntry), &bp->cells_tmp, err));
         bp->cap_cells = cap;
     }
     size_t n = 0;
@@ -126,7 +131,7 @@ DrStatus dr_broad_phase_pairs(DrBroadPhase *bp, double cell, const DrBroadPair *
                 for (int cz = lo[2]; cz <= hi[2]; cz++) bp->cells[n++] = (CellEntry){cx, cy, cz, i};
     }
     bp->ncells = n;
-    qsort(bp->cells, n, sizeof *bp->cells, cell_cmp);
+    cells_sort(bp->cells, bp->cells_tmp, n);
     const CellEntry *ce = bp->cells;
     for (size_t a = 0; a < n;) {
         size_t b = a;

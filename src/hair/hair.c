@@ -15,6 +15,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "contact/contact.h"
 #include "hair/rod.h"
 
 #define ROD_KD 10
@@ -34,7 +35,6 @@ void dr_rod_set_desc_default(DrRodSetDesc *d)
     d->collider_stiffness = 1e4;
 }
 
-typedef struct HashEntry { int cx, cy, cz, edge; } HashEntry;
 
 typedef struct HairContact {
     int e0, e1;      /* global edges */
@@ -87,8 +87,7 @@ struct DrRodSet {
     HairContact *hc;
     size_t nhc, cap_hc;
     bool hc_slack;             /* the first step's contacts sized hc */
-    struct HashEntry *hash_entries, *hash_tmp; /* scratch for the broad phase and its sort */
-    size_t cap_hash;
+    DrBroadPhase *bp;        /* hair–hair candidates (src/contact), its buffers kept from step to step */
     /* step scratch to restore on failure */
     double *save;
     double *t_old;             /* 3 E: tangents at the start of the step */
@@ -129,10 +128,11 @@ void dr_rod_set_destroy(DrRodSet **rp)
                       r->lbar, r->kbar, r->tbar, r->lv, r->vmass, r->tinertia, r->radius, r->stiff, r->root_rest,
                       r->m1_rest, r->tip_rest, r->t_old, r->edge_strand, r->edge_local, r->x, r->v, r->theta, r->theta_dot, r->a1, r->m, r->t, r->len, r->lambda,
                       r->dof0, r->dmass, r->qdot, r->fext, r->qdot_p, r->qdot_out, r->pres, r->cflag, r->cnormal,
-                      r->cvel, r->clambda, r->cfric, r->hc, r->hash_entries, r->hash_tmp, r->save, r->vdof,
+                      r->cvel, r->clambda, r->cfric, r->hc, r->save, r->vdof,
                       r->fload, r->s_v, r->s_radius, r->s_length, r->s_tangent, r->s_held};
     for (size_t k = 0; k < sizeof arrays / sizeof arrays[0]; k++) free(arrays[k]);
     dr_lag_destroy(&r->lag);
+    dr_broad_phase_destroy(&r->bp);
     dr_arena_destroy(&r->arena);
     free(r);
     *rp = NULL;
@@ -225,10 +225,9 @@ DrStatus dr_rod_set_create(const DrRodSetDesc *desc, const DrRodBatch *batches, 
     ALLOC(r->s_length, V);
     ALLOC(r->s_tangent, 3 * V);
     ALLOC(r->s_held, V);
-    if (desc->hair_contact) { /* an edge's box meets at most 2 cells per axis (find_hair_contacts) */
-        ALLOC(r->hash_entries, 8 * (size_t)r->E);
-        ALLOC(r->hash_tmp, 8 * (size_t)r->E);
-        r->cap_hash = 8 * (size_t)r->E;
+    if (desc->hair_contact) {
+        s = dr_broad_phase_create(&r->bp, err);
+        if (s != DR_OK) goto fail;
     }
     /* the step's scratch: per strand a status, a contact count and an error record pointer */
     s = dr_arena_create(S * (sizeof(DrStatus) + sizeof(int) + sizeof(DrError *)) + 3 * 64, &r->arena, err);
@@ -609,48 +608,6 @@ static double segment_closest(const double *p0, const double *p1, const double *
 }
 
 
-static inline bool hash_less(const HashEntry *a, const HashEntry *b)
-{
-    if (a->cx != b->cx) return a->cx < b->cx;
-    if (a->cy != b->cy) return a->cy < b->cy;
-    if (a->cz != b->cz) return a->cz < b->cz;
-    return a->edge < b->edge;
-}
-
-/* Sorts n entries by (cell, edge) with tmp (n entries) as scratch, which the set keeps (glibc's qsort would take
-   its own from the heap at every step): runs of 16 by insertion, then bottom-up merges. The keys are distinct
-   (an edge enters a cell once), so the order is the one any sort gives. */
-static void hash_sort(HashEntry *a, HashEntry *tmp, size_t n)
-{
-    enum { RUN = 16 };
-    for (size_t lo = 0; lo < n; lo += RUN) {
-        size_t hi = lo + RUN < n ? lo + RUN : n;
-        for (size_t k = lo + 1; k < hi; k++) {
-            HashEntry t = a[k];
-            size_t m = k;
-            while (m > lo && hash_less(&t, &a[m - 1])) {
-                a[m] = a[m - 1];
-                m--;
-            }
-            a[m] = t;
-        }
-    }
-    HashEntry *src = a, *dst = tmp;
-    for (size_t w = RUN; w < n; w *= 2) {
-        for (size_t lo = 0; lo < n; lo += 2 * w) {
-            size_t mid = lo + w < n ? lo + w : n, hi = lo + 2 * w < n ? lo + 2 * w : n;
-            size_t i = lo, j = mid, o = lo;
-            while (i < mid && j < hi) dst[o++] = hash_less(&src[j], &src[i]) ? src[j++] : src[i++];
-            while (i < mid) dst[o++] = src[i++];
-            while (j < hi) dst[o++] = src[j++];
-        }
-        HashEntry *t = src;
-        src = dst;
-        dst = t;
-    }
-    if (src != a) memcpy(a, src, n * sizeof *a);
-}
-
 static bool may_touch(const DrRodSet *r, int sa, int sb)
 {
     int ba = r->strand_batch[sa], bb = r->strand_batch[sb];
@@ -658,10 +615,10 @@ static bool may_touch(const DrRodSet *r, int sa, int sb)
     return (r->batch_group[ba] & r->batch_mask[bb]) != 0 && (r->batch_group[bb] & r->batch_mask[ba]) != 0;
 }
 
-/* Finds edge pairs closer than their contact distance: edges binned by the cells their inflated bounding box
-   overlaps (cell ≥ the longest edge plus the contact distance, so at most 2 cells per axis), candidate pairs
-   tested in the one cell holding the low corner of their boxes' overlap (each pair once), in sorted order
-   (deterministic). Adjacent edges of a strand never count. */
+/* Finds edge pairs closer than their contact distance: each edge's bounding box, inflated by half the largest
+   contact distance, goes to the broad phase (src/contact) on cells of the longest edge plus that distance (at most
+   2 cells per axis), which gives the overlapping pairs in a fixed order (cells in (x, y, z) order, pairs by edge
+   within a cell). Adjacent edges of a strand never count. */
 static DrStatus find_hair_contacts(DrRodSet *r, DrError *err)
 {
     r->nhc = 0;
@@ -671,76 +628,40 @@ static DrStatus find_hair_contacts(DrRodSet *r, DrError *err)
     for (int k = 0; k < r->S; k++) maxr = fmax(maxr, r->radius[k] + r->batch[r->strand_batch[k]].contact_thickness);
     double reach = 2 * maxr;
     double cell = maxlen + reach;
-    HashEntry *he = r->hash_entries; /* 8 E entries from create: 2 cells per axis */
-    size_t n = 0;
     const int *edge_strand = r->edge_strand, *edge_local = r->edge_local;
-    for (int k = 0; k < r->S; k++) {
-        int o = r->offsets[k], nv = r->offsets[k + 1] - o, e0 = edge_index(r, k, 0);
+    dr_broad_phase_clear(r->bp);
+    for (int k = 0; k < r->S; k++) { /* box index = global edge index */
+        int o = r->offsets[k], nv = r->offsets[k + 1] - o;
         for (int j = 0; j < nv - 1; j++) {
-            int e = e0 + j;
             const double *p = r->x + 3 * (o + j), *q = p + 3;
-            int lo[3], hi[3];
-            for (int a = 0; a < 3; a++) {
-                lo[a] = (int)floor((fmin(p[a], q[a]) - 0.5 * reach) / cell);
-                hi[a] = (int)floor((fmax(p[a], q[a]) + 0.5 * reach) / cell);
-            }
-            /* a box as wide as a cell can still meet 3 of them by rounding: grow then (and keep) */
-            size_t cells = (size_t)(hi[0] - lo[0] + 1) * (size_t)(hi[1] - lo[1] + 1) * (size_t)(hi[2] - lo[2] + 1);
-            if (n + cells > r->cap_hash) {
-                size_t cap = 2 * (n + cells);
-                DR_TRY(dr_realloc(cap, sizeof *he, &r->hash_entries, err));
-                DR_TRY(dr_realloc(cap, sizeof *he, &r->hash_tmp, err));
-                r->cap_hash = cap;
-                he = r->hash_entries;
-            }
-            for (int cx = lo[0]; cx <= hi[0]; cx++)
-                for (int cy = lo[1]; cy <= hi[1]; cy++)
-                    for (int cz = lo[2]; cz <= hi[2]; cz++) he[n++] = (HashEntry){cx, cy, cz, e};
+            DrVec3 lo = dr_v3(fmin(p[0], q[0]) - 0.5 * reach, fmin(p[1], q[1]) - 0.5 * reach, fmin(p[2], q[2]) - 0.5 * reach);
+            DrVec3 hi = dr_v3(fmax(p[0], q[0]) + 0.5 * reach, fmax(p[1], q[1]) + 0.5 * reach, fmax(p[2], q[2]) + 0.5 * reach);
+            DR_TRY(dr_broad_phase_add(r->bp, lo, hi, err));
         }
     }
-    hash_sort(he, r->hash_tmp, n);
-    for (size_t a = 0; a < n;) {
-        size_t b = a;
-        while (b < n && he[b].cx == he[a].cx && he[b].cy == he[a].cy && he[b].cz == he[a].cz) b++;
-        for (size_t i = a; i < b; i++)
-            for (size_t j = i + 1; j < b; j++) {
-                int ea = he[i].edge, eb = he[j].edge, sa = edge_strand[ea], sb = edge_strand[eb];
-                if (sa == sb && abs(edge_local[ea] - edge_local[eb]) < 2) continue;
-                if (!may_touch(r, sa, sb)) continue;
-                const double *p0 = r->x + 3 * (r->offsets[sa] + edge_local[ea]), *p1 = p0 + 3;
-                const double *q0 = r->x + 3 * (r->offsets[sb] + edge_local[eb]), *q1 = q0 + 3;
-                /* the low corner of the overlap of the inflated boxes decides which cell owns the pair */
-                int own[3];
-                bool overlap = true;
-                for (int c = 0; c < 3; c++) {
-                    double loa = fmin(p0[c], p1[c]) - 0.5 * reach, hia = fmax(p0[c], p1[c]) + 0.5 * reach;
-                    double lob = fmin(q0[c], q1[c]) - 0.5 * reach, hib = fmax(q0[c], q1[c]) + 0.5 * reach;
-                    if (loa > hib || lob > hia) overlap = false;
-                    own[c] = (int)floor(fmax(loa, lob) / cell);
-                }
-                if (!overlap || own[0] != he[a].cx || own[1] != he[a].cy || own[2] != he[a].cz) continue;
-                double s, t, nv[3];
-                double d = segment_closest(p0, p1, q0, q1, &s, &t, nv);
-                double rr = r->radius[sa] + r->radius[sb] + r->batch[r->strand_batch[sa]].contact_thickness +
-                            r->batch[r->strand_batch[sb]].contact_thickness;
-                if (d >= rr || d < 1e-12 * rr) continue;
-                if (r->nhc == r->cap_hc) { /* doubled and kept */
-                    size_t cap = r->cap_hc ? 2 * r->cap_hc : 256;
-                    DR_TRY(dr_realloc(cap, sizeof *r->hc, &r->hc, err));
-                    r->cap_hc = cap;
-                }
-                const DrRodBatch *pa = &r->batch[r->strand_batch[sa]], *pb = &r->batch[r->strand_batch[sb]];
-                r->hc[r->nhc++] = (HairContact){ea,
-                                                eb,
-                                                s,
-                                                t,
-                                                d,
-                                                dr_v3(nv[0] / d, nv[1] / d, nv[2] / d),
-                                                rr,
-                                                fmin(pa->contact_stiffness, pb->contact_stiffness),
-                                                fmax(pa->contact_friction, pb->contact_friction)};
-            }
-        a = b;
+    const DrBroadPair *pairs = NULL;
+    long npairs = 0;
+    DR_TRY(dr_broad_phase_pairs(r->bp, cell, &pairs, &npairs, err));
+    for (long c = 0; c < npairs; c++) {
+        int ea = pairs[c].a, eb = pairs[c].b, sa = edge_strand[ea], sb = edge_strand[eb];
+        if (sa == sb && abs(edge_local[ea] - edge_local[eb]) < 2) continue;
+        if (!may_touch(r, sa, sb)) continue;
+        const double *p0 = r->x + 3 * (r->offsets[sa] + edge_local[ea]), *p1 = p0 + 3;
+        const double *q0 = r->x + 3 * (r->offsets[sb] + edge_local[eb]), *q1 = q0 + 3;
+        double s, t, nv[3];
+        double d = segment_closest(p0, p1, q0, q1, &s, &t, nv);
+        double rr = r->radius[sa] + r->radius[sb] + r->batch[r->strand_batch[sa]].contact_thickness +
+                    r->batch[r->strand_batch[sb]].contact_thickness;
+        if (d >= rr || d < 1e-12 * rr) continue;
+        if (r->nhc == r->cap_hc) { /* doubled and kept */
+            size_t cap = r->cap_hc ? 2 * r->cap_hc : 256;
+            DR_TRY(dr_realloc(cap, sizeof *r->hc, &r->hc, err));
+            r->cap_hc = cap;
+        }
+        const DrRodBatch *pa = &r->batch[r->strand_batch[sa]], *pb = &r->batch[r->strand_batch[sb]];
+        r->hc[r->nhc++] = (HairContact){ea, eb, s, t, d, dr_v3(nv[0] / d, nv[1] / d, nv[2] / d), rr,
+                                        fmin(pa->contact_stiffness, pb->contact_stiffness),
+                                        fmax(pa->contact_friction, pb->contact_friction)};
     }
     if (!r->hc_slack && 2 * r->nhc > r->cap_hc) { /* the first step leaves room for twice its contacts */
         DR_TRY(dr_realloc(2 * r->nhc, sizeof *r->hc, &r->hc, err));

@@ -14,6 +14,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "core/sort.h"
 #include "linalg/linalg.h"
 
 typedef struct LagRecords {
@@ -413,40 +414,7 @@ static inline bool trip_less(const LagTriplet *a, const LagTriplet *b)
     return a->i != b->i ? a->i < b->i : a->j < b->j;
 }
 
-/* Sorts the n triplets of a by (i, j), stably (equal keys keep their input order), with tmp (n entries) as
-   scratch: runs of 16 by insertion, then bottom-up merges that take from the left run on ties. Being stable, its
-   result is unique, whatever the algorithm; its scratch is kept from step to step (glibc's qsort, a merge sort
-   too, takes its own from the heap at every call). */
-static void trip_sort(LagTriplet *a, LagTriplet *tmp, size_t n)
-{
-    enum { RUN = 16 };
-    for (size_t lo = 0; lo < n; lo += RUN) {
-        size_t hi = lo + RUN < n ? lo + RUN : n;
-        for (size_t k = lo + 1; k < hi; k++) {
-            LagTriplet t = a[k];
-            size_t m = k;
-            while (m > lo && trip_less(&t, &a[m - 1])) {
-                a[m] = a[m - 1];
-                m--;
-            }
-            a[m] = t;
-        }
-    }
-    LagTriplet *src = a, *dst = tmp;
-    for (size_t w = RUN; w < n; w *= 2) {
-        for (size_t lo = 0; lo < n; lo += 2 * w) {
-            size_t mid = lo + w < n ? lo + w : n, hi = lo + 2 * w < n ? lo + 2 * w : n;
-            size_t i = lo, j = mid, o = lo;
-            while (i < mid && j < hi) dst[o++] = trip_less(&src[j], &src[i]) ? src[j++] : src[i++];
-            while (i < mid) dst[o++] = src[i++];
-            while (j < hi) dst[o++] = src[j++];
-        }
-        LagTriplet *t = src;
-        src = dst;
-        dst = t;
-    }
-    if (src != a) memcpy(a, src, n * sizeof *a);
-}
+DR_DEFINE_STABLE_SORT(trip_sort, LagTriplet, trip_less) /* by (i, j), duplicates in the order they came */
 
 /* K_G triplets → CSR (sorted stably, so duplicates are summed in the order they were added; the triplets are
    generated in a fixed order for any thread count). */
