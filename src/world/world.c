@@ -24,6 +24,7 @@ struct DrWorld {
     int nliquids;
     WorldSolver *mpm, *hair, *bem; /* into solvers, NULL when the scene has none */
     WorldSolver bem_built;         /* built first (the liquid seeds no particle inside a body), placed last */
+    double *at, *proposal;         /* per solver during a frame: the time it stands at, its next step's end */
 };
 
 int dr_world_first_frame(const DrWorld *w) { return w->first_frame; }
@@ -91,6 +92,8 @@ static DrStatus build(DrWorld *w, const DrWorldDesc *desc, DrError *err)
     DR_TRY(world_kinematics_add_bodies(w->kin, scene, solids, elements, nbodies, err));
     int nl = dr_scene_count_kind(scene, DR_ELEMENT_LIQUID);
     DR_TRY(dr_calloc((size_t)nl + MAX_SOLVERS_FIXED, sizeof(WorldSolver), &w->solvers, err));
+    DR_TRY(dr_calloc((size_t)nl + MAX_SOLVERS_FIXED, sizeof(double), &w->at, err));
+    DR_TRY(dr_calloc((size_t)nl + MAX_SOLVERS_FIXED, sizeof(double), &w->proposal, err));
     for (int i = 0; i < dr_scene_element_count(scene); i++) {
         const DrElement *e = dr_scene_element(scene, i);
         if (e->kind != DR_ELEMENT_LIQUID) continue;
@@ -173,6 +176,8 @@ void dr_world_destroy(DrWorld **world)
     for (int i = 0; i < w->nsolvers; i++) w->solvers[i].destroy(w->solvers[i].self);
     if (w->bem_built.self) w->bem_built.destroy(w->bem_built.self);
     free(w->solvers);
+    free(w->at);
+    free(w->proposal);
     world_kinematics_destroy(&w->kin);
     free(w);
     *world = NULL;
@@ -180,11 +185,15 @@ void dr_world_destroy(DrWorld **world)
 
 /* ---- one frame ------------------------------------------------------------------------------------------------
  * One clock for every solver: each clock step ends at the earliest of the solvers' proposals (each its own stable
- * step, evened out towards the frame end), of the BEM bodies' step ends and of the frame end. Within a step:
+ * step from where it stands, evened out towards the frame end), of the BEM bodies' step ends and of the frame end.
+ * Within a step:
  *   1. BEM bodies at the start of one of their steps take it (one-way: nothing acts on them but their constraints),
- *      and the kinematics carry each body's collider of the liquid through it;
+ *      and the kinematics carry each body's collider of the liquid and the hair through it;
  *   2. kinematics: every scene collider posed at the step's end, once, for every solver;
- *   3. every other solver steps to the step's end (predict, solve, commit), the liquids first.
+ *   3. each other solver whose own step ends there, or that must stand there (a BEM step end, the frame end: the
+ *      bodies' colliders are keyed per BEM step), steps to it from where it stands (predict, solve, commit), the
+ *      liquids first. A solver whose step ends later waits: with nothing exchanged between the solvers yet, it
+ *      takes the steps it took alone, and a cheap hair step is not cut into a fast liquid's substeps.
  * After the last step each adapter checks its state and writes its block of the frame's stats. */
 
 DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrError *err)
@@ -197,6 +206,11 @@ DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrError *err)
     stats->time = c.t1;
     for (int i = 0; i < w->nsolvers; i++)
         if (w->solvers[i].begin_frame) w->solvers[i].begin_frame(w->solvers[i].self, &c);
+    double tol = 1e-9 * (c.t1 - c.t0);
+    for (int i = 0; i < w->nsolvers; i++) {
+        w->at[i] = c.t0;
+        w->proposal[i] = NAN; /* asked for when the clock first needs it */
+    }
     double t = c.t0;
     while (t < c.t1) {
         for (int i = 0; i < w->nsolvers; i++)
@@ -210,15 +224,21 @@ DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrError *err)
         for (int i = 0; i < w->nsolvers; i++) {
             WorldSolver *s = &w->solvers[i];
             if (!s->next_time) continue;
-            double mine;
-            DR_TRY(s->next_time(s->self, &c, t, &mine, err));
-            t_next = fmin(t_next, mine);
+            if (isnan(w->proposal[i])) DR_TRY(s->next_time(s->self, &c, w->at[i], &w->proposal[i], err));
+            t_next = fmin(t_next, w->proposal[i]);
         }
         /* a proposal a rounding error short of a landing time lands on it (no step of a few ulps after it) */
-        if (land - t_next <= 1e-9 * (c.t1 - c.t0)) t_next = land;
+        bool landing = land - t_next <= tol;
+        if (landing) t_next = land;
         world_kinematics_pose(w->kin, t_next);
-        for (int i = 0; i < w->nsolvers; i++)
-            if (w->solvers[i].step) DR_TRY(w->solvers[i].step(w->solvers[i].self, &c, t, t_next, err));
+        for (int i = 0; i < w->nsolvers; i++) {
+            WorldSolver *s = &w->solvers[i];
+            if (!s->step) continue;
+            if (!landing && s->next_time && t_next < w->proposal[i]) continue; /* its own step ends later */
+            DR_TRY(s->step(s->self, &c, w->at[i], t_next, err));
+            w->at[i] = t_next;
+            w->proposal[i] = NAN;
+        }
         stats->clock_steps++;
         t = t_next;
     }

@@ -1,6 +1,6 @@
 /* The hair adapter: every hair element of a scene is one batch of a single DrRodSet (they are solved together, so
- * strands of different elements can touch), stepped on the world's clock with the scene colliders (posed by the
- * kinematics) and the scalp motion. */
+ * strands of different elements can touch), stepped on the world's clock with the scene colliders, the bem_solid
+ * bodies' deformed surfaces and the MPM solids' particles (posed by the kinematics) and the scalp motion. */
 #include "world_adapter.h"
 
 #include <stdlib.h>
@@ -147,16 +147,24 @@ static DrStatus build_hair(const WorldCtx *c, WorldHair *h, int n, DrError *err)
     free(grooms);
     free(batches);
     if (s != DR_OK) return s;
-    /* the live colliders, posed by the kinematics at every clock step's end */
+    /* the live colliders, then the bem_solid bodies' deformed surfaces and the MPM solids' particles (frictionless
+       themselves: the hair's own Collider.friction applies), all where the kinematics put them at every clock
+       step's end */
     const DrCollider *const *live = NULL;
     int nlive = world_kinematics_colliders(c->kin, &live);
-    WorldPosedCollider *posed = world_kinematics_posed(c->kin);
-    if (nlive > 0) {
-        DR_TRY(dr_calloc((size_t)nlive, sizeof *h->colliders, &h->colliders, err));
+    WorldPosedCollider *posed = world_kinematics_posed(c->kin), *bodies = NULL;
+    int nbodies = world_kinematics_bodies_posed(c->kin, &bodies);
+    DrRodCollider mpm = {0};
+    bool with_mpm = world_kinematics_mpm_surface(c->kin, &mpm.sdf, &mpm.velocity_at, &mpm.ctx);
+    if (nlive + nbodies + with_mpm > 0) {
+        DR_TRY(dr_calloc((size_t)(nlive + nbodies + 1), sizeof *h->colliders, &h->colliders, err));
         for (int k = 0; k < nlive; k++)
             h->colliders[k] = (DrRodCollider){world_posed_sdf, world_posed_velocity, &posed[k],
                                               dr_collider_friction(live[k]), 0};
-        h->ncolliders = nlive;
+        for (int k = 0; k < nbodies; k++)
+            h->colliders[nlive + k] = (DrRodCollider){world_posed_sdf, world_posed_velocity, &bodies[k], 0, 0};
+        h->ncolliders = nlive + nbodies;
+        if (with_mpm) h->colliders[h->ncolliders++] = mpm; /* the MPM solids' particles as a surface */
     }
     return DR_OK;
 }
@@ -201,7 +209,8 @@ static DrStatus hair_step(void *self, const WorldCtx *c, double t, double t_next
     h->seconds += dr_time_now() - t_start;
     if (s == DR_WARN_NOT_CONVERGED) h->not_converged_steps++;
     else if (s != DR_OK) return s;
-    if (h->reached < h->substeps && t_next == substep_end(h, c, h->reached + 1)) h->reached++;
+    /* reached when the clock ends on it, or (snapped to a BEM step end a rounding error away) a few ulps past it */
+    if (h->reached < h->substeps && t_next >= substep_end(h, c, h->reached + 1) - 1e-9 * (c->t1 - c->t0)) h->reached++;
     return DR_OK;
 }
 
