@@ -160,3 +160,156 @@ DrStatus dr_broad_phase_pairs(DrBroadPhase *bp, double cell, const DrBroadPair *
     *npairs = bp->npairs;
     return DR_OK;
 }
+
+/* ---- a point set as a surface ------------------------------------------------------------------------------ */
+
+typedef struct PointEntry { int cx, cy, cz; long p; } PointEntry;
+
+static inline bool point_less(const PointEntry *a, const PointEntry *b)
+{
+    if (a->cx != b->cx) return a->cx < b->cx;
+    if (a->cy != b->cy) return a->cy < b->cy;
+    if (a->cz != b->cz) return a->cz < b->cz;
+    return a->p < b->p;
+}
+
+DR_DEFINE_STABLE_SORT(points_sort, PointEntry, point_less)
+
+struct DrPointField {
+    long n;
+    const double *x, *v;     /* borrowed */
+    double *radius;          /* n */
+    double support, inv_support2;
+    PointEntry *entries, *tmp;
+    size_t cap;
+};
+
+DrStatus dr_point_field_create(DrPointField **out, DrError *err) { return dr_calloc(1, sizeof **out, out, err); }
+
+void dr_point_field_destroy(DrPointField **pf)
+{
+    if (!pf || !*pf) return;
+    free((*pf)->radius);
+    free((*pf)->entries);
+    free((*pf)->tmp);
+    free(*pf);
+    *pf = NULL;
+}
+
+long dr_point_field_count(const DrPointField *pf) { return pf->n; }
+
+DrStatus dr_point_field_build(DrPointField *pf, long n, const double *x, const double *v, const double *volume,
+                              DrError *err)
+{
+    pf->n = 0;
+    if (n <= 0) return DR_OK;
+    if ((size_t)n > pf->cap) {
+        size_t cap = pf->cap ? pf->cap : 256;
+        while (cap < (size_t)n) cap *= 2;
+        DR_TRY(dr_realloc(cap, sizeof(double), &pf->radius, err));
+        DR_TRY(dr_realloc(cap, sizeof(PointEntry), &pf->entries, err));
+        DR_TRY(dr_realloc(cap, sizeof(PointEntry), &pf->tmp, err));
+        pf->cap = cap;
+    }
+    double rmax = 0.0;
+    for (long p = 0; p < n; p++) {
+        if (!(volume[p] > 0.0) || !isfinite(volume[p]))
+            return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "contact: particle %ld has volume %g; it must be positive",
+                                p, volume[p]);
+        pf->radius[p] = 0.5 * cbrt(volume[p]);
+        rmax = fmax(rmax, pf->radius[p]);
+    }
+    double R = 3.0 * rmax;
+    for (long p = 0; p < n; p++) {
+        double c[3];
+        for (int a = 0; a < 3; a++) {
+            c[a] = floor(x[3 * p + a] / R);
+            if (!(fabs(c[a]) < CELL_LIMIT))
+                return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "contact: particle %ld is at %g m on axis %d: not "
+                                    "finite, or more than 2^30 cells of %g m from the origin", p, x[3 * p + a], a, R);
+        }
+        pf->entries[p] = (PointEntry){(int)c[0], (int)c[1], (int)c[2], p};
+    }
+    points_sort(pf->entries, pf->tmp, (size_t)n);
+    pf->n = n;
+    pf->x = x;
+    pf->v = v;
+    pf->support = R;
+    pf->inv_support2 = 1.0 / (R * R);
+    return DR_OK;
+}
+
+/* The first entry of cell (cx, cy, cz), or n when it holds none (*end: one past its last). */
+static long cell_first(const DrPointField *pf, int cx, int cy, int cz, long *end)
+{
+    PointEntry key = {cx, cy, cz, -1};
+    long lo = 0, hi = pf->n;
+    while (lo < hi) {
+        long mid = lo + (hi - lo) / 2;
+        if (point_less(&pf->entries[mid], &key)) lo = mid + 1;
+        else hi = mid;
+    }
+    long e = lo;
+    while (e < pf->n && pf->entries[e].cx == cx && pf->entries[e].cy == cy && pf->entries[e].cz == cz) e++;
+    *end = e;
+    return lo;
+}
+
+/* Σk, Σk x, Σk r and Σk v over the particles within the support of x, cells in order, particles by index. */
+static double field_sums(const DrPointField *pf, DrVec3 x, double sx[3], double *sr, double sv[3])
+{
+    double w = 0.0;
+    sx[0] = sx[1] = sx[2] = 0.0;
+    sv[0] = sv[1] = sv[2] = 0.0;
+    *sr = 0.0;
+    if (pf->n == 0) return 0.0;
+    double R = pf->support, q[3] = {x.x, x.y, x.z};
+    double c[3];
+    for (int a = 0; a < 3; a++) {
+        c[a] = floor(q[a] / R);
+        if (!(fabs(c[a]) < CELL_LIMIT)) return 0.0;
+    }
+    for (int i = -1; i <= 1; i++)
+        for (int j = -1; j <= 1; j++)
+            for (int k = -1; k <= 1; k++) {
+                long end, b = cell_first(pf, (int)c[0] + i, (int)c[1] + j, (int)c[2] + k, &end);
+                for (long e = b; e < end; e++) {
+                    long p = pf->entries[e].p;
+                    const double *xp = pf->x + 3 * p;
+                    double d2 = 0.0;
+                    for (int a = 0; a < 3; a++) d2 += (q[a] - xp[a]) * (q[a] - xp[a]);
+                    double s = 1.0 - d2 * pf->inv_support2;
+                    if (s <= 0.0) continue;
+                    double kw = s * s * s;
+                    w += kw;
+                    for (int a = 0; a < 3; a++) {
+                        sx[a] += kw * xp[a];
+                        if (pf->v) sv[a] += kw * pf->v[3 * p + a];
+                    }
+                    *sr += kw * pf->radius[p];
+                }
+            }
+    return w;
+}
+
+double dr_point_field_phi(const DrPointField *pf, DrVec3 x, DrVec3 *normal)
+{
+    double sx[3], sr, sv[3];
+    double w = field_sums(pf, x, sx, &sr, sv);
+    if (!(w > 0.0)) {
+        if (normal) *normal = dr_v3(0, 1, 0);
+        return INFINITY;
+    }
+    DrVec3 d = dr_v3(x.x - sx[0] / w, x.y - sx[1] / w, x.z - sx[2] / w);
+    double len = dr_v3_norm(d);
+    if (normal) *normal = len > 1e-12 * pf->support ? dr_v3_scale(d, 1.0 / len) : dr_v3(0, 1, 0);
+    return len - sr / w;
+}
+
+DrVec3 dr_point_field_velocity(const DrPointField *pf, DrVec3 x)
+{
+    double sx[3], sr, sv[3];
+    double w = field_sums(pf, x, sx, &sr, sv);
+    if (!(w > 0.0)) return dr_v3(0, 0, 0);
+    return dr_v3(sv[0] / w, sv[1] / w, sv[2] / w);
+}

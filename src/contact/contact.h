@@ -64,4 +64,26 @@ int dr_broad_phase_count(const DrBroadPhase *bp);
 DR_NODISCARD DrStatus dr_broad_phase_pairs(DrBroadPhase *bp, double cell, const DrBroadPair **pairs, long *npairs,
                                            DrError *err);
 
+/* ---- a point set as a surface -----------------------------------------------------------------------------------
+ * The surface of a body sampled by particles (an MPM solid), for a solid that meets it through a signed distance
+ * (hair): φ(x) = |x − x̄(x)| − r̄(x), x̄ and r̄ the kernel-weighted mean position and radius of the particles within R
+ * of x (k = (1 − d²/R²)³; Zhu and Bridson 2005), the normal (x − x̄)/|x − x̄|, the velocity the kernel-weighted mean
+ * of the particles'. A particle's radius r is half the edge of the cube of its volume (the rest volume for an MPM solid), so particles on a lattice of
+ * spacing s = 2r touch. R = 3r: outside the surface (φ ≥ 0) a flat face's first layer of particles alone is within
+ * R, so the face is flat at r above its particles' centres (a union of spheres would dip by r between neighbours)
+ * and not drawn inwards by the layers below. The field reaches 2r beyond the surface and is +∞ farther out: a
+ * contact distance beyond 2r is not seen. Particles are binned on cells of edge R, sorted (no hash), so a query
+ * reads 27 cells and the result does not depend on the thread count. Rebuilding keeps the buffers: after the
+ * largest set seen, a build allocates nothing. */
+typedef struct DrPointField DrPointField;
+DR_NODISCARD DrStatus dr_point_field_create(DrPointField **out, DrError *err);
+void dr_point_field_destroy(DrPointField **pf);
+/* From n particles: positions x and velocities v (3n each, m, m/s) and volumes (n, m³, > 0); borrowed until the next
+   build. DR_ERR_INPUT on a non-finite position or a non-positive volume. */
+DR_NODISCARD DrStatus dr_point_field_build(DrPointField *pf, long n, const double *x, const double *v,
+                                           const double *volume, DrError *err);
+long dr_point_field_count(const DrPointField *pf);
+double dr_point_field_phi(const DrPointField *pf, DrVec3 x, DrVec3 *normal);
+DrVec3 dr_point_field_velocity(const DrPointField *pf, DrVec3 x);
+
 #endif

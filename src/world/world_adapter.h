@@ -43,8 +43,8 @@ typedef struct WorldKinematics WorldKinematics;
 DR_NODISCARD DrStatus world_kinematics_create(const DrScene *scene, int first_frame, double fps, WorldKinematics **out,
                                               DrError *err);
 void world_kinematics_destroy(WorldKinematics **k);
-/* The bem_solid bodies as colliders of the liquid: one SDF per body, of its deformed surface in the body frame,
-   carried by the body's rigid frame; built only when the scene has a liquid. */
+/* The bem_solid bodies as colliders of the liquid and the hair: one SDF per body, of its deformed surface in the
+   body frame, carried by the body's rigid frame; built only when the scene has a liquid or hair. */
 DR_NODISCARD DrStatus world_kinematics_add_bodies(WorldKinematics *k, const DrScene *scene,
                                                   const DrBemSolid *const *solids, const DrElement *const *elements,
                                                   int n, DrError *err);
@@ -57,12 +57,23 @@ double world_kinematics_dx(const WorldKinematics *k);
 /* The live colliders (those with an SDF), in element order, and what the liquid takes: those, then the bodies. */
 int world_kinematics_colliders(const WorldKinematics *k, const DrCollider *const **out);
 int world_kinematics_liquid_colliders(const WorldKinematics *k, const DrCollider *const **out);
-/* Every live collider posed at t (the shared array the MPM and hair colliders point into). */
+/* Every live collider posed at t (the shared array the MPM and hair colliders point into), and the bodies. */
 WorldPosedCollider *world_kinematics_posed(WorldKinematics *k);
 void world_kinematics_pose(WorldKinematics *k, double t);
+/* The bem_solid bodies as the hair sees them (their deformed surface, posed with the colliders); 0 without hair and
+   liquid. The array stays in place; each entry's collider changes at every BEM step. */
+int world_kinematics_bodies_posed(WorldKinematics *k, WorldPosedCollider **out);
+/* The MPM solids' particles as a surface the hair meets (contact.h's point field), kept only when the scene has
+   both: the MPM adapter hands its particles after each of its steps (a no-op when nobody wants them); the hair
+   takes the field's callbacks (false: there is none). */
+bool world_kinematics_wants_mpm_surface(const WorldKinematics *k);
+DR_NODISCARD DrStatus world_kinematics_set_mpm_surface(WorldKinematics *k, long n, const double *x, const double *v,
+                                                       const double *volume, DrError *err);
+bool world_kinematics_mpm_surface(WorldKinematics *k, double (**sdf)(DrVec3, DrVec3 *, void *),
+                                  DrVec3 (**velocity)(DrVec3, void *), void **ctx);
 /* Before body i (in the order given to world_kinematics_add_bodies) takes a step from t0: its frame there. After it
    (to t1): its collider carries it from its frame at t0 to its frame at t1, and its SDF follows the deformed surface
-   when that moved by more than a quarter of an SDF cell since the SDF was built. No-ops without a liquid. */
+   when that moved by more than a quarter of an SDF cell since the SDF was built. No-ops without a liquid or hair. */
 void world_kinematics_body_begin(WorldKinematics *k, int i);
 DR_NODISCARD DrStatus world_kinematics_body_end(WorldKinematics *k, int i, double t0, double t1, DrError *err);
 int world_kinematics_body_rebuilds(const WorldKinematics *k); /* SDF rebuilds of the bodies so far */

@@ -1,11 +1,12 @@
 /* Kinematics: every scene collider (its SDF, its motion keys, posed once per clock step for every solver) and each
- * bem_solid body as a moving collider of the liquid (one-way: the liquid does not push the bodies). */
+ * bem_solid body as a moving collider of the liquid and of the hair (one-way: neither pushes the bodies). */
 #include "world_adapter.h"
 
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
+#include "contact/contact.h"
 #include "stage/stage.h"
 #include "vdb/vdb.h"
 
@@ -45,6 +46,8 @@ struct WorldKinematics {
     int rebuilds;
     const DrCollider **liquid; /* what the liquid sees: the live colliders, then the bodies */
     int nliquid;
+    WorldPosedCollider *body_posed; /* the bodies posed at the clock step's end, as the hair sees them */
+    DrPointField *mpm_surface; /* the MPM particles as a surface for the hair, NULL without hair or MPM */
 };
 
 double world_posed_sdf(DrVec3 x, DrVec3 *normal, void *ctx)
@@ -327,12 +330,14 @@ static bool deformed_since_built(const WorldBodyCollider *bc)
 DrStatus world_kinematics_add_bodies(WorldKinematics *k, const DrScene *scene, const DrBemSolid *const *solids,
                                      const DrElement *const *elements, int n, DrError *err)
 {
-    if (dr_scene_count_kind(scene, DR_ELEMENT_LIQUID) == 0) n = 0;
+    bool liquid = dr_scene_count_kind(scene, DR_ELEMENT_LIQUID) > 0, hair = dr_scene_count_kind(scene, DR_ELEMENT_HAIR) > 0;
+    if (!liquid && !hair) n = 0;
     DR_TRY(dr_calloc((size_t)k->nlive + (size_t)n + 1, sizeof(DrCollider *), &k->liquid, err));
     for (int i = 0; i < k->nlive; i++) k->liquid[i] = k->live[i];
     k->nliquid = k->nlive;
     if (n == 0) return DR_OK;
     DR_TRY(dr_calloc((size_t)n, sizeof(WorldBodyCollider), &k->bodies, err));
+    DR_TRY(dr_calloc((size_t)n, sizeof(WorldPosedCollider), &k->body_posed, err));
     for (int i = 0; i < n; i++) {
         WorldBodyCollider *bc = &k->bodies[k->nbodies++];
         bc->solid = solids[i];
@@ -344,17 +349,19 @@ DrStatus world_kinematics_add_bodies(WorldKinematics *k, const DrScene *scene, c
         put_key(bc->keys, 0.0, bc->start.t, euler_near(bc->start.R, dr_v3(0, 0, 0)));
         bc->nkeys = 1; /* at rest where the Transform put it: no liquid is seeded inside it */
         DR_TRY(pose_body_collider(bc, err));
-        k->liquid[k->nliquid++] = bc->collider;
+        if (liquid) k->liquid[k->nliquid++] = bc->collider;
+        k->body_posed[i] = (WorldPosedCollider){bc->collider, dr_collider_frame(bc->collider, 0.0), true};
     }
-    dr_log_info("world: the liquid sees %d bem_solid bod%s as moving collider(s) (the deformed surface, rebuilt when "
+    dr_log_info("world: the %s %d bem_solid bod%s as moving collider(s) (the deformed surface, rebuilt when "
                 "it moved by a quarter of an SDF cell, carried by the body's frame)",
-                k->nbodies, k->nbodies == 1 ? "y" : "ies");
+                liquid && hair ? "liquid and the hair see" : liquid ? "liquid sees" : "hair sees", k->nbodies,
+                k->nbodies == 1 ? "y" : "ies");
     return DR_OK;
 }
 
 void world_kinematics_body_begin(WorldKinematics *k, int i)
 {
-    if (i >= k->nbodies) return; /* no liquid sees the bodies */
+    if (i >= k->nbodies) return; /* neither liquid nor hair sees the bodies */
     body_frame(k->bodies[i].solid, &k->bodies[i].start, &k->bodies[i].start_velocity);
 }
 
@@ -368,7 +375,8 @@ DrStatus world_kinematics_body_end(WorldKinematics *k, int i, double t0, double 
     }
     body_keys(bc, t0, t1);
     DR_TRY(dr_error_prefix(pose_body_collider(bc, err), err, "%s.BemSolver", bc->element->name));
-    k->liquid[k->nlive + i] = bc->collider;
+    if (k->nliquid > k->nlive) k->liquid[k->nlive + i] = bc->collider;
+    k->body_posed[i].collider = bc->collider;
     return DR_OK;
 }
 
@@ -381,6 +389,8 @@ DrStatus world_kinematics_create(const DrScene *scene, int first_frame, double f
     WorldKinematics *k = NULL;
     DR_TRY(dr_calloc(1, sizeof *k, &k, err));
     DrStatus s = build_colliders(k, scene, first_frame, fps, err);
+    if (s == DR_OK && dr_scene_count_kind(scene, DR_ELEMENT_HAIR) > 0 && dr_scene_count_kind(scene, DR_ELEMENT_MPM_SOLID) > 0)
+        s = dr_point_field_create(&k->mpm_surface, err);
     if (s < 0) {
         world_kinematics_destroy(&k);
         return s;
@@ -400,6 +410,8 @@ void world_kinematics_destroy(WorldKinematics **kp)
         free(k->bodies[i].built_u);
     }
     free(k->bodies);
+    free(k->body_posed);
+    dr_point_field_destroy(&k->mpm_surface);
     free(k->liquid);
     for (int i = 0; i < k->ncolliders; i++) dr_collider_destroy(&k->colliders[i].collider);
     free(k->colliders);
@@ -437,6 +449,13 @@ void world_kinematics_pose(WorldKinematics *k, double t)
 {
     for (int i = 0; i < k->nlive; i++)
         if (k->posed[i].moving) k->posed[i].frame = dr_collider_frame(k->posed[i].collider, t);
+    for (int i = 0; i < k->nbodies; i++) k->body_posed[i].frame = dr_collider_frame(k->body_posed[i].collider, t);
+}
+
+int world_kinematics_bodies_posed(WorldKinematics *k, WorldPosedCollider **out)
+{
+    *out = k->body_posed;
+    return k->nbodies;
 }
 
 DrStatus world_kinematics_write(const WorldKinematics *k, DrH5 *h, double t, DrError *err)
@@ -456,4 +475,28 @@ DrStatus world_kinematics_write(const WorldKinematics *k, DrH5 *h, double t, DrE
         DR_TRY(dr_h5_attr_str(h, path, "type", "collider", err));
     }
     return DR_OK;
+}
+
+/* ---- the MPM particles as a surface ---------------------------------------------------------------------------- */
+
+bool world_kinematics_wants_mpm_surface(const WorldKinematics *k) { return k->mpm_surface != NULL; }
+
+DrStatus world_kinematics_set_mpm_surface(WorldKinematics *k, long n, const double *x, const double *v,
+                                          const double *volume, DrError *err)
+{
+    if (!k->mpm_surface) return DR_OK;
+    return dr_error_prefix(dr_point_field_build(k->mpm_surface, n, x, v, volume, err), err, "the MPM solids as a "
+                           "surface for the hair");
+}
+
+static double mpm_surface_sdf(DrVec3 x, DrVec3 *normal, void *ctx) { return dr_point_field_phi(ctx, x, normal); }
+static DrVec3 mpm_surface_velocity(DrVec3 x, void *ctx) { return dr_point_field_velocity(ctx, x); }
+
+bool world_kinematics_mpm_surface(WorldKinematics *k, double (**sdf)(DrVec3, DrVec3 *, void *),
+                                  DrVec3 (**velocity)(DrVec3, void *), void **ctx)
+{
+    *sdf = mpm_surface_sdf;
+    *velocity = mpm_surface_velocity;
+    *ctx = k->mpm_surface;
+    return k->mpm_surface != NULL;
 }

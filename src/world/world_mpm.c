@@ -340,7 +340,9 @@ static DrStatus mpm_step(void *self, const WorldCtx *c, double t, double t_next,
     if (as_proposed) m->left = m->last ? 0.0 : m->left - dt;
     else m->left = c->t1 - t_next;
     m->from = t_next;
-    return DR_OK;
+    if (!world_kinematics_wants_mpm_surface(c->kin)) return DR_OK;
+    DrMpmState sm = dr_mpm_state(m->mpm); /* the hair meets the particles where this step left them */
+    return world_kinematics_set_mpm_surface(c->kin, sm.n, sm.x, sm.v, sm.vol0, err);
 }
 
 static DrStatus mpm_end_frame(void *self, const WorldCtx *c, DrFrameStats *stats, DrError *err)
