@@ -474,6 +474,64 @@ static void test_floor_contact(void **state)
     dr_groom_free(&g);
 }
 
+/* Coulomb friction against a collider: a free strand laid along the fall line of a plane tilted by 20° stays put for
+   μ = 0.5 (> tan 20° = 0.364) and slides for μ = 0.1, at the sliding acceleration g (sin 20° − μ cos 20°). */
+static double slope_sdf(DrVec3 x, DrVec3 *n, void *ctx)
+{
+    (void)ctx;
+    double a = 20.0 * DR_PI / 180.0;
+    *n = dr_v3(-sin(a), cos(a), 0); /* the plane rises towards +x */
+    return dr_v3_dot(*n, x);
+}
+
+static double slide_on_slope(double mu)
+{
+    double a = 20.0 * DR_PI / 180.0;
+    DrRodMaterial m;
+    dr_rod_material_default(&m);
+    /* the strand along the fall line, resting at its contact distance (radius) above the plane */
+    double root[3] = {-m.radius * sin(a), m.radius * cos(a), 0}, dir[3] = {cos(a), sin(a), 0};
+    DrGroom g = straight_groom(1, 10, 0.05, root, dir);
+    DrRodSetDesc d;
+    dr_rod_set_desc_default(&d);
+    d.roots = DR_ROD_ROOTS_FREE;
+    DrRodSet *r = make_set(&d, &g, &m);
+    DrRodCollider c = {slope_sdf, NULL, NULL, mu, 0};
+    DrRodStats st = {0};
+    DrRodState s = dr_rod_set_state(r);
+    double x0 = 0, x1 = 0;
+    for (int v = 0; v < s.nverts; v++) x0 += s.x[3 * v] * cos(a) + s.x[3 * v + 1] * sin(a);
+    double deepest = 0;
+    for (int k = 0; k < 120; k++) { /* 0.5 s */
+        assert_int_equal(step(r, 1.0 / 240, NULL, &c, 1, &st), DR_OK);
+        s = dr_rod_set_state(r);
+        for (int v = 0; v < s.nverts; v++) {
+            DrVec3 n;
+            deepest = fmin(deepest, slope_sdf(dr_v3(s.x[3 * v], s.x[3 * v + 1], s.x[3 * v + 2]), &n, NULL) - m.radius);
+        }
+    }
+    for (int v = 0; v < s.nverts; v++) x1 += s.x[3 * v] * cos(a) + s.x[3 * v + 1] * sin(a);
+    double moved = (x1 - x0) / s.nverts; /* along the slope, up positive */
+    print_message("slope 20 deg, mu %.2f: the strand moved %.4e m along the slope in 0.5 s (sliding freely: %.4e m), "
+                  "deepest vertex %.2e m into its contact distance %.0e m, %d contacts\n",
+                  mu, moved, -0.5 * 9.81 * fmax(0.0, sin(a) - mu * cos(a)) * 0.25, -deepest, m.radius, st.collider_contacts);
+    assert_true(st.collider_contacts > 0);
+    assert_true(-deepest <= 0.1 * m.radius); /* no vertex deeper than 10 % of the contact distance */
+    dr_rod_set_destroy(&r);
+    dr_groom_free(&g);
+    return moved;
+}
+
+static void test_friction_on_slope(void **state)
+{
+    (void)state;
+    double a = 20.0 * DR_PI / 180.0, free_slide = 0.5 * 9.81 * (sin(a) - 0.1 * cos(a)) * 0.25;
+    double held = slide_on_slope(0.5), slid = slide_on_slope(0.1);
+    assert_true(fabs(held) < 1e-3);           /* μ = 0.5 holds it: under 1 mm in 0.5 s */
+    assert_true(-slid > 0.8 * free_slide);     /* μ = 0.1 lets it slide, at about the Coulomb rate */
+    assert_true(-slid < 1.2 * free_slide);
+}
+
 /* ---- 6. no allocation per substep in the world ------------------------------------------------------------ */
 
 /* The furry ball of tests/data/hair_small.json (60 curly strands, self contact, the head as a collider, the scalp
@@ -510,7 +568,7 @@ int main(void)
         cmocka_unit_test(test_cantilever),        cmocka_unit_test(test_torsion),
         cmocka_unit_test(test_pendulum_energy),   cmocka_unit_test(test_free_rod_momentum),
         cmocka_unit_test(test_block_preconditioner), cmocka_unit_test(test_stiff_frame_rate),
-        cmocka_unit_test(test_shaking_scalp),     cmocka_unit_test(test_floor_contact),
+        cmocka_unit_test(test_shaking_scalp),     cmocka_unit_test(test_floor_contact), cmocka_unit_test(test_friction_on_slope),
         cmocka_unit_test(test_world_frames_allocate_nothing),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
