@@ -76,3 +76,64 @@ check "the bake is bit-identical on 1 and 2 threads" same "$b1" "$b2"
 "$BIN/bake" "$scene" -j 2 --out "$b3" --resume >"$WORK/resume.log" 2>&1
 check "the bake resumes after frame 3" grep -q "resuming after frame 3" "$WORK/resume.log"
 check "a resumed bake is bit-identical to an uninterrupted one" same "$b2" "$b3"
+
+# A squashed body: tests/data/bem_squash.json holds the bottom of a soft icosphere (μ = 3 kPa) in the pool and throws
+# the rest of it down at 2.5 m/s, so its surface moves by up to ~0.07 m (0.7 of its radius). The liquid sees its
+# deformed surface, updated at every BEM step: in the frame of the largest displacement, no particle is more than
+# half a cell (0.01 m) inside the deformed surface x̄ + u, posed by R and T. Inside is the solid angle the
+# triangles subtend (the winding number, exact for any closed surface, convex or not), for the particles in the
+# body's box; depth is the distance to the nearest vertex plane, which for these small faces is within a few mm.
+squash="$ROOT/tests/data/bem_squash.json"
+"$BIN/precompute" "$squash" -j 2 >/dev/null 2>&1
+"$BIN/bake" "$squash" -j 2 --out "$WORK/sq" -q >/dev/null 2>&1; rc=$?
+sd="$WORK/sq/bem_squash/bake"
+check "a squashed body bakes" test "$rc" -eq 0
+squashed_inside() { # FRAME: prints the particles inside the deformed surface and the deepest of them
+  local f="$sd/frame.000$1.h5" d="$WORK/sqd"; mkdir -p "$d"
+  h5 "$f" /water/position >"$d/p"
+  awk -v R="$(h5 "$f" /jelly/rotation)" -v T="$(h5 "$f" /jelly/translation)" -v X="$(h5 "$f" /jelly/reference)" \
+      -v U="$(h5 "$f" /jelly/displacement)" -v K="$(h5 "$f" /jelly/triangles)" 'BEGIN {
+    split(R, r, " "); split(T, t, " "); nx = split(X, x, " "); split(U, u, " "); nt = split(K, k, " ") / 3
+    for (d = 1; d <= 3; d++) { lo[d] = 1e9; hi[d] = -1e9 }
+    for (i = 0; i < nx / 3; i++)
+      for (d = 1; d <= 3; d++) { x[3*i+d] += u[3*i+d]; if (x[3*i+d] < lo[d]) lo[d] = x[3*i+d]; if (x[3*i+d] > hi[d]) hi[d] = x[3*i+d] } }
+  { np = split($0, p, " ") / 3; inside = 0; worst = 0
+    for (j = 0; j < np; j++) {
+      for (d = 1; d <= 3; d++) v[d] = p[3 * j + d] - t[d]
+      out = 0
+      for (d = 1; d <= 3; d++) { q[d] = r[d] * v[1] + r[3 + d] * v[2] + r[6 + d] * v[3]; if (q[d] < lo[d] || q[d] > hi[d]) out = 1 }
+      if (out) continue
+      w = 0; dmin = 1e9
+      for (i = 0; i < nt; i++) { # solid angle of triangle i seen from q (Van Oosterom and Strackee)
+        for (c = 0; c < 3; c++) { vi = k[3 * i + c + 1]; for (d = 1; d <= 3; d++) A[c, d] = x[3 * vi + d] - q[d]
+          L[c] = sqrt(A[c, 1]^2 + A[c, 2]^2 + A[c, 3]^2); if (L[c] < dmin) dmin = L[c] }
+        det = A[0,1] * (A[1,2] * A[2,3] - A[1,3] * A[2,2]) - A[0,2] * (A[1,1] * A[2,3] - A[1,3] * A[2,1]) + A[0,3] * (A[1,1] * A[2,2] - A[1,2] * A[2,1])
+        den = L[0] * L[1] * L[2] + (A[0,1]*A[1,1] + A[0,2]*A[1,2] + A[0,3]*A[1,3]) * L[2] + (A[0,1]*A[2,1] + A[0,2]*A[2,2] + A[0,3]*A[2,3]) * L[1] + (A[1,1]*A[2,1] + A[1,2]*A[2,2] + A[1,3]*A[2,3]) * L[0]
+        w += 2 * atan2(det, den)
+      }
+      if (w > 6.2831853) { # winding number 1: inside; its depth below the nearest face plane
+        m = 1e9
+        for (i = 0; i < nt; i++) {
+          a = k[3*i+1]; b = k[3*i+2]; c = k[3*i+3]
+          for (d = 1; d <= 3; d++) { e1[d] = x[3*b+d] - x[3*a+d]; e2[d] = x[3*c+d] - x[3*a+d] }
+          n1 = e1[2]*e2[3] - e1[3]*e2[2]; n2 = e1[3]*e2[1] - e1[1]*e2[3]; n3 = e1[1]*e2[2] - e1[2]*e2[1]; l = sqrt(n1*n1 + n2*n2 + n3*n3)
+          s = (n1 * (x[3*a+1] - q[1]) + n2 * (x[3*a+2] - q[2]) + n3 * (x[3*a+3] - q[3])) / l
+          if (s >= 0 && s < m) m = s
+        }
+        if (m < 1e9 && m > 0.01) inside++
+        if (m < 1e9 && m > worst) worst = m
+      }
+    }
+    printf "%d %.4f\n", inside, worst }' "$d/p"
+}
+squash_ok() {
+  local best=0 bf=1 f m
+  for f in 1 2 3 4 5 6 7 8; do
+    m=$(h5 "$sd/frame.000$f.h5" /diagnostics/jelly/max_displacement)
+    awk -v a="$m" -v b="$best" 'BEGIN { exit !(a > b) }' && { best=$m; bf=$f; }
+  done
+  local r; r=$(squashed_inside "$bf")
+  echo "squashed body: largest displacement $best m in frame $bf; particles deeper than 0.01 m inside its deformed surface: $(cut -d' ' -f1 <<<"$r") (deepest $(cut -d' ' -f2 <<<"$r") m)"
+  awk -v a="$best" 'BEGIN { exit !(a > 0.05) }' && [ "$(cut -d' ' -f1 <<<"$r")" -eq 0 ]
+}
+check "a squashed body (displacement > 0.05 m) keeps the liquid out of its deformed surface" squash_ok
