@@ -1,6 +1,6 @@
-/* DrWorld: builds only the solvers a scene's elements need and advances the shot one frame at a time in a
- * fixed, readable order; frame caches and checkpoints (DESIGN §4). Also the command-line plumbing shared by
- * the four stage executables (arguments, output folders, manifests), so every stage behaves alike.
+/* DrWorld: builds only the solvers a scene's elements need and advances the shot one frame at a time on one clock
+ * (README "How a frame is stepped"); frame caches and checkpoints (DESIGN §4). The command-line plumbing the four
+ * stage executables share is src/stage's.
  *
  * Time: the initial state is t = 0; shot frame f holds the state at t = (f − f_first + 1)/fps, so a 48-frame
  * shot at 24 fps ends at t = 2 s. Motion keys use the same frame numbering (frame f_first − 1 is t = 0).
