@@ -219,7 +219,7 @@ DrStatus dr_point_field_build(DrPointField *pf, long n, const double *x, const d
         pf->radius[p] = 0.5 * cbrt(volume[p]);
         rmax = fmax(rmax, pf->radius[p]);
     }
-    double R = 3.0 * rmax;
+    double R = 4.0 * rmax;
     for (long p = 0; p < n; p++) {
         double c[3];
         for (int a = 0; a < 3; a++) {

@@ -69,10 +69,11 @@ DR_NODISCARD DrStatus dr_broad_phase_pairs(DrBroadPhase *bp, double cell, const 
  * (hair): φ(x) = |x − x̄(x)| − r̄(x), x̄ and r̄ the kernel-weighted mean position and radius of the particles within R
  * of x (k = (1 − d²/R²)³; Zhu and Bridson 2005), the normal (x − x̄)/|x − x̄|, the velocity the kernel-weighted mean
  * of the particles'. A particle's radius r is half the edge of the cube of its volume (the rest volume for an MPM solid), so particles on a lattice of
- * spacing s = 2r touch. R = 3r: outside the surface (φ ≥ 0) a flat face's first layer of particles alone is within
- * R, so the face is flat at r above its particles' centres (a union of spheres would dip by r between neighbours)
- * and not drawn inwards by the layers below. The field reaches 2r beyond the surface and is +∞ farther out: a
- * contact distance beyond 2r is not seen. Particles are binned on cells of edge R, sorted (no hash), so a query
+ * spacing s = 2r touch. R = 4r: over a lattice's flat face the field is within 0.1 r of the height above the face
+ * (r over the top particles' centres) and its normal within 2° of the face's, over particles and between them
+ * alike (a union of spheres dips by r between neighbours; R = 3r tilts the normal by up to 18° between particles,
+ * R = 6r draws the face in by 0.55 r: tests/unit/test_contact.c). The field reaches at least ~2r beyond a face and
+ * is +∞ where no particle is within R: a contact distance beyond that is not seen. Particles are binned on cells of edge R, sorted (no hash), so a query
  * reads 27 cells and the result does not depend on the thread count. Rebuilding keeps the buffers: after the
  * largest set seen, a build allocates nothing. */
 typedef struct DrPointField DrPointField;

@@ -1,10 +1,12 @@
 /* The contact module: the broad phase finds exactly the overlapping box pairs (against all pairs tested directly),
- * once each, in its stated order, allocating nothing once warm; bad boxes are refused; group/mask bits. */
+ * once each, in its stated order, allocating nothing once warm; bad boxes are refused; group/mask bits; a particle
+ * lattice as a surface. */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
 #include <stdint.h>
 #include <cmocka.h>
+#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -165,6 +167,58 @@ static void test_shape_bits_and_boxes(void **state)
     assert_true(lo.x == 1 && hi.x == 1 && lo.z == 3 && hi.z == 3);
 }
 
+/* A particle lattice as a surface: a slab of 10 × 3 × 10 particles of spacing s (radius s/2). Above its top face,
+   outside the surface and within 1.6r of it, the field is the height above the face at r over the top particles'
+   centres to within 0.1 r, wherever over the face (above a particle or between particles), with the normal within
+   0.05 rad of straight up and the particles' velocity; far
+   away it is +∞; a rebuild of the same size allocates nothing. */
+static void test_point_field_flat_face(void **state)
+{
+    (void)state;
+    enum { NX = 10, NY = 3, NZ = 10, N = NX * NY * NZ };
+    double s = 0.01, r = 0.5 * s;
+    static double x[3 * N], v[3 * N], vol[N];
+    for (int i = 0, p = 0; i < NX; i++)
+        for (int j = 0; j < NY; j++)
+            for (int k = 0; k < NZ; k++, p++) {
+                x[3 * p] = (i + 0.5) * s;
+                x[3 * p + 1] = (j + 0.5) * s;
+                x[3 * p + 2] = (k + 0.5) * s;
+                v[3 * p] = 0.1, v[3 * p + 1] = -0.2, v[3 * p + 2] = 0.3;
+                vol[p] = s * s * s;
+            }
+    DrPointField *pf = NULL;
+    DrError err;
+    assert_int_equal(dr_point_field_create(&pf, &err), DR_OK);
+    assert_int_equal(dr_point_field_build(pf, N, x, v, vol, &err), DR_OK);
+    double top = (NY - 0.5) * s + r; /* the face: r above the top layer's centres */
+    double worst = 0, tilt = 0;
+    for (int a = 0; a <= 10; a++)
+        for (int b = 0; b <= 10; b++) {
+            /* over the middle of the face, from on it to 1.6r above it, over particles and between them */
+            DrVec3 q = dr_v3(0.04 + 0.002 * a, top + 0.0008 * b, 0.05 + 0.0005 * a);
+            DrVec3 n;
+            double phi = dr_point_field_phi(pf, q, &n);
+            worst = fmax(worst, fabs(phi - (q.y - top)));
+            tilt = fmax(tilt, acos(fmin(1.0, n.y)));
+            DrVec3 u = dr_point_field_velocity(pf, q);
+            if (!(fabs(u.x - 0.1) < 1e-12 && fabs(u.y + 0.2) < 1e-12 && fabs(u.z - 0.3) < 1e-12)) fail_msg("velocity (%g %g %g) at (%g %g %g)", u.x, u.y, u.z, q.x, q.y, q.z);
+        }
+    print_message("point field over a flat face: largest error %.2e m of the height above it (r = %.0e m), normal "
+                  "tilted by %.2e rad at most\n", worst, r, tilt);
+    assert_true(worst < 0.1 * r); /* the kernel's mean over a lattice is flat to within this, not exactly */
+    assert_true(tilt < 0.05);
+    DrVec3 n;
+    assert_true(isinf(dr_point_field_phi(pf, dr_v3(0.05, 1.0, 0.05), &n)));
+    long before = dr_alloc_count();
+    assert_int_equal(dr_point_field_build(pf, N, x, v, vol, &err), DR_OK);
+    assert_int_equal(dr_alloc_count(), before);
+    vol[7] = 0.0;
+    assert_int_equal(dr_point_field_build(pf, N, x, v, vol, &err), DR_ERR_INPUT);
+    assert_non_null(strstr(err.message, "particle 7"));
+    dr_point_field_destroy(&pf);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -172,6 +226,7 @@ int main(void)
         cmocka_unit_test(test_pair_order),
         cmocka_unit_test(test_bad_boxes_and_cells),
         cmocka_unit_test(test_shape_bits_and_boxes),
+        cmocka_unit_test(test_point_field_flat_face),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
