@@ -190,10 +190,11 @@ void dr_world_destroy(DrWorld **world)
  *   1. BEM bodies at the start of one of their steps take it (one-way: nothing acts on them but their constraints),
  *      and the kinematics carry each body's collider of the liquid and the hair through it;
  *   2. kinematics: every scene collider posed at the step's end, once, for every solver;
- *   3. each other solver whose own step ends there, or that must stand there (a BEM step end, the frame end: the
- *      bodies' colliders are keyed per BEM step), steps to it from where it stands (predict, solve, commit), the
- *      liquids first. A solver whose step ends later waits: with nothing exchanged between the solvers yet, it
- *      takes the steps it took alone, and a cheap hair step is not cut into a fast liquid's substeps.
+ *   3. each other solver whose own step ends there, or every solver at the frame end, steps to it from where it
+ *      stands (predict, solve, commit), the liquids first. A solver whose step ends later waits: with nothing
+ *      exchanged between the solvers yet, it takes the steps it took alone, and a cheap hair step is not cut into a
+ *      fast liquid's substeps nor a liquid substep at each BEM step end (the bodies' colliders are keyed over the
+ *      frame so far, so a step may span several BEM steps).
  * After the last step each adapter checks its state and writes its block of the frame's stats. */
 
 DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrError *err)
@@ -234,7 +235,7 @@ DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrError *err)
         for (int i = 0; i < w->nsolvers; i++) {
             WorldSolver *s = &w->solvers[i];
             if (!s->step) continue;
-            if (!landing && s->next_time && t_next < w->proposal[i]) continue; /* its own step ends later */
+            if (t_next < c.t1 && s->next_time && t_next < w->proposal[i]) continue; /* its own step ends later */
             DR_TRY(s->step(s->self, &c, w->at[i], t_next, err));
             w->at[i] = t_next;
             w->proposal[i] = NAN;

@@ -72,10 +72,12 @@ DR_NODISCARD DrStatus world_kinematics_set_mpm_surface(WorldKinematics *k, long 
 bool world_kinematics_mpm_surface(WorldKinematics *k, double (**sdf)(DrVec3, DrVec3 *, void *),
                                   DrVec3 (**velocity)(DrVec3, void *), void **ctx);
 /* Before body i (in the order given to world_kinematics_add_bodies) takes a step from t0: its frame there. After it
-   (to t1): its collider carries it from its frame at t0 to its frame at t1, and its SDF follows the deformed surface
+   (to t1): its collider carries it through the frame so far, keyed from the frame's start t_frame to t1 (and one key
+   past t1 along its velocity), so a solver's step may span several BEM steps; its SDF follows the deformed surface
    when that moved by more than a quarter of an SDF cell since the SDF was built. No-ops without a liquid or hair. */
 void world_kinematics_body_begin(WorldKinematics *k, int i);
-DR_NODISCARD DrStatus world_kinematics_body_end(WorldKinematics *k, int i, double t0, double t1, DrError *err);
+DR_NODISCARD DrStatus world_kinematics_body_end(WorldKinematics *k, int i, double t_frame, double t0, double t1,
+                                                DrError *err);
 int world_kinematics_body_rebuilds(const WorldKinematics *k); /* SDF rebuilds of the bodies so far */
 /* The frame cache's collider groups: rotation and translation of each live collider at t. */
 DR_NODISCARD DrStatus world_kinematics_write(const WorldKinematics *k, DrH5 *h, double t, DrError *err);

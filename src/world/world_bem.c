@@ -731,7 +731,8 @@ static DrStatus bem_step_first(void *self, const WorldCtx *c, double t, double t
         DR_TRY(gr->constrained ? step_together(b, gr, c->t0, n, c->frame, err) : step_alone(b, gr, c->frame, err));
         gr->done++;
         for (int k = 0; k < gr->count; k++)
-            DR_TRY(world_kinematics_body_end(c->kin, gr->members[k], start, group_step_end(gr, c, gr->done), err));
+            DR_TRY(world_kinematics_body_end(c->kin, gr->members[k], c->t0, start, group_step_end(gr, c, gr->done),
+                                                     err));
     }
     return DR_OK;
 }

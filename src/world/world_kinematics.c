@@ -29,8 +29,8 @@ typedef struct WorldBodyCollider {
     double *built_u;         /* u when the SDF was built (3N) */
     DrXform start;           /* the body's frame (R, T) at the start of the step being taken */
     DrVec3 start_velocity;   /* and its Ṫ */
-    double *keys;            /* the step's key rows (7 each) */
-    int nkeys;
+    double *keys;            /* the frame's key rows so far (7 each) */
+    int nkeys, cap_keys;
     DrCollider *collider;    /* the SDF posed by keys; rebuilt every BEM step */
 } WorldBodyCollider;
 
@@ -257,12 +257,16 @@ static DrStatus pose_body_collider(WorldBodyCollider *bc, DrError *err)
     return dr_collider_create(&d, &bc->collider, err);
 }
 
-/* Keys carrying the body from bc->start (at t0) to its frame now (at t1): BODY_KEY_INTERVALS + 1 rows, the position
+/* Keys carrying the body from bc->start (at t0) to its frame now (at t1), appended to the frame's keys so far (from
+   the frame's start; a step starting at t_frame starts them afresh): BODY_KEY_INTERVALS rows per step, the position
    on the cubic Hermite curve through T and Ṫ at both ends (exact for a free fall), the rotation along the shortest
-   arc from R(t0) to R(t1). Between keys the pose is linear (rotation in XYZ Euler angles, as every collider's), so
-   the surface velocity the liquid sees is the rate of that pose: Ṫ + ω × r to within the key spacing. The rate of
-   the deformation u̇ is not seen. */
-static void body_keys(WorldBodyCollider *bc, double t0, double t1)
+   arc from R(t0) to R(t1); then one key past t1 along the body's velocity there (a collider holds still after its
+   last key, and a solver takes a collider's velocity at the end of its step, which may be t1), replaced by the next
+   step's keys. Between keys the pose is linear (rotation in XYZ Euler angles, as every collider's), so the surface
+   velocity a solver sees is the rate of that pose: Ṫ + ω × r to within the key spacing; the rate of the
+   deformation u̇ is not seen. Keeping the frame's keys lets the liquid and the hair take steps across BEM step
+   ends: the pose at a step's start and at its end both come from them. */
+static DrStatus body_keys(WorldBodyCollider *bc, double t_frame, double t0, double t1, DrError *err)
 {
     DrXform X1;
     DrVec3 V1, V0 = bc->start_velocity;
@@ -270,23 +274,37 @@ static void body_keys(WorldBodyCollider *bc, double t0, double t1)
     DrMat3 R0 = bc->start.R;
     DrVec3 T0 = bc->start.t, w = rotation_log(dr_m3_mul(dr_m3_transpose(R0), X1.R));
     double h = t1 - t0;
-    DrVec3 e = euler_near(R0, dr_v3(0, 0, 0));
-    for (int k = 0; k <= BODY_KEY_INTERVALS; k++) {
+    int first = 1; /* the step's first key is the last step's last (t0) */
+    DrVec3 e;
+    if (t0 == t_frame || bc->nkeys < 2) {
+        bc->nkeys = 0;
+        first = 0;
+        e = euler_near(R0, dr_v3(0, 0, 0));
+    } else {
+        bc->nkeys--; /* drops the key past the last step's end */
+        const double *last = bc->keys + 7 * (bc->nkeys - 1);
+        e = dr_v3(last[4], last[5], last[6]);
+    }
+    int need = bc->nkeys + BODY_KEY_INTERVALS + 2;
+    if (need > bc->cap_keys) { /* doubled, kept: the first frame sizes it */
+        int cap = 2 * need;
+        DR_TRY(dr_realloc((size_t)cap * 7, sizeof(double), &bc->keys, err));
+        bc->cap_keys = cap;
+    }
+    for (int k = first; k <= BODY_KEY_INTERVALS; k++) {
         double s = (double)k / BODY_KEY_INTERVALS, s2 = s * s, s3 = s2 * s;
         DrVec3 T = dr_v3_add(dr_v3_add(dr_v3_scale(T0, 2 * s3 - 3 * s2 + 1), dr_v3_scale(V0, h * (s3 - 2 * s2 + s))),
                              dr_v3_add(dr_v3_scale(X1.t, 3 * s2 - 2 * s3), dr_v3_scale(V1, h * (s3 - s2))));
         DrMat3 R = k == BODY_KEY_INTERVALS ? X1.R : dr_m3_mul(R0, skew_exp(dr_v3_scale(w, s)));
         if (k == BODY_KEY_INTERVALS) T = X1.t;
         e = euler_near(R, e);
-        put_key(bc->keys + 7 * k, k == BODY_KEY_INTERVALS ? t1 : t0 + s * h, T, e);
+        put_key(bc->keys + 7 * bc->nkeys++, k == BODY_KEY_INTERVALS ? t1 : t0 + s * h, T, e);
     }
-    /* One key past t1 along the body's velocity there: a collider holds still after its last key, and the liquid
-       takes a collider's velocity at the end of its substep, which is t1 whenever the clock lands on a BEM step. */
     DrVec3 W1 = body_angular_velocity(bc->solid);
     DrMat3 Rx = dr_m3_mul(skew_exp(dr_v3_scale(W1, h)), X1.R);
     e = euler_near(Rx, e);
-    put_key(bc->keys + 7 * (BODY_KEY_INTERVALS + 1), t1 + h, dr_v3_add(X1.t, dr_v3_scale(V1, h)), e);
-    bc->nkeys = BODY_KEY_INTERVALS + 2;
+    put_key(bc->keys + 7 * bc->nkeys++, t1 + h, dr_v3_add(X1.t, dr_v3_scale(V1, h)), e);
+    return DR_OK;
 }
 
 /* The SDF of the body's surface in its frame, x − x̄ + u, at spacing dx; remembers u. */
@@ -345,6 +363,7 @@ DrStatus world_kinematics_add_bodies(WorldKinematics *k, const DrScene *scene, c
         DR_TRY(dr_calloc(3 * (size_t)dr_bem_solid_matrices(bc->solid)->nv, sizeof(double), &bc->built_u, err));
         DR_TRY(build_body_sdf(bc, k->dx, err));
         DR_TRY(dr_calloc(7 * (BODY_KEY_INTERVALS + 2), sizeof(double), &bc->keys, err));
+        bc->cap_keys = BODY_KEY_INTERVALS + 2;
         body_frame(bc->solid, &bc->start, &bc->start_velocity);
         put_key(bc->keys, 0.0, bc->start.t, euler_near(bc->start.R, dr_v3(0, 0, 0)));
         bc->nkeys = 1; /* at rest where the Transform put it: no liquid is seeded inside it */
@@ -365,7 +384,7 @@ void world_kinematics_body_begin(WorldKinematics *k, int i)
     body_frame(k->bodies[i].solid, &k->bodies[i].start, &k->bodies[i].start_velocity);
 }
 
-DrStatus world_kinematics_body_end(WorldKinematics *k, int i, double t0, double t1, DrError *err)
+DrStatus world_kinematics_body_end(WorldKinematics *k, int i, double t_frame, double t0, double t1, DrError *err)
 {
     if (i >= k->nbodies) return DR_OK;
     WorldBodyCollider *bc = &k->bodies[i];
@@ -373,7 +392,7 @@ DrStatus world_kinematics_body_end(WorldKinematics *k, int i, double t0, double 
         DR_TRY(build_body_sdf(bc, k->dx, err));
         k->rebuilds++;
     }
-    body_keys(bc, t0, t1);
+    DR_TRY(body_keys(bc, t_frame, t0, t1, err));
     DR_TRY(dr_error_prefix(pose_body_collider(bc, err), err, "%s.BemSolver", bc->element->name));
     if (k->nliquid > k->nlive) k->liquid[k->nlive + i] = bc->collider;
     k->body_posed[i].collider = bc->collider;

@@ -88,7 +88,7 @@ static const Golden GOLDEN[] = {
     {DATA "mpm_drop.json", 4, "f82e4206818696d3b77be6c0e58924ff"},
     {DATA "hair_small.json", 3, "2db5a6eaab7124ac6829684fd971f290"},
     {DATA "bem_pair.json", 2, "c1e076eea5909a3afe407387da37cfa1"},
-    {DATA "golden_mix.json", 3, "e7dbd22b7dc55607ad56f921c88269a5"},
+    {DATA "golden_mix.json", 3, "7b706e7ceab38ae64c72852551e500f3"},
 };
 
 static void check(int k)
