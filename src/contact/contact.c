@@ -39,6 +39,7 @@ struct DrBroadPhase {
     size_t ncells, cap_cells;
     DrBroadPair *pairs;
     long npairs, cap_pairs;
+    bool slack;            /* the first query left room for twice its pairs */
 };
 
 DrStatus dr_broad_phase_create(DrBroadPhase **out, DrError *err) { return dr_calloc(1, sizeof **out, out, err); }
@@ -61,6 +62,20 @@ void dr_broad_phase_clear(DrBroadPhase *bp)
 }
 
 int dr_broad_phase_count(const DrBroadPhase *bp) { return bp->nbox; }
+
+DrStatus dr_broad_phase_reserve(DrBroadPhase *bp, int boxes, size_t cell_entries, DrError *err)
+{
+    if (boxes > bp->cap_box) {
+        DR_TRY(dr_realloc((size_t)boxes * 6, sizeof(double), &bp->box, err));
+        bp->cap_box = boxes;
+    }
+    if (cell_entries > bp->cap_cells) {
+        DR_TRY(dr_realloc(cell_entries, sizeof(CellEntry), &bp->cells, err));
+        DR_TRY(dr_realloc(cell_entries, sizeof(CellEntry), &bp->cells_tmp, err));
+        bp->cap_cells = cell_entries;
+    }
+    return DR_OK;
+}
 
 DrStatus dr_broad_phase_add(DrBroadPhase *bp, DrVec3 lo, DrVec3 hi, DrError *err)
 {
@@ -156,6 +171,11 @@ DrStatus dr_broad_phase_pairs(DrBroadPhase *bp, double cell, const DrBroadPair *
             }
         a = b;
     }
+    if (!bp->slack && 2 * bp->npairs > bp->cap_pairs) {
+        DR_TRY(dr_realloc((size_t)(2 * bp->npairs), sizeof(DrBroadPair), &bp->pairs, err));
+        bp->cap_pairs = 2 * bp->npairs;
+    }
+    bp->slack = true;
     *pairs = bp->pairs;
     *npairs = bp->npairs;
     return DR_OK;

@@ -14,8 +14,10 @@
  * address of anything or on a hash function. A cell at least as large as the largest box keeps each box in at
  * most 2 cells per axis.
  *
- * Memory: a DrBroadPhase keeps its buffers between queries, growing them geometrically: once it has seen its
- * largest query, a query allocates nothing (dr_alloc_count does not move).
+ * Memory: a DrBroadPhase keeps its buffers between queries, growing them geometrically, and its first query
+ * leaves room for twice its pairs: once it has seen its largest query, a query allocates nothing (dr_alloc_count
+ * does not move). A caller that knows a bound on its boxes' cell entries (a box no larger than a cell meets at
+ * most 8) reserves it (dr_broad_phase_reserve).
  * Thread safety: one DrBroadPhase per thread; queries on different objects may run concurrently. */
 #ifndef DR_CONTACT_H
 #define DR_CONTACT_H
@@ -58,6 +60,8 @@ void dr_broad_phase_clear(DrBroadPhase *bp);
 /* Adds a box (lo ≤ hi componentwise, finite); its index is the number of boxes added before it. */
 DR_NODISCARD DrStatus dr_broad_phase_add(DrBroadPhase *bp, DrVec3 lo, DrVec3 hi, DrError *err);
 int dr_broad_phase_count(const DrBroadPhase *bp);
+/* Room for `boxes` boxes and `cell_entries` box–cell entries, so that queries within them never allocate. */
+DR_NODISCARD DrStatus dr_broad_phase_reserve(DrBroadPhase *bp, int boxes, size_t cell_entries, DrError *err);
 /* The candidate pairs of the boxes added since the last clear, on cells of edge `cell` (m, > 0), in the order the
  * header describes; *pairs stays valid until the next query, clear or destroy. DR_ERR_INPUT when a box is not
  * finite or lies more than 2^30 cells from the origin (a cell far too small for the scene: say which). */

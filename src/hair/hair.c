@@ -225,8 +225,9 @@ DrStatus dr_rod_set_create(const DrRodSetDesc *desc, const DrRodBatch *batches, 
     ALLOC(r->s_length, V);
     ALLOC(r->s_tangent, 3 * V);
     ALLOC(r->s_held, V);
-    if (desc->hair_contact) {
+    if (desc->hair_contact) { /* an edge's box is no larger than a cell (find_hair_contacts): 8 cells at most */
         s = dr_broad_phase_create(&r->bp, err);
+        if (s == DR_OK) s = dr_broad_phase_reserve(r->bp, r->E, 8 * (size_t)r->E, err);
         if (s != DR_OK) goto fail;
     }
     /* the step's scratch: per strand a status, a contact count and an error record pointer */
