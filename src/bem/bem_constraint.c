@@ -5,7 +5,7 @@
  *  1. a trial step of every body with zero traction gives the unconstrained end-of-step positions V_free;
  *  2. the active set: fixed vertices, joints, vertices whose V_free lies closer to a collider than 2·thickness, and
  *     (body contact) vertices closer than that to, or slightly inside, another body's surface: the nearest triangle
- *     is found through a spatial hash of that body's triangles and the constraint acts on y = x − Σ_a w_a V_a (w the
+ *     is found through the broad phase (contact.h) and the constraint acts on y = x − Σ_a w_a V_a (w the
  *     barycentric weights of the nearest point), its force split onto the triangle's vertices by the same weights;
  *  3. the response of the active vertices to forces at the active vertices, linearised as in eq. (14): a force f_j
  *     (world) at vertex j is the body-frame traction Δp_j = R_{k−1}ᵀ f_j / area_j and moves vertex i by
@@ -35,7 +35,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "core/sort.h"
+#include "contact/contact.h"
 
 void dr_bem_constraints_default(DrBemConstraints *c)
 {
@@ -732,25 +732,17 @@ static double measure(Con *cons, int nc, const DrBemConstraints *c, double *cons
     return res;
 }
 
-/* ---- body–body detection: a spatial hash of triangles ------------------------------------------------------ */
+/* ---- body–body detection: vertices against triangles in the broad phase ----------------------------------- */
 
-typedef struct HashEntry {
-    uint64_t key;
-    int tri;
-} HashEntry;
+/* What detection keeps from step to step: the broad phase (created on first use) and, per vertex of the body being
+   tested, where its candidates lie in the broad phase's pair list. */
+typedef struct CandidateSpan { long begin, end; } CandidateSpan;
 
-static uint64_t cell_key(long i, long j, long k)
-{
-    return ((uint64_t)i * 73856093u) ^ ((uint64_t)j * 19349663u) ^ ((uint64_t)k * 83492791u);
-}
-
-static bool entry_less(const HashEntry *a, const HashEntry *b)
-{
-    return a->key != b->key ? a->key < b->key : a->tri < b->tri;
-}
-
-/* By (key, triangle): equal entries are identical, so the order is the one any sort gives. */
-DR_DEFINE_STABLE_SORT(entries_sort, HashEntry, entry_less)
+typedef struct Detect {
+    DrBroadPhase *bp;
+    CandidateSpan *span; /* span_cap */
+    size_t span_cap;
+} Detect;
 
 /* The point of triangle (a, b, c) closest to x, as barycentric weights w. */
 static void closest_on_triangle(const double *x, const double *a, const double *b, const double *c, double w[3])
@@ -780,52 +772,30 @@ static void closest_on_triangle(const double *x, const double *a, const double *
     }
 }
 
-/* Triangles of body b at positions V into the cells (size h) their bounding box, grown by h, overlaps, sorted by
-   cell key: a vertex then needs only its own cell. *out and the sort's scratch *tmp (capacities *cap_ and *tmp_cap,
-   kept between steps) grow as needed. */
-static DrStatus hash_build(const DrBemMatrices *m, const double *V, double h, HashEntry **out, size_t *cap_,
-                           HashEntry **tmp, size_t *tmp_cap, int *count, DrError *err)
-{
-    int ne = 0;
-    size_t cap = *cap_;
-    HashEntry *e = *out;
-    for (int t = 0; t < m->nt; t++) {
-        double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-        for (int a = 0; a < 3; a++)
-            for (int q = 0; q < 3; q++) {
-                lo[q] = fmin(lo[q], V[3 * m->tri[3 * t + a] + q]);
-                hi[q] = fmax(hi[q], V[3 * m->tri[3 * t + a] + q]);
-            }
-        long l[3], u[3];
-        for (int q = 0; q < 3; q++) l[q] = (long)floor((lo[q] - h) / h), u[q] = (long)floor((hi[q] + h) / h);
-        for (long i = l[0]; i <= u[0]; i++)
-            for (long j = l[1]; j <= u[1]; j++)
-                for (long k = l[2]; k <= u[2]; k++) {
-                    if ((size_t)ne == cap) {
-                        size_t nc = cap ? 2 * cap : 1024;
-                        DrStatus st = dr_realloc(nc, sizeof *e, &e, err);
-                        *out = e;
-                        if (st != DR_OK) return st;
-                        *cap_ = cap = nc;
-                    }
-                    e[ne++] = (HashEntry){cell_key(i, j, k), t};
-                }
-    }
-    if ((size_t)ne > *tmp_cap) {
-        DR_TRY(dr_realloc(cap, sizeof *e, tmp, err));
-        *tmp_cap = cap;
-    }
-    entries_sort(e, *tmp, (size_t)ne);
-    *count = ne;
-    return DR_OK;
-}
-
-/* Vertices of body a within 2·thickness of (or at most h inside) the surface of body b, at the trial positions. */
+/* Vertices of body a within 2·thickness of (or at most h inside) the surface of body b, at the trial positions.
+ *
+ * The candidates of a vertex are the triangles of b whose bounding box, grown by h, holds it: the broad phase's
+ * pairs between the vertices of a (points, boxes 0 .. nv_a − 1) and those boxes (nv_a + t), taken across the split
+ * so that the triangles' pairs among themselves are never tested. A vertex is a point, so it lies in one cell and
+ * owns all its pairs there; within a cell the pairs come by increasing first box, then second (contact.h), so a
+ * vertex's candidates are one run of the pair list in increasing triangle order, which the nearest-triangle search
+ * below needs: its tie rule depends on the order of visits.
+ *
+ * The contacts do not depend on how generous the candidate lists are: any lists in increasing triangle order that
+ * hold at least the triangles within h of the vertex (say, every triangle whose grown box touches the vertex's cell
+ * on a grid of edge h, or those plus a hash's collisions) give the same contacts in the same order, unless some
+ * triangle of b lies within tie = 1e-6 h of the cut-off h. These lists hold every triangle within h (its nearest
+ * point lies in its box, so the vertex lies within h of the box on each axis). A visit changes nothing unless it
+ * makes the triangle the nearest so far; outside that band, a triangle beyond h can do so only while the nearest
+ * so far is beyond h + tie (nearer by more than tie, or within tie of it), and a triangle within h then always
+ * takes over from it. So after every visit the two searches hold the same triangle, or both hold one beyond
+ * h + tie and reject the vertex. */
 static DrStatus detect_body_pair(Body *bodies, int ia, int ib, double *const *V0, double *const *Vs,
-                                 const DrBemConstraints *c, HashEntry *hash[2], size_t hash_cap[2], Con *cons, int *nc,
+                                 const DrBemConstraints *c, Detect *det, Con *cons, int *nc,
                                  DrBemConstraintStats *stats, DrError *err)
 {
     const DrBemMatrices *mb = bodies[ib].s->m;
+    int nva = bodies[ia].s->nv;
     double h = 0; /* the mean edge length of b */
     for (int t = 0; t < mb->nt; t++)
         for (int a = 0; a < 3; a++) {
@@ -833,28 +803,46 @@ static DrStatus detect_body_pair(Body *bodies, int ia, int ib, double *const *V0
             h += sqrt(pow(p[0] - q[0], 2) + pow(p[1] - q[1], 2) + pow(p[2] - q[2], 2));
         }
     h = fmax(h / (3.0 * mb->nt), 4 * c->thickness);
-    int ne = 0;
-    DR_TRY(hash_build(mb, V0[ib], h, &hash[0], &hash_cap[0], &hash[1], &hash_cap[1], &ne, err));
-    const HashEntry *e = hash[0];
-    for (int v = 0; v < bodies[ia].s->nv; v++) {
+    if (!det->bp) DR_TRY(dr_broad_phase_create(&det->bp, err));
+    DR_TRY(grow(&det->span, &det->span_cap, (size_t)nva, sizeof(CandidateSpan), err));
+    DrShape verts = {.kind = DR_SHAPE_POINTS, .x = V0[ia], .nverts = nva, .nelements = nva};
+    DrShape tris = {.kind = DR_SHAPE_TRIANGLES, .x = V0[ib], .nverts = bodies[ib].s->nv, .elements = mb->tri,
+                    .nelements = mb->nt};
+    dr_broad_phase_clear(det->bp);
+    for (int v = 0; v < nva; v++) {
+        DrVec3 lo, hi;
+        dr_shape_element_box(&verts, v, 0.0, &lo, &hi);
+        DR_TRY(dr_broad_phase_add(det->bp, lo, hi, err));
+    }
+    for (int t = 0; t < mb->nt; t++) {
+        DrVec3 lo, hi;
+        dr_shape_element_box(&tris, t, h, &lo, &hi);
+        DR_TRY(dr_broad_phase_add(det->bp, lo, hi, err));
+    }
+    /* a box is a triangle's extent, rarely above an edge length h, plus 2h: cells of 3h keep a typical box within 2
+       cells per axis, and a long triangle costs only its own extra cells */
+    const DrBroadPair *pairs = NULL;
+    long np = 0;
+    DR_TRY(dr_broad_phase_pairs_across(det->bp, 3 * h, nva, &pairs, &np, err));
+    CandidateSpan *span = det->span;
+    for (int v = 0; v < nva; v++) span[v] = (CandidateSpan){0, 0};
+    for (long q = 0; q < np; q++) {
+        CandidateSpan *sp = &span[pairs[q].a];
+        if (sp->end == sp->begin) sp->begin = q;
+        assert(sp->begin == q || (sp->end == q && pairs[q - 1].b < pairs[q].b)); /* one run, increasing */
+        sp->end = q + 1;
+    }
+    for (int v = 0; v < nva; v++) {
         const double *x = &V0[ia][3 * v];
-        uint64_t key = cell_key((long)floor(x[0] / h), (long)floor(x[1] / h), (long)floor(x[2] / h));
-        int lo = 0, hi = ne;
-        while (lo < hi) {
-            int mid = lo + (hi - lo) / 2;
-            if (e[mid].key < key)
-                lo = mid + 1;
-            else
-                hi = mid;
-        }
         /* the nearest triangle; among triangles equally near (a vertex over an edge of a box lies in the plane of
            the side face too), the one facing the vertex's approach over the step, so a body landing on a face
            is pushed back along the face normal and not sideways off the edge */
         int best_t = -1;
         double best_d2 = INFINITY, best_w[3] = {0, 0, 0}, best_face = INFINITY, tie = 1e-6 * h;
         const double *xs = &Vs[ia][3 * v];
-        for (int q = lo; q < ne && e[q].key == key; q++) {
-            const int *tri = &mb->tri[3 * e[q].tri];
+        for (long q = span[v].begin; q < span[v].end; q++) {
+            int t = pairs[q].b - nva;
+            const int *tri = &mb->tri[3 * t];
             double w[3], d2 = 0, appr[3], nt[3];
             closest_on_triangle(x, &V0[ib][3 * tri[0]], &V0[ib][3 * tri[1]], &V0[ib][3 * tri[2]], w);
             for (int r = 0; r < 3; r++) {
@@ -867,7 +855,7 @@ static DrStatus detect_body_pair(Body *bodies, int ia, int ib, double *const *V0
             double face = dot3(nt, appr), d = sqrt(d2), bd = sqrt(best_d2);
             bool nearer = d < bd - tie, tied = fabs(d - bd) <= tie;
             if (nearer || (tied && face < best_face))
-                best_d2 = d2, best_t = e[q].tri, best_face = face, memcpy(best_w, w, sizeof w);
+                best_d2 = d2, best_t = t, best_face = face, memcpy(best_w, w, sizeof w);
         }
         if (best_t < 0 || best_d2 > h * h) continue;
         const int *tri = &mb->tri[3 * best_t];
@@ -905,8 +893,7 @@ struct BemGroupWork {
     size_t cons_cap;
     Con *cons, *cons0;          /* the active constraints; as predicted, where every solve starts */
     Sweep sweep;
-    HashEntry *hash[2];         /* body–body detection: the entries and the sort's scratch */
-    size_t hash_cap[2];
+    Detect detect;              /* body–body detection */
     double *work;               /* the assembly's */
     size_t work_cap;
     DrBemConstraintStats pred, stats; /* the prediction's figures; the step's so far */
@@ -925,8 +912,8 @@ void bem_group_work_free(BemGroupWork **pw)
     free(w->cons);
     free(w->cons0);
     sweep_free(&w->sweep);
-    free(w->hash[0]);
-    free(w->hash[1]);
+    dr_broad_phase_destroy(&w->detect.bp);
+    free(w->detect.span);
     free(w->work);
     free(w);
     *pw = NULL;
@@ -1078,7 +1065,7 @@ DrStatus dr_bem_solids_predict(DrBemSolid *const *solids, int count, const DrBem
     for (int ia = 0; c->body_contact && ia < count && status == DR_OK; ia++)
         for (int ib = 0; ib < count && status == DR_OK; ib++)
             if (ia != ib)
-                status = detect_body_pair(bodies, ia, ib, V0s, Vss, c, w->hash, w->hash_cap, cons, &nc, &stats, err);
+                status = detect_body_pair(bodies, ia, ib, V0s, Vss, c, &w->detect, cons, &nc, &stats, err);
     for (int i = 0; i < nc; i++) /* local indices, now that every active list is final */
         for (int e = 0; e < cons[i].ne; e++) cons[i].local[e] = bodies[cons[i].body[e]].map[cons[i].vertex[e]];
     stats.seconds_detect = dr_time_now() - t_det;

@@ -116,7 +116,9 @@ static DrStatus cell_range(const double *b, double cell, int i, int lo[3], int h
     return DR_OK;
 }
 
-DrStatus dr_broad_phase_pairs(DrBroadPhase *bp, double cell, const DrBroadPair **pairs, long *npairs, DrError *err)
+/* The pairs of both queries: every pair when split < 0, else only the pairs (i, j) with i < split ≤ j. */
+static DrStatus find_pairs(DrBroadPhase *bp, double cell, int split, const DrBroadPair **pairs, long *npairs,
+                           DrError *err)
 {
     *pairs = bp->pairs;
     *npairs = 0;
@@ -151,8 +153,13 @@ DrStatus dr_broad_phase_pairs(DrBroadPhase *bp, double cell, const DrBroadPair *
     for (size_t a = 0; a < n;) {
         size_t b = a;
         while (b < n && ce[b].cx == ce[a].cx && ce[b].cy == ce[a].cy && ce[b].cz == ce[a].cz) b++;
-        for (size_t i = a; i < b; i++)
-            for (size_t j = i + 1; j < b; j++) {
+        /* a cell's entries are in box order, so with a split those below it come first, [a, m), and the pairs
+           across it are [a, m) × [m, b) in the order the full enumeration meets them */
+        size_t m = a;
+        while (split >= 0 && m < b && ce[m].box < split) m++;
+        size_t i_end = split >= 0 ? m : b;
+        for (size_t i = a; i < i_end; i++)
+            for (size_t j = split >= 0 ? m : i + 1; j < b; j++) {
                 const double *p = bp->box + 6 * (size_t)ce[i].box, *q = bp->box + 6 * (size_t)ce[j].box;
                 bool overlap = true;
                 int own[3];
@@ -179,6 +186,18 @@ DrStatus dr_broad_phase_pairs(DrBroadPhase *bp, double cell, const DrBroadPair *
     *pairs = bp->pairs;
     *npairs = bp->npairs;
     return DR_OK;
+}
+
+DrStatus dr_broad_phase_pairs(DrBroadPhase *bp, double cell, const DrBroadPair **pairs, long *npairs, DrError *err)
+{
+    return find_pairs(bp, cell, -1, pairs, npairs, err);
+}
+
+DrStatus dr_broad_phase_pairs_across(DrBroadPhase *bp, double cell, int split, const DrBroadPair **pairs,
+                                     long *npairs, DrError *err)
+{
+    assert(split >= 0 && split <= bp->nbox);
+    return find_pairs(bp, cell, split, pairs, npairs, err);
 }
 
 /* ---- a point set as a surface ------------------------------------------------------------------------------ */

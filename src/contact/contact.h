@@ -67,6 +67,12 @@ DR_NODISCARD DrStatus dr_broad_phase_reserve(DrBroadPhase *bp, int boxes, size_t
  * finite or lies more than 2^30 cells from the origin (a cell far too small for the scene: say which). */
 DR_NODISCARD DrStatus dr_broad_phase_pairs(DrBroadPhase *bp, double cell, const DrBroadPair **pairs, long *npairs,
                                            DrError *err);
+/* The pairs between two sets of boxes: those added first, indices [0, split), and the rest, [split, count) (0 ≤ split
+ * ≤ count). Exactly the pairs of dr_broad_phase_pairs with a < split ≤ b, in its order, but the pairs within one set
+ * are never tested, so a query between a small set and a large one does not pay for the large set's own pairs. Same
+ * validity and failures as dr_broad_phase_pairs. */
+DR_NODISCARD DrStatus dr_broad_phase_pairs_across(DrBroadPhase *bp, double cell, int split, const DrBroadPair **pairs,
+                                                  long *npairs, DrError *err);
 
 /* ---- a point set as a surface -----------------------------------------------------------------------------------
  * The surface of a body sampled by particles (an MPM solid), for a solid that meets it through a signed distance

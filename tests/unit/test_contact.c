@@ -1,6 +1,6 @@
 /* The contact module: the broad phase finds exactly the overlapping box pairs (against all pairs tested directly),
- * once each, in its stated order, allocating nothing once warm; bad boxes are refused; group/mask bits; a particle
- * lattice as a surface. */
+ * once each, in its stated order, allocating nothing once warm; the pairs across a split are the crossing ones in
+ * the same order; bad boxes are refused; group/mask bits; a particle lattice as a surface. */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -123,6 +123,63 @@ static void test_pair_order(void **state)
     dr_broad_phase_destroy(&bp);
 }
 
+/* Pairs across a split: exactly the full query's pairs with a < split ≤ b, in the full query's order, for splits at
+   both ends and inside, with points (lo = hi) among the boxes; a repeat allocates nothing; a bad cell is refused. */
+static void check_across(int n, double extent, double size, double cell, uint64_t seed)
+{
+    DrRng rng;
+    dr_rng_seed(&rng, seed);
+    double *box = malloc(6 * sizeof(double) * (size_t)n);
+    random_boxes(&rng, n, extent, size, box);
+    for (int i = 0; i < n; i += 3) /* every third box a point */
+        for (int a = 0; a < 3; a++) box[6 * i + 3 + a] = box[6 * i + a];
+    DrBroadPhase *bp = NULL;
+    DrError err;
+    assert_int_equal(dr_broad_phase_create(&bp, &err), DR_OK);
+    for (int i = 0; i < n; i++)
+        assert_int_equal(dr_broad_phase_add(bp, dr_v3(box[6 * i], box[6 * i + 1], box[6 * i + 2]),
+                                            dr_v3(box[6 * i + 3], box[6 * i + 4], box[6 * i + 5]), &err),
+                         DR_OK);
+    const DrBroadPair *pairs = NULL;
+    long np = 0;
+    assert_int_equal(dr_broad_phase_pairs(bp, cell, &pairs, &np, &err), DR_OK);
+    long nall = np;
+    DrBroadPair *all = malloc(sizeof *all * (size_t)(nall + 1)), *want = malloc(sizeof *want * (size_t)(nall + 1));
+    memcpy(all, pairs, sizeof *all * (size_t)nall);
+    int splits[] = {0, 1, n / 3, n / 2, n - 1, n};
+    for (size_t k = 0; k < sizeof splits / sizeof *splits; k++) {
+        int split = splits[k];
+        long nwant = 0;
+        for (long q = 0; q < nall; q++)
+            if (all[q].a < split && all[q].b >= split) want[nwant++] = all[q];
+        assert_int_equal(dr_broad_phase_pairs_across(bp, cell, split, &pairs, &np, &err), DR_OK);
+        assert_int_equal(np, nwant);
+        assert_memory_equal(want, pairs, sizeof *want * (size_t)nwant);
+        uint64_t before = dr_alloc_count();
+        assert_int_equal(dr_broad_phase_pairs_across(bp, cell, split, &pairs, &np, &err), DR_OK);
+        assert_true(dr_alloc_count() == before);
+        assert_int_equal(np, nwant);
+        assert_memory_equal(want, pairs, sizeof *want * (size_t)nwant);
+        if (split == n / 2 && n > 10) assert_true(nwant > 0); /* the comparison is not empty */
+    }
+    assert_int_equal(dr_broad_phase_pairs_across(bp, -1.0, n / 2, &pairs, &np, &err), DR_ERR_INPUT);
+    assert_non_null(strstr(err.message, "cell size"));
+    assert_int_equal(np, 0);
+    free(want);
+    free(all);
+    free(box);
+    dr_broad_phase_destroy(&bp);
+}
+
+static void test_pairs_across_a_split(void **state)
+{
+    (void)state;
+    check_across(400, 1.0, 0.08, 0.1, 5); /* cell larger than every box */
+    check_across(400, 1.0, 0.3, 0.05, 6); /* boxes spanning many cells */
+    check_across(200, 0.1, 0.1, 1.0, 7);  /* everything in one cell */
+    check_across(1, 1.0, 0.1, 0.1, 8);    /* one box: no pair */
+}
+
 static void test_bad_boxes_and_cells(void **state)
 {
     (void)state;
@@ -224,6 +281,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_pairs_equal_all_pairs_tested),
         cmocka_unit_test(test_pair_order),
+        cmocka_unit_test(test_pairs_across_a_split),
         cmocka_unit_test(test_bad_boxes_and_cells),
         cmocka_unit_test(test_shape_bits_and_boxes),
         cmocka_unit_test(test_point_field_flat_face),
