@@ -303,7 +303,7 @@ DR_NODISCARD DrStatus dr_bem_solid_state_set(DrBemSolid *s, const double *state,
  * f at a vertex acts as the traction f / area_j (area_j = ∫Φ_j) on it. Constraints live at vertices: fixed vertices
  * held at world positions, vertices kept outside colliders (signed distance callbacks) with Coulomb friction, point
  * joints holding a vertex of one body on a vertex of another, and optionally contact with friction between bodies (a
- * vertex of one body kept outside the triangles of another, found through a spatial hash; its force is shared by the
+ * vertex of one body kept outside the triangles of another, found through the broad phase of src/contact; its force is shared by the
  * triangle's vertices with barycentric weights). All positions are world positions (m) at the end of the step;
  * forces are world-frame newtons. Bodies in one call are stepped with the same Δt (each solid's
  * matrices must share desc.dt). Not thread-safe for the same solids; callbacks are called from the calling thread. */
@@ -371,7 +371,7 @@ typedef struct DrBemConstraintStats {
  * dr_bem_solids_predict + dr_bem_solids_solve(NULL) + dr_bem_solids_commit below.
  *
  * What the constrained step needs from step to step (the active lists, the response blocks, the constraints, the
- * sweep's panel, the spatial hash) is kept by solids[0] and grows only when a step needs more than any before it, by
+ * sweep's panel, the broad phase) is kept by solids[0] and grows only when a step needs more than any before it, by
  * half as much again: once the first step of a scene has run, a step whose active set stays within that headroom
  * makes no heap allocation (the first constrained step of a body on a compressed set also builds the set's column
  * copy of H₀⁻¹G′, once). */
