@@ -303,8 +303,8 @@ DR_NODISCARD DrStatus dr_bem_solid_state_set(DrBemSolid *s, const double *state,
  * f at a vertex acts as the traction f / area_j (area_j = ∫Φ_j) on it. Constraints live at vertices: fixed vertices
  * held at world positions, vertices kept outside colliders (signed distance callbacks) with Coulomb friction, point
  * joints holding a vertex of one body on a vertex of another, and optionally contact with friction between bodies (a
- * vertex of one body kept outside the triangles of another, found through the broad phase of src/contact; its force is shared by the
- * triangle's vertices with barycentric weights). All positions are world positions (m) at the end of the step;
+ * vertex of one body kept outside the triangles of another, found through the broad phase of src/contact; its force
+ * is shared by the triangle's vertices with barycentric weights). All positions are world positions (m) at the end of the step;
  * forces are world-frame newtons. Bodies in one call are stepped with the same Δt (each solid's
  * matrices must share desc.dt). Not thread-safe for the same solids; callbacks are called from the calling thread. */
 
