@@ -237,8 +237,7 @@ static void solid_desc_of(const WorldCtx *w, const DrElement *e, const DrBemMatr
     DrVec3 v = dr_component_vec3(iv, "velocity");
     DrVec3 omega = dr_v3_scale(dr_component_vec3(iv, "angular_velocity"), DR_PI / 180.0);
     const DrComponent *sol = dr_element_component(e, "BemSolver");
-    for (int i = 0; i < 3; i++)
-        for (int j = 0; j < 3; j++) d->rotation[3 * i + j] = X.R.m[i][j];
+    dr_m3_store(X.R, d->rotation);
     double Ta[3] = {T.x, T.y, T.z}, va[3] = {v.x, v.y, v.z}, wa[3] = {omega.x, omega.y, omega.z};
     double ga[3] = {w->gravity.x, w->gravity.y, w->gravity.z};
     memcpy(d->position, Ta, sizeof Ta);
