@@ -10,7 +10,6 @@
 #include "io/io.h"
 #include "scene/scene.h"
 #include "stage/stage.h"
-#include "world/world.h"
 
 static int fail(const DrError *err)
 {
@@ -18,17 +17,18 @@ static int fail(const DrError *err)
     return dr_exit_code(err->status);
 }
 
-/* One bem_solid element, checked and keyed (dr_world_bem_asset_load: the world reads the matrices under the same
+/* One bem_solid element, checked and keyed (dr_stage_load_bem_asset: the world reads the matrices under the same
  * key). */
 typedef struct Body {
-    DrWorldBemAsset a;
+    const DrElement *e;
+    DrBemAsset a;
     int first; /* index of the first body with the same key (itself when it is the first) */
 } Body;
 
 /* Prefixes "<element>.Mesh.file: " to a failure's message, so it names the element as well as the file. */
 static DrStatus in_element(DrStatus s, const Body *b, DrError *err)
 {
-    if (dr_error_prefix(s, err, "%s.Mesh.file", b->a.element->name) < 0 && !err->file[0])
+    if (dr_error_prefix(s, err, "%s.Mesh.file", b->e->name) < 0 && !err->file[0])
         snprintf(err->file, sizeof err->file, "%s", b->a.path);
     return s;
 }
@@ -36,8 +36,9 @@ static DrStatus in_element(DrStatus s, const Body *b, DrError *err)
 /* Loads, welds and checks the element's mesh, hashes its file and computes the cache key. */
 static DrStatus prepare(const DrElement *e, Body *b, DrError *err)
 {
-    DR_TRY(dr_world_bem_asset_load(e, &b->a, err));
-    const DrWorldBemAsset *a = &b->a;
+    b->e = e;
+    DR_TRY(dr_stage_load_bem_asset(e, &b->a, err));
+    const DrBemAsset *a = &b->a;
     dr_log_info("bem: %s: %s: %d vertices, %d triangles (%d of %d vertices merged by welding within %.3g m)",
                 e->name, a->path, a->mesh.nv, a->mesh.nt, a->welded, a->vertices_in_file, a->weld_tolerance);
     return DR_OK;
@@ -64,8 +65,8 @@ static void inputs_json(const Body *b, char *buf, size_t size)
  * written (atomically: a kill leaves at most a temporary file that no reader trusts). */
 static DrStatus ensure_cached(const Body *body, const char *cache_root, bool *hit, DrError *err)
 {
-    const DrWorldBemAsset *b = &body->a;
-    const DrElement *e = b->element;
+    const DrBemAsset *b = &body->a;
+    const DrElement *e = body->e;
     DrBemMatrices *m = NULL;
     DR_TRY(dr_bem_cache_read(cache_root, b->key, &m, hit, err));
     if (*hit) {
@@ -108,7 +109,7 @@ static DrStatus ensure_cached(const Body *body, const char *cache_root, bool *hi
 
 static void free_bodies(Body *bodies, int n)
 {
-    for (int i = 0; i < n; i++) dr_world_bem_asset_free(&bodies[i].a);
+    for (int i = 0; i < n; i++) dr_bem_asset_free(&bodies[i].a);
     free(bodies);
 }
 
@@ -162,8 +163,7 @@ int main(int argc, char **argv)
     for (int i = 0; s == DR_OK && i < nb; i++) {
         const Body *b = &bodies[i];
         if (b->first != i) {
-            dr_log_info("bem: %s: same matrices as %s (%s)", b->a.element->name, bodies[b->first].a.element->name,
-                        b->a.key);
+            dr_log_info("bem: %s: same matrices as %s (%s)", b->e->name, bodies[b->first].e->name, b->a.key);
             continue;
         }
         distinct++;
@@ -190,7 +190,7 @@ int main(int argc, char **argv)
             inputs[0] = lines;
             for (int i = 0; i < nb; i++) {
                 char *line = lines + (size_t)(i + 1) * line_max;
-                snprintf(line, line_max, "bem %s %s", bodies[i].a.element->name, bodies[i].a.key);
+                snprintf(line, line_max, "bem %s %s", bodies[i].e->name, bodies[i].a.key);
                 inputs[i + 1] = line;
             }
             s = dr_io_manifest_write(dir, "precompute", keys.precompute, dr_scene_path(scene), inputs, nb + 1, &err);

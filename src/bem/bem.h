@@ -192,6 +192,26 @@ DR_NODISCARD DrStatus dr_bem_cache_write(const char *cache_root, const char *key
 DR_NODISCARD DrStatus dr_bem_cache_read(const char *cache_root, const char *key_hex, DrBemMatrices **out,
                                         bool *found, DrError *err);
 
+/* ---- a body's mesh as the matrices take it (bem_asset.c) ----------------------------------------------------
+ * The mesh file loaded, welded (vertices closer than 1e-9 of the bounding-box diagonal merged: OBJ files split them
+ * along seams) and checked closed, manifold and outward (dr_bem_mesh_check), in the file's own coordinates; the
+ * hash of the file's bytes and the cache key of its matrices under desc (dr_bem_cache_key). precompute builds the
+ * matrices under that key and the world reads them with it: both take it from here (src/stage makes desc from a
+ * bem_solid element), so they cannot disagree. */
+typedef struct DrBemAsset {
+    const char *path;        /* the mesh file, the caller's string (not copied) */
+    DrTriMesh mesh;          /* welded and checked, owned */
+    int vertices_in_file;    /* before the weld */
+    int welded;              /* vertices the weld merged */
+    double weld_tolerance;   /* m */
+    DrBemDesc desc;          /* a copy of desc */
+    char mesh_hash[33], key[33];
+} DrBemAsset;
+/* DR_ERR_INPUT for a missing, unreadable, open, non-manifold or inward mesh, err->file then the mesh file (unless
+ * the failure named another); *out holds nothing to free after any failure. */
+DR_NODISCARD DrStatus dr_bem_asset_load(const char *path, const DrBemDesc *desc, DrBemAsset *out, DrError *err);
+void dr_bem_asset_free(DrBemAsset *a);
+
 /* ---- runtime: one body in a shot (BEM §3.1–3.2) ----------------------------------------------------------
  * The body's vertices are V = R (x − x̄ + u) + T: a rigid frame (rotation R, position T of the centre of mass x̄)
  * carries the rest shape x and the displacement u of eq. (9), which the boundary element matrices advance one

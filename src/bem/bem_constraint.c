@@ -256,23 +256,23 @@ static void assemble_vertex(const Assembly *as, int jj, double *work)
             Aj[3 * q + c] = m->A[(size_t)q * n + 3 * j + c];
             Cj[3 * q + c] = m->C[(size_t)q * n + 3 * j + c];
         }
-    bem_m3_mul(s->R, Aj, RA);
-    bem_m3_mul(s->R, Cj, RC);
+    dr_m3a_mul(s->R, Aj, RA);
+    dr_m3a_mul(s->R, Cj, RC);
     float *W0 = &b->W[(size_t)(3 * jj) * k3];
     for (int ii = 0; ii < na; ii++) {
         int i = b->act[ii];
         double blk[9], tmp[9];
         for (int r = 0; r < 3; r++)
             for (int c = 0; c < 3; c++) tmp[3 * r + c] = Mblk[(3 * ii + r) * 3 + c];
-        bem_m3_mul(as->Rtil, tmp, blk); /* R̃ M_ij */
+        dr_m3a_mul(as->Rtil, tmp, blk); /* R̃ M_ij */
         if (as->frame) {
             double q[3], Q[9];
             for (int c = 0; c < 3; c++) q[c] = b->V0[3 * i + c] - as->Ttil[c];
             double X[9] = {0, -q[2], q[1], q[2], 0, -q[0], -q[1], q[0], 0};
-            bem_m3_mul(X, RC, Q); /* Δω × q = −[q]× Δω */
+            dr_m3a_mul(X, RC, Q); /* Δω × q = −[q]× Δω */
             for (int t = 0; t < 9; t++) blk[t] += dt * dt * (RA[t] - Q[t]);
         }
-        bem_m3_mul(blk, as->Rt_, tmp); /* f (world) → p = Rᵀ f / area */
+        dr_m3a_mul(blk, as->Rt_, tmp); /* f (world) → p = Rᵀ f / area */
         for (int r = 0; r < 3; r++)
             for (int c = 0; c < 3; c++) W0[(size_t)c * k3 + 3 * ii + r] = (float)(tmp[3 * r + c] * inv_area);
     }
@@ -308,12 +308,11 @@ static DrStatus body_assemble(Body *b, double **work, size_t *work_cap, DrError 
     if (!m->H0inv_Gp.dense && !s->rt->gp_cols) DR_TRY(columns_build(&m->layout, &m->H0inv_Gp, &s->rt->gp_cols, err));
     Assembly as = {.b = b, .frame = s->d.frame_update};
     const double *R = s->R;
-    for (int i = 0; i < 3; i++)
-        for (int j = 0; j < 3; j++) as.Rt_[3 * i + j] = R[3 * j + i];
+    dr_m3a_transpose(R, as.Rt_);
     if (as.frame) {
-        double dv[3] = {dt * s->omega[0], dt * s->omega[1], dt * s->omega[2]}, E[9];
-        bem_rotation_exp(dv, E);
-        bem_m3_mul(E, R, as.Rtil);
+        double E[9]; /* e^{Δt[ω]×} (eq. 11g) */
+        dr_m3_store(dr_m3_rotation_exp(dr_v3(dt * s->omega[0], dt * s->omega[1], dt * s->omega[2])), E);
+        dr_m3a_mul(E, R, as.Rtil);
         for (int c = 0; c < 3; c++) as.Ttil[c] = s->T[c] + dt * (s->Tdot[c] + dt * s->d.gravity[c]);
     } else {
         memcpy(as.Rtil, R, sizeof as.Rtil);
@@ -529,13 +528,13 @@ static void contact_prepare(const Body *bodies, Con *k)
 {
     double *K = k->K, Kn[3], Kt[4];
     con_block(bodies, k, K);
-    bem_m3_vec(K, k->n, Kn);
+    dr_m3a_apply(K, k->n, Kn);
     k->knn = dot3(k->n, Kn);
     const double *ts[2] = {k->t1, k->t2};
     for (int a = 0; a < 2; a++)
         for (int c = 0; c < 2; c++) {
             double Kc[3];
-            bem_m3_vec(K, ts[c], Kc);
+            dr_m3a_apply(K, ts[c], Kc);
             Kt[2 * a + c] = dot3(ts[a], Kc);
         }
     double det = Kt[0] * Kt[3] - Kt[1] * Kt[2];
@@ -563,7 +562,7 @@ static double pgs_sweep(Body *bodies, int count, Con *cons, const Sweep *sw, dou
             double r[3];
             for (int c = 0; c < 3; c++) r[c] = k->target[c] - y[c];
             vmax = fmax(vmax, sqrt(dot3(r, r)));
-            bem_m3_vec(k->Kinv, r, d);
+            dr_m3a_apply(k->Kinv, r, d);
             for (int c = 0; c < 3; c++) k->f[c] += d[c];
             block_add(bodies, &blk, k, d);
             dmax = fmax(dmax, sqrt(dot3(d, d)));
@@ -581,7 +580,7 @@ static double pgs_sweep(Body *bodies, int count, Con *cons, const Sweep *sw, dou
         /* friction: drive the slip y − slip0 in the tangent plane to zero, then project on |f_t| ≤ μ f_n. The value
            after the normal update is y + K δn (K this constraint's own block), so both updates reach the predictions
            as one change and a sweep reads W once, not twice */
-        bem_m3_vec(k->K, dn, Kdn);
+        dr_m3a_apply(k->K, dn, Kdn);
         for (int c = 0; c < 3; c++) y[c] += Kdn[c];
         double sl[3] = {y[0] - k->slip0[0], y[1] - k->slip0[1], y[2] - k->slip0[2]};
         double s1 = dot3(sl, k->t1), s2 = dot3(sl, k->t2);
@@ -1080,7 +1079,7 @@ DrStatus dr_bem_solids_predict(DrBemSolid *const *solids, int count, const DrBem
         } else {
             double K[9];
             con_block(bodies, k, K);
-            if (!bem_m3_inv(K, k->Kinv))
+            if (!dr_m3a_inverse(K, k->Kinv))
                 status = dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
                                       "BEM constraints: %s %d has a singular response (the same vertex joined to "
                                       "itself?); %s",

@@ -640,7 +640,7 @@ void dr_bem_frame_operators(const DrTriMesh *m, const DrBemBody *b, double *A, d
         }
     }
     double Iinv[9];
-    bool ok = bem_m3_inv(b->inertia, Iinv);
+    bool ok = dr_m3a_inverse(b->inertia, Iinv);
     assert(ok && "dr_bem_frame_operators: singular inertia; the body was not computed from a checked mesh");
     (void)ok;
     const double inv_mass = 1.0 / b->mass;

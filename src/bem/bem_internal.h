@@ -115,13 +115,6 @@ void bem_cmatq_matvec(const DrBemLayout *l, const BemCMatQ *m, const double *x, 
 /* Tests: true forces the scalar loop where the vector one would run (both give the same bits). */
 void bem_cmatq_scalar_only(bool on);
 
-/* Row-major 3×3 helpers shared by the runtime and the constraint solver (bem_solid.c): C = AB, y = Ax, the inverse
- * (false when singular), and e^{[v]×} by Rodrigues' formula (eq. 11g). */
-void bem_m3_mul(const double *A, const double *B, double *C);
-void bem_m3_vec(const double *A, const double *x, double *y);
-bool bem_m3_inv(const double *A, double *inv);
-void bem_rotation_exp(const double v[3], double *Rm);
-
 /* The kept coefficients of H₀⁻¹G′ by column, built on the first constrained step of a body on the set by the
  * constraint solver (bem_constraint.c), which needs single columns of the response; shared like the copies below. */
 typedef struct BemColumns BemColumns;

@@ -26,63 +26,6 @@ void dr_bem_solid_desc_default(DrBemSolidDesc *d)
     };
 }
 
-/* ---- small 3×3 helpers ------------------------------------------------------------------------------------ */
-
-void bem_m3_mul(const double *A, const double *B, double *C)
-{
-    double t[9];
-    for (int i = 0; i < 3; i++)
-        for (int j = 0; j < 3; j++) t[3 * i + j] = A[3 * i] * B[j] + A[3 * i + 1] * B[3 + j] + A[3 * i + 2] * B[6 + j];
-    memcpy(C, t, sizeof t);
-}
-
-void bem_m3_vec(const double *A, const double *x, double *y)
-{
-    double t[3];
-    for (int i = 0; i < 3; i++) t[i] = A[3 * i] * x[0] + A[3 * i + 1] * x[1] + A[3 * i + 2] * x[2];
-    memcpy(y, t, sizeof t);
-}
-
-static void m3_tvec(const double *A, const double *x, double *y) /* Aᵀ x */
-{
-    double t[3];
-    for (int i = 0; i < 3; i++) t[i] = A[i] * x[0] + A[3 + i] * x[1] + A[6 + i] * x[2];
-    memcpy(y, t, sizeof t);
-}
-
-static double m3_det(const double *A)
-{
-    return A[0] * (A[4] * A[8] - A[5] * A[7]) - A[1] * (A[3] * A[8] - A[5] * A[6]) + A[2] * (A[3] * A[7] - A[4] * A[6]);
-}
-
-bool bem_m3_inv(const double *A, double *inv)
-{
-    double det = m3_det(A);
-    if (!(fabs(det) > 0) || !isfinite(det)) return false;
-    inv[0] = (A[4] * A[8] - A[5] * A[7]) / det;
-    inv[1] = (A[2] * A[7] - A[1] * A[8]) / det;
-    inv[2] = (A[1] * A[5] - A[2] * A[4]) / det;
-    inv[3] = (A[5] * A[6] - A[3] * A[8]) / det;
-    inv[4] = (A[0] * A[8] - A[2] * A[6]) / det;
-    inv[5] = (A[2] * A[3] - A[0] * A[5]) / det;
-    inv[6] = (A[3] * A[7] - A[4] * A[6]) / det;
-    inv[7] = (A[1] * A[6] - A[0] * A[7]) / det;
-    inv[8] = (A[0] * A[4] - A[1] * A[3]) / det;
-    return true;
-}
-
-/* e^{θ[k]×} by Rodrigues' formula for the rotation vector v = θk (eq. 11g). */
-void bem_rotation_exp(const double v[3], double *Rm)
-{
-    double th = sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
-    double a = th > 1e-8 ? sin(th) / th : 1.0 - th * th / 6.0;
-    double b = th > 1e-8 ? (1.0 - cos(th)) / (th * th) : 0.5 - th * th / 24.0;
-    double K[9] = {0, -v[2], v[1], v[2], 0, -v[0], -v[1], v[0], 0};
-    double K2[9];
-    bem_m3_mul(K, K, K2);
-    for (int q = 0; q < 9; q++) Rm[q] = (q % 4 == 0 ? 1.0 : 0.0) + a * K[q] + b * K2[q];
-}
-
 /* The rotation of the polar decomposition A = R S (det R = +1) by Higham's scaled Newton iteration; the shape-
    matching matrices it meets are near rotations, so a handful of iterations reach round-off. */
 static void polar_rotation(const double *A, double *Rm)
@@ -91,11 +34,11 @@ static void polar_rotation(const double *A, double *Rm)
     memcpy(X, A, sizeof X);
     for (int it = 0; it < 30; it++) {
         double Xi[9];
-        if (!bem_m3_inv(X, Xi)) {
+        if (!dr_m3a_inverse(X, Xi)) {
             memcpy(Rm, (double[9]){1, 0, 0, 0, 1, 0, 0, 0, 1}, sizeof X);
             return;
         }
-        double g = pow(fabs(m3_det(X)), -1.0 / 3.0), next[9], change = 0;
+        double g = pow(fabs(dr_m3a_det(X)), -1.0 / 3.0), next[9], change = 0;
         for (int i = 0; i < 3; i++)
             for (int j = 0; j < 3; j++) next[3 * i + j] = 0.5 * (g * X[3 * i + j] + Xi[3 * j + i] / g);
         for (int q = 0; q < 9; q++) change = fmax(change, fabs(next[q] - X[q]));
@@ -114,7 +57,7 @@ static bool pinv_n3(const double *M, int n, double *P)
     for (int r = 0; r < n; r++)
         for (int i = 0; i < 3; i++)
             for (int j = 0; j < 3; j++) G[3 * i + j] += M[3 * r + i] * M[3 * r + j];
-    if (!bem_m3_inv(G, Gi)) return false;
+    if (!dr_m3a_inverse(G, Gi)) return false;
     for (int r = 0; r < n; r++)
         for (int i = 0; i < 3; i++)
             P[(size_t)i * n + r] = Gi[3 * i] * M[3 * r] + Gi[3 * i + 1] * M[3 * r + 1] + Gi[3 * i + 2] * M[3 * r + 2];
@@ -414,7 +357,7 @@ DrStatus dr_bem_solid_solve(DrBemSolid *s, const double *traction, const double 
     if (force)
         for (int v = 0; v < s->nv; v++) {
             double fb[3];
-            m3_tvec(s->R, &force[3 * v], fb);
+            dr_m3a_apply_t(s->R, &force[3 * v], fb);
             for (int c = 0; c < 3; c++) p[3 * v + c] += fb[c] / m->area[v];
         }
     if (traction || force)
@@ -423,7 +366,7 @@ DrStatus dr_bem_solid_solve(DrBemSolid *s, const double *traction, const double 
     /* 2. eq. (9) solved for u given the frame accelerations b = a − g′ and α: u = z + E b + F α with
           z = H₀⁻¹(G₀p + h) = H₀⁻¹G′p − E A p − F C p + H₀⁻¹h (G′ = G₀ + D₀A + Q₀C, eq. 12) */
     double gp[3], b0[3] = {0, 0, 0}, al0[3] = {0, 0, 0};
-    m3_tvec(s->R, s->d.gravity, gp); /* g′ = Rᵀ g (11a) */
+    dr_m3a_apply_t(s->R, s->d.gravity, gp); /* g′ = Rᵀ g (11a) */
     double *u = s->s_u, *z = s->s_z, *r = s->s_r;
     memset(z, 0, nb);
     if (loaded) {
@@ -485,7 +428,7 @@ DrStatus dr_bem_solid_solve(DrBemSolid *s, const double *traction, const double 
         for (int v = 0; v < s->nv; v++) { /* u ← Reᵀ(ref + u − c0) + c0 − ref */
             double y[3], w3[3];
             for (int c = 0; c < 3; c++) y[c] = s->ref[3 * v + c] + u[3 * v + c] - s->c0[c];
-            m3_tvec(Re, y, w3);
+            dr_m3a_apply_t(Re, y, w3);
             for (int c = 0; c < 3; c++) u[3 * v + c] = w3[c] + s->c0[c] - s->ref[3 * v + c];
         }
         /* α: F α ≈ u − z − E b; then u from (9) with both */
@@ -506,17 +449,16 @@ DrStatus dr_bem_solid_solve(DrBemSolid *s, const double *traction, const double 
     memcpy(Tdot, s->Tdot, sizeof Tdot);
     memcpy(omega, s->omega, sizeof omega);
     if (s->d.frame_update) {
-        double a[3] = {gp[0] + b[0], gp[1] + b[1], gp[2] + b[2]}, Ra[3], Ral[3], rot[9], dv[3];
-        bem_m3_vec(s->R, a, Ra);
-        bem_m3_vec(s->R, al, Ral);
+        double a[3] = {gp[0] + b[0], gp[1] + b[1], gp[2] + b[2]}, Ra[3], Ral[3], rot[9];
+        dr_m3a_apply(s->R, a, Ra);
+        dr_m3a_apply(s->R, al, Ral);
         for (int c = 0; c < 3; c++) {
             Tdot[c] += dt * Ra[c];
             omega[c] += dt * Ral[c];
             T[c] += dt * Tdot[c];
-            dv[c] = dt * omega[c];
         }
-        bem_rotation_exp(dv, rot);
-        bem_m3_mul(rot, s->R, R);
+        dr_m3_store(dr_m3_rotation_exp(dr_v3(dt * omega[0], dt * omega[1], dt * omega[2])), rot); /* eq. 11g */
+        dr_m3a_mul(rot, s->R, R);
     }
     bool finite = true;
     for (int i = 0; i < n && finite; i++) finite = isfinite(u[i]);
@@ -576,7 +518,7 @@ static void world_positions(const DrBemSolid *s, const double *R, const double *
     for (int v = 0; v < s->nv; v++) {
         double y[3];
         for (int c = 0; c < 3; c++) y[c] = s->ref[3 * v + c] + u[3 * v + c];
-        bem_m3_vec(R, y, &V[3 * v]);
+        dr_m3a_apply(R, y, &V[3 * v]);
         for (int c = 0; c < 3; c++) V[3 * v + c] += T[c];
     }
 }
@@ -594,8 +536,8 @@ static void world_velocities(const DrBemSolid *s, const double *R, const double 
     for (int v = 0; v < s->nv; v++) {
         double y[3], Ry[3], Rud[3] = {0, 0, 0};
         for (int c = 0; c < 3; c++) y[c] = s->ref[3 * v + c] + u[3 * v + c];
-        bem_m3_vec(R, y, Ry);
-        if (udot) bem_m3_vec(R, &udot[3 * v], Rud);
+        dr_m3a_apply(R, y, Ry);
+        if (udot) dr_m3a_apply(R, &udot[3 * v], Rud);
         double wx[3] = {omega[1] * Ry[2] - omega[2] * Ry[1], omega[2] * Ry[0] - omega[0] * Ry[2],
                         omega[0] * Ry[1] - omega[1] * Ry[0]};
         for (int c = 0; c < 3; c++) Vd[3 * v + c] = Tdot[c] + wx[c] + Rud[c];
@@ -668,12 +610,10 @@ void dr_bem_solid_positions(const DrBemSolid *s, double *V) { world_positions(s,
 void dr_bem_solid_diagnostics(const DrBemSolid *s, DrBemSolidDiag *out)
 {
     const DrBemMatrices *m = s->m;
-    double mass = m->body.mass, Iw[9], tmp[9], Rt[9], Lw[3];
-    for (int i = 0; i < 3; i++)
-        for (int j = 0; j < 3; j++) Rt[3 * i + j] = s->R[3 * j + i];
-    bem_m3_mul(s->R, m->body.inertia, tmp);
-    bem_m3_mul(tmp, Rt, Iw);
-    bem_m3_vec(Iw, s->omega, Lw);
+    double mass = m->body.mass, Iw[9], tmp[9], Lw[3];
+    dr_m3a_mul(s->R, m->body.inertia, tmp);
+    dr_m3a_mul_nt(tmp, s->R, Iw);
+    dr_m3a_apply(Iw, s->omega, Lw);
     double v2 = 0, gT = 0;
     for (int c = 0; c < 3; c++) {
         out->momentum[c] = mass * s->Tdot[c];

@@ -118,6 +118,101 @@ DrMat3 dr_m3_transpose(DrMat3 a);
 DrVec3 dr_m3_apply(DrMat3 a, DrVec3 v);
 /* Rotation from XYZ Euler angles in radians: R = Rz * Ry * Rx (x applied first). */
 DrMat3 dr_m3_from_euler_xyz(DrVec3 radians);
+/* The rotation by θ = |w| radians about w (Rodrigues): e^{[w]×} = I + (sin θ/θ)[w]× + ((1 − cos θ)/θ²)[w]×², the
+   two coefficients by their Taylor series below θ = 1e-8. Orthogonal to a few ε for any w. */
+DrMat3 dr_m3_rotation_exp(DrVec3 w);
+/* The rotation vector w, |w| ≤ π, with dr_m3_rotation_exp(w) = R, for R orthogonal with det +1 to round-off (the
+   result means nothing for other matrices). At a half turn w and −w are the same rotation; either is returned.
+   dr_m3_rotation_exp(dr_m3_rotation_log(R)) gives R back to ~1e-15 at every angle, near 0 and near π included. */
+DrVec3 dr_m3_rotation_log(DrMat3 R);
+
+/* 3×3 matrices in flat arrays. The solvers keep matrices in per-particle and per-body arrays of 9 doubles, row-major
+   (a[3·row + col], the layout of DrMat3), and work on them in place. dr_m3a_mul, dr_m3a_transpose and dr_m3a_apply
+   compute every entry with the operations, in the order, of dr_m3_mul, dr_m3_transpose and dr_m3_apply, so a result
+   has the same bits in either form. Outputs may alias inputs. Inline, because the MPM's per-particle loops call
+   them. */
+static inline DrMat3 dr_m3_load(const double a[9])
+{
+    DrMat3 r;
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++) r.m[i][j] = a[3 * i + j];
+    return r;
+}
+static inline void dr_m3_store(DrMat3 m, double out[9])
+{
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++) out[3 * i + j] = m.m[i][j];
+}
+static inline void dr_m3a_mul(const double a[9], const double b[9], double out[9]) /* out = a b */
+{
+    double r[9];
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++) r[3 * i + j] = a[3 * i] * b[j] + a[3 * i + 1] * b[3 + j] + a[3 * i + 2] * b[6 + j];
+    for (int k = 0; k < 9; k++) out[k] = r[k];
+}
+static inline void dr_m3a_mul_tn(const double a[9], const double b[9], double out[9]) /* out = aᵀ b */
+{
+    double r[9];
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++) r[3 * i + j] = a[i] * b[j] + a[3 + i] * b[3 + j] + a[6 + i] * b[6 + j];
+    for (int k = 0; k < 9; k++) out[k] = r[k];
+}
+static inline void dr_m3a_mul_nt(const double a[9], const double b[9], double out[9]) /* out = a bᵀ */
+{
+    double r[9];
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++)
+            r[3 * i + j] = a[3 * i] * b[3 * j] + a[3 * i + 1] * b[3 * j + 1] + a[3 * i + 2] * b[3 * j + 2];
+    for (int k = 0; k < 9; k++) out[k] = r[k];
+}
+static inline void dr_m3a_transpose(const double a[9], double out[9])
+{
+    double r[9];
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++) r[3 * i + j] = a[3 * j + i];
+    for (int k = 0; k < 9; k++) out[k] = r[k];
+}
+static inline void dr_m3a_apply(const double a[9], const double x[3], double y[3]) /* y = a x */
+{
+    double r[3];
+    for (int i = 0; i < 3; i++) r[i] = a[3 * i] * x[0] + a[3 * i + 1] * x[1] + a[3 * i + 2] * x[2];
+    for (int i = 0; i < 3; i++) y[i] = r[i];
+}
+static inline void dr_m3a_apply_t(const double a[9], const double x[3], double y[3]) /* y = aᵀ x */
+{
+    double r[3];
+    for (int i = 0; i < 3; i++) r[i] = a[i] * x[0] + a[3 + i] * x[1] + a[6 + i] * x[2];
+    for (int i = 0; i < 3; i++) y[i] = r[i];
+}
+static inline double dr_m3a_det(const double a[9]) /* by the first row */
+{
+    return a[0] * (a[4] * a[8] - a[5] * a[7]) - a[1] * (a[3] * a[8] - a[5] * a[6]) + a[2] * (a[3] * a[7] - a[4] * a[6]);
+}
+/* cof(a) = det(a) a⁻ᵀ, defined for singular a: its columns are b×c, c×a, a×b for the columns a, b, c. */
+static inline void dr_m3a_cofactor(const double a[9], double out[9])
+{
+    double r[9] = {a[4] * a[8] - a[5] * a[7], a[5] * a[6] - a[3] * a[8], a[3] * a[7] - a[4] * a[6],
+                   a[2] * a[7] - a[1] * a[8], a[0] * a[8] - a[2] * a[6], a[1] * a[6] - a[0] * a[7],
+                   a[1] * a[5] - a[2] * a[4], a[2] * a[3] - a[0] * a[5], a[0] * a[4] - a[1] * a[3]};
+    for (int k = 0; k < 9; k++) out[k] = r[k];
+}
+/* a⁻¹ = cof(a)ᵀ / det(a), each entry divided by the determinant. False, out untouched, when det(a) is 0 or not
+   finite. */
+static inline bool dr_m3a_inverse(const double a[9], double out[9])
+{
+    double det = dr_m3a_det(a), c[9];
+    if (!(fabs(det) > 0) || !isfinite(det)) return false;
+    dr_m3a_cofactor(a, c);
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++) out[3 * i + j] = c[3 * j + i] / det;
+    return true;
+}
+static inline double dr_m3a_ddot(const double a[9], const double b[9]) /* a : b = Σ a_k b_k, k = 0, 1, …, 8 */
+{
+    double s = 0.0;
+    for (int k = 0; k < 9; k++) s += a[k] * b[k];
+    return s;
+}
 
 /* A rigid transform x ↦ R x + t. */
 typedef struct DrXform { DrMat3 R; DrVec3 t; } DrXform;

@@ -42,6 +42,46 @@ DrMat3 dr_m3_from_euler_xyz(DrVec3 r)
     return dr_m3_mul(rz, dr_m3_mul(ry, rx));
 }
 
+DrMat3 dr_m3_rotation_exp(DrVec3 w)
+{
+    double th = dr_v3_norm(w);
+    double a = th > 1e-8 ? sin(th) / th : 1.0 - th * th / 6.0;
+    double b = th > 1e-8 ? (1.0 - cos(th)) / (th * th) : 0.5 - th * th / 24.0;
+    DrMat3 K = {{{0, -w.z, w.y}, {w.z, 0, -w.x}, {-w.y, w.x, 0}}}; /* [w]× */
+    DrMat3 K2 = dr_m3_mul(K, K), R;
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++) R.m[i][j] = (i == j ? 1.0 : 0.0) + a * K.m[i][j] + b * K2.m[i][j];
+    return R;
+}
+
+DrVec3 dr_m3_rotation_log(DrMat3 R)
+{
+    double c = 0.5 * (R.m[0][0] + R.m[1][1] + R.m[2][2] - 1.0); /* cos θ */
+    c = c > 1.0 ? 1.0 : (c < -1.0 ? -1.0 : c);
+    DrVec3 v = dr_v3(R.m[2][1] - R.m[1][2], R.m[0][2] - R.m[2][0], R.m[1][0] - R.m[0][1]); /* 2 sin θ · axis */
+    if (c >= 0.0) {
+        /* θ ≤ π/2: w = v θ/(2 sin θ). acos loses digits as θ → 0 (δθ ≈ ε/sin θ), but θ enters only through
+           θ/sin θ, which that moves by θ δθ/3 ≈ ε/3: w keeps the round-off of v. Below θ = 1e-6, θ/sin θ is 1 to
+           within θ²/6 < 2e-13. */
+        double th = acos(c);
+        if (th < 1e-6) return dr_v3_scale(v, 0.5);
+        return dr_v3_scale(v, th / (2.0 * sin(th)));
+    }
+    /* θ > π/2: as sin θ → 0 near a half turn, v/|v| and acos(c) lose digits (ε/sin θ each). The angle from
+       atan2(sin θ, cos θ), right to a few ε; the axis a from the symmetric part
+       (R + Rᵀ)/2 − cos θ I = (1 − cos θ) a aᵀ, its column with the largest diagonal normalised (1 − cos θ > 1, so a
+       keeps the round-off of R), its sign from v (at θ = π either sign is the same rotation). */
+    double th = atan2(0.5 * dr_v3_norm(v), c);
+    int k = 0;
+    for (int i = 1; i < 3; i++)
+        if (R.m[i][i] > R.m[k][k]) k = i;
+    double col[3];
+    for (int i = 0; i < 3; i++) col[i] = 0.5 * (R.m[i][k] + R.m[k][i]) - (i == k ? c : 0.0);
+    DrVec3 a = dr_v3_normalize(dr_v3(col[0], col[1], col[2]));
+    if (dr_v3_dot(a, v) < 0.0) a = dr_v3_scale(a, -1.0);
+    return dr_v3_scale(a, th);
+}
+
 DrXform dr_xform_identity(void)
 {
     DrXform x = {dr_m3_identity(), {0, 0, 0}};

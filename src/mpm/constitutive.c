@@ -28,27 +28,7 @@ void dr_mpm_lame(const DrMpmMaterial *m, double *mu, double *lambda)
     *lambda = m->youngs * m->poisson / ((1.0 + m->poisson) * (1.0 - 2.0 * m->poisson));
 }
 
-/* ---- 3×3 helpers (row-major) ------------------------------------------------------------------ */
-
-static double det3(const double A[9])
-{
-    return A[0] * (A[4] * A[8] - A[5] * A[7]) - A[1] * (A[3] * A[8] - A[5] * A[6]) +
-           A[2] * (A[3] * A[7] - A[4] * A[6]);
-}
-
-/* cof(A) = det(A) A⁻ᵀ: columns b×c, c×a, a×b for the columns a, b, c of A. Defined for singular A. */
-static void cof3(const double A[9], double out[9])
-{
-    out[0] = A[4] * A[8] - A[5] * A[7];
-    out[1] = A[5] * A[6] - A[3] * A[8];
-    out[2] = A[3] * A[7] - A[4] * A[6];
-    out[3] = A[2] * A[7] - A[1] * A[8];
-    out[4] = A[0] * A[8] - A[2] * A[6];
-    out[5] = A[1] * A[6] - A[0] * A[7];
-    out[6] = A[1] * A[5] - A[2] * A[4];
-    out[7] = A[2] * A[3] - A[0] * A[5];
-    out[8] = A[0] * A[4] - A[1] * A[3];
-}
+/* ---- 3×3 helpers of the energies alone (row-major; the common ones are core's dr_m3a_*) ------- */
 
 /* d cof(A)[dA]: cof is quadratic in A, so its differential is the polarised form cof(A, dA). */
 static void dcof3(const double A[9], const double dA[9], double out[9])
@@ -64,40 +44,6 @@ static void dcof3(const double A[9], const double dA[9], double out[9])
     out[7] = BIL(2, 3, 0, 5);
     out[8] = BIL(0, 4, 1, 3);
 #undef BIL
-}
-
-static void mul3(const double A[9], const double B[9], double out[9])
-{
-    double r[9];
-    for (int i = 0; i < 3; i++)
-        for (int j = 0; j < 3; j++) r[3 * i + j] = A[3 * i] * B[j] + A[3 * i + 1] * B[3 + j] + A[3 * i + 2] * B[6 + j];
-    memcpy(out, r, sizeof r);
-}
-
-/* Aᵀ B */
-static void mul3_tn(const double A[9], const double B[9], double out[9])
-{
-    double r[9];
-    for (int i = 0; i < 3; i++)
-        for (int j = 0; j < 3; j++) r[3 * i + j] = A[i] * B[j] + A[3 + i] * B[3 + j] + A[6 + i] * B[6 + j];
-    memcpy(out, r, sizeof r);
-}
-
-/* A Bᵀ */
-static void mul3_nt(const double A[9], const double B[9], double out[9])
-{
-    double r[9];
-    for (int i = 0; i < 3; i++)
-        for (int j = 0; j < 3; j++)
-            r[3 * i + j] = A[3 * i] * B[3 * j] + A[3 * i + 1] * B[3 * j + 1] + A[3 * i + 2] * B[3 * j + 2];
-    memcpy(out, r, sizeof r);
-}
-
-static double ddot9(const double A[9], const double B[9])
-{
-    double s = 0.0;
-    for (int k = 0; k < 9; k++) s += A[k] * B[k];
-    return s;
 }
 
 static void zero_z(int dim, double A[9])
@@ -160,15 +106,15 @@ static void swap_cols(double V[9], double e[3], int a, int b)
 static void svd3(const double F[9], double U[9], double sig[3], double V[9])
 {
     double A[9], e[3];
-    mul3_tn(F, F, A);
+    dr_m3a_mul_tn(F, F, A);
     sym_eig3(A, e, V);
     if (e[0] < e[1]) swap_cols(V, e, 0, 1);
     if (e[0] < e[2]) swap_cols(V, e, 0, 2);
     if (e[1] < e[2]) swap_cols(V, e, 1, 2);
-    if (det3(V) < 0.0)
+    if (dr_m3a_det(V) < 0.0)
         for (int k = 0; k < 3; k++) V[3 * k + 2] = -V[3 * k + 2];
     double R[9];
-    mul3(F, V, R);
+    dr_m3a_mul(F, V, R);
     for (int k = 0; k < 9; k++) U[k] = (k % 4 == 0) ? 1.0 : 0.0;
     /* Givens QR: zero (1,0), (2,0), (2,1); U accumulates the transposed rotations so F V = U R. */
     static const int G[3][3] = {{0, 1, 0}, {0, 2, 0}, {1, 2, 1}};
@@ -203,9 +149,9 @@ void dr_mpm_polar(int dim, const double F[9], double R[9], double S[9])
     } else {
         double U[9], sig[3], V[9];
         svd3(F, U, sig, V);
-        mul3_nt(U, V, R);
+        dr_m3a_mul_nt(U, V, R);
     }
-    if (S) mul3_tn(R, F, S);
+    if (S) dr_m3a_mul_tn(R, F, S);
 }
 
 /* dR for F = R S: RᵀdR = [w]× with (tr S·I − S) w = axial(RᵀdF − dFᵀR), solved in the eigenbasis of S
@@ -227,9 +173,9 @@ static void polar_diff(int dim, const double F[9], const double dF[9], double R[
     }
     double U[9], sig[3], V[9];
     svd3(F, U, sig, V);
-    mul3_nt(U, V, R);
+    dr_m3a_mul_nt(U, V, R);
     double M[9];
-    mul3_tn(R, dF, M);
+    dr_m3a_mul_tn(R, dF, M);
     double a[3] = {M[7] - M[5], M[2] - M[6], M[3] - M[1]};
     double ap[3], w[3];
     for (int k = 0; k < 3; k++) ap[k] = V[k] * a[0] + V[3 + k] * a[1] + V[6 + k] * a[2]; /* Vᵀ a */
@@ -241,7 +187,7 @@ static void polar_diff(int dim, const double F[9], const double dF[9], double R[
     }
     for (int k = 0; k < 3; k++) w[k] = V[3 * k] * ap[0] + V[3 * k + 1] * ap[1] + V[3 * k + 2] * ap[2];
     double W[9] = {0, -w[2], w[1], w[2], 0, -w[0], -w[1], w[0], 0};
-    mul3(R, W, dR);
+    dr_m3a_mul(R, W, dR);
 }
 
 /* ---- energy, stress, stress differential ------------------------------------------------------ */
@@ -249,11 +195,11 @@ static void polar_diff(int dim, const double F[9], const double dF[9], double R[
 bool dr_mpm_energy_density(DrMpmModel model, int dim, double mu, double lambda, const double F[9], double *psi)
 {
     assert(dim == 2 || dim == 3);
-    double J = det3(F);
+    double J = dr_m3a_det(F);
     if (model == DR_MPM_NEOHOOKEAN) {
         if (!(J > 0.0)) return false;
         double lnJ = log(J);
-        *psi = 0.5 * mu * (ddot9(F, F) - 3.0) - mu * lnJ + 0.5 * lambda * lnJ * lnJ;
+        *psi = 0.5 * mu * (dr_m3a_ddot(F, F) - 3.0) - mu * lnJ + 0.5 * lambda * lnJ * lnJ;
         return isfinite(*psi);
     }
     double R[9];
@@ -268,8 +214,8 @@ bool dr_mpm_pk1(DrMpmModel model, int dim, double mu, double lambda, const doubl
 {
     assert(dim == 2 || dim == 3);
     double C[9];
-    cof3(F, C);
-    double J = det3(F);
+    dr_m3a_cofactor(F, C);
+    double J = dr_m3a_det(F);
     if (model == DR_MPM_NEOHOOKEAN) {
         /* P = μ(F − F⁻ᵀ) + λ ln J F⁻ᵀ */
         if (!(J > 0.0)) return false;
@@ -295,9 +241,9 @@ bool dr_mpm_dpk1(DrMpmModel model, int dim, double mu, double lambda, const doub
     memcpy(dFz, dF, sizeof dFz);
     zero_z(dim, dFz);
     double C[9], dC[9];
-    cof3(F, C);
+    dr_m3a_cofactor(F, C);
     dcof3(F, dFz, dC);
-    double J = det3(F), dJ = ddot9(C, dFz);
+    double J = dr_m3a_det(F), dJ = dr_m3a_ddot(C, dFz);
     if (model == DR_MPM_NEOHOOKEAN) {
         /* dP = μ dF + (μ − λ ln J) F⁻ᵀ dFᵀ F⁻ᵀ + λ tr(F⁻¹dF) F⁻ᵀ, written with F⁻ᵀ = cof/J:
            d(F⁻ᵀ) = dC/J − C dJ/J² */

@@ -547,33 +547,6 @@ static double explicit_dt(const DrMpm *m)
 
 /* ---- per-particle kernels ------------------------------------------------------------------- */
 
-static void m3mul(const double *A, const double *B, double *out)
-{
-    double r[9];
-    for (int i = 0; i < 3; i++)
-        for (int j = 0; j < 3; j++) r[3 * i + j] = A[3 * i] * B[j] + A[3 * i + 1] * B[3 + j] + A[3 * i + 2] * B[6 + j];
-    memcpy(out, r, sizeof r);
-}
-
-/* out = A Bᵀ */
-static void m3mul_nt(const double *A, const double *B, double *out)
-{
-    double r[9];
-    for (int i = 0; i < 3; i++)
-        for (int j = 0; j < 3; j++)
-            r[3 * i + j] = A[3 * i] * B[3 * j] + A[3 * i + 1] * B[3 * j + 1] + A[3 * i + 2] * B[3 * j + 2];
-    memcpy(out, r, sizeof r);
-}
-
-/* out = Aᵀ B */
-static void m3mul_tn(const double *A, const double *B, double *out)
-{
-    double r[9];
-    for (int i = 0; i < 3; i++)
-        for (int j = 0; j < 3; j++) r[3 * i + j] = A[i] * B[j] + A[3 + i] * B[3 + j] + A[6 + i] * B[6 + j];
-    memcpy(out, r, sizeof r);
-}
-
 typedef struct Eval {
     DrMpm *m;
     double q;       /* F rule (see the banner) */
@@ -589,10 +562,10 @@ static void eval_range(long b, long e, void *vctx)
     for (long p = b; p < e; p++) {
         const double *G = m->G + 9 * p, *Fn = m->F + 9 * p;
         double N[9], G2[9];
-        m3mul(G, G, G2);
+        dr_m3a_mul(G, G, G2);
         for (int k = 0; k < 9; k++) N[k] = ((k % 4 == 0) ? 1.0 : 0.0) + G[k] + ev->q * G2[k];
         double *Fu = m->Fu + 9 * p;
-        m3mul(N, Fn, Fu);
+        dr_m3a_mul(N, Fn, Fu);
         double psi, P[9];
         DrMpmModel model = (DrMpmModel)m->model[p];
         if (!dr_mpm_energy_density(model, m->dim, m->mu[p], m->lam[p], Fu, &psi) ||
@@ -607,10 +580,10 @@ static void eval_range(long b, long e, void *vctx)
         }
         m->psi[p] = m->vol0[p] * psi;
         double *Q = m->Q + 9 * p, *M = m->dM + 9 * p;
-        m3mul_nt(P, Fn, Q);
+        dr_m3a_mul_nt(P, Fn, Q);
         double QGt[9], GtQ[9];
-        m3mul_nt(Q, G, QGt);
-        m3mul_tn(G, Q, GtQ);
+        dr_m3a_mul_nt(Q, G, QGt);
+        dr_m3a_mul_tn(G, Q, GtQ);
         for (int k = 0; k < 9; k++) M[k] = -m->vol0[p] * (Q[k] + ev->q * (QGt[k] + GtQ[k]));
     }
 }
@@ -626,28 +599,28 @@ static void diff_range(long b, long e, void *vctx)
         const double *G = m->G + 9 * p, *dG = m->dG + 9 * p, *Fn = m->F + 9 * p, *Q = m->Q + 9 * p;
         double dN[9], t1[9], t2[9];
         if (q != 0.0) {
-            m3mul(dG, G, t1);
-            m3mul(G, dG, t2);
+            dr_m3a_mul(dG, G, t1);
+            dr_m3a_mul(G, dG, t2);
             for (int k = 0; k < 9; k++) dN[k] = dG[k] + q * (t1[k] + t2[k]);
         } else {
             memcpy(dN, dG, sizeof dN);
         }
         double dF[9], dP[9];
-        m3mul(dN, Fn, dF);
+        dr_m3a_mul(dN, Fn, dF);
         if (!dr_mpm_dpk1((DrMpmModel)m->model[p], m->dim, m->mu[p], m->lam[p], m->Fu + 9 * p, dF, dP))
             memset(dP, 0, sizeof dP); /* only reachable where E = +∞, which the line search never accepts */
         double dQ[9], *M = m->dM + 9 * p;
-        m3mul_nt(dP, Fn, dQ);
+        dr_m3a_mul_nt(dP, Fn, dQ);
         /* K δu = −δf: the sign of eq. (36) flipped, so the operator is positive */
         if (q == 0.0) {
             for (int k = 0; k < 9; k++) M[k] = m->vol0[p] * dQ[k];
             continue;
         }
         double a[9], bb[9], cc[9], dd[9];
-        m3mul_nt(dQ, G, a);
-        m3mul_tn(G, dQ, bb);
-        m3mul_nt(Q, dG, cc);
-        m3mul_tn(dG, Q, dd);
+        dr_m3a_mul_nt(dQ, G, a);
+        dr_m3a_mul_tn(G, dQ, bb);
+        dr_m3a_mul_nt(Q, dG, cc);
+        dr_m3a_mul_tn(dG, Q, dd);
         for (int k = 0; k < 9; k++) M[k] = m->vol0[p] * (dQ[k] + q * (a[k] + bb[k] + cc[k] + dd[k]));
     }
 }
@@ -778,11 +751,6 @@ typedef struct Solve {
     const double *dfdv;  /* their velocity derivative D_p (9n) or NULL; only with force */
 } Solve;
 
-static void m3vec(const double *A, const double *x, double *y)
-{
-    for (int r = 0; r < 3; r++) y[r] = A[3 * r] * x[0] + A[3 * r + 1] * x[1] + A[3 * r + 2] * x[2];
-}
-
 /* The external force on the nodes at Δv, into fe, and its part of E. A constant force (no D) was spread
    once by the solve (fe = Σ_p w_ip F_p) and is a potential like gravity's: −Σ_i fe_i·u_i. With D the
    force at the particles is F_p + D_p s_p, s_p = ṽ_p − v_p the solved velocity offset at the particle
@@ -808,7 +776,7 @@ static double external(Solve *s, const double *dv)
     for (long p = 0; p < m->n; p++) {
         double *sp = m->xs + 3 * p, *f = m->xf + 3 * p, Ds[3];
         for (int a = 0; a < 3; a++) sp[a] -= m->v[3 * p + a];
-        m3vec(s->dfdv + 9 * p, sp, Ds);
+        dr_m3a_apply(s->dfdv + 9 * p, sp, Ds);
         const double *F = s->force + 3 * p;
         for (int a = 0; a < 3; a++) {
             f[a] = F[a] + Ds[a];
@@ -913,7 +881,7 @@ static void apply_a2(const double *x, double *y, void *ctx)
     }
     if (s->dfdv) {
         dr_node_gather_vector(g, m->uf, m->n, m->x, m->xs);
-        for (long p = 0; p < m->n; p++) m3vec(s->dfdv + 9 * p, m->xs + 3 * p, m->xf + 3 * p);
+        for (long p = 0; p < m->n; p++) dr_m3a_apply(s->dfdv + 9 * p, m->xs + 3 * p, m->xf + 3 * p);
         dr_node_scatter_vector(m->bins, m->x, m->xf, g, m->fe);
     }
     double z = s->beta * s->dt;
@@ -1124,10 +1092,10 @@ static void fupdate_range(long b, long e, void *vctx)
     for (long p = b; p < e; p++) {
         double H[9], N[9], H2[9];
         for (int k = 0; k < 9; k++) H[k] = c->dt * m->G[9 * p + k];
-        m3mul(H, H, H2);
+        dr_m3a_mul(H, H, H2);
         for (int k = 0; k < 9; k++) N[k] = ((k % 4 == 0) ? 1.0 : 0.0) + H[k] + (c->order2 ? 0.5 * H2[k] : 0.0);
         if (m->dim == 2) N[2] = N[5] = N[6] = N[7] = 0.0, N[8] = 1.0;
-        m3mul(N, m->F + 9 * p, m->F + 9 * p);
+        dr_m3a_mul(N, m->F + 9 * p, m->F + 9 * p);
     }
 }
 
@@ -1148,11 +1116,6 @@ static void restore_backup(DrMpm *m)
     memcpy(m->v, m->bv, 3 * (size_t)m->n * sizeof(double));
     memcpy(m->C, m->bC, 9 * (size_t)m->n * sizeof(double));
     memcpy(m->F, m->bF, 9 * (size_t)m->n * sizeof(double));
-}
-
-static double det3(const double *A)
-{
-    return A[0] * (A[4] * A[8] - A[5] * A[7]) - A[1] * (A[3] * A[8] - A[5] * A[6]) + A[2] * (A[3] * A[7] - A[4] * A[6]);
 }
 
 DrStatus dr_mpm_predict(DrMpm *mpm, double h, DrError *err)
@@ -1199,7 +1162,7 @@ DrStatus dr_mpm_predict(DrMpm *mpm, double h, DrError *err)
     }
     m->projected = projected;
     memcpy(m->con0, m->con, (size_t)nn);
-    for (long p = 0; p < m->n; p++) m->pvol[p] = m->vol0[p] * det3(m->F + 9 * p);
+    for (long p = 0; p < m->n; p++) m->pvol[p] = m->vol0[p] * dr_m3a_det(m->F + 9 * p);
     m->phase = PHASE_PREDICTED;
     return DR_OK;
 }

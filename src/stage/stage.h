@@ -1,6 +1,7 @@
 /* What the four stage executables share: their command line (arguments, --help, --version, the cache keys they
- * print), their output folders and frame file names, and loading a collider element's mesh in its scene pose (the
- * mesh stage draws colliders; the world builds their SDFs). Nothing here simulates. */
+ * print), their output folders and frame file names, loading a collider element's mesh in its scene pose (the
+ * mesh stage draws colliders; the world builds their SDFs), and a bem_solid element as the BEM takes it (precompute
+ * builds its matrices; the world reads them). Nothing here simulates. */
 #ifndef DR_STAGE_H
 #define DR_STAGE_H
 
@@ -59,5 +60,14 @@ DR_NODISCARD DrStatus dr_stage_load_posed_mesh(const DrElement *e, const char *p
  * *nkeys is 0 when e has no Motion. */
 DR_NODISCARD DrStatus dr_stage_motion_keys(const DrElement *e, int first_frame, double fps, double **keys, int *nkeys,
                                            DrError *err);
+
+/* A bem_solid element as the boundary element method takes it (DrBemAsset, bem/bem.h): its Mesh.file through
+ * dr_bem_asset_load, in the file's own coordinates (Transform does not apply: it poses the body in a shot), and its
+ * build parameters from LinearElastic, Compression and BemSolver (what the scene does not set keeps
+ * dr_bem_desc_default). BemSolver.frame_update and error_correction are runtime choices and enter neither desc nor
+ * key. Fails as dr_bem_asset_load, the message starting with "<element>.Mesh.file: "; *out holds nothing to free
+ * then. */
+typedef struct DrBemAsset DrBemAsset;
+DR_NODISCARD DrStatus dr_stage_load_bem_asset(const DrElement *e, DrBemAsset *out, DrError *err);
 
 #endif

@@ -118,28 +118,6 @@ const DrElement *dr_world_liquid_element(const DrWorld *w, int i);
 /* Colliders whose SDF was built (none when no solver samples colliders). */
 int dr_world_live_collider_count(const DrWorld *w);
 
-/* One bem_solid element as the boundary element method takes it: its Mesh.file loaded, welded (vertices closer
- * than 1e-9 of the bounding-box diagonal merged: OBJ files split them along seams) and checked closed, manifold
- * and outward (dr_bem_mesh_check), in the file's own coordinates (Transform does not apply: it poses the body in a
- * shot); its build parameters from LinearElastic, Compression and BemSolver; the hash of the file's bytes and the
- * cache key of its matrices (dr_bem_cache_key). precompute builds the matrices under that key and the world reads
- * them with it: both come from here, so they cannot disagree. BemSolver.frame_update and error_correction are
- * runtime choices and enter neither desc nor key. */
-typedef struct DrWorldBemAsset {
-    const DrElement *element;
-    const char *path;        /* Mesh.file, resolved (owned by the scene) */
-    DrTriMesh mesh;          /* welded and checked, owned */
-    int vertices_in_file;    /* before the weld */
-    int welded;              /* vertices the weld merged */
-    double weld_tolerance;   /* m */
-    DrBemDesc desc;
-    char mesh_hash[33], key[33];
-} DrWorldBemAsset;
-/* DR_ERR_INPUT for a missing, unreadable, open, non-manifold or inward mesh, the message starting with
- * "<element>.Mesh.file: " and err->file the mesh file; *out holds nothing to free then. */
-DR_NODISCARD DrStatus dr_world_bem_asset_load(const DrElement *e, DrWorldBemAsset *out, DrError *err);
-void dr_world_bem_asset_free(DrWorldBemAsset *a);
-
 /* Advances to the next frame. Warnings (a pressure solve that did not converge) are logged and counted in
  * stats; DR_ERR_RUNTIME when a solver produced non-finite values. */
 DR_NODISCARD DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrError *err);

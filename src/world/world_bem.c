@@ -11,10 +11,7 @@
  * body-body switch and one friction per collider for a whole group, so a group uses the largest Collider.thickness
  * and Collider.friction of its bodies (against a collider: the larger of that and the collider element's friction),
  * and body contact only when every body of it keeps Collider.body_contact. A group with nothing to solve steps each
- * body alone, as before contact existed.
- *
- * Also the one preparation of a bem_solid element (mesh, build parameters, cache key) that precompute and the
- * world share. */
+ * body alone, as before contact existed. */
 #include "world_adapter.h"
 
 #include <math.h>
@@ -71,78 +68,6 @@ typedef struct WorldBem {
     int last_not_converged;
 } WorldBem;
 
-/* ---- the element as the BEM takes it ------------------------------------------------------------------------ */
-
-/* Welding merges vertices closer than this fraction of the bounding-box diagonal: far below any real feature,
- * far above the float rounding of the loader (6e-8 relative) only where a file holds the same point twice with
- * different digits. A change here changes the matrices: it goes with a new DR_BEM_VERSION. */
-#define WELD_RELATIVE 1e-9
-
-/* Prefixes "<element>.Mesh.file: " to a failure's message, so it names the element as well as the file. */
-static DrStatus in_element(DrStatus s, const DrWorldBemAsset *a, DrError *err)
-{
-    if (s >= 0) return s;
-    char msg[sizeof err->message];
-    int n = snprintf(msg, sizeof msg, "%s.Mesh.file: %s", a->element->name, err->message);
-    if (n >= (int)sizeof msg) msg[sizeof msg - 2] = '.';
-    memcpy(err->message, msg, sizeof msg);
-    if (!err->file[0]) snprintf(err->file, sizeof err->file, "%s", a->path);
-    return s;
-}
-
-static DrBemOrdering ordering_of(const char *name)
-{
-    DrBemOrdering o = DR_BEM_ORDER_VERTEX_XYZ;
-    bool known = dr_bem_ordering_parse(name, &o);
-    assert(known); /* the scene's enum admits nothing else */
-    (void)known;
-    return o;
-}
-
-/* The element's components as build parameters; what the scene does not set keeps dr_bem_desc_default. */
-static void desc_of(const DrElement *e, DrBemDesc *d)
-{
-    dr_bem_desc_default(d);
-    const DrComponent *mat = dr_element_component(e, "LinearElastic");
-    const DrComponent *cmp = dr_element_component(e, "Compression");
-    const DrComponent *sol = dr_element_component(e, "BemSolver");
-    d->material.density = dr_component_num(mat, "density");
-    d->material.shear_modulus = dr_component_num(mat, "shear_modulus");
-    d->material.poisson = dr_component_num(mat, "poisson");
-    d->compression_ratio = dr_component_num(cmp, "ratio");
-    d->ordering = ordering_of(dr_component_str(cmp, "ordering"));
-    d->dt = dr_component_num(sol, "time_step");
-    d->history_margin = dr_component_num(sol, "history_margin");
-    d->quad_levels = dr_component_int(sol, "quadrature_levels");
-    d->keep_dense = false;
-}
-
-DrStatus dr_world_bem_asset_load(const DrElement *e, DrWorldBemAsset *a, DrError *err)
-{
-    memset(a, 0, sizeof *a);
-    a->element = e;
-    a->path = dr_component_str(dr_element_component(e, "Mesh"), "file");
-    DR_TRY(in_element(dr_io_load_mesh(a->path, &a->mesh, err), a, err));
-    DrVec3 lo, hi;
-    double diag = dr_trimesh_bounds(&a->mesh, &lo, &hi) ? dr_v3_norm(dr_v3_sub(hi, lo)) : 0.0;
-    a->vertices_in_file = a->mesh.nv;
-    a->weld_tolerance = WELD_RELATIVE * diag;
-    DrStatus s = in_element(dr_bem_mesh_weld(&a->mesh, a->weld_tolerance, &a->welded, err), a, err);
-    if (s == DR_OK) s = in_element(dr_bem_mesh_check(&a->mesh, a->path, err), a, err);
-    DrHash h;
-    if (s == DR_OK) s = in_element(dr_hash_file(a->path, &h, err), a, err);
-    if (s != DR_OK) {
-        dr_world_bem_asset_free(a);
-        return s;
-    }
-    dr_hash_hex(h, a->mesh_hash);
-    desc_of(e, &a->desc);
-    dr_bem_cache_key(a->mesh_hash, &a->desc, a->key);
-    return DR_OK;
-}
-
-void dr_world_bem_asset_free(DrWorldBemAsset *a) { dr_trimesh_free(&a->mesh); }
-
 /* ---- the bodies --------------------------------------------------------------------------------------------- */
 
 static void bem_destroy(void *self)
@@ -188,8 +113,8 @@ static DrStatus body_context(DrStatus s, const char *name, const char *what, DrE
 
 /* The matrix set of the asset's key: one already read, or read now. No trusted file under the key is bad input:
    precompute has not run for this version of the body. */
-static DrStatus matrices_of(WorldBem *b, const DrScene *scene, const DrWorldBemAsset *a, const char *cache_root,
-                            const DrBemMatrices **out, DrError *err)
+static DrStatus matrices_of(WorldBem *b, const DrScene *scene, const DrElement *e, const DrBemAsset *a,
+                            const char *cache_root, const DrBemMatrices **out, DrError *err)
 {
     for (int k = 0; k < b->nsets; k++)
         if (strcmp(b->keys[k], a->key) == 0) {
@@ -198,21 +123,21 @@ static DrStatus matrices_of(WorldBem *b, const DrScene *scene, const DrWorldBemA
         }
     DrBemMatrices *m = NULL;
     bool found = false;
-    DR_TRY(body_context(dr_bem_cache_read(cache_root, a->key, &m, &found, err), a->element->name,
-                        "cannot read its matrices", err));
+    DR_TRY(body_context(dr_bem_cache_read(cache_root, a->key, &m, &found, err), e->name, "cannot read its matrices",
+                        err));
     char path[DR_IO_PATH_MAX];
     dr_io_precache_path(cache_root, "bem", a->key, path, sizeof path);
     if (!found)
         return dr_error_set(err, DR_ERR_INPUT, dr_scene_path(scene), 0, 0,
                             "%s: no precomputed BEM matrices for its cache key %s (%s is missing or unfinished); run "
                             "precompute on this scene first (pipeline.sh runs it)",
-                            a->element->name, a->key, path);
+                            e->name, a->key, path);
     /* the key covers the mesh file's bytes and the weld: a disagreement means a file not made by this code */
     if (m->nv != a->mesh.nv || m->nt != a->mesh.nt) {
         DrStatus s = dr_error_set(err, DR_ERR_INPUT, path, 0, 0,
                                   "%s: the cached matrices are for %d vertices and %d triangles but %s welds to %d and "
                                   "%d; delete %s and run precompute again",
-                                  a->element->name, m->nv, m->nt, a->path, a->mesh.nv, a->mesh.nt, path);
+                                  e->name, m->nv, m->nt, a->path, a->mesh.nv, a->mesh.nt, path);
         dr_bem_matrices_destroy(&m);
         return s;
     }
@@ -237,8 +162,7 @@ static void solid_desc_of(const WorldCtx *w, const DrElement *e, const DrBemMatr
     DrVec3 v = dr_component_vec3(iv, "velocity");
     DrVec3 omega = dr_v3_scale(dr_component_vec3(iv, "angular_velocity"), DR_PI / 180.0);
     const DrComponent *sol = dr_element_component(e, "BemSolver");
-    for (int i = 0; i < 3; i++)
-        for (int j = 0; j < 3; j++) d->rotation[3 * i + j] = X.R.m[i][j];
+    dr_m3_store(X.R, d->rotation);
     double Ta[3] = {T.x, T.y, T.z}, va[3] = {v.x, v.y, v.z}, wa[3] = {omega.x, omega.y, omega.z};
     double ga[3] = {w->gravity.x, w->gravity.y, w->gravity.z};
     memcpy(d->position, Ta, sizeof Ta);
@@ -253,13 +177,13 @@ static DrStatus add_body(const WorldCtx *w, WorldBem *b, const DrElement *e, con
                          DrError *err)
 {
     wb->element = e;
-    DrWorldBemAsset a;
-    DR_TRY(dr_world_bem_asset_load(e, &a, err));
+    DrBemAsset a;
+    DR_TRY(dr_stage_load_bem_asset(e, &a, err));
     const DrBemMatrices *m = NULL;
-    DrStatus s = matrices_of(b, w->scene, &a, cache_root, &m, err);
+    DrStatus s = matrices_of(b, w->scene, e, &a, cache_root, &m, err);
     char key[33];
     memcpy(key, a.key, sizeof key);
-    dr_world_bem_asset_free(&a); /* the matrices hold the welded mesh */
+    dr_bem_asset_free(&a); /* the matrices hold the welded mesh */
     DR_TRY(s);
     /* whole steps per frame: the scene refuses a time_step that does not divide 1/fps */
     double ratio = 1.0 / (w->fps * m->desc.dt);

@@ -147,42 +147,6 @@ static DrStatus build_colliders(WorldKinematics *k, const DrScene *scene, int fi
 
 #define BODY_KEY_INTERVALS 16
 
-static DrMat3 skew_exp(DrVec3 w) /* rotation by |w| about w (Rodrigues) */
-{
-    double th = dr_v3_norm(w);
-    DrMat3 R = dr_m3_identity();
-    if (!(th > 0.0)) return R;
-    DrVec3 a = dr_v3_scale(w, 1.0 / th);
-    double K[3][3] = {{0, -a.z, a.y}, {a.z, 0, -a.x}, {-a.y, a.x, 0}};
-    double s = sin(th), c = 1.0 - cos(th);
-    for (int i = 0; i < 3; i++)
-        for (int j = 0; j < 3; j++) {
-            double k2 = 0.0;
-            for (int l = 0; l < 3; l++) k2 += K[i][l] * K[l][j];
-            R.m[i][j] += s * K[i][j] + c * k2;
-        }
-    return R;
-}
-
-static DrVec3 rotation_log(DrMat3 M) /* the rotation vector w with skew_exp(w) = M, |w| ≤ π */
-{
-    double c = 0.5 * (M.m[0][0] + M.m[1][1] + M.m[2][2] - 1.0);
-    c = c > 1.0 ? 1.0 : (c < -1.0 ? -1.0 : c);
-    double th = acos(c);
-    DrVec3 v = dr_v3(M.m[2][1] - M.m[1][2], M.m[0][2] - M.m[2][0], M.m[1][0] - M.m[0][1]); /* 2 sin θ · axis */
-    if (th < 1e-6) return dr_v3_scale(v, 0.5);
-    if (DR_PI - th > 1e-6) return dr_v3_scale(v, th / (2.0 * sin(th)));
-    /* near a half turn: the axis from the symmetric part (M + I)/2 = a aᵀ, its sign from v */
-    int k = 0;
-    for (int i = 1; i < 3; i++)
-        if (M.m[i][i] > M.m[k][k]) k = i;
-    double col[3];
-    for (int i = 0; i < 3; i++) col[i] = 0.5 * (M.m[i][k] + (i == k ? 1.0 : 0.0));
-    DrVec3 a = dr_v3_normalize(dr_v3(col[0], col[1], col[2]));
-    if (dr_v3_dot(a, v) < 0.0) a = dr_v3_scale(a, -1.0);
-    return dr_v3_scale(a, th);
-}
-
 static double unwrap_angle(double a, double near) { return a + 2.0 * DR_PI * floor((near - a) / (2.0 * DR_PI) + 0.5); }
 
 /* XYZ Euler angles of R (R = Rz·Ry·Rx as dr_m3_from_euler_xyz), of the two triples (and their 2π shifts) the one
@@ -221,8 +185,7 @@ static void body_frame(const DrBemSolid *s, DrXform *X, DrVec3 *v)
     double R[9], T[3], va[3], wa[3];
     dr_bem_solid_pose(s, R, T);
     dr_bem_solid_frame_velocity(s, va, wa);
-    for (int i = 0; i < 3; i++)
-        for (int j = 0; j < 3; j++) X->R.m[i][j] = R[3 * i + j];
+    X->R = dr_m3_load(R);
     X->t = dr_v3(T[0], T[1], T[2]);
     *v = dr_v3(va[0], va[1], va[2]);
 }
@@ -272,7 +235,7 @@ static DrStatus body_keys(WorldBodyCollider *bc, double t_frame, double t0, doub
     DrVec3 V1, V0 = bc->start_velocity;
     body_frame(bc->solid, &X1, &V1);
     DrMat3 R0 = bc->start.R;
-    DrVec3 T0 = bc->start.t, w = rotation_log(dr_m3_mul(dr_m3_transpose(R0), X1.R));
+    DrVec3 T0 = bc->start.t, w = dr_m3_rotation_log(dr_m3_mul(dr_m3_transpose(R0), X1.R));
     double h = t1 - t0;
     int first = 1; /* the step's first key is the last step's last (t0) */
     DrVec3 e;
@@ -295,13 +258,13 @@ static DrStatus body_keys(WorldBodyCollider *bc, double t_frame, double t0, doub
         double s = (double)k / BODY_KEY_INTERVALS, s2 = s * s, s3 = s2 * s;
         DrVec3 T = dr_v3_add(dr_v3_add(dr_v3_scale(T0, 2 * s3 - 3 * s2 + 1), dr_v3_scale(V0, h * (s3 - 2 * s2 + s))),
                              dr_v3_add(dr_v3_scale(X1.t, 3 * s2 - 2 * s3), dr_v3_scale(V1, h * (s3 - s2))));
-        DrMat3 R = k == BODY_KEY_INTERVALS ? X1.R : dr_m3_mul(R0, skew_exp(dr_v3_scale(w, s)));
+        DrMat3 R = k == BODY_KEY_INTERVALS ? X1.R : dr_m3_mul(R0, dr_m3_rotation_exp(dr_v3_scale(w, s)));
         if (k == BODY_KEY_INTERVALS) T = X1.t;
         e = euler_near(R, e);
         put_key(bc->keys + 7 * bc->nkeys++, k == BODY_KEY_INTERVALS ? t1 : t0 + s * h, T, e);
     }
     DrVec3 W1 = body_angular_velocity(bc->solid);
-    DrMat3 Rx = dr_m3_mul(skew_exp(dr_v3_scale(W1, h)), X1.R);
+    DrMat3 Rx = dr_m3_mul(dr_m3_rotation_exp(dr_v3_scale(W1, h)), X1.R);
     e = euler_near(Rx, e);
     put_key(bc->keys + 7 * bc->nkeys++, t1 + h, dr_v3_add(X1.t, dr_v3_scale(V1, h)), e);
     return DR_OK;

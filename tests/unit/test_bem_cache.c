@@ -1,7 +1,9 @@
 /* The BEM matrix cache (src/bem/bem_cache.c): the key covers exactly what changes the matrices; a written set
  * reads back bit for bit, dense and compressed alike; a file is trusted only under its own key and only when
  * its datasets agree with each other; writing is all or nothing. The matrix sets are made by hand (no
- * assembly), small enough to compare every bit. Also the 32-bit integer datasets the cache stores indices in. */
+ * assembly), small enough to compare every bit. Also the 32-bit integer datasets the cache stores indices in, and
+ * an asset's key (src/bem/bem_asset.c: the welded, checked mesh and the key of its file and desc). Run from the
+ * repository root. */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -690,6 +692,66 @@ static void test_i32_datasets(void **state)
     dr_h5_close(&h);
 }
 
+/* An asset: the mesh welded and checked, its file's hash, and the key of that hash and desc; a seam welded shut;
+   a bad mesh or file fails as DR_ERR_INPUT naming the file, with nothing to free. */
+static void test_asset(void **state)
+{
+    (void)state;
+    DrBemDesc d;
+    dr_bem_desc_default(&d);
+    d.dt = 1e-3;
+    DrBemAsset a;
+    DrError err;
+    const char *path = "tests/data/bem_ico1.obj";
+    assert_int_equal(dr_bem_asset_load(path, &d, &a, &err), DR_OK);
+    assert_ptr_equal(a.path, path);
+    assert_int_equal(a.mesh.nv, 42);
+    assert_int_equal(a.mesh.nt, 80);
+    assert_int_equal(a.vertices_in_file, 42);
+    assert_int_equal(a.welded, 0);
+    DrVec3 lo, hi;
+    assert_true(dr_trimesh_bounds(&a.mesh, &lo, &hi));
+    assert_true(fabs(a.weld_tolerance - 1e-9 * dr_v3_norm(dr_v3_sub(hi, lo))) <= 1e-15 * a.weld_tolerance);
+    assert_memory_equal(&a.desc, &d, sizeof d);
+    DrHash h;
+    char hex[33], key[33];
+    assert_int_equal(dr_hash_file(path, &h, &err), DR_OK);
+    dr_hash_hex(h, hex);
+    assert_string_equal(a.mesh_hash, hex);
+    dr_bem_cache_key(hex, &d, key);
+    assert_string_equal(a.key, key);
+    DrBemAsset b; /* another Δt: the same file, another key */
+    d.dt = 2e-3;
+    assert_int_equal(dr_bem_asset_load(path, &d, &b, &err), DR_OK);
+    assert_string_equal(b.mesh_hash, a.mesh_hash);
+    assert_string_not_equal(b.key, a.key);
+    dr_bem_asset_free(&b);
+    dr_bem_asset_free(&a);
+
+    /* a tetrahedron with a corner written twice, 1e-12 m apart (as an exporter may split a seam with different
+       digits; the loader joins only identical points): welded to 4 vertices */
+    char seam[512];
+    snprintf(seam, sizeof seam, "%s/seam.obj", g_dir);
+    FILE *fp = fopen(seam, "w");
+    assert_non_null(fp);
+    fputs("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nv 1e-12 0 0\nf 1 3 2\nf 1 2 4\nf 2 3 4\nf 3 5 4\n", fp);
+    fclose(fp);
+    assert_int_equal(dr_bem_asset_load(seam, &d, &a, &err), DR_OK);
+    assert_int_equal(a.vertices_in_file, 5);
+    assert_int_equal(a.welded, 1);
+    assert_int_equal(a.mesh.nv, 4);
+    dr_bem_asset_free(&a);
+
+    const char *bad[] = {"tests/data/bad/bem_open.obj", "tests/data/bad/bem_inward.obj", "tests/data/no_such_mesh.obj"};
+    for (int i = 0; i < 3; i++) {
+        dr_error_clear(&err);
+        assert_int_equal(dr_bem_asset_load(bad[i], &d, &a, &err), DR_ERR_INPUT);
+        assert_string_equal(err.file, bad[i]);
+        assert_null(a.mesh.v);
+        assert_null(a.mesh.tri);
+    }
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -702,6 +764,7 @@ int main(void)
         cmocka_unit_test(test_inconsistent_datasets_are_not_trusted),
         cmocka_unit_test(test_failed_write_leaves_nothing),
         cmocka_unit_test(test_i32_datasets),
+        cmocka_unit_test(test_asset),
     };
     return cmocka_run_group_tests(tests, group_setup, group_teardown);
 }

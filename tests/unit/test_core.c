@@ -1,4 +1,5 @@
-/* Unit tests of src/core: errors, checked allocation, math, meshes, arena, hashing, parallel-for, rng. */
+/* Unit tests of src/core: errors, checked allocation, math (rotation exp and log, 3×3 matrices in flat arrays), meshes,
+ * arena, hashing, parallel-for, rng. */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -75,6 +76,165 @@ static void test_math_and_xform(void **state)
     DrXform X = {R, dr_v3(0.5, -2, 3)};
     DrVec3 p = dr_xform_apply_inverse(X, dr_xform_apply(X, a));
     assert_true(dr_v3_norm(dr_v3_sub(p, a)) < 1e-14);
+}
+
+static double m3_max_diff(DrMat3 a, DrMat3 b)
+{
+    double d = 0.0;
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++) d = fmax(d, fabs(a.m[i][j] - b.m[i][j]));
+    return d;
+}
+
+static double m3_det(DrMat3 a)
+{
+    double f[9];
+    dr_m3_store(a, f);
+    return dr_m3a_det(f);
+}
+
+/* A rotation vector of norm th along a uniformly random direction. */
+static DrVec3 random_rotation_vector(DrRng *rng, double th)
+{
+    DrVec3 d;
+    do d = dr_v3(2 * dr_rng_uniform(rng) - 1, 2 * dr_rng_uniform(rng) - 1, 2 * dr_rng_uniform(rng) - 1);
+    while (dr_v3_dot(d, d) > 1.0 || dr_v3_dot(d, d) < 1e-6);
+    return dr_v3_scale(dr_v3_normalize(d), th);
+}
+
+/* Rodrigues and its inverse. Every tolerance is a small multiple of ε = 2.2e-16 over entries of size ≤ 1: exp sums
+   three terms of products, log's angle and axis keep the round-off of R's entries (the maxima are printed).
+   Angles: uniform on [0, π], then the ends, θ = 10⁻ᵏ and θ = π − 10⁻ᵏ for k = 1…16 and θ = 0, π exactly, where a
+   log by acos alone loses up to half its digits (δθ ≈ ε/sin θ). */
+static void test_rotation_exp_log(void **state)
+{
+    (void)state;
+    DrRng rng;
+    dr_rng_seed(&rng, 7);
+    double orth = 0.0, det = 0.0, roundtrip = 0.0, logexp = 0.0, euler = 0.0;
+    const int n = 100000;
+    for (int t = 0; t < n + 34; t++) {
+        double th;
+        if (t < n) th = DR_PI * dr_rng_uniform(&rng);
+        else if (t < n + 16) th = pow(10.0, -(t - n + 1));
+        else if (t < n + 32) th = DR_PI - pow(10.0, -(t - n - 15));
+        else th = t == n + 32 ? 0.0 : DR_PI;
+        DrVec3 w = random_rotation_vector(&rng, th);
+        DrMat3 R = dr_m3_rotation_exp(w);
+        orth = fmax(orth, m3_max_diff(dr_m3_mul(dr_m3_transpose(R), R), dr_m3_identity()));
+        det = fmax(det, fabs(m3_det(R) - 1.0));
+        DrVec3 l = dr_m3_rotation_log(R);
+        assert_true(dr_v3_norm(l) <= DR_PI * (1.0 + 1e-15));
+        roundtrip = fmax(roundtrip, m3_max_diff(dr_m3_rotation_exp(l), R));
+        /* log(exp w) = w while the half turn's sign is still decided: sin θ ≫ ε */
+        if (th < DR_PI - 1e-9) logexp = fmax(logexp, dr_v3_norm(dr_v3_sub(l, w)));
+        /* a rotation not made by exp */
+        DrVec3 e = dr_v3(6.3 * dr_rng_uniform(&rng), 6.3 * dr_rng_uniform(&rng), 6.3 * dr_rng_uniform(&rng));
+        DrMat3 Q = dr_m3_from_euler_xyz(e);
+        euler = fmax(euler, m3_max_diff(dr_m3_rotation_exp(dr_m3_rotation_log(Q)), Q));
+    }
+    /* beyond a half turn: still a rotation, and log gives the equivalent vector of norm ≤ π */
+    for (int t = 0; t < 1000; t++) {
+        DrMat3 R = dr_m3_rotation_exp(random_rotation_vector(&rng, DR_PI + 100.0 * dr_rng_uniform(&rng)));
+        orth = fmax(orth, m3_max_diff(dr_m3_mul(dr_m3_transpose(R), R), dr_m3_identity()));
+        det = fmax(det, fabs(m3_det(R) - 1.0));
+        DrVec3 l = dr_m3_rotation_log(R);
+        assert_true(dr_v3_norm(l) <= DR_PI * (1.0 + 1e-15));
+        roundtrip = fmax(roundtrip, m3_max_diff(dr_m3_rotation_exp(l), R));
+    }
+    print_message("rotation exp/log over %d angles: |RᵀR − I| %.1e, |det R − 1| %.1e, |exp(log R) − R| %.1e "
+                  "(Euler-angle R %.1e), |log(exp w) − w| %.1e\n",
+                  n + 1034, orth, det, roundtrip, euler, logexp);
+    assert_true(orth < 1e-14);
+    assert_true(det < 1e-14);
+    assert_true(roundtrip < 1e-14);
+    assert_true(euler < 1e-14);
+    assert_true(logexp < 1e-14);
+    /* a quarter turn about z takes x to y; exp keeps its axis; log of I is 0 */
+    DrVec3 y = dr_m3_apply(dr_m3_rotation_exp(dr_v3(0, 0, DR_PI / 2)), dr_v3(1, 0, 0));
+    assert_true(fabs(y.x) < 1e-15 && fabs(y.y - 1) < 1e-15 && y.z == 0.0);
+    DrVec3 w = dr_v3(0.3, -1.2, 0.7);
+    assert_true(dr_v3_norm(dr_v3_sub(dr_m3_apply(dr_m3_rotation_exp(w), w), w)) < 1e-15);
+    DrVec3 z = dr_m3_rotation_log(dr_m3_identity());
+    assert_true(z.x == 0.0 && z.y == 0.0 && z.z == 0.0);
+}
+
+/* The flat-array forms: the bits of the DrMat3 functions (the header's claim, so exact equality), outputs that alias
+   inputs, and the inverse, cofactor and determinant against each other. */
+static void test_m3_flat_arrays(void **state)
+{
+    (void)state;
+    DrRng rng;
+    dr_rng_seed(&rng, 11);
+    double inv_res = 0.0, cof_res = 0.0;
+    for (int t = 0; t < 1000; t++) {
+        double a[9], b[9], x[3], r[9], s[9];
+        for (int k = 0; k < 9; k++) a[k] = 4 * dr_rng_uniform(&rng) - 2, b[k] = 4 * dr_rng_uniform(&rng) - 2;
+        for (int k = 0; k < 3; k++) x[k] = 4 * dr_rng_uniform(&rng) - 2;
+        DrMat3 A = dr_m3_load(a), B = dr_m3_load(b);
+        DrVec3 X = dr_v3(x[0], x[1], x[2]);
+        dr_m3a_mul(a, b, r);
+        dr_m3_store(dr_m3_mul(A, B), s);
+        assert_memory_equal(r, s, sizeof r);
+        dr_m3a_mul_tn(a, b, r);
+        dr_m3_store(dr_m3_mul(dr_m3_transpose(A), B), s);
+        assert_memory_equal(r, s, sizeof r);
+        dr_m3a_mul_nt(a, b, r);
+        dr_m3_store(dr_m3_mul(A, dr_m3_transpose(B)), s);
+        assert_memory_equal(r, s, sizeof r);
+        dr_m3a_transpose(a, r);
+        dr_m3_store(dr_m3_transpose(A), s);
+        assert_memory_equal(r, s, sizeof r);
+        double y[3], z[3];
+        dr_m3a_apply(a, x, y);
+        DrVec3 Y = dr_m3_apply(A, X);
+        assert_true(y[0] == Y.x && y[1] == Y.y && y[2] == Y.z);
+        dr_m3a_apply_t(a, x, y);
+        Y = dr_m3_apply(dr_m3_transpose(A), X);
+        assert_true(y[0] == Y.x && y[1] == Y.y && y[2] == Y.z);
+        /* aliasing: out = an input */
+        dr_m3a_mul(a, b, s);
+        memcpy(r, a, sizeof r);
+        dr_m3a_mul(r, b, r);
+        assert_memory_equal(r, s, sizeof r);
+        memcpy(r, b, sizeof r);
+        dr_m3a_mul(a, r, r);
+        assert_memory_equal(r, s, sizeof r);
+        memcpy(r, a, sizeof r);
+        dr_m3a_transpose(r, r);
+        dr_m3a_transpose(a, s);
+        assert_memory_equal(r, s, sizeof r);
+        memcpy(z, x, sizeof z);
+        dr_m3a_apply(a, z, z);
+        dr_m3a_apply(a, x, y);
+        assert_memory_equal(y, z, sizeof y);
+        /* a a⁻¹ = I and cof(a) = det(a) a⁻ᵀ, scaled by the condition |a||a⁻¹| (entries ≤ 2, det ≠ 0 here) */
+        double inv[9], ai[9], cof[9], d = dr_m3a_det(a);
+        assert_true(dr_m3a_inverse(a, inv));
+        dr_m3a_mul(a, inv, ai);
+        double cond = sqrt(dr_m3a_ddot(a, a) * dr_m3a_ddot(inv, inv));
+        for (int k = 0; k < 9; k++) inv_res = fmax(inv_res, fabs(ai[k] - (k % 4 == 0)) / cond);
+        dr_m3a_cofactor(a, cof);
+        for (int i = 0; i < 3; i++)
+            for (int j = 0; j < 3; j++)
+                cof_res = fmax(cof_res, fabs(cof[3 * i + j] - d * inv[3 * j + i]) / (fabs(d) * cond));
+    }
+    print_message("flat 3×3: |a a⁻¹ − I|/cond %.1e, |cof − det a⁻ᵀ|/(|det| cond) %.1e\n", inv_res, cof_res);
+    assert_true(inv_res < 1e-15);
+    assert_true(cof_res < 1e-15);
+    /* singular, and not finite: false, out untouched */
+    double sing[9] = {1, 2, 3, 2, 4, 6, 0, 1, 5}, nan[9] = {NAN, 0, 0, 0, 1, 0, 0, 0, 1}, out[9], keep[9];
+    for (int k = 0; k < 9; k++) out[k] = keep[k] = k;
+    assert_false(dr_m3a_inverse(sing, out));
+    assert_false(dr_m3a_inverse(nan, out));
+    assert_memory_equal(out, keep, sizeof out);
+    double cof[9];
+    dr_m3a_cofactor(sing, cof); /* defined for singular a: a cof(a)ᵀ = det(a) I = 0 */
+    double acT[9];
+    dr_m3a_mul_nt(sing, cof, acT);
+    for (int k = 0; k < 9; k++) assert_true(fabs(acT[k]) < 1e-14);
+    double I[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
+    assert_true(dr_m3a_det(I) == 1.0 && dr_m3a_ddot(I, I) == 3.0);
 }
 
 static DrTriMesh unit_cube(void)
@@ -245,7 +405,8 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_error_format_and_exit_codes), cmocka_unit_test(test_checked_alloc),
-        cmocka_unit_test(test_math_and_xform),  cmocka_unit_test(test_trimesh_measures),
+        cmocka_unit_test(test_math_and_xform),  cmocka_unit_test(test_rotation_exp_log),
+        cmocka_unit_test(test_m3_flat_arrays),  cmocka_unit_test(test_trimesh_measures),
         cmocka_unit_test(test_arena),           cmocka_unit_test(test_hashing),
         cmocka_unit_test(test_parallel_for_covers_once), cmocka_unit_test(test_rng),
         cmocka_unit_test(test_temp_dir),

@@ -23,6 +23,7 @@
 
 #include "bem/bem.h"
 #include "scene/scene.h"
+#include "stage/stage.h"
 #include "world/world.h"
 
 #define DATA "tests/data/"
@@ -37,9 +38,9 @@ static void precompute(const DrScene *scene)
     for (int i = 0; i < dr_scene_element_count(scene); i++) {
         const DrElement *e = dr_scene_element(scene, i);
         if (strcmp(e->type, "bem_solid") != 0) continue;
-        DrWorldBemAsset a;
+        DrBemAsset a;
         DrError err;
-        if (dr_world_bem_asset_load(e, &a, &err) < 0) fail_msg("%s: %s", e->name, err.message);
+        if (dr_stage_load_bem_asset(e, &a, &err) < 0) fail_msg("%s: %s", e->name, err.message);
         DrBemMatrices *m = NULL;
         DrBemMatrices *have = NULL;
         bool hit = false;
@@ -50,7 +51,7 @@ static void precompute(const DrScene *scene)
             if (dr_bem_cache_write(g_cache, a.key, "{}", a.mesh_hash, m, &err) < 0) fail_msg("%s", err.message);
             dr_bem_matrices_destroy(&m);
         }
-        dr_world_bem_asset_free(&a);
+        dr_bem_asset_free(&a);
     }
 }
 
