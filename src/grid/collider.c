@@ -12,12 +12,29 @@ struct DrCollider {
     double dx;
     double friction, thickness;
     bool no_slip;
-    int nkeys;
-    double *keys; /* nkeys rows of 7 */
+    int nkeys, cap_keys;
+    double *keys; /* nkeys rows of 7 (room for cap_keys) */
     uint64_t id;  /* unique per process (dr_collider_id) */
 };
 
 static atomic_uint_fast64_t next_id = 1;
+
+static DrStatus check_keys(const double *keys, int nkeys, DrError *err)
+{
+    if (nkeys < 0 || (nkeys > 0 && !keys))
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "collider keys: %d rows but no data.", nkeys);
+    for (int k = 0; k < nkeys; k++) {
+        for (int c = 0; c < 7; c++)
+            if (!isfinite(keys[7 * k + c]))
+                return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "collider key %d column %d is not finite.",
+                                    k, c);
+        if (k > 0 && !(keys[7 * k] > keys[7 * (k - 1)]))
+            return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                                "collider key times must increase strictly (key %d at %g s after %g s).", k,
+                                keys[7 * k], keys[7 * (k - 1)]);
+    }
+    return DR_OK;
+}
 
 DrStatus dr_collider_create(const DrColliderDesc *desc, DrCollider **out, DrError *err)
 {
@@ -33,18 +50,7 @@ DrStatus dr_collider_create(const DrColliderDesc *desc, DrCollider **out, DrErro
         return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
                             "collider friction must be finite and >= 0, thickness finite (got %g, %g).",
                             desc->friction, desc->thickness);
-    if (desc->nkeys < 0 || (desc->nkeys > 0 && !desc->keys))
-        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "collider keys: %d rows but no data.", desc->nkeys);
-    for (int k = 0; k < desc->nkeys; k++) {
-        for (int c = 0; c < 7; c++)
-            if (!isfinite(desc->keys[7 * k + c]))
-                return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "collider key %d column %d is not finite.",
-                                    k, c);
-        if (k > 0 && !(desc->keys[7 * k] > desc->keys[7 * (k - 1)]))
-            return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
-                                "collider key times must increase strictly (key %d at %g s after %g s).", k,
-                                desc->keys[7 * k], desc->keys[7 * (k - 1)]);
-    }
+    DR_TRY(check_keys(desc->keys, desc->nkeys, err));
     size_t n = 0;
     if (dr_mul_overflows((size_t)desc->nx, (size_t)desc->ny, &n) || dr_mul_overflows(n, (size_t)desc->nz, &n))
         return dr_error_set(err, DR_ERR_NOMEM, NULL, 0, 0, "collider SDF size overflows.");
@@ -65,8 +71,22 @@ DrStatus dr_collider_create(const DrColliderDesc *desc, DrCollider **out, DrErro
     c->origin = desc->origin; c->dx = desc->dx;
     c->friction = desc->friction; c->thickness = desc->thickness; c->no_slip = desc->no_slip;
     c->nkeys = desc->nkeys;
+    c->cap_keys = desc->nkeys;
     c->id = (uint64_t)atomic_fetch_add(&next_id, 1);
     *out = c;
+    return DR_OK;
+}
+
+DrStatus dr_collider_set_keys(DrCollider *c, const double *keys, int nkeys, DrError *err)
+{
+    DR_TRY(check_keys(keys, nkeys, err));
+    if (nkeys > c->cap_keys) {
+        DR_TRY(dr_realloc((size_t)nkeys * 7, sizeof(double), &c->keys, err));
+        c->cap_keys = nkeys;
+    }
+    if (nkeys > 0) memcpy(c->keys, keys, (size_t)nkeys * 7 * sizeof(double));
+    c->nkeys = nkeys;
+    c->id = (uint64_t)atomic_fetch_add(&next_id, 1); /* another motion: caches keyed by the id start over */
     return DR_OK;
 }
 

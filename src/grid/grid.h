@@ -128,6 +128,9 @@ typedef struct DrCollider DrCollider;
 /* DR_ERR_INPUT (naming the field) for a missing/too small SDF, non-positive dx, negative friction,
  * non-finite values or keys not strictly increasing in time; DR_ERR_NOMEM. */
 DR_NODISCARD DrStatus dr_collider_create(const DrColliderDesc *desc, DrCollider **out, DrError *err);
+/* Replaces the motion keys (checked and copied as dr_collider_create's; the SDF stays), for a collider whose motion
+ * is known one step at a time. The collider gets a new dr_collider_id, as a new collider would. */
+DR_NODISCARD DrStatus dr_collider_set_keys(DrCollider *c, const double *keys, int nkeys, DrError *err);
 void dr_collider_destroy(DrCollider **c);
 DrXform dr_collider_pose(const DrCollider *c, double t); /* rest frame -> world at time t */
 /* Signed distance (world, minus thickness) at x and time t; outside the SDF box it is the distance to the

@@ -203,7 +203,7 @@ static void put_key(double *row, double t, DrVec3 T, DrVec3 e)
     memcpy(row, r, sizeof r);
 }
 
-/* (Re)builds the body's DrCollider from its SDF and its current keys. */
+/* (Re)builds the body's DrCollider from its SDF and its current keys (when the SDF is new). */
 static DrStatus pose_body_collider(WorldBodyCollider *bc, DrError *err)
 {
     dr_collider_destroy(&bc->collider);
@@ -351,12 +351,15 @@ DrStatus world_kinematics_body_end(WorldKinematics *k, int i, double t_frame, do
 {
     if (i >= k->nbodies) return DR_OK;
     WorldBodyCollider *bc = &k->bodies[i];
-    if (deformed_since_built(bc)) {
+    bool rebuilt = deformed_since_built(bc);
+    if (rebuilt) {
         DR_TRY(build_body_sdf(bc, k->dx, err));
         k->rebuilds++;
     }
     DR_TRY(body_keys(bc, t_frame, t0, t1, err));
-    DR_TRY(dr_error_prefix(pose_body_collider(bc, err), err, "%s.BemSolver", bc->element->name));
+    /* a new collider only for a new SDF; otherwise the one there takes the frame's keys so far */
+    DrStatus s = rebuilt ? pose_body_collider(bc, err) : dr_collider_set_keys(bc->collider, bc->keys, bc->nkeys, err);
+    DR_TRY(dr_error_prefix(s, err, "%s.BemSolver", bc->element->name));
     if (k->nliquid > k->nlive) k->liquid[k->nlive + i] = bc->collider;
     k->body_posed[i].collider = bc->collider;
     return DR_OK;

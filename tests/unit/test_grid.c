@@ -7,6 +7,8 @@
 #include <stdlib.h>
 #include <cmocka.h>
 
+#include <string.h>
+
 #include "grid/grid.h"
 
 #define RADIUS 0.3
@@ -183,11 +185,39 @@ static void test_static_and_id(void **state)
     dr_collider_destroy(&d);
 }
 
+/* Keys replaced on a collider pose it as a collider created with them, give it a new id, and bad keys are refused
+   (the keys there stay). */
+static void test_set_keys(void **state)
+{
+    (void)state;
+    double one[7] = {0.0, 0.1, 0, 0, 0, 0, 0};
+    double three[21] = {0.0, 0, 0, 0, 0, 0, 0, 1.0, 0.2, 0, 0, 0, 0, 0.3, 2.0, 0.2, 0.5, 0, 0.1, 0, 0.3};
+    DrCollider *a = sphere(1, one, 0.0), *b = sphere(3, three, 0.0);
+    uint64_t id = dr_collider_id(a);
+    DrError err;
+    assert_int_equal(dr_collider_set_keys(a, three, 3, &err), DR_OK);
+    assert_true(dr_collider_id(a) != id);
+    assert_false(dr_collider_static(a));
+    for (double t = -0.5; t <= 2.5; t += 0.125) {
+        DrXform xa = dr_collider_pose(a, t), xb = dr_collider_pose(b, t);
+        assert_memory_equal(&xa, &xb, sizeof xa);
+        DrVec3 va = dr_collider_velocity(a, t, dr_v3(0.1, 0.2, 0.3)), vb = dr_collider_velocity(b, t, dr_v3(0.1, 0.2, 0.3));
+        assert_memory_equal(&va, &vb, sizeof va);
+    }
+    double bad[14] = {1.0, 0, 0, 0, 0, 0, 0, 1.0, 0, 0, 0, 0, 0, 0};
+    assert_int_equal(dr_collider_set_keys(a, bad, 2, &err), DR_ERR_INPUT);
+    assert_non_null(strstr(err.message, "increase strictly"));
+    DrXform xa = dr_collider_pose(a, 1.5), xb = dr_collider_pose(b, 1.5);
+    assert_memory_equal(&xa, &xb, sizeof xa);
+    dr_collider_destroy(&a);
+    dr_collider_destroy(&b);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {cmocka_unit_test(test_pose_interpolation), cmocka_unit_test(test_moving_sphere),
                                        cmocka_unit_test(test_face_fraction), cmocka_unit_test(test_mac_layout_and_kernel),
-                                       cmocka_unit_test(test_static_and_id),
+                                       cmocka_unit_test(test_static_and_id), cmocka_unit_test(test_set_keys),
                                        cmocka_unit_test(test_face_coupling)};
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
