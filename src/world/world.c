@@ -229,8 +229,7 @@ DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrError *err)
             t_next = fmin(t_next, w->proposal[i]);
         }
         /* a proposal a rounding error short of a landing time lands on it (no step of a few ulps after it) */
-        bool landing = land - t_next <= tol;
-        if (landing) t_next = land;
+        if (land - t_next <= tol) t_next = land;
         world_kinematics_pose(w->kin, t_next);
         for (int i = 0; i < w->nsolvers; i++) {
             WorldSolver *s = &w->solvers[i];

@@ -26,3 +26,22 @@ stage_scene() {
   cp "$ROOT/assets/scenes/$1" "$WORK/scenes/$1"
   echo "$WORK/scenes/$1"
 }
+# awk functions for a body's triangle surface, given in its body frame (x: 3 per vertex from index 1, k: 3 vertex
+# indices per triangle from 0): face_planes fills N[i, 1..3], the unit normal of face i (outward for a surface wound
+# counter-clockwise seen from outside), and O[i] = N[i]·x_a, so O[i] − N[i]·q is the depth of q below face i's plane;
+# to_body puts Rᵀ(p_j − T) into q[1..3] (R row-major, T and p as read by h5).
+AWK_SURFACE='
+function face_planes(x, k, nt,    i, a, b, c, d, e1, e2, nx, ny, nz, l) {
+  for (i = 0; i < nt; i++) {
+    a = k[3 * i + 1]; b = k[3 * i + 2]; c = k[3 * i + 3]
+    for (d = 1; d <= 3; d++) { e1[d] = x[3 * b + d] - x[3 * a + d]; e2[d] = x[3 * c + d] - x[3 * a + d] }
+    nx = e1[2] * e2[3] - e1[3] * e2[2]; ny = e1[3] * e2[1] - e1[1] * e2[3]; nz = e1[1] * e2[2] - e1[2] * e2[1]
+    l = sqrt(nx * nx + ny * ny + nz * nz); N[i, 1] = nx / l; N[i, 2] = ny / l; N[i, 3] = nz / l
+    O[i] = N[i, 1] * x[3 * a + 1] + N[i, 2] * x[3 * a + 2] + N[i, 3] * x[3 * a + 3]
+  }
+}
+function to_body(p, j, r, t, q,    d, v) {
+  for (d = 1; d <= 3; d++) v[d] = p[3 * j + d] - t[d]
+  for (d = 1; d <= 3; d++) q[d] = r[d] * v[1] + r[3 + d] * v[2] + r[6 + d] * v[3]
+}
+'

@@ -27,20 +27,13 @@ deepest() { # FRAME: prints the largest depth (m) and the particles deeper than 
   local f="$bd/frame.000$1.h5"
   h5 "$f" /water/position |
   awk -v R="$(h5 "$f" /jelly/rotation)" -v T="$(h5 "$f" /jelly/translation)" -v X="$(h5 "$f" /jelly/reference)" \
-      -v K="$(h5 "$f" /jelly/triangles)" 'BEGIN {
+      -v K="$(h5 "$f" /jelly/triangles)" "$AWK_SURFACE"'BEGIN {
     split(R, r, " "); split(T, t, " "); split(X, x, " "); nt = split(K, k, " ") / 3
-    for (i = 0; i < nt; i++) {
-      a = k[3 * i + 1]; b = k[3 * i + 2]; c = k[3 * i + 3]
-      for (d = 1; d <= 3; d++) { e1[d] = x[3 * b + d] - x[3 * a + d]; e2[d] = x[3 * c + d] - x[3 * a + d] }
-      nx = e1[2] * e2[3] - e1[3] * e2[2]; ny = e1[3] * e2[1] - e1[1] * e2[3]; nz = e1[1] * e2[2] - e1[2] * e2[1]
-      l = sqrt(nx * nx + ny * ny + nz * nz); N[i, 1] = nx / l; N[i, 2] = ny / l; N[i, 3] = nz / l
-      O[i] = N[i, 1] * x[3 * a + 1] + N[i, 2] * x[3 * a + 2] + N[i, 3] * x[3 * a + 3]
-    } }
+    face_planes(x, k, nt) }
   { np = split($0, p, " ") / 3
     worst = -1; deep = 0
     for (j = 0; j < np; j++) {
-      for (d = 1; d <= 3; d++) v[d] = p[3 * j + d] - t[d]
-      for (d = 1; d <= 3; d++) q[d] = r[d] * v[1] + r[3 + d] * v[2] + r[6 + d] * v[3] # Rᵀ v
+      to_body(p, j, r, t, q)
       m = 1
       for (i = 0; i < nt && m > -0.02; i++) { s = O[i] - (N[i, 1] * q[1] + N[i, 2] * q[2] + N[i, 3] * q[3]); if (s < m) m = s }
       if (m > worst) worst = m
@@ -92,16 +85,17 @@ squashed_inside() { # FRAME: prints the particles inside the deformed surface an
   local f="$sd/frame.000$1.h5" d="$WORK/sqd"; mkdir -p "$d"
   h5 "$f" /water/position >"$d/p"
   awk -v R="$(h5 "$f" /jelly/rotation)" -v T="$(h5 "$f" /jelly/translation)" -v X="$(h5 "$f" /jelly/reference)" \
-      -v U="$(h5 "$f" /jelly/displacement)" -v K="$(h5 "$f" /jelly/triangles)" 'BEGIN {
+      -v U="$(h5 "$f" /jelly/displacement)" -v K="$(h5 "$f" /jelly/triangles)" "$AWK_SURFACE"'BEGIN {
     split(R, r, " "); split(T, t, " "); nx = split(X, x, " "); split(U, u, " "); nt = split(K, k, " ") / 3
     for (d = 1; d <= 3; d++) { lo[d] = 1e9; hi[d] = -1e9 }
     for (i = 0; i < nx / 3; i++)
-      for (d = 1; d <= 3; d++) { x[3*i+d] += u[3*i+d]; if (x[3*i+d] < lo[d]) lo[d] = x[3*i+d]; if (x[3*i+d] > hi[d]) hi[d] = x[3*i+d] } }
+      for (d = 1; d <= 3; d++) { x[3*i+d] += u[3*i+d]; if (x[3*i+d] < lo[d]) lo[d] = x[3*i+d]; if (x[3*i+d] > hi[d]) hi[d] = x[3*i+d] }
+    face_planes(x, k, nt) }
   { np = split($0, p, " ") / 3; inside = 0; worst = 0
     for (j = 0; j < np; j++) {
-      for (d = 1; d <= 3; d++) v[d] = p[3 * j + d] - t[d]
+      to_body(p, j, r, t, q)
       out = 0
-      for (d = 1; d <= 3; d++) { q[d] = r[d] * v[1] + r[3 + d] * v[2] + r[6 + d] * v[3]; if (q[d] < lo[d] || q[d] > hi[d]) out = 1 }
+      for (d = 1; d <= 3; d++) if (q[d] < lo[d] || q[d] > hi[d]) out = 1
       if (out) continue
       w = 0; dmin = 1e9
       for (i = 0; i < nt; i++) { # solid angle of triangle i seen from q (Van Oosterom and Strackee)
@@ -113,13 +107,7 @@ squashed_inside() { # FRAME: prints the particles inside the deformed surface an
       }
       if (w > 6.2831853) { # winding number 1: inside; its depth below the nearest face plane
         m = 1e9
-        for (i = 0; i < nt; i++) {
-          a = k[3*i+1]; b = k[3*i+2]; c = k[3*i+3]
-          for (d = 1; d <= 3; d++) { e1[d] = x[3*b+d] - x[3*a+d]; e2[d] = x[3*c+d] - x[3*a+d] }
-          n1 = e1[2]*e2[3] - e1[3]*e2[2]; n2 = e1[3]*e2[1] - e1[1]*e2[3]; n3 = e1[1]*e2[2] - e1[2]*e2[1]; l = sqrt(n1*n1 + n2*n2 + n3*n3)
-          s = (n1 * (x[3*a+1] - q[1]) + n2 * (x[3*a+2] - q[2]) + n3 * (x[3*a+3] - q[3])) / l
-          if (s >= 0 && s < m) m = s
-        }
+        for (i = 0; i < nt; i++) { s = O[i] - (N[i, 1] * q[1] + N[i, 2] * q[2] + N[i, 3] * q[3]); if (s >= 0 && s < m) m = s }
         if (m < 1e9 && m > 0.01) inside++
         if (m < 1e9 && m > worst) worst = m
       }

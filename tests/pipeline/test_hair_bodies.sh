@@ -16,21 +16,15 @@ bem_gaps() { # FRAME-FILE BODY HAIR
   local f="$1"
   h5 "$f" "/$3/position" |
   awk -v R="$(h5 "$f" /$2/rotation)" -v T="$(h5 "$f" /$2/translation)" -v X="$(h5 "$f" /$2/reference)" \
-      -v U="$(h5 "$f" /$2/displacement)" -v K="$(h5 "$f" /$2/triangles)" -v V="$(h5 "$f" /$3/velocity)" -v C=$CONTACT 'BEGIN {
+      -v U="$(h5 "$f" /$2/displacement)" -v K="$(h5 "$f" /$2/triangles)" -v V="$(h5 "$f" /$3/velocity)" -v C=$CONTACT \
+      "$AWK_SURFACE"'BEGIN {
     split(R, r, " "); split(T, t, " "); split(X, x, " "); split(U, u, " "); nt = split(K, k, " ") / 3
     for (i in x) x[i] += u[i]
-    for (i = 0; i < nt; i++) {
-      a = k[3 * i + 1]; b = k[3 * i + 2]; c = k[3 * i + 3]
-      for (d = 1; d <= 3; d++) { e1[d] = x[3 * b + d] - x[3 * a + d]; e2[d] = x[3 * c + d] - x[3 * a + d] }
-      nx = e1[2] * e2[3] - e1[3] * e2[2]; ny = e1[3] * e2[1] - e1[1] * e2[3]; nz = e1[1] * e2[2] - e1[2] * e2[1]
-      l = sqrt(nx * nx + ny * ny + nz * nz); N[i, 1] = nx / l; N[i, 2] = ny / l; N[i, 3] = nz / l
-      O[i] = N[i, 1] * x[3 * a + 1] + N[i, 2] * x[3 * a + 2] + N[i, 3] * x[3 * a + 3]
-    }
+    face_planes(x, k, nt)
     split(V, vel, " ") }
   { np = split($0, p, " ") / 3; gmin = 1e9; near = 0; vmax = 0
     for (j = 0; j < np; j++) {
-      for (d = 1; d <= 3; d++) v[d] = p[3 * j + d] - t[d]
-      for (d = 1; d <= 3; d++) q[d] = r[d] * v[1] + r[3 + d] * v[2] + r[6 + d] * v[3]
+      to_body(p, j, r, t, q)
       g = -1e9
       for (i = 0; i < nt; i++) { s = N[i, 1] * q[1] + N[i, 2] * q[2] + N[i, 3] * q[3] - O[i]; if (s > g) g = s }
       if (g < gmin) gmin = g
