@@ -1,7 +1,7 @@
-/* Golden states: one small scene per solver kind (liquid with a moving collider, MPM, hair, BEM bodies in contact,
- * and one scene mixing them all), stepped a few frames on 1 and on 2 threads; the world's state hash
- * (dr_world_state_hash: every particle, vertex, body state, generator state and step count) must equal the constant
- * stored here. A change to any solver's arithmetic, its order of operations or its clock shows up as a new hash: a
+/* Golden states: one small scene per solver kind (liquid with a moving collider, MPM, hair, two BEM bodies apart and
+ * three in contact on a floor, and one scene mixing them all), stepped a few frames on 1 and on 2 threads; the
+ * world's state hash (dr_world_state_hash: every particle, vertex, body state, generator state and step count) must
+ * equal the constant stored here. A change to any solver's arithmetic, its order of operations or its clock shows up as a new hash: a
  * deliberate one updates the constant in the same commit and says why. Run from the repository root.
  *
  * The constants hold on any x86-64 CPU because the test runs itself on the baseline instruction paths of the two
@@ -90,6 +90,7 @@ static const Golden GOLDEN[] = {
     {DATA "hair_small.json", 3, "2db5a6eaab7124ac6829684fd971f290"},
     {DATA "bem_pair.json", 2, "c1e076eea5909a3afe407387da37cfa1"},
     {DATA "golden_mix.json", 3, "7b706e7ceab38ae64c72852551e500f3"},
+    {DATA "bem_floor.json", 12, "5c8756117acc72e3a8ae2d5e18c054cb"},
 };
 
 static void check(int k)
@@ -110,8 +111,10 @@ static void check(int k)
 static void test_liquid_with_moving_collider(void **state) { (void)state; check(0); }
 static void test_mpm_drop(void **state) { (void)state; check(1); }
 static void test_hair_on_moving_scalp(void **state) { (void)state; check(2); }
-static void test_bem_bodies_in_contact(void **state) { (void)state; check(3); }
+static void test_bem_pair_apart(void **state) { (void)state; check(3); }
 static void test_every_solver_in_one_scene(void **state) { (void)state; check(4); }
+/* three bodies on a floor collider, two of them stacked: body–body contacts from frame 6 on */
+static void test_bem_bodies_in_contact(void **state) { (void)state; check(5); }
 
 static int setup(void **state)
 {
@@ -148,8 +151,9 @@ int main(int argc, char **argv)
         cmocka_unit_test(test_liquid_with_moving_collider),
         cmocka_unit_test(test_mpm_drop),
         cmocka_unit_test(test_hair_on_moving_scalp),
-        cmocka_unit_test(test_bem_bodies_in_contact),
+        cmocka_unit_test(test_bem_pair_apart),
         cmocka_unit_test(test_every_solver_in_one_scene),
+        cmocka_unit_test(test_bem_bodies_in_contact),
     };
     return cmocka_run_group_tests(tests, setup, teardown);
 }
