@@ -21,7 +21,7 @@
 #define ROD_KD 10
 
 /* Phases of a step (hair.h): what the last phase call left. */
-enum { PHASE_NONE, PHASE_PREDICTED, PHASE_SOLVED };
+enum { PHASE_NONE, PHASE_DOFS, PHASE_PREDICTED, PHASE_SOLVED };
 
 void dr_rod_set_desc_default(DrRodSetDesc *d)
 {
@@ -75,10 +75,12 @@ struct DrRodSet {
     long nlambda;
 
     /* solver */
-    DrLag *lag;
-    int *dof0;                 /* S */
-    int ndof;
-    double *dmass, *qdot, *fext, *qdot_p, *qdot_out;
+    DrLag *lag;                /* desc.system, or the set's own */
+    bool own_system;
+    int *dof0;                 /* S: first DOF of each strand in the system */
+    int ndof;                  /* the set's own DOFs */
+    /* the system's per-DOF arrays (dr_lag_dofs), indexed by the system's DOFs; fetched by every predict */
+    double *dmass, *qdot, *fext, *qdot_p, *qdot_out, *fload;
     unsigned char *pres;
     /* collider contacts (per vertex) */
     unsigned char *cflag;
@@ -99,7 +101,6 @@ struct DrRodSet {
     double seconds_build, seconds_contact; /* of the prediction */
     /* the external load of a solve and the samples (hair.h) */
     int *vdof;                 /* V: first DOF of each vertex */
-    double *fload;             /* ndof: the load's forces as generalised forces */
     double *s_v, *s_radius, *s_length, *s_tangent;
     unsigned char *s_held;
 };
@@ -127,11 +128,10 @@ void dr_rod_set_destroy(DrRodSet **rp)
     void *arrays[] = {r->offsets, r->batch_offsets, r->batch_group, r->batch_mask, r->strand_batch, r->materials, r->batch,
                       r->lbar, r->kbar, r->tbar, r->lv, r->vmass, r->tinertia, r->radius, r->stiff, r->root_rest,
                       r->m1_rest, r->tip_rest, r->t_old, r->edge_strand, r->edge_local, r->x, r->v, r->theta, r->theta_dot, r->a1, r->m, r->t, r->len, r->lambda,
-                      r->dof0, r->dmass, r->qdot, r->fext, r->qdot_p, r->qdot_out, r->pres, r->cflag, r->cnormal,
-                      r->cvel, r->clambda, r->cfric, r->hc, r->save, r->vdof,
-                      r->fload, r->s_v, r->s_radius, r->s_length, r->s_tangent, r->s_held};
+                      r->dof0, r->cflag, r->cnormal,
+                      r->cvel, r->clambda, r->cfric, r->hc, r->save, r->vdof, r->s_v, r->s_radius, r->s_length, r->s_tangent, r->s_held};
     for (size_t k = 0; k < sizeof arrays / sizeof arrays[0]; k++) free(arrays[k]);
-    dr_lag_destroy(&r->lag);
+    if (r->own_system) dr_lag_destroy(&r->lag);
     dr_broad_phase_destroy(&r->bp);
     dr_arena_destroy(&r->arena);
     free(r);
@@ -300,23 +300,22 @@ DrStatus dr_rod_set_create(const DrRodSetDesc *desc, const DrRodBatch *batches, 
         }
     }
 
-    /* the Lagrangian system: one object per strand */
-    DrLagDesc ld = desc->solver;
-    s = dr_lag_create(&ld, &r->lag, err);
-    if (s != DR_OK) goto fail;
+    /* the Lagrangian system (the caller's shared one, or the set's own): one object per strand */
+    if (desc->system) {
+        r->lag = desc->system;
+    } else {
+        DrLagDesc ld = desc->solver;
+        s = dr_lag_create(&ld, &r->lag, err);
+        if (s != DR_OK) goto fail;
+        r->own_system = true;
+    }
+    int first = dr_lag_dof_count(r->lag);
     for (int k = 0; k < r->S; k++) {
         int nv = r->offsets[k + 1] - r->offsets[k], nd = 4 * nv - 1;
         s = dr_lag_add_object(r->lag, nd, nd - 1 < ROD_KD ? nd - 1 : ROD_KD, NULL, &r->dof0[k], err);
         if (s != DR_OK) goto fail;
     }
-    r->ndof = dr_lag_dof_count(r->lag);
-    ALLOC(r->dmass, r->ndof);
-    ALLOC(r->qdot, r->ndof);
-    ALLOC(r->fext, r->ndof);
-    ALLOC(r->qdot_p, r->ndof);
-    ALLOC(r->qdot_out, r->ndof);
-    ALLOC(r->pres, r->ndof);
-    ALLOC(r->fload, r->ndof);
+    r->ndof = dr_lag_dof_count(r->lag) - first;
     for (int k = 0; k < r->S; k++)
         for (int j = r->offsets[k]; j < r->offsets[k + 1]; j++) {
             r->vdof[j] = r->dof0[k] + 4 * (j - r->offsets[k]);
@@ -339,7 +338,7 @@ DrRodState dr_rod_set_state(DrRodSet *r)
 void dr_rod_set_solver(DrRodSet *r, const DrLagDesc *solver)
 {
     r->desc.solver = *solver;
-    dr_lag_set_desc(r->lag, solver);
+    if (r->own_system) dr_lag_set_desc(r->lag, solver);
 }
 
 void dr_rod_set_refresh(DrRodSet *r)
@@ -751,14 +750,22 @@ double dr_rod_set_stable_dt(const DrRodSet *r)
     return INFINITY;
 }
 
-DrStatus dr_rod_set_predict(DrRodSet *r, double h, const DrXform *scalp_end, const DrRodCollider *col, int ncol,
-                            DrError *err)
+DrStatus dr_rod_set_predict_dofs(DrRodSet *r, double h, const DrXform *scalp_end, DrError *err)
 {
     assert(h > 0);
     r->phase = PHASE_NONE;
     r->h_step = h;
     dr_arena_reset(r->arena);
-    double t0 = dr_time_now();
+    r->seconds_build = -dr_time_now();
+    DrLagDofs d;
+    DR_TRY(dr_lag_dofs(r->lag, &d, err));
+    r->dmass = d.mass;
+    r->qdot = d.qdot;
+    r->fext = d.fext;
+    r->pres = d.prescribed;
+    r->qdot_p = d.qdot_prescribed;
+    r->fload = d.force;
+    r->qdot_out = d.qdot_out;
     /* 1–2. DOF vectors, masses, gravity, roots */
     for (int k = 0; k < r->S; k++) {
         int o = r->offsets[k], nv = r->offsets[k + 1] - o, e0 = edge_index(r, k, 0), d0 = r->dof0[k];
@@ -782,7 +789,18 @@ DrStatus dr_rod_set_predict(DrRodSet *r, double h, const DrXform *scalp_end, con
         tip_velocities(r, k, h);
         root_velocities(r, k, h, pose);
     }
-    DR_TRY(dr_lag_begin(r->lag, h, r->dmass, r->qdot, r->fext, r->pres, r->qdot_p, err));
+    r->seconds_build += dr_time_now();
+    r->phase = PHASE_DOFS;
+    return DR_OK;
+}
+
+DrStatus dr_rod_set_predict_groups(DrRodSet *r, const DrRodCollider *col, int ncol, DrError *err)
+{
+    assert(r->phase == PHASE_DOFS);
+    double h = r->h_step;
+    double t0 = dr_time_now();
+    /* the multipliers the groups take their geometric stiffness from, to restore if the step fails */
+    memcpy(r->save + 6 * r->V + 5 * r->E + r->I, r->lambda, (size_t)r->nlambda * sizeof(double));
 
     /* 3. groups, per strand in parallel */
     DrStatus *status = dr_arena_alloc(r->arena, (size_t)r->S, sizeof *status);
@@ -810,15 +828,24 @@ DrStatus dr_rod_set_predict(DrRodSet *r, double h, const DrXform *scalp_end, con
     DR_TRY(find_hair_contacts(r, err));
     DR_TRY(add_hair_contacts(r, err));
     double t2 = dr_time_now();
-    r->seconds_build = t1 - t0;
+    r->seconds_build += t1 - t0;
     r->seconds_contact = t2 - t1;
     r->phase = PHASE_PREDICTED;
     return DR_OK;
 }
 
+DrStatus dr_rod_set_predict(DrRodSet *r, double h, const DrXform *scalp_end, const DrRodCollider *col, int ncol,
+                            DrError *err)
+{
+    assert(r->own_system);
+    DR_TRY(dr_rod_set_predict_dofs(r, h, scalp_end, err));
+    DR_TRY(dr_lag_begin(r->lag, h, r->dmass, r->qdot, r->fext, r->pres, r->qdot_p, err));
+    return dr_rod_set_predict_groups(r, col, ncol, err);
+}
+
 DrRodSamples dr_rod_set_samples(DrRodSet *r)
 {
-    assert(r->phase != PHASE_NONE);
+    assert(r->phase == PHASE_PREDICTED || r->phase == PHASE_SOLVED);
     /* velocities: the last solve's, or the prediction's (held DOFs at their prescribed velocity) */
     const double *q = r->phase == PHASE_SOLVED ? r->qdot_out : r->qdot;
     for (int k = 0; k < r->S; k++) {
@@ -848,19 +875,42 @@ DrRodSamples dr_rod_set_samples(DrRodSet *r)
     return sm;
 }
 
+int dr_rod_set_load_blocks(const DrRodSet *r) { return r->V; }
+
+void dr_rod_set_fill_load(const DrRodSet *r, const double *force, const double *dforce_dv, double *gforce,
+                          int *block_dof, double *block)
+{
+    /* vertex forces as generalised forces (the twists get none) */
+    if (force)
+        for (int k = 0; k < r->S; k++) {
+            int d0 = r->dof0[k], nv = r->offsets[k + 1] - r->offsets[k];
+            for (int j = 0; j < nv; j++) {
+                for (int a = 0; a < 3; a++) gforce[d0 + 4 * j + a] = force[3 * (r->offsets[k] + j) + a];
+                if (j < nv - 1) gforce[d0 + 4 * j + 3] = 0;
+            }
+        }
+    if (dforce_dv) {
+        memcpy(block_dof, r->vdof, (size_t)r->V * sizeof(int));
+        memcpy(block, dforce_dv, 9 * (size_t)r->V * sizeof(double));
+    }
+}
+
+void dr_rod_set_take(DrRodSet *r)
+{
+    assert(r->phase == PHASE_PREDICTED || r->phase == PHASE_SOLVED);
+    r->phase = PHASE_SOLVED;
+}
+
 DrStatus dr_rod_set_solve(DrRodSet *r, const double *force, const double *dforce_dv, DrRodStats *stats,
                           DrError *err)
 {
-    assert(r->phase != PHASE_NONE);
+    assert(r->own_system && (r->phase == PHASE_PREDICTED || r->phase == PHASE_SOLVED));
     r->phase = PHASE_PREDICTED;
     double t2 = dr_time_now();
-    /* 4. the solve; vertex forces as generalised forces (the twists get none) */
+    /* 4. the solve */
     DrLagLoad load = {NULL, 0, NULL, NULL};
     if (force) {
-        for (int v = 0; v < r->V; v++) {
-            int dof = r->vdof[v];
-            for (int a = 0; a < 3; a++) r->fload[dof + a] = force[3 * v + a];
-        }
+        dr_rod_set_fill_load(r, force, NULL, r->fload, NULL, NULL);
         load.force = r->fload;
     }
     if (dforce_dv) {
@@ -895,8 +945,7 @@ DrStatus dr_rod_set_commit(DrRodSet *r, DrRodStats *stats, DrError *err)
        force for friction), then Coulomb friction at the collider contacts: the tangential velocity relative to
        the collider loses up to μ times the normal velocity change the contact force λ gave (h λ / m) */
     double *save = r->save;
-    memcpy(save + 6 * r->V + 5 * r->E + r->I, r->lambda, (size_t)r->nlambda * sizeof(double));
-    dr_lag_update_multipliers(r->lag, r->qdot_out);
+    if (r->own_system) dr_lag_update_multipliers(r->lag, r->qdot_out); /* else the system's owner did */
 
     /* 6. advance (keeping the old state to restore if it turns non-finite) */
     memcpy(save, r->x, 3 * (size_t)r->V * sizeof(double));

@@ -102,6 +102,10 @@ typedef struct DrRodSetDesc {
     DrLagDesc solver;           /* preconditioner, tolerance, iteration cap */
     bool hair_contact;          /* search strand–strand contacts (spatial hash); default false */
     double collider_stiffness;  /* N/m of a vertex–collider contact; default 1e4 */
+    DrLag *system;              /* NULL (default): the set makes a system of its own and steps it itself. Else the
+                                   shared system (DESIGN §8) the set adds its strands to as objects, one per strand,
+                                   after those already there; the caller owns it and drives the step (see "in a shared
+                                   system" below), and `solver` is then the caller's business (dr_lag_set_desc). */
 } DrRodSetDesc;
 void dr_rod_set_desc_default(DrRodSetDesc *d);
 
@@ -125,7 +129,8 @@ typedef struct DrRodSet DrRodSet;
 
 /* The rods start at rest in the groom's shape, which is their rest shape (rest lengths, curvatures,
  * twist zero on frames space-transported from each root normal). DR_ERR_INPUT for a strand of fewer than
- * 2 vertices, a zero-length edge, or material values out of range (radius, density, moduli > 0). */
+ * 2 vertices, a zero-length edge, or material values out of range (radius, density, moduli > 0). A failure
+ * with desc.system set may leave some of the set's objects in that system: destroy it too. */
 DR_NODISCARD DrStatus dr_rod_set_create(const DrRodSetDesc *desc, const DrRodBatch *batches, int nbatches,
                                         DrRodSet **out, DrError *err);
 void dr_rod_set_destroy(DrRodSet **rods);
@@ -185,7 +190,7 @@ DR_NODISCARD DrStatus dr_rod_set_step(DrRodSet *rods, double h, const DrXform *s
 
 /* The set's own limit on the step: INFINITY. Every elastic, damping and contact force is implicit (the
  * linearised backward Euler of src/lagrangian), so no step makes the solve unstable; the step is chosen for
- * accuracy by the caller: the world steps the hair at (1/fps) / HairSolver.substeps (world_hair.c). */
+ * accuracy by the caller: the world steps the hair at (1/fps) / HairSolver.substeps (world_lagrangian.c). */
 double dr_rod_set_stable_dt(const DrRodSet *rods);
 
 /* Starts a step of h > 0 seconds: the root (and held tip) velocities that land them on scalp_end (as in
@@ -236,6 +241,35 @@ DR_NODISCARD DrStatus dr_rod_set_solve(DrRodSet *rods, const double *force, cons
  * multipliers included, is then left as it was before the step). Needs a solve that did not fail since
  * predict. */
 DR_NODISCARD DrStatus dr_rod_set_commit(DrRodSet *rods, DrRodStats *stats, DrError *err);
+
+/* ---- in a shared system (desc.system set) -------------------------------------------------------------------------
+ * The system's owner steps every model in it together (src/world/world_lagrangian.c):
+ *     dr_rod_set_predict_dofs (every model)       fill the set's DOF ranges of dr_lag_dofs's arrays
+ *     dr_lag_begin(system, h, dofs.mass, dofs.qdot, dofs.fext, dofs.prescribed, dofs.qdot_prescribed)
+ *     dr_rod_set_predict_groups (every model)     add the groups
+ *     dr_rod_set_samples, dr_rod_set_fill_load    the load of a solve, if any
+ *     dr_lag_solve_load(system, load, dofs.qdot_out); dr_rod_set_take   re-callable, as dr_rod_set_solve
+ *     dr_lag_update_multipliers(system, dofs.qdot_out); dr_rod_set_commit (every model)
+ * dr_rod_set_predict is dr_rod_set_predict_dofs + dr_lag_begin + dr_rod_set_predict_groups on the set's own system, and
+ * dr_rod_set_solve the load, the solve and the take: a set alone in a shared system gives the same bits as with its
+ * own. dr_rod_set_predict and dr_rod_set_solve are for a set with a system of its own only. */
+
+/* Step 1–2 of a predict of h > 0 seconds: the set's DOF ranges of the system's per-DOF arrays (masses, velocities,
+ * gravity, held DOFs with the velocities that land them on scalp_end). DR_ERR_NOMEM when the arrays cannot be sized. */
+DR_NODISCARD DrStatus dr_rod_set_predict_dofs(DrRodSet *rods, double h, const DrXform *scalp_end, DrError *err);
+/* The rest of a predict, after the owner's dr_lag_begin: elastic, damping and contact groups. Failures as
+ * dr_rod_set_predict's. */
+DR_NODISCARD DrStatus dr_rod_set_predict_groups(DrRodSet *rods, const DrRodCollider *colliders, int ncolliders,
+                                                DrError *err);
+/* The number of 3×3 load blocks the set needs in a DrLagLoad (one per vertex), and the load of a solve (as
+ * dr_rod_set_solve takes it) written into the owner's arrays: the set's DOFs of gforce (system DOFs), and, when
+ * dforce_dv is given, dr_rod_set_load_blocks entries of block_dof and 9 times as many of block. */
+int dr_rod_set_load_blocks(const DrRodSet *rods);
+void dr_rod_set_fill_load(const DrRodSet *rods, const double *force, const double *dforce_dv, double *gforce,
+                          int *block_dof, double *block);
+/* The owner solved the system into dr_lag_dofs's qdot_out: the set takes its range as its solve (for samples and
+ * commit). */
+void dr_rod_set_take(DrRodSet *rods);
 
 /* Energies and momenta of the current state (what stats reports after a step). */
 void dr_rod_set_measure(const DrRodSet *rods, DrRodStats *stats);

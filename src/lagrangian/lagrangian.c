@@ -73,6 +73,8 @@ struct DrLag {
     int groups_block, groups_global;
     double t_assemble0;
     double *work;             /* 5 n: r, z, p, w, tmp */
+    DrLagDofs dofs;           /* dr_lag_dofs: the models' per-DOF arrays */
+    int ndof_dofs;            /* the DOF count dofs is sized for (0: none yet) */
     size_t cap_work;
     size_t cap_dof;
 };
@@ -131,6 +133,13 @@ void dr_lag_destroy(DrLag **sp)
     records_free(&s->grec);
     dr_csr_destroy(&s->kg);
     free(s->work);
+    free(s->dofs.mass);
+    free(s->dofs.qdot);
+    free(s->dofs.fext);
+    free(s->dofs.prescribed);
+    free(s->dofs.qdot_prescribed);
+    free(s->dofs.force);
+    free(s->dofs.qdot_out);
     free(s);
     *sp = NULL;
 }
@@ -196,6 +205,31 @@ DrStatus dr_lag_add_object(DrLag *s, int ndof, int kd, int *id, int *dof_begin, 
     if (dof_begin) *dof_begin = s->ndof;
     s->nobj++;
     s->ndof += ndof;
+    return DR_OK;
+}
+
+DrStatus dr_lag_dofs(DrLag *s, DrLagDofs *out, DrError *err)
+{
+    if (s->ndof_dofs != s->ndof) {
+        DrLagDofs d = {0};
+        size_t n = s->ndof > 0 ? (size_t)s->ndof : 1;
+        DrStatus st = dr_calloc(n, sizeof(double), &d.mass, err);
+        if (st == DR_OK) st = dr_calloc(n, sizeof(double), &d.qdot, err);
+        if (st == DR_OK) st = dr_calloc(n, sizeof(double), &d.fext, err);
+        if (st == DR_OK) st = dr_calloc(n, sizeof(unsigned char), &d.prescribed, err);
+        if (st == DR_OK) st = dr_calloc(n, sizeof(double), &d.qdot_prescribed, err);
+        if (st == DR_OK) st = dr_calloc(n, sizeof(double), &d.force, err);
+        if (st == DR_OK) st = dr_calloc(n, sizeof(double), &d.qdot_out, err);
+        void *fresh[] = {d.mass, d.qdot, d.fext, d.prescribed, d.qdot_prescribed, d.force, d.qdot_out};
+        void *old[] = {s->dofs.mass, s->dofs.qdot, s->dofs.fext, s->dofs.prescribed, s->dofs.qdot_prescribed,
+                       s->dofs.force, s->dofs.qdot_out};
+        void **drop = st == DR_OK ? old : fresh;
+        for (size_t k = 0; k < sizeof old / sizeof old[0]; k++) free(drop[k]);
+        if (st != DR_OK) return st;
+        s->dofs = d;
+        s->ndof_dofs = s->ndof;
+    }
+    *out = s->dofs;
     return DR_OK;
 }
 

@@ -107,6 +107,25 @@ DR_NODISCARD DrStatus dr_lag_add_object(DrLag *s, int ndof, int kd, int *id, int
 int dr_lag_object_count(const DrLag *s);
 int dr_lag_dof_count(const DrLag *s);
 
+/* ---- one system, several models (DESIGN §8 "One Lagrangian system") ---------------------------------------------
+ * The world owns one system; every model (the rod set; cloth and wet later) adds its objects to it and fills its own
+ * objects' DOF ranges of the per-DOF arrays below, then the owner begins the step with them, every model adds its
+ * groups, the owner solves into qdot_out, every model reads its range, the owner updates the multipliers, and every
+ * model commits. A model alone in a system of its own does the same by itself. */
+typedef struct DrLagDofs {
+    double *mass;            /* kg per position DOF, kg m² per twist */
+    double *qdot;            /* velocity at the start of the step */
+    double *fext;            /* external generalised force over the step (gravity) */
+    unsigned char *prescribed; /* nonzero: the DOF moves with qdot_prescribed */
+    double *qdot_prescribed;
+    double *force;           /* a solve's load (DrLagLoad.force), written by the models that have one */
+    double *qdot_out;        /* the solve's result */
+} DrLagDofs;
+/* The system's per-DOF arrays, each of dr_lag_dof_count values, owned by the system: allocated by the first call after
+ * an object was added (zeroed), the same pointers otherwise (no allocation), valid until the next dr_lag_add_object or
+ * dr_lag_destroy. */
+DR_NODISCARD DrStatus dr_lag_dofs(DrLag *s, DrLagDofs *out, DrError *err);
+
 /* Starts a step of size h > 0: A ← diag(mass), b ← mass ∘ qdot + h f_ext (f_ext NULL: zero).
  * mass (> 0 per DOF; kg or kg m² for a twist), qdot, f_ext: length dr_lag_dof_count.
  * prescribed: NULL or a flag per DOF (nonzero: the DOF moves with the velocity qdot_prescribed[dof]). */

@@ -50,7 +50,7 @@ long dr_world_mpm_particle_count(const DrWorld *w) { return w->mpm ? world_mpm_p
 long dr_world_hair_vertex_count(const DrWorld *w)
 {
     int strands = 0, verts = 0;
-    if (w->hair) world_hair_counts(w->hair, &strands, &verts);
+    if (w->hair) world_lagrangian_hair_counts(w->hair, &strands, &verts);
     return verts;
 }
 
@@ -107,7 +107,7 @@ static DrStatus build(DrWorld *w, const DrWorldDesc *desc, DrError *err)
         w->solvers[w->nsolvers] = s;
         w->mpm = &w->solvers[w->nsolvers++];
     }
-    DR_TRY(world_hair_adapter(&c, &s, err));
+    DR_TRY(world_lagrangian_adapter(&c, &s, err));
     if (s.self) {
         w->solvers[w->nsolvers] = s;
         w->hair = &w->solvers[w->nsolvers++];
@@ -125,7 +125,7 @@ static void log_solvers(const DrWorld *w)
     char hair[128] = "no hair";
     if (w->hair) {
         int strands, verts;
-        world_hair_counts(w->hair, &strands, &verts);
+        world_lagrangian_hair_counts(w->hair, &strands, &verts);
         snprintf(hair, sizeof hair, "%d strand(s) of hair with %d vertices", strands, verts);
     }
     char bem[160] = "";

@@ -1,5 +1,5 @@
 /* Private to src/world: what the orchestrator (world.c) and the per-solver adapters (world_liquid.c, world_mpm.c,
- * world_hair.c, world_bem.c) and the kinematics (world_kinematics.c) share: the read-only context of a step, the
+ * world_lagrangian.c, world_bem.c) and the kinematics (world_kinematics.c) share: the read-only context of a step, the
  * posed colliders, and the adapter table. An adapter file includes this header only; it never calls into world.c
  * or into another adapter: the orchestrator hands each one its own struct and the context. */
 #ifndef DR_WORLD_ADAPTER_H
@@ -130,8 +130,8 @@ const DrLiquid *world_liquid_solver(const WorldSolver *s);
 DR_NODISCARD DrStatus world_mpm_adapter(const WorldCtx *c, WorldSolver *out, DrError *err);
 long world_mpm_particles(const WorldSolver *s);
 int world_mpm_bodies(const WorldSolver *s);
-DR_NODISCARD DrStatus world_hair_adapter(const WorldCtx *c, WorldSolver *out, DrError *err);
-void world_hair_counts(const WorldSolver *s, int *strands, int *vertices);
+DR_NODISCARD DrStatus world_lagrangian_adapter(const WorldCtx *c, WorldSolver *out, DrError *err);
+void world_lagrangian_hair_counts(const WorldSolver *s, int *strands, int *vertices);
 void world_bem_counts(const WorldSolver *s, int *bodies, long *vertices, int *sets);
 
 #endif

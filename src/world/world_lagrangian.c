@@ -1,6 +1,9 @@
-/* The hair adapter: every hair element of a scene is one batch of a single DrRodSet (they are solved together, so
- * strands of different elements can touch), stepped on the world's clock with the scene colliders, the bem_solid
- * bodies' deformed surfaces and the MPM solids' particles (posed by the kinematics) and the scalp motion. */
+/* The Lagrangian adapter: the world's one constraint system (DESIGN §8 "One Lagrangian system") and the models that
+ * put their objects in it. Today that is the hair: every hair element of a scene is one batch of a single DrRodSet
+ * (solved together, so strands of different elements can touch), stepped on the world's clock with the scene
+ * colliders, the bem_solid bodies' deformed surfaces and the MPM solids' particles (posed by the kinematics) and the
+ * scalp motion. A step: every model fills its DOFs, the system begins, every model adds its groups, one solve of the
+ * whole system, the multipliers, every model commits (hair.h, "in a shared system"). */
 #include "world_adapter.h"
 
 #include <stdlib.h>
@@ -10,6 +13,7 @@
 #include "stage/stage.h"
 
 typedef struct WorldHair {
+    DrLag *system;           /* the one system; the rod set's strands are objects in it */
     DrRodSet *rods;
     const DrElement **elements;
     int nelements;
@@ -34,6 +38,7 @@ static void hair_destroy(void *self)
     WorldHair *h = self;
     if (!h) return;
     dr_rod_set_destroy(&h->rods);
+    dr_lag_destroy(&h->system);
     for (int i = 0; h->keys && i < h->nelements; i++) free(h->keys[i]);
     free(h->keys);
     free(h->nkeys);
@@ -140,7 +145,9 @@ static DrStatus build_hair(const WorldCtx *c, WorldHair *h, int n, DrError *err)
         d.solver.tol = dr_component_num(solver, "tolerance");
         d.solver.max_iter = dr_component_int(solver, "max_iterations");
         h->substeps = dr_component_int(solver, "substeps");
-        s = dr_rod_set_create(&d, batches, h->nelements, &h->rods, err);
+        s = dr_lag_create(&d.solver, &h->system, err);
+        d.system = h->system;
+        if (s == DR_OK) s = dr_rod_set_create(&d, batches, h->nelements, &h->rods, err);
         if (s != DR_OK && h->nelements == 1) s = dr_error_prefix(s, err, "%s.Groom", h->elements[0]->name);
     }
     for (int b = 0; b < n; b++) dr_groom_free(&grooms[b]);
@@ -198,13 +205,36 @@ static DrStatus hair_next_time(void *self, const WorldCtx *c, double t, double *
     return DR_OK;
 }
 
+/* One step of the system: every model predicts (its DOFs, then, once the system has begun, its groups), one solve of
+   the whole system (no load: nothing couples it to a fluid yet), the multipliers, every model commits. */
+static DrStatus step_system(WorldHair *h, double dt, DrError *err)
+{
+    DR_TRY(dr_rod_set_predict_dofs(h->rods, dt, h->any_motion ? h->poses : NULL, err));
+    DrLagDofs d;
+    DR_TRY(dr_lag_dofs(h->system, &d, err));
+    DR_TRY(dr_lag_begin(h->system, dt, d.mass, d.qdot, d.fext, d.prescribed, d.qdot_prescribed, err));
+    DR_TRY(dr_rod_set_predict_groups(h->rods, h->colliders, h->ncolliders, err));
+    double ts = dr_time_now();
+    DrLagStats ls;
+    DrStatus solved = dr_lag_solve_load(h->system, NULL, d.qdot_out, &ls, err);
+    if (solved < 0) return solved;
+    dr_rod_set_take(h->rods);
+    h->frame.iterations += ls.iterations;
+    h->frame.residual = ls.residual;
+    h->frame.not_converged += ls.converged ? 0 : 1;
+    h->frame.indefinite_blocks += ls.indefinite_blocks;
+    h->frame.seconds_solve += dr_time_now() - ts;
+    dr_lag_update_multipliers(h->system, d.qdot_out);
+    DR_TRY(dr_rod_set_commit(h->rods, &h->frame, err));
+    return solved;
+}
+
 static DrStatus hair_step(void *self, const WorldCtx *c, double t, double t_next, DrError *err)
 {
     WorldHair *h = self;
     double t_start = dr_time_now();
     for (int b = 0; b < h->nelements; b++) h->poses[b] = dr_motion_pose(h->keys[b], h->nkeys[b], t_next);
-    DrStatus s = dr_rod_set_step(h->rods, t_next - t, h->any_motion ? h->poses : NULL, h->colliders, h->ncolliders,
-                                 &h->frame, err);
+    DrStatus s = step_system(h, t_next - t, err);
     h->steps++;
     h->seconds += dr_time_now() - t_start;
     if (s == DR_WARN_NOT_CONVERGED) h->not_converged_steps++;
@@ -380,7 +410,7 @@ static void hair_hash(const void *self, DrHasher *hs)
     dr_hasher_update(hs, rs.lambda, sizeof(double) * (size_t)rs.nlambda);
 }
 
-DrStatus world_hair_adapter(const WorldCtx *c, WorldSolver *out, DrError *err)
+DrStatus world_lagrangian_adapter(const WorldCtx *c, WorldSolver *out, DrError *err)
 {
     memset(out, 0, sizeof *out);
     int n = dr_scene_count_kind(c->scene, DR_ELEMENT_HAIR);
@@ -392,7 +422,7 @@ DrStatus world_hair_adapter(const WorldCtx *c, WorldSolver *out, DrError *err)
         hair_destroy(h);
         return s;
     }
-    *out = (WorldSolver){.name = "hair",
+    *out = (WorldSolver){.name = "lagrangian",
                          .self = h,
                          .begin_frame = hair_begin_frame,
                          .next_time = hair_next_time,
@@ -405,7 +435,7 @@ DrStatus world_hair_adapter(const WorldCtx *c, WorldSolver *out, DrError *err)
     return DR_OK;
 }
 
-void world_hair_counts(const WorldSolver *s, int *strands, int *vertices)
+void world_lagrangian_hair_counts(const WorldSolver *s, int *strands, int *vertices)
 {
     DrRodState rs = dr_rod_set_state(((const WorldHair *)s->self)->rods);
     *strands = rs.nstrands;
