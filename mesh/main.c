@@ -482,7 +482,10 @@ static DrStatus mesh_frame(const DrScene *scene, const DrTriMesh *rest, const ch
             dr_log_warn("mesh.voxel_size = %g m is coarse for the particles of MPM solid '%s' (radius %g m, under 1.5 "
                         "voxels): its surface may break up; use mesh.voxel_size 0 (automatic) or at most %g m",
                         voxel, e->name, radius, radius / 1.5);
-        DrVdbSurfaceDesc sd = {voxel, radius, dr_component_int(ms, "smoothing"), dr_component_num(ms, "adaptivity")};
+        /* MPM particles sit on a lattice, whose union of spheres rises over every particle column: a closing of
+           one radius flattens the faces (vdb.h); jittered liquid particles keep their union as it is */
+        DrVdbSurfaceDesc sd = {voxel, radius, dr_component_int(ms, "smoothing"), dr_component_num(ms, "adaptivity"),
+                               liquid ? 0.0 : radius};
         DrVdbSurface *surf = NULL;
         if (s == DR_OK) s = dr_vdb_surface_from_particles(x, v, (long)dx_[0], &sd, &surf, err);
         if (s == DR_OK && dr_component_bool(ms, "write_vdb")) {
@@ -628,7 +631,9 @@ int main(int argc, char **argv)
     free(rest);
     dr_scene_destroy(&scene);
     if (s < 0) return fail(&err);
-    fprintf(stderr, "mesh: %d frames in %.1fs, %ld triangles%s written to %s\n", last - first + 1,
-            dr_time_now() - t0, triangles, hair, dir);
+    char rss[32];
+    dr_format_bytes(dr_peak_rss_bytes(), rss, sizeof rss);
+    fprintf(stderr, "mesh: %d frames in %.1fs, %ld triangles%s written to %s, peak RSS %s\n", last - first + 1,
+            dr_time_now() - t0, triangles, hair, dir, rss);
     return 0;
 }

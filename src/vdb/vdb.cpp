@@ -654,6 +654,14 @@ DrStatus validate_desc(const DrVdbSurfaceDesc *d, DrError *err)
     if (!(d->adaptivity >= 0.0 && d->adaptivity <= 1.0))
         return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
                             "surface adaptivity is %g; it must lie in [0, 1]", d->adaptivity);
+    if (!(std::isfinite(d->closing) && d->closing >= 0.0))
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                            "surface closing is %g m; it must be finite and >= 0 (0 = none)", d->closing);
+    if ((std::max(d->radius, kMinRadiusVoxels * d->voxel_size) + d->closing) / d->voxel_size > kMaxRadiusVoxels)
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                            "surface particle radius %g m plus closing %g m is %.0f voxels; at most %.0f "
+                            "voxels are supported: use a larger voxel size or a smaller closing",
+                            d->radius, d->closing, (d->radius + d->closing) / d->voxel_size, kMaxRadiusVoxels);
     return DR_OK;
 }
 
@@ -891,6 +899,7 @@ extern "C" DrVdbSurfaceDesc dr_vdb_surface_desc_default(void)
     d.radius = 0.006;
     d.smoothing = 1;
     d.adaptivity = 0.0;
+    d.closing = 0.0;
     return d;
 }
 
@@ -924,34 +933,45 @@ extern "C" DrStatus dr_vdb_surface_from_particles(const double *pos, const doubl
             return DR_OK;
         }
 
-        /* 1. union of spheres (ParticlesToLevelSet), carrying the closest particle's velocity.
-         *    Raster band = kRasterHalfWidth voxels (background = w * dx). */
-        openvdb::FloatGrid::Ptr raw =
-            openvdb::createLevelSet<openvdb::FloatGrid>(dx, static_cast<float>(kRasterHalfWidth));
-        ParticleList particles{pos, vel, static_cast<size_t>(n), radius};
+        /* 1. union of spheres (ParticlesToLevelSet), carrying the closest particle's velocity, at
+         *    the radius dilated by the closing. The raster band (background = w * dx) reaches as
+         *    deep as the erosion below plus the final band, so every voxel of that band has a
+         *    transferred velocity. */
+        const double dilated = radius + desc->closing;
+        const double erosion = dilated - desc->radius; /* >= 0: the closing, plus what step 0 raised */
+        const double raster_w = kRasterHalfWidth + std::ceil(erosion / dx);
+        openvdb::FloatGrid::Ptr raw = openvdb::createLevelSet<openvdb::FloatGrid>(dx, static_cast<float>(raster_w));
+        ParticleList particles{pos, vel, static_cast<size_t>(n), dilated};
         openvdb::tools::ParticlesToLevelSet<openvdb::FloatGrid, openvdb::Vec3s> raster(*raw);
         /* The radius was clamped above; a lower Rmin only keeps the comparison radius/dx < 1.5
          * from dropping spheres of exactly 1.5 voxels through rounding. */
         raster.setRmin(1.0);
         raster.setRmax(kMaxRadiusVoxels + 1.0);
-        raster.rasterizeSpheres(particles, radius);
+        raster.rasterizeSpheres(particles, dilated);
         raster.finalize(true);
         if (raster.ignoredParticles()) {
             dr_vdb_surface_destroy(&s);
             return dr_error_set(err, DR_ERR_RUNTIME, NULL, 0, 0,
                                 "OpenVDB ignored %zu particles of radius %g m (voxel %g m)",
-                                raster.getMinCount() + raster.getMaxCount(), radius, dx);
+                                raster.getMinCount() + raster.getMaxCount(), dilated, dx);
         }
         openvdb::Vec3SGrid::Ptr att = raster.attributeGrid();
 
-        /* 2. rasterising leaves the interior active and the band ragged: rebuild a clean narrow
-         *    band of kSurfaceHalfWidth voxels around the zero crossing. */
-        /*    Spheres smaller than ParticlesToLevelSet resolves were rasterised larger; extracting
-         *    the level −(raster radius − requested radius) (phi is negative inside) instead of zero
-         *    erodes the union back, so the surface lies the requested radius beyond the outermost
-         *    particle centres. */
-        s->surface = openvdb::tools::levelSetRebuild(*raw, static_cast<float>(desc->radius - radius),
-                                                     kSurfaceHalfWidth);
+        /* 2. rasterising leaves the interior active and the band ragged, and inside the union its
+         *    values are the distance to the nearest particle's sphere, not to the union's surface.
+         *    Eroding the union of the dilated spheres back to the requested radius (spheres smaller
+         *    than ParticlesToLevelSet resolves, and the closing) therefore takes a true signed
+         *    distance first: a rebuild at zero with an interior band as deep as the erosion, then
+         *    a rebuild of a clean narrow band of kSurfaceHalfWidth voxels at the level −erosion
+         *    (phi is negative inside). Without an erosion one rebuild at zero does. What the
+         *    erosion removes from the dilated union is what it added, except in the dips between
+         *    spheres narrower than the dilation: those stay filled, which is the closing. */
+        if (erosion > 0.0) {
+            openvdb::FloatGrid::Ptr sdf = openvdb::tools::levelSetRebuild(
+                *raw, 0.0f, kSurfaceHalfWidth, static_cast<float>(erosion / dx) + kSurfaceHalfWidth + 1.0f);
+            raw = sdf;
+        }
+        s->surface = openvdb::tools::levelSetRebuild(*raw, static_cast<float>(-erosion), kSurfaceHalfWidth);
         raw.reset();
         s->surface->setGridClass(openvdb::GRID_LEVEL_SET);
 
