@@ -1211,6 +1211,65 @@ int dr_component_table(const DrComponent *c, const char *field, const double **r
     return v->nrows;
 }
 
+/* ---- defaults applied ------------------------------------------------------------------------------------ */
+
+/* Components whose absence means "none" rather than "all defaults" (the world and the stages test their
+   presence): an absent one applies nothing. */
+static const char *const by_presence[] = {"LiquidSource", "Emitter", "KillBox", "Motion", "FixedVertices"};
+
+static bool str_is(const char *a, const char *b) { return a && b && strcmp(a, b) == 0; }
+
+/* Whether field f of component c means anything for element e (NULL for a section). */
+static bool field_applies(const DrElement *e, const DrComponent *c, const DrFieldSpec *f)
+{
+    if (!e) return true;
+    const char *comp = c->spec->name, *name = f->name;
+    if (str_is(comp, "Collider") && str_is(name, "boundary")) return e->kind == DR_ELEMENT_COLLIDER;
+    if (str_is(comp, "Collider") && str_is(name, "body_contact")) return e->kind == DR_ELEMENT_BEM_SOLID;
+    if (str_is(comp, "Transfer") && str_is(name, "flip_blend")) return str_is(value_at(c, "scheme")->str, "flip");
+    if (str_is(comp, "Groom") && !str_is(name, "scalp") && !str_is(name, "curves")) {
+        if (!value_at(c, "scalp")->set) return false;
+        if (str_is(name, "curl_pitch")) return value_at(c, "curl_radius")->num[0] > 0.0;
+    }
+    if (str_is(comp, "Joint") && str_is(name, "tolerance")) return str_is(value_at(c, "mode")->str, "coincident");
+    return true;
+}
+
+static int component_defaults(const DrElement *e, const DrComponent *c, DrAppliedDefault *out, int max, int n)
+{
+    if (!c->present)
+        for (size_t i = 0; i < sizeof by_presence / sizeof by_presence[0]; i++)
+            if (str_is(c->spec->name, by_presence[i])) return n;
+    for (int i = 0; i < c->spec->field_count; i++) {
+        const DrFieldSpec *f = &c->spec->fields[i];
+        if (c->values[i].set || !c->values[i].has || !field_applies(e, c, f)) continue;
+        if (n < max) out[n] = (DrAppliedDefault){c->spec->name, f};
+        n++;
+    }
+    return n;
+}
+
+int dr_element_applied_defaults(const DrElement *e, DrAppliedDefault *out, int max)
+{
+    int n = 0;
+    for (int i = 0; i < e->spec->component_count; i++) n = component_defaults(e, &e->components_[i], out, max, n);
+    return n;
+}
+
+int dr_section_applied_defaults(const DrScene *s, const char *section, DrAppliedDefault *out, int max)
+{
+    return component_defaults(NULL, dr_scene_section(s, section), out, max, 0);
+}
+
+void dr_scene_default_json(const DrFieldSpec *f, char *buf, size_t size)
+{
+    if (f->required || f->no_default || f->kind == DR_FIELD_PATH) {
+        snprintf(buf, size, "%s", "");
+        return;
+    }
+    dr_scene_default_text_(f, buf, size);
+}
+
 int dr_scene_asset_count(const DrScene *s) { return s->asset_count; }
 
 const char *dr_scene_asset(const DrScene *s, int i)

@@ -107,8 +107,11 @@ const DrComponentSpec *dr_scene_component_spec(const char *name);
 const DrComponentSpec *dr_scene_section_spec(const char *name);
 
 /* Reference of every section, element type, component and field (kind, unit, default, range, doc),
- * generated from the tables; markdown=true gives Markdown tables suitable for README, false an aligned
- * plain-text listing (what `bake --list-components` prints). */
+ * generated from the tables; markdown=true gives Markdown tables suitable for README, false a plain-text
+ * listing (what `bake --list-components` prints): one row per field in columns aligned across the whole
+ * listing (name, type, unit, default, range) with its description wrapped under it, the components an
+ * element type must have marked "(required)", and no line longer than DR_REFERENCE_COLUMNS. */
+#define DR_REFERENCE_COLUMNS 100
 void dr_scene_print_reference(FILE *f, bool markdown);
 
 /* ---- a loaded scene -------------------------------------------------------------------------------- */
@@ -155,6 +158,29 @@ void dr_component_int2(const DrComponent *c, const char *field, int out[2]);
 void dr_component_box(const DrComponent *c, const char *field, DrVec3 *lo, DrVec3 *hi);
 /* Row count (0 when unset); *rows points at count*arity numbers, row-major (NULL when 0 rows). */
 int dr_component_table(const DrComponent *c, const char *field, const double **rows);
+
+/* ---- defaults a scene applied ---------------------------------------------------------------------------- */
+
+/* A field the scene file did not write that took its documented default. */
+typedef struct DrAppliedDefault {
+    const char *component;    /* component name ("LiquidMaterial"), or the section ("solver") */
+    const DrFieldSpec *field; /* name, kind, unit and doc of the field */
+} DrAppliedDefault;
+
+/* Fields of element e that the file left unwritten and that take their default, in component and field
+ * order: every field with a default of each component the element reads, unless it does not apply:
+ *   - a component whose absence means "none" (LiquidSource, Emitter, KillBox, Motion, FixedVertices) applies
+ *     nothing unless written;
+ *   - Collider.boundary applies to collider elements only, Collider.body_contact to bem_solid elements only;
+ *   - Transfer.flip_blend only with scheme flip; Groom's growth fields only with a scalp, curl_pitch only with
+ *     curl_radius > 0; Joint.tolerance only with mode coincident.
+ * Fills up to `max` entries of out (out may be NULL when max is 0); returns how many there are. */
+int dr_element_applied_defaults(const DrElement *e, DrAppliedDefault *out, int max);
+/* The same for a section ("shot", "solver", "mesh", "render", "render.camera"). */
+int dr_section_applied_defaults(const DrScene *s, const char *section, DrAppliedDefault *out, int max);
+/* A field's default as JSON text (1000, 0.001, true, "apic", [0, -9.81, 0], [[0, 0, 0], [1, 1, 1]], []);
+ * "" for a field without a default. */
+void dr_scene_default_json(const DrFieldSpec *f, char *buf, size_t size);
 
 /* Canonical JSON of "shot", "solver", "mesh", "render" (camera nested), "render.camera" or "elements":
  * keys sorted by byte value, every number printed as %.17g of its double value (so 1 and 1.0 are the

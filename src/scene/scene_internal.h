@@ -77,6 +77,8 @@ int dr_scene_split_choices_(const char *choices, char *buf, size_t size, const c
 void dr_scene_join_names_(const char *const *names, int n, char *buf, size_t size);
 /* %.15g, the short form used in messages and the reference. */
 void dr_scene_fmt_num_(double v, char *buf, size_t size);
+/* The default as the reference prints it: "required", "unset", "[]", or its JSON text. */
+void dr_scene_default_text_(const DrFieldSpec *f, char *buf, size_t size);
 /* "[1, 100000]" or "(0, 1000]"; "" when the field has no range. */
 void dr_scene_fmt_range_(const DrFieldSpec *f, char *buf, size_t size);
 

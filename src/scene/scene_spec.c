@@ -713,7 +713,7 @@ static void kind_text(const DrFieldSpec *f, char *buf, size_t size)
     }
 }
 
-static void default_text(const DrFieldSpec *f, char *buf, size_t size)
+void dr_scene_default_text_(const DrFieldSpec *f, char *buf, size_t size)
 {
     char a[32], b[32], c[32], d[32], e[32], g[32];
     if (f->required) { snprintf(buf, size, "required"); return; }
@@ -750,7 +750,70 @@ static void put_md(FILE *f, const char *s)
     }
 }
 
-static void print_fields(FILE *f, const DrComponentSpec *c, bool md)
+/* ---- plain text: columns measured over every table, descriptions wrapped at DR_REFERENCE_COLUMNS ---- */
+
+typedef struct Columns {
+    int name, kind, unit, def; /* widths; range is the last column */
+} Columns;
+
+static void plain_kind(const DrFieldSpec *f, char *buf, size_t size)
+{
+    if (f->kind == DR_FIELD_ENUM) snprintf(buf, size, "choice");
+    else kind_text(f, buf, size);
+}
+
+static void measure_fields(const DrComponentSpec *c, Columns *w)
+{
+    for (int i = 0; i < c->field_count; i++) {
+        const DrFieldSpec *fs = &c->fields[i];
+        char kind[288], def[256];
+        plain_kind(fs, kind, sizeof kind);
+        dr_scene_default_text_(fs, def, sizeof def);
+        int n = (int)strlen(fs->name), k = (int)strlen(kind), u = (int)strlen(fs->unit), d = (int)strlen(def);
+        if (n > w->name) w->name = n;
+        if (k > w->kind) w->kind = k;
+        if (u > w->unit) w->unit = u;
+        if (d > w->def) w->def = d;
+    }
+}
+
+static Columns measure_columns(void)
+{
+    Columns w = {(int)strlen("field"), (int)strlen("type"), (int)strlen("unit"), (int)strlen("default")};
+    for (int i = 0; i < dr_scene_section_count_; i++) measure_fields(&dr_scene_sections_[i], &w);
+    for (int i = 0; i < dr_scene_component_count_; i++) measure_fields(&dr_scene_components_[i], &w);
+    return w;
+}
+
+/* Prints `first` then `text`, wrapped at word boundaries so no line passes DR_REFERENCE_COLUMNS; lines
+   after the first start with `indent` spaces. A word longer than a line stands alone on its line. */
+static void put_wrapped(FILE *f, const char *first, int indent, const char *text)
+{
+    int col = (int)strlen(first);
+    fputs(first, f);
+    bool line_empty = col == 0 || first[col - 1] == ' '; /* else a space before the first word */
+    for (const char *p = text; *p;) {
+        while (*p == ' ') p++;
+        if (!*p) break;
+        int len = (int)strcspn(p, " ");
+        if (!line_empty && col + 1 + len > DR_REFERENCE_COLUMNS) {
+            fprintf(f, "\n%*s", indent, "");
+            col = indent;
+            line_empty = true;
+        }
+        if (!line_empty) {
+            fputc(' ', f);
+            col++;
+        }
+        fwrite(p, 1, (size_t)len, f);
+        col += len;
+        line_empty = false;
+        p += len;
+    }
+    fputc('\n', f);
+}
+
+static void print_fields(FILE *f, const DrComponentSpec *c, bool md, const Columns *w)
 {
     if (md) {
         fprintf(f, "| field | type | unit | default | range | description |\n");
@@ -759,65 +822,105 @@ static void print_fields(FILE *f, const DrComponentSpec *c, bool md)
     for (int i = 0; i < c->field_count; i++) {
         const DrFieldSpec *fs = &c->fields[i];
         char kind[288], def[256], range[96];
-        kind_text(fs, kind, sizeof kind);
-        default_text(fs, def, sizeof def);
+        dr_scene_default_text_(fs, def, sizeof def);
         dr_scene_fmt_range_(fs, range, sizeof range);
         const char *unit = strcmp(fs->unit, "") == 0 ? "-" : fs->unit;
         if (md) {
+            kind_text(fs, kind, sizeof kind);
             fprintf(f, "| `%s` | %s | %s | %s%s%s | %s | ", fs->name, kind, unit, fs->required ? "**" : "`", def,
                     fs->required ? "**" : "`", range[0] ? range : "-");
             put_md(f, fs->doc);
             fprintf(f, " |\n");
-        } else
-            fprintf(f, "    %-24s %-22s %-14s %-26s %-20s %s\n", fs->name, kind, unit, def, range[0] ? range : "-",
-                    fs->doc);
+            continue;
+        }
+        /* one aligned row, then the description (an enum's choices first) wrapped under it */
+        plain_kind(fs, kind, sizeof kind);
+        char row[512], doc[1024];
+        int len = snprintf(row, sizeof row, "    %-*s  %-*s  %-*s  %-*s  %s", w->name, fs->name, w->kind, kind, w->unit,
+                           unit, w->def, def, range[0] ? range : "-");
+        size_t end = len < (int)sizeof row ? (size_t)len : sizeof row - 1; /* the widths are the tables' own */
+        while (end > 0 && row[end - 1] == ' ') row[--end] = 0;
+        fprintf(f, "%s\n", row);
+        if (fs->kind == DR_FIELD_ENUM) {
+            char split[256], list[256];
+            const char *names[16];
+            int n = dr_scene_split_choices_(fs->choices, split, sizeof split, names, 16);
+            dr_scene_join_names_(names, n, list, sizeof list);
+            snprintf(doc, sizeof doc, "one of %s: %s", list, fs->doc);
+        } else {
+            snprintf(doc, sizeof doc, "%s", fs->doc);
+        }
+        put_wrapped(f, "        ", 8, doc);
     }
     if (md) fprintf(f, "\n");
 }
 
-static void print_component(FILE *f, const char *heading, const DrComponentSpec *c, bool md)
+/* `required`: a component the element type must have (marked in the heading). */
+static void print_component(FILE *f, const char *heading, const DrComponentSpec *c, bool required, bool md,
+                            const Columns *w)
 {
     if (md) {
-        fprintf(f, "%s `%s`\n\n", heading, c->name);
+        fprintf(f, "%s `%s`%s\n\n", heading, c->name, required ? " (required)" : "");
         put_md(f, c->doc);
         fprintf(f, ".\n\n");
-    } else
-        fprintf(f, "  %s: %s\n", c->name, c->doc);
-    print_fields(f, c, md);
+    } else {
+        char first[160];
+        snprintf(first, sizeof first, "  %s%s:", c->name, required ? " (required)" : "");
+        put_wrapped(f, first, 6, c->doc);
+    }
+    print_fields(f, c, md, w);
+}
+
+static bool is_required(const DrElementSpec *t, const char *component)
+{
+    for (int k = 0; k < t->required_count; k++)
+        if (strcmp(t->required_components[k], component) == 0) return true;
+    return false;
 }
 
 void dr_scene_print_reference(FILE *f, bool md)
 {
+    Columns w = measure_columns();
+    char header[256];
+    snprintf(header, sizeof header, "    %-*s  %-*s  %-*s  %-*s  %s", w.name, "field", w.kind, "type", w.unit, "unit",
+             w.def, "default", "range");
     if (md)
         fprintf(f, "# Scene reference\n\nGenerated from the tables the scene parser uses. Units are SI; angles "
                    "in degrees. A range applies to every number of a field. Absent sections, components "
                    "and fields take the defaults below.\n\n## Sections\n\nTop-level keys of the scene "
                    "object, all optional; `render.camera` is the object `camera` inside `render`.\n\n");
     else
-        fprintf(f, "drench scene reference (units SI, angles in degrees; a range applies to every number of "
-                   "a field)\n\nSections (top-level keys, all optional):\n    %-24s %-22s %-14s %-26s %-20s %s\n",
-                "field", "type", "unit", "default", "range", "description");
-    for (int i = 0; i < dr_scene_section_count_; i++) print_component(f, "###", &dr_scene_sections_[i], md);
+        fprintf(f, "drench scene reference (units SI, angles in degrees; a range applies to every number of a "
+                   "field;\nabsent sections, components and fields take the defaults; each field's description is "
+                   "under it)\n\nSections (top-level keys, all optional):\n%s\n", header);
+    for (int i = 0; i < dr_scene_section_count_; i++) print_component(f, "###", &dr_scene_sections_[i], false, md, &w);
 
     if (md)
         fprintf(f, "## Elements\n\n`\"elements\"` is an array of objects `{\"name\": ..., \"type\": ..., "
                    "\"components\": {...}}`; names are unique identifiers ([A-Za-z0-9_.-]).\n\n");
     else
         fprintf(f, "\nElements: \"elements\": [{\"name\": NAME, \"type\": TYPE, \"components\": {COMPONENT: "
-                   "{FIELD: VALUE}}}], names unique\n");
+                   "{FIELD: VALUE}}}],\nnames unique; a component marked (required) must be written, an absent one "
+                   "reads as its defaults\n");
     for (int i = 0; i < dr_scene_type_count_; i++) {
         const DrElementSpec *t = &dr_scene_types_[i];
-        if (md)
-            fprintf(f, "### Element type `%s`\n\n%s.\n\nComponents:", t->type, t->doc);
-        else
-            fprintf(f, "\nElement type %s: %s\n  components:", t->type, t->doc);
-        for (int j = 0; j < t->component_count; j++) {
-            bool req = false;
-            for (int k = 0; k < t->required_count; k++) req |= strcmp(t->required_components[k], t->components[j]) == 0;
-            fprintf(f, "%s %s%s", j ? "," : "", t->components[j], req ? " (required)" : "");
+        char list[1024] = "";
+        size_t used = 0;
+        for (int j = 0; j < t->component_count && used < sizeof list; j++)
+            used += (size_t)snprintf(list + used, sizeof list - used, "%s %s%s", j ? "," : "", t->components[j],
+                                     is_required(t, t->components[j]) ? " (required)" : "");
+        if (md) {
+            fprintf(f, "### Element type `%s`\n\n%s.\n\nComponents:%s.\n\n", t->type, t->doc, list);
+        } else {
+            char first[160];
+            snprintf(first, sizeof first, "Element type %s:", t->type);
+            fputc('\n', f);
+            put_wrapped(f, first, 2, t->doc);
+            put_wrapped(f, "  components:", 4, list);
+            fprintf(f, "%s\n", header);
         }
-        fprintf(f, md ? ".\n\n" : "\n");
         for (int j = 0; j < t->component_count; j++)
-            print_component(f, "####", dr_scene_component_spec(t->components[j]), md);
+            print_component(f, "####", dr_scene_component_spec(t->components[j]), is_required(t, t->components[j]), md,
+                            &w);
     }
 }

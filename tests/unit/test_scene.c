@@ -1309,6 +1309,56 @@ static void test_keys_follow_asset_bytes(void **state)
     dr_scene_destroy(&s);
 }
 
+/* The defaults a scene applied: fields left out take their defaults, listed per element and section; a component
+ * whose absence means "none" lists nothing, and fields that mean nothing for the element are not listed. */
+static bool applied(const DrAppliedDefault *d, int n, const char *component, const char *field)
+{
+    for (int i = 0; i < n; i++)
+        if (!strcmp(d[i].component, component) && !strcmp(d[i].field->name, field)) return true;
+    return false;
+}
+
+static void test_applied_defaults(void **state)
+{
+    (void)state;
+    write_tri();
+    write_curves();
+    DrScene *s = load_text(
+        "{\"solver\":{\"cfl\":2},\"elements\":["
+        "{\"name\":\"w\",\"type\":\"liquid\",\"components\":{\"Domain\":{\"box\":[[0,0,0],[1,1,1]]},"
+        "\"Transfer\":{\"scheme\":\"flip\"},\"LiquidMaterial\":{\"density\":900}}},"
+        "{\"name\":\"c\",\"type\":\"hair\",\"components\":{\"Groom\":{\"curves\":\"meshes/curves.obj\"}}},"
+        "{\"name\":\"g\",\"type\":\"hair\",\"components\":{\"Groom\":{\"scalp\":\"meshes/tri.obj\"}}}]}");
+    DrAppliedDefault d[128];
+    int n = dr_element_applied_defaults(dr_scene_find(s, "w"), d, 128);
+    assert_true(n > 0 && n <= 128);
+    assert_true(applied(d, n, "Domain", "voxel_size") && applied(d, n, "LiquidMaterial", "viscosity"));
+    assert_false(applied(d, n, "Domain", "box") || applied(d, n, "LiquidMaterial", "density")); /* written */
+    assert_true(applied(d, n, "Transfer", "flip_blend")); /* scheme flip: the blend applies */
+    assert_false(applied(d, n, "Emitter", "start") || applied(d, n, "LiquidSource", "velocity")); /* absent: none */
+    char json[64];
+    for (int i = 0; i < n; i++)
+        if (!strcmp(d[i].field->name, "viscosity")) dr_scene_default_json(d[i].field, json, sizeof json);
+    assert_string_equal(json, "0.001");
+    /* at most max entries are written; the count is the whole */
+    assert_int_equal(dr_element_applied_defaults(dr_scene_find(s, "w"), d, 2), n);
+    assert_int_equal(dr_element_applied_defaults(dr_scene_find(s, "w"), NULL, 0), n);
+
+    n = dr_element_applied_defaults(dr_scene_find(s, "c"), d, 128);
+    assert_false(applied(d, n, "Groom", "count") || applied(d, n, "Groom", "length")); /* curves: no growth */
+    assert_false(applied(d, n, "Collider", "boundary") || applied(d, n, "Collider", "body_contact"));
+    assert_true(applied(d, n, "Collider", "friction") && applied(d, n, "RodMaterial", "radius"));
+    n = dr_element_applied_defaults(dr_scene_find(s, "g"), d, 128);
+    assert_true(applied(d, n, "Groom", "count") && applied(d, n, "Groom", "segments"));
+    assert_false(applied(d, n, "Groom", "curl_pitch")); /* straight strands */
+
+    n = dr_section_applied_defaults(s, "solver", d, 128);
+    assert_true(applied(d, n, "solver", "max_substeps") && !applied(d, n, "solver", "cfl"));
+    dr_scene_default_json(dr_scene_section_spec("shot")->fields + 3, json, sizeof json); /* gravity */
+    assert_string_equal(json, "[0, -9.81, 0]");
+    dr_scene_destroy(&s);
+}
+
 /* ---- reference and tables --------------------------------------------------------------------------------- */
 
 static char *reference(bool md)
@@ -1360,17 +1410,28 @@ static void test_reference_lists_everything(void **state)
             }
         }
     }
-    assert_contains(text, "components: Domain (required), LiquidSource, Emitter, KillBox, LiquidMaterial, Transfer, Particles");
-    assert_contains(text, "    density                  number                 kg/m^3         1000                       "
-                          "[1, 100000]          mass density");
-    assert_contains(text, "    fov_deg                  number                 deg            40                         "
-                          "(1, 170)             vertical field of view");
+    /* plain text: rows aligned across the listing, the description under each row, lines wrapped at 100 */
+    assert_contains(text, "components: Domain (required), LiquidSource, Emitter, KillBox, LiquidMaterial, Transfer,\n"
+                          "    Particles, Pressure\n");
+    assert_contains(text, "\n  Domain (required): the simulation grid\n");
+    assert_contains(text, "\n  LiquidMaterial: material of the liquid\n");
+    assert_contains(text, "\n    density                  number        kg/m^3         1000                 [1, 100000]\n"
+                          "        mass density\n");
+    assert_contains(text, "\n    fov_deg                  number        deg            40                   (1, 170)\n"
+                          "        vertical field of view\n");
+    assert_contains(text, "\n    scheme                   choice        -              \"apic\"               -\n"
+                          "        one of apic, flip, pic, rpic: particle-grid transfer;");
+    for (const char *line = text; *line;) {
+        size_t len = strcspn(line, "\n");
+        if (len > DR_REFERENCE_COLUMNS) fail_msg("reference line of %zu columns: %.*s", len, (int)len, line);
+        line += len + (line[len] == '\n');
+    }
     assert_contains(md, "| `density` | number | kg/m^3 | `1000` | [1, 100000] | mass density |");
     assert_contains(md, "| `box` | box [lo, hi] | m | **required** |");
     assert_contains(md, "| `scheme` | one of apic, flip, pic, rpic | - | `\"apic\"` | - |");
     assert_contains(md, "out/&lt;name&gt;/"); /* no raw HTML in the Markdown */
-    assert_contains(text, "components: Groom (required), RodMaterial, Collider, Transform, Motion, CollisionGroup, "
-                          "CollisionResponse, HairSolver");
+    assert_contains(text, "components: Groom (required), RodMaterial, Collider, Transform, Motion, CollisionGroup,\n"
+                          "    CollisionResponse, HairSolver\n");
     assert_contains(md, "| `preconditioner` | one of block, jacobi, none | - | `\"block\"` | - |");
     assert_contains(md, "| `collides_with` | integer | - | `2147483647` | [0, 2147483647] |");
     assert_contains(text, "components: Mesh (required), LinearElastic, Compression, BemSolver");
@@ -1383,8 +1444,8 @@ static void test_reference_lists_everything(void **state)
     assert_contains(md, "| `quadrature_levels` | integer | - | `1` | [1, 4] |");
     assert_contains(md, "| `frame_update` | bool | - | `true` | - | move a rigid frame with the body (BEM eqs. 10-11)");
     assert_contains(md, "| `error_correction` | bool | - | `true` | - |");
-    assert_contains(text, "components: Mesh (required), LinearElastic, Compression, BemSolver, Transform, "
-                          "InitialVelocity, Collider, FixedVertices\n");
+    assert_contains(text, "components: Mesh (required), LinearElastic, Compression, BemSolver, Transform, InitialVelocity,\n"
+                          "    Collider, FixedVertices\n");
     assert_contains(text, "components: Joint (required)\n");
     assert_contains(md, "### Element type `bem_joint`");
     assert_contains(md, "| `mode` | one of coincident, point | - | `\"coincident\"` | - |");
@@ -1433,7 +1494,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_full_scene_getters),
         cmocka_unit_test(test_element_kinds), cmocka_unit_test(test_empty_scene_is_all_defaults),
-        cmocka_unit_test(test_asset_resolution),
+        cmocka_unit_test(test_asset_resolution), cmocka_unit_test(test_applied_defaults),
         cmocka_unit_test(test_bad_files),
         cmocka_unit_test(test_bad_input_messages),
         cmocka_unit_test(test_missing_scene_file),
