@@ -126,7 +126,9 @@ static void append_progress(const char *path, const DrFrameStats *fs, const Fram
             fs->frame, fs->time, fs->substeps, fs->liquid.particles, fs->liquid.pressure_iterations_max,
             fs->liquid.pressure_iterations_total, fs->liquid.pressure_not_converged, fs->liquid.volume, fs->liquid.drift,
             fs->kinetic_energy);
-    if (fs->liquid.present) fprintf(f, "\"liquid_substeps\":%d,", fs->liquid.substeps);
+    if (fs->liquid.present)
+        fprintf(f, "\"liquid_substeps\":%d,\"liquid_particle_volume\":%.9g,", fs->liquid.substeps,
+                fs->liquid.particle_volume);
     /* MPM solids, only in scenes that have them; the names follow render/plots.c's rules (…_iterations,
        …_energy, momentum.*, seconds.*) so the plots pick them up */
     if (fs->mpm.present)
@@ -192,6 +194,49 @@ static void append_progress(const char *path, const DrFrameStats *fs, const Fram
     fclose(f);
 }
 
+/* The defaults the scene applied (dr_element_applied_defaults): {"sections": {"shot": {field: value}, "solver":
+ * {...}}, "elements": {name: {Component: {field: value}}}}, values as JSON; with log, also one -v line per element
+ * and section. */
+static json_t *applied_defaults(const DrScene *scene, bool log)
+{
+    json_t *root = json_object(), *sections = json_object(), *elements = json_object();
+    json_object_set_new(root, "sections", sections);
+    json_object_set_new(root, "elements", elements);
+    DrAppliedDefault list[256];
+    int nel = dr_scene_element_count(scene);
+    for (int i = -2; i < nel; i++) {
+        static const char *const names[2] = {"shot", "solver"};
+        const DrElement *e = i >= 0 ? dr_scene_element(scene, i) : NULL;
+        int n = e ? dr_element_applied_defaults(e, list, 256) : dr_section_applied_defaults(scene, names[i + 2], list, 256);
+        if (n > 256) n = 256;
+        json_t *obj = json_object();
+        char line[4096] = "", value[256];
+        size_t used = 0;
+        for (int k = 0; k < n; k++) {
+            dr_scene_default_json(list[k].field, value, sizeof value);
+            json_t *v = json_loads(value, JSON_DECODE_ANY, NULL);
+            if (!v) continue;
+            json_t *into = obj;
+            if (e) {
+                into = json_object_get(obj, list[k].component);
+                if (!into) json_object_set_new(obj, list[k].component, into = json_object());
+            }
+            json_object_set_new(into, list[k].field->name, v);
+            const char *unit = list[k].field->unit;
+            if (used < sizeof line)
+                used += (size_t)snprintf(line + used, sizeof line - used, "%s%s.%s = %s%s%s", k ? ", " : "",
+                                         list[k].component, list[k].field->name, value,
+                                         unit[0] && strcmp(unit, "1") ? " " : "", strcmp(unit, "1") ? unit : "");
+        }
+        json_object_set_new(e ? elements : sections, e ? e->name : names[i + 2], obj);
+        if (log && e)
+            dr_log_debug("%s (%s): defaults applied: %s", e->name, e->type, n ? line : "none (every field written)");
+        else if (log)
+            dr_log_debug("%s: defaults applied: %s", names[i + 2], n ? line : "none (every field written)");
+    }
+    return root;
+}
+
 static DrStatus write_report(const char *dir, const char *status, const char *message, const DrScene *scene, const char *key, int first, int last, const Totals *t,
                              double wall, DrError *err)
 {
@@ -219,6 +264,9 @@ static DrStatus write_report(const char *dir, const char *status, const char *me
        partly); the mesh stage's level set measures the volume itself */
     json_object_set_new(r, "occupied_cell_volume", json_pack("{s:f}", "max_relative_drift", t->volume_drift_max));
     json_object_set_new(r, "substeps_max", json_integer(t->substeps_max));
+    /* the process's peak resident memory: what a farm job of this shot must request */
+    json_object_set_new(r, "peak_rss_bytes", json_integer((json_int_t)dr_peak_rss_bytes()));
+    json_object_set_new(r, "defaults_applied", applied_defaults(scene, false));
     if (t->mpm)
         json_object_set_new(r, "mpm",
                             json_pack("{s:I, s:I, s:I, s:i, s:f, s:f}", "particles", (json_int_t)t->mpm_particles,
@@ -362,6 +410,7 @@ int main(int argc, char **argv)
     dr_thread_wait_describe(wait, sizeof wait);
     dr_log_info("baking '%s' frames %d-%d into %s (%d threads, %s, key %s)", dr_scene_path(scene),
                 dr_world_frame(world) + 1, last, dir, dr_threads(), wait, keys.bake);
+    if (dr_log_level() >= DR_LOG_DEBUG) json_decref(applied_defaults(scene, true));
     Totals tot = {0};
     tot.io_background = writer != NULL;
     double writer_seconds = 0.0; /* the writer's seconds at the previous progress line */
@@ -522,8 +571,11 @@ int main(int argc, char **argv)
         snprintf(io, sizeof io, ", output %.1fs on the main thread + %.1fs in the background", tot.io, tot.io_writer);
     else
         snprintf(io, sizeof io, ", output %.1fs", tot.io);
-    fprintf(stderr, "bake: %d frames in %.1fs (%.2fs/frame, %d threads), %ld particles, pressure iterations max %d%s%s%s%s%s\n",
+    char rss[32];
+    dr_format_bytes(dr_peak_rss_bytes(), rss, sizeof rss);
+    fprintf(stderr, "bake: %d frames in %.1fs (%.2fs/frame, %d threads), %ld particles, pressure iterations max %d%s%s%s%s%s, "
+            "peak RSS %s\n",
             tot.frames, wall, tot.frames ? wall / tot.frames : 0.0, dr_threads(), tot.particles_last, tot.pressure_max,
-            tot.not_converged ? ", some pressure solves did not converge (see warnings)" : "", mpm, hair, bem, io);
+            tot.not_converged ? ", some pressure solves did not converge (see warnings)" : "", mpm, hair, bem, io, rss);
     return 0;
 }

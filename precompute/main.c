@@ -174,9 +174,11 @@ int main(int argc, char **argv)
         else if (s == DR_ERR_INPUT)
             s = in_element(s, b, &err); /* a mesh the build refuses (degenerate quadrature, singular H₀) */
     }
+    char rss[32];
+    dr_format_bytes(dr_peak_rss_bytes(), rss, sizeof rss);
     if (s == DR_OK && nbodies > 0)
-        fprintf(stderr, "precompute: %d bem bod%s, %d hit%s, %d computed, %.1f s\n", nbodies, nbodies == 1 ? "y" : "ies",
-                hits, hits == 1 ? "" : "s", computed, dr_time_now() - t0);
+        fprintf(stderr, "precompute: %d bem bod%s, %d hit%s, %d computed, %.1f s, peak RSS %s\n", nbodies,
+                nbodies == 1 ? "y" : "ies", hits, hits == 1 ? "" : "s", computed, dr_time_now() - t0, rss);
 
     /* 4. the MANIFEST last: one input line per body with its key */
     if (s == DR_OK) {

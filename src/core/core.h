@@ -249,22 +249,40 @@ void dr_log(DrLogLevel level, const char *fmt, ...) DR_PRINTF(2, 3);
 #define dr_log_info(...) dr_log(DR_LOG_INFO, __VA_ARGS__)
 #define dr_log_debug(...) dr_log(DR_LOG_DEBUG, __VA_ARGS__)
 
-/* Progress of `total` units of work. On a terminal (stderr is a tty) a bar with rate and ETA
- * redrawn in place; otherwise one line per completed unit with `detail`. Either way an
- * `ALF_PROGRESS NN%` line on stdout when the percentage changes (farm managers read it). */
+/* Progress of `total` units of work (frames), on stderr and stdout:
+ *   - on a terminal (stderr is a tty, and $CI is not set) one bar redrawn in place: label, bar, done/total,
+ *     rate, ETA, peak RSS and as much of `detail` as fits the terminal's width, so the line never wraps
+ *     (a wrapped line cannot be redrawn); a log line printed meanwhile clears the bar first;
+ *   - otherwise one line per completed unit: label, done/total, detail, ETA and peak RSS;
+ *   - neither when the log level is below INFO (-q, DRENCH_LOG=warn);
+ *   - `ALF_PROGRESS NN%` on stdout when the percentage changes, for farm managers, when stdout is not a tty
+ *     or DRENCH_ALF_PROGRESS=1 (DRENCH_ALF_PROGRESS=0 never), whatever the log level.
+ * ETA: the mean seconds of the last DR_PROGRESS_WINDOW units (time between consecutive steps, so units
+ * completed in parallel count at their rate) times the units left: it follows a cost per frame that grows as
+ * a shot develops, where the mean since the start lags. Steps may come from several threads if the caller
+ * serialises them (one lock around dr_progress_step). */
+#define DR_PROGRESS_WINDOW 5
 typedef struct DrProgress {
     const char *label;
     long total, done;
-    double t_start;
+    double t_start, t_last;             /* dr_time_now() at begin and at the previous step */
+    double recent[DR_PROGRESS_WINDOW];  /* seconds of the last steps, a ring indexed by done */
     int last_percent;
-    bool tty;
+    bool bar, lines, alf;               /* what this progress prints (fixed at begin) */
 } DrProgress;
 void dr_progress_begin(DrProgress *p, const char *label, long total);
 /* Marks one more unit done; `detail` (may be NULL) is printed on the per-unit line. */
 void dr_progress_step(DrProgress *p, const char *detail);
+/* As dr_progress_step with the time of completion given (seconds on dr_time_now's clock). */
+void dr_progress_step_at(DrProgress *p, double now, const char *detail);
 void dr_progress_end(DrProgress *p);
-/* Seconds left at the current rate (0 when nothing is done yet). */
+/* Seconds left: the mean of the last (up to DR_PROGRESS_WINDOW) steps' seconds times the units left; 0 when
+ * nothing is done yet. */
 double dr_progress_eta(const DrProgress *p);
+/* Peak resident set size of this process so far, bytes (getrusage); 0 if unknown. */
+long long dr_peak_rss_bytes(void);
+/* "812 MiB", "1.4 GiB": a byte count for people. */
+void dr_format_bytes(long long bytes, char *buf, size_t size);
 
 /* ---- arena --------------------------------------------------------------------------------- */
 

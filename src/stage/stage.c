@@ -30,7 +30,11 @@ static void print_help(DrStageId stage)
                stage == DR_STAGE_RENDER ? ", contact sheet and plots" : "");
     if (stage == DR_STAGE_RENDER)
         printf("  --plots             only turn the bake's progress.jsonl into PNG plots (gnuplot)\n"
-               "  --no-plots          render frames and contact sheet without the plots\n");
+               "  --no-plots          render frames and contact sheet without the plots\n"
+               "  --preview           render the scene's initial state (liquid sources, colliders at the\n"
+               "                      first frame, grooms, bodies at rest, the scene camera) to\n"
+               "                      out/<shot>/preview.png, from the scene alone: nothing baked or meshed\n"
+               "                      is read and no stage folder is touched\n");
     if (stage == DR_STAGE_BAKE) {
         printf("  --resume            continue from out/<shot>/bake/checkpoint.h5 (bit-identical to an\n"
                "                      uninterrupted bake)\n"
@@ -46,9 +50,14 @@ static void print_help(DrStageId stage)
            "  --print-key         print this stage's cache key for the scene and exit\n"
            "  --print-out-dir     print this stage's output folder for the scene and exit\n"
            "  --print-frames      print the shot's first and last frame (after --frames) and exit\n"
-           "  -q, --quiet         only warnings and errors\n"
+           "  -q, --quiet         only warnings and errors: no progress bar or per-frame lines\n"
+           "  -v, --verbose       also debug lines%s\n"
            "  --help, --version\n\n"
-           "exit codes: 0 success, 1 runtime failure, 2 bad input (scene, asset or arguments)\n");
+           "progress: on a terminal a bar redrawn in place (rate, ETA from the last frames' cost, peak\n"
+           "memory); otherwise one line per frame. 'ALF_PROGRESS NN%%' lines go to stdout when it is not\n"
+           "a terminal, or when DRENCH_ALF_PROGRESS=1 (=0: never).\n\n"
+           "exit codes: 0 success, 1 runtime failure, 2 bad input (scene, asset or arguments)\n",
+           stage == DR_STAGE_BAKE ? ", and the defaults each element took for what the scene leaves out" : "");
     if (stage == DR_STAGE_BAKE)
         printf("            3 stopped by SIGUSR1, SIGTERM or SIGINT: the frame in progress was finished and\n"
                "              checkpointed; continue with --resume (a second signal stops at once)\n");
@@ -121,6 +130,8 @@ DrStatus dr_stage_parse_args(DrStageId stage, int argc, char **argv, DrStageArgs
             a->plots_only = true;
         } else if (!strcmp(s, "--no-plots") && stage == DR_STAGE_RENDER) {
             a->no_plots = true;
+        } else if (!strcmp(s, "--preview") && stage == DR_STAGE_RENDER) {
+            a->preview = true;
         } else if (!strcmp(s, "--list-components") && stage == DR_STAGE_BAKE) {
             a->list_components = true;
         } else if (!strcmp(s, "--markdown")) {
@@ -133,6 +144,8 @@ DrStatus dr_stage_parse_args(DrStageId stage, int argc, char **argv, DrStageArgs
             a->print_frames = true;
         } else if (!strcmp(s, "-q") || !strcmp(s, "--quiet")) {
             a->quiet = true;
+        } else if (!strcmp(s, "-v") || !strcmp(s, "--verbose")) {
+            a->verbose = true;
         } else if (s[0] == '-' && s[1]) {
             return usage_error(stage, err, "unknown option '%s'", s);
         } else if (a->scene_path) {
@@ -147,7 +160,12 @@ DrStatus dr_stage_parse_args(DrStageId stage, int argc, char **argv, DrStageArgs
         return usage_error(stage, err, "%s", "--finish covers the whole shot; it does not take --frames");
     if (a->plots_only && (a->finish || a->no_plots))
         return usage_error(stage, err, "%s", "--plots cannot be combined with --finish or --no-plots");
+    if (a->preview && (a->finish || a->plots_only || a->no_plots || a->frames_given))
+        return usage_error(stage, err, "%s", "--preview renders the scene alone; it takes none of --finish, --plots, "
+                                             "--no-plots, --frames");
+    if (a->quiet && a->verbose) return usage_error(stage, err, "%s", "-q and -v contradict each other; give one");
     if (a->quiet) dr_log_set_level(DR_LOG_WARN);
+    if (a->verbose) dr_log_set_level(DR_LOG_DEBUG);
     if (a->threads > 0) dr_set_threads(a->threads);
     return DR_OK;
 }

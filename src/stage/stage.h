@@ -23,7 +23,8 @@ typedef struct DrStageArgs {
     int threads;             /* -j N; 0 = all cores */
     const char *out_root;    /* --out DIR, else $DRENCH_OUT, else "out" */
     const char *cache_root;  /* --cache DIR, else $DRENCH_CACHE, else "cache" */
-    bool print_key, print_out_dir, print_frames, list_components, markdown, quiet;
+    bool preview;            /* render --preview: the scene's initial state to out/<shot>/preview.png */
+    bool print_key, print_out_dir, print_frames, list_components, markdown, quiet, verbose;
 } DrStageArgs;
 
 /* Parses the common options. Returns DR_OK, or DR_ERR_INPUT with a usage message. --help and --version are
@@ -60,6 +61,12 @@ DR_NODISCARD DrStatus dr_stage_load_posed_mesh(const DrElement *e, const char *p
  * *nkeys is 0 when e has no Motion. */
 DR_NODISCARD DrStatus dr_stage_motion_keys(const DrElement *e, int first_frame, double fps, double **keys, int *nkeys,
                                            DrError *err);
+
+/* The strands of hair element e in its scene pose: grown (dr_groom_grow) from its Groom.scalp posed by its Transform
+ * with the Groom's growth fields, or read from Groom.curves (dr_groom_read_obj) and moved by its Transform. Errors
+ * start with "<element>.Groom.scalp: " or "<element>.Groom.curves: "; *g is empty then. Free with dr_groom_free. */
+typedef struct DrGroom DrGroom;
+DR_NODISCARD DrStatus dr_stage_load_groom(const DrElement *e, DrGroom *g, DrError *err);
 
 /* A bem_solid element as the boundary element method takes it (DrBemAsset, bem/bem.h): its Mesh.file through
  * dr_bem_asset_load, in the file's own coordinates (Transform does not apply: it poses the body in a shot), and its

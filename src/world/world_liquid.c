@@ -164,6 +164,8 @@ static DrStatus liquid_end_frame(void *self, const WorldCtx *c, DrFrameStats *st
     b->volume += vol;
     b->volume0 += wl->volume0;
     b->drift = b->volume0 > 0 ? b->volume / b->volume0 - 1.0 : 0.0;
+    b->particle_volume += (double)ls->particles * dx * dx * dx /
+                          dr_component_int(dr_element_component(wl->element, "Particles"), "per_cell");
     b->kinetic_energy += ke;
     if (ls->substeps > b->substeps) b->substeps = ls->substeps;
     b->particles += ls->particles;

@@ -401,6 +401,40 @@ static void test_temp_dir(void **state)
     if (saved) setenv("TMPDIR", keep, 1);
 }
 
+/* The ETA follows the recent cost per frame: 3 frames of 1 s then 5 of 10 s leave 12 frames at 10 s = 120 s,
+ * where the mean since the start (53 s / 8 frames) would say 79.5 s. Progress is silenced (log level below
+ * INFO, no ALF lines) so the test prints nothing. */
+static void test_progress_eta_and_rss(void **state)
+{
+    (void)state;
+    DrLogLevel level = dr_log_level();
+    dr_log_set_level(DR_LOG_WARN);
+    setenv("DRENCH_ALF_PROGRESS", "0", 1);
+    DrProgress p;
+    dr_progress_begin(&p, "test", 20);
+    assert_false(p.bar || p.lines || p.alf);
+    assert_true(dr_progress_eta(&p) == 0.0);
+    p.t_start = p.t_last = 100.0;
+    double t = 100.0;
+    for (int i = 0; i < 3; i++) dr_progress_step_at(&p, t += 1.0, NULL);
+    assert_true(fabs(dr_progress_eta(&p) - 17.0) < 1e-9); /* 17 frames at 1 s */
+    for (int i = 0; i < 5; i++) dr_progress_step_at(&p, t += 10.0, NULL);
+    assert_true(fabs(dr_progress_eta(&p) - 120.0) < 1e-9);
+    for (int i = 0; i < 12; i++) dr_progress_step_at(&p, t += 10.0, NULL);
+    assert_true(dr_progress_eta(&p) == 0.0);
+    dr_progress_end(&p);
+    unsetenv("DRENCH_ALF_PROGRESS");
+    dr_log_set_level(level);
+
+    /* a running process holds at least a megabyte */
+    assert_true(dr_peak_rss_bytes() > 1024 * 1024);
+    char buf[32];
+    dr_format_bytes(812LL * 1024 * 1024, buf, sizeof buf);
+    assert_string_equal(buf, "812 MiB");
+    dr_format_bytes(3LL * 1024 * 1024 * 1024 / 2, buf, sizeof buf);
+    assert_string_equal(buf, "1.5 GiB");
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -409,7 +443,7 @@ int main(void)
         cmocka_unit_test(test_m3_flat_arrays),  cmocka_unit_test(test_trimesh_measures),
         cmocka_unit_test(test_arena),           cmocka_unit_test(test_hashing),
         cmocka_unit_test(test_parallel_for_covers_once), cmocka_unit_test(test_rng),
-        cmocka_unit_test(test_temp_dir),
+        cmocka_unit_test(test_temp_dir), cmocka_unit_test(test_progress_eta_and_rss),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
