@@ -3,16 +3,20 @@
 #
 #   ./pipeline.sh [SCENE] [--force STAGE] [--from STAGE] [--frames A-B] [-j N] [--no-build] [--no-plots]
 #   ./pipeline.sh [SCENE] --farm slurm [--dry-run] [--partition P] [--chunk N] [--time HH:MM:SS]
+#   ./pipeline.sh --preview [SCENE] [-j N] [--no-build]    ./pipeline.sh --version
 #
 # Each stage prints its cache key (`--print-key`); the key is compared with the MANIFEST in the stage's
 # output folder, and a stage runs when the two differ, when it is forced, or when an earlier stage ran.
 # SCENE defaults to assets/scenes/default.json. Outputs go to out/<shot>/ (DRENCH_OUT to change).
 # --farm slurm submits the stale stages as Slurm jobs instead (scripts kept in out/<shot>/farm/);
 # README "Running on a Slurm farm" lists the DRENCH_SLURM_* settings.
+# --preview renders the scene's initial state to out/<shot>/preview.png in seconds, before anything is baked
+# (render --preview); no stage runs and no stage folder changes. --frames and -j are checked (exit 2) before
+# anything runs, also when every stage is up to date.
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 stages=(precompute bake mesh render)
-scene=""; force=""; from=""; frames=""; threads=""; build=1; plots=1
+scene=""; force=""; from=""; frames=""; threads=""; build=1; plots=1; preview=0
 farm=""; dry_run=0
 partition="${DRENCH_SLURM_PARTITION:-}"
 chunk="${DRENCH_SLURM_CHUNK:-8}"
@@ -24,13 +28,16 @@ account="${DRENCH_SLURM_ACCOUNT:-}"
 sbatch_extra="${DRENCH_SLURM_SBATCH_ARGS:-}"
 
 die() { echo "pipeline.sh: error: $*" >&2; exit 2; }
-usage() { sed -n '2,11p' "$0" | sed 's/^# \{0,1\}//'; }
+usage() { sed -n '2,15p' "$0" | sed 's/^# \{0,1\}//'; }
+version() { sed -n 's/^#define DR_VERSION "\(.*\)"$/\1/p' "$here/src/core/core.h"; }
 stage_index() { local i; for i in "${!stages[@]}"; do [ "${stages[$i]}" = "$1" ] && { echo "$i"; return; }; done
                 die "unknown stage '$1' (stages: ${stages[*]})"; }
 
 while [ $# -gt 0 ]; do
   case "$1" in
     -h|--help) usage; exit 0 ;;
+    --version) echo "pipeline.sh (drench) $(version)"; exit 0 ;;
+    --preview) preview=1; shift ;;
     --force) [ $# -ge 2 ] || die "--force needs a stage"; force="$2"; stage_index "$2" >/dev/null; shift 2 ;;
     --from) [ $# -ge 2 ] || die "--from needs a stage"; from="$2"; stage_index "$2" >/dev/null; shift 2 ;;
     --frames) [ $# -ge 2 ] || die "--frames needs a range A-B"; frames="$2"; shift 2 ;;
@@ -49,6 +56,13 @@ while [ $# -gt 0 ]; do
 done
 scene="${scene:-$here/assets/scenes/default.json}"
 [ -f "$scene" ] || die "scene '$scene' not found"
+# Checked before anything runs, so a typo fails the same whether or not a stage is stale.
+[ -z "$threads" ] || { [[ "$threads" =~ ^[1-9][0-9]{0,3}$ ]] && [ "$threads" -le 1024 ]; } \
+  || die "-j '$threads' must be a thread count between 1 and 1024"
+[ -z "$frames" ] || [[ "$frames" =~ ^[0-9]+-[0-9]+$ ]] || die "--frames '$frames' is not a range like 1-48"
+if [ "$preview" = 1 ]; then
+  [ -z "$farm$frames$force$from" ] || die "--preview renders the scene's initial state alone; it takes none of --farm, --frames, --force, --from"
+fi
 if [ -z "$farm" ]; then
   [ "$dry_run" = 0 ] || die "--dry-run needs --farm slurm"
 else
@@ -65,6 +79,11 @@ if [ "$build" = 1 ]; then
   make -s -C "$here" -j"$(nproc)" all >/dev/null
 fi
 bin="$here/bin"
+if [ "$preview" = 1 ]; then
+  exec "$bin/render" "$scene" --preview ${threads:+-j "$threads"}
+fi
+# the shot's range (exit 2 naming the shot's frames when --frames leaves it)
+[ -z "$frames" ] || "$bin/bake" "$scene" --print-frames --frames "$frames" >/dev/null || exit $?
 
 # Stale stages, in order: a stage runs when forced, when its key differs from its MANIFEST, or when an
 # earlier stage runs.

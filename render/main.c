@@ -5,6 +5,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "from_scene.h"
 #include "io/io.h"
 #include "plots.h"
 #include "render/render.h"
@@ -45,7 +46,7 @@ static DrStatus render_frame(const Job *job, int frame, int threads, DrError *er
 {
     DrRenderScene *rs = NULL;
     DR_TRY(dr_render_scene_create(&rs, err));
-    DrStatus s = DR_OK;
+    DrStatus s = scene_add_domain_walls(job->scene, rs, err);
     char path[4096];
     for (int i = 0; s == DR_OK && i < job->ndraw; i++) {
         const Drawable *d = &job->draw[i];
@@ -139,42 +140,18 @@ static DrStatus write_contact_sheet(const char *dir, int first, int last, int ev
     return s;
 }
 
-/* The ground sits under everything the shot can hold: the lowest liquid or MPM domain floor or collider. */
-static double ground_height(const DrScene *scene, const Drawable *draw, int ndraw)
+/* The ground sits under everything the shot can hold: the lowest liquid or MPM domain floor or still collider. The
+ * still colliders' meshes also set the size every frame renders with (scene_render_sizes). */
+static void shot_ground_and_sizes(const DrScene *scene, const Drawable *draw, int ndraw, DrRenderDesc *desc,
+                                  DrError *err, DrStatus *s)
 {
-    double y = 1e300;
-    for (int i = 0; i < dr_scene_element_count(scene); i++) {
-        const DrElement *e = dr_scene_element(scene, i);
-        if (e->kind != DR_ELEMENT_LIQUID && e->kind != DR_ELEMENT_MPM_SOLID) continue;
-        DrVec3 lo, hi;
-        dr_component_box(dr_element_component(e, "Domain"), "box", &lo, &hi);
-        if (lo.y < y) y = lo.y;
-    }
-    for (int i = 0; i < ndraw; i++)
-        for (int v = 0; v < draw[i].still.nv; v++)
-            if (draw[i].still.v[3 * v + 1] < y) y = draw[i].still.v[3 * v + 1];
-    return y < 1e300 ? y : 0.0;
-}
-
-static DrStatus camera_from_scene(const DrScene *scene, DrCamera *cam, DrError *err)
-{
-    const DrComponent *r = dr_scene_section(scene, "render");
-    const DrComponent *c = dr_scene_section(scene, "render.camera");
-    int res[2];
-    cam->eye = dr_component_vec3(c, "eye");
-    cam->target = dr_component_vec3(c, "target");
-    cam->up = dr_component_vec3(c, "up");
-    cam->fov_deg = dr_component_num(c, "fov_deg");
-    dr_component_int2(r, "resolution", res);
-    cam->width = res[0];
-    cam->height = res[1];
-    DrStatus s = dr_camera_check(cam, err);
-    if (s < 0) {
-        char msg[sizeof err->message];
-        snprintf(msg, sizeof msg, "%s", err->message);
-        dr_error_set(err, DR_ERR_INPUT, dr_scene_path(scene), 0, 0, "render.camera: %s", msg);
-    }
-    return s;
+    DrTriMesh *still = NULL;
+    *s = dr_calloc((size_t)ndraw + 1, sizeof *still, &still, err);
+    if (*s != DR_OK) return;
+    for (int i = 0; i < ndraw; i++) still[i] = draw[i].still; /* shallow: borrowed for the call */
+    desc->ground_height = scene_ground_height(scene, still, ndraw);
+    scene_render_sizes(scene, still, ndraw, desc);
+    free(still);
 }
 
 int main(int argc, char **argv)
@@ -190,6 +167,15 @@ int main(int argc, char **argv)
     if (dr_stage_begin(DR_STAGE_RENDER, argc, argv, &args, &scene, &keys, dir, sizeof dir, &done, &err) < 0)
         return fail(&err);
     if (done) return 0;
+    if (args.preview) {
+        /* the scene's initial state, from the scene alone: nothing here reads or writes a stage folder */
+        DrStatus s = scene_preview(scene, &args, path, sizeof path, &err);
+        dr_scene_destroy(&scene);
+        if (s < 0) return fail(&err);
+        fprintf(stderr, "render: preview of the scene's initial state in %.1fs written to %s\n", dr_time_now() - t0,
+                path);
+        return 0;
+    }
     dr_stage_out_dir(&args, scene, DR_STAGE_MESH, mesh_dir, sizeof mesh_dir);
     dr_stage_out_dir(&args, scene, DR_STAGE_BAKE, bake_dir, sizeof bake_dir);
     snprintf(path, sizeof path, "%s/progress.jsonl", bake_dir);
@@ -209,7 +195,7 @@ int main(int argc, char **argv)
     DrStatus s = dr_stage_frame_range(&args, scene, &first, &last, &err);
     dr_component_int2(dr_scene_section(scene, "shot"), "frames", shot);
     DrCamera cam;
-    if (s == DR_OK) s = camera_from_scene(scene, &cam, &err);
+    if (s == DR_OK) s = scene_camera(scene, &cam, &err);
     if (s == DR_OK && !dr_io_exists(mesh_dir))
         s = dr_error_set(&err, DR_ERR_INPUT, mesh_dir, 0, 0,
                          "the mesh folder is missing: run mesh (or pipeline.sh) for %s first", dr_scene_path(scene));
@@ -261,7 +247,7 @@ int main(int argc, char **argv)
     DrRenderDesc desc = dr_render_desc_default();
     desc.ground = dr_component_bool(dr_scene_section(scene, "render"), "ground");
     desc.samples = dr_component_int(dr_scene_section(scene, "render"), "samples");
-    if (s == DR_OK) desc.ground_height = ground_height(scene, draw, ndraw);
+    if (s == DR_OK) shot_ground_and_sizes(scene, draw, ndraw, &desc, &err, &s);
 
     if (s == DR_OK) s = dr_io_mkdirs(dir, &err);
     if (s == DR_OK) s = dr_io_manifest_remove(dir, &err);

@@ -157,8 +157,9 @@ static DrStatus emit_casters(const DrRenderScene *scene, const DrShadowMap *sm, 
 {
     for (int i = 0; i < scene->nmeshes; i++) {
         const DrRenderMesh *m = &scene->meshes[i];
-        if (m->mat == DR_MATERIAL_LIQUID) continue; /* water lets light through; its own shadow would darken
-                                                       the floor seen through it twice */
+        /* water lets light through (its own shadow would darken the floor seen through it twice); so, near
+           enough, does a faint wall panel */
+        if (m->mat == DR_MATERIAL_LIQUID || m->mat == DR_MATERIAL_WALL) continue;
         for (int t = 0; t < m->nt; t++) {
             double x[3], y[3], d[3];
             for (int k = 0; k < 3; k++) {
@@ -290,7 +291,7 @@ static void contact_heights(const DrRenderScene *scene, double ground_h, DrConta
 {
     for (int i = 0; i < scene->nmeshes; i++) {
         const DrRenderMesh *m = &scene->meshes[i];
-        if (m->mat == DR_MATERIAL_LIQUID) continue;
+        if (m->mat == DR_MATERIAL_LIQUID || m->mat == DR_MATERIAL_WALL) continue;
         for (int t = 0; t < m->nt; t++) {
             const double *p[3];
             for (int k = 0; k < 3; k++) p[k] = m->v + 3 * m->tri[3 * t + k];

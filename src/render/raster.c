@@ -203,3 +203,21 @@ void dr_render_raster_liquid_(const DrRTri *t, const float *opaque_iz, int row0,
         }
     });
 }
+
+void dr_render_raster_wall_(const DrRTri *t, const float *opaque_iz, const float *liquid_iz, int row0, int rows, int w,
+                            float *t_front, float *t_back)
+{
+    int ry0, ry1;
+    if (!band_rows(t, row0, rows, &ry0, &ry1)) return;
+    WALK_TRIANGLE(t, ry0, ry1, row0, w, {
+        float iz = l0 * t->iz[0] + l1 * t->iz[1] + l2 * t->iz[2];
+        /* in front of the opaque surface, with the liquid's tolerance: a panel on the ground (a tank's
+           floor) tints it */
+        if (iz * 1.00001f > opaque_iz[k] && iz > 0.0f) {
+            float alpha = (l0 * t->a[0][0] + l1 * t->a[1][0] + l2 * t->a[2][0]) / iz;
+            alpha = alpha < 0.0f ? 0.0f : alpha > 1.0f ? 1.0f : alpha;
+            if (iz > liquid_iz[k]) t_front[k] *= 1.0f - alpha;
+            else t_back[k] *= 1.0f - alpha;
+        }
+    });
+}

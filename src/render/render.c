@@ -6,7 +6,7 @@
  *    into the opaque or the liquid list; strands become camera-facing quads;
  * 3. bin the triangles into bands of BAND_PX pixel rows;
  * 4. per band (in parallel; each band owns its pixels): ground depth, opaque z-buffer, liquid near/far
- *    layers, shading (once per pixel where all its supersamples see one smooth surface, else per
+ *    layers, wall panels' transmittance in front of and behind the liquid, shading (once per pixel where all its supersamples see one smooth surface, else per
  *    supersample and box-filtered) and sRGB encoding of its pixel rows.
  * A band's result depends only on the band, so any thread count gives the same bytes. */
 #include <float.h>
@@ -21,7 +21,7 @@
 DrRenderDesc dr_render_desc_default(void)
 {
     DrRenderDesc d = {.samples = 3, .ground = true, .ground_height = 0.0, .light_dir = {-0.4, -1.0, -0.3},
-                      .shadows = true, .threads = 0};
+                      .shadows = true, .threads = 0, .scene_size = 0.0, .liquid_size = 0.0};
     return d;
 }
 
@@ -37,6 +37,10 @@ static DrStatus check_desc(const DrRenderDesc *d, DrError *err)
                             d->light_dir.y, d->light_dir.z);
     if (d->threads < 0)
         return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "render threads %d must be 0 (all) or more", d->threads);
+    if (!(isfinite(d->scene_size) && d->scene_size >= 0.0) || !(isfinite(d->liquid_size) && d->liquid_size >= 0.0))
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                            "render scene_size %g m and liquid_size %g m must be finite and >= 0 (0 = measured)",
+                            d->scene_size, d->liquid_size);
     return DR_OK;
 }
 
@@ -155,6 +159,7 @@ static DrStatus emit_mesh(const View *v, const DrRenderMesh *m, double *cam, uin
         oc[i] = outcode(v, cam + 3 * i);
     }
     uint8_t shade = (uint8_t)(DR_SHADE_MESH + m->mat);
+    bool wall = m->mat == DR_MATERIAL_WALL;
     for (int t = 0; t < m->nt; t++) {
         const int *c = m->tri + 3 * t;
         if (oc[c[0]] & oc[c[1]] & oc[c[2]]) continue; /* wholly outside one plane */
@@ -175,6 +180,14 @@ static DrStatus emit_mesh(const View *v, const DrRenderMesh *m, double *cam, uin
             if (dr_v3_dot(nn, fu) < 0.9) nn = fu;
             memcpy(cv[k].p, cam + 3 * c[k], sizeof cv[k].p);
             cv[k].a[0] = side * nn.x, cv[k].a[1] = side * nn.y, cv[k].a[2] = side * nn.z;
+            if (wall) {
+                /* a wall panel carries its opacity instead of a normal: 5 % seen square on, rising to 30 % seen
+                   edge-on ((1 - cos)^4, as a glass pane's reflectance rises), so a tank's edges read */
+                const double *w = m->v + 3 * c[k];
+                DrVec3 view = dr_v3_normalize(dr_v3_sub(v->cf.eye, dr_v3(w[0], w[1], w[2])));
+                double g = 1.0 - fabs(dr_v3_dot(fu, view));
+                cv[k].a[0] = 0.05 + 0.25 * g * g * g * g, cv[k].a[1] = cv[k].a[2] = 0.0;
+            }
         }
         uint8_t planes = oc[c[0]] | oc[c[1]] | oc[c[2]];
         if (planes)
@@ -236,7 +249,7 @@ static DrStatus emit_segment(const View *v, const double *w0, const double *w1, 
 }
 
 static DrStatus emit_scene(const View *v, const DrRenderScene *scene, int samples, DrTriList *opaque,
-                           DrTriList *liquid, DrError *err)
+                           DrTriList *liquid, DrTriList *walls, DrError *err)
 {
     int maxv = 0;
     for (int i = 0; i < scene->nmeshes; i++) maxv = scene->meshes[i].nv > maxv ? scene->meshes[i].nv : maxv;
@@ -246,7 +259,8 @@ static DrStatus emit_scene(const View *v, const DrRenderScene *scene, int sample
     if (s == DR_OK) s = dr_calloc((size_t)maxv + 1, sizeof *oc, &oc, err);
     for (int i = 0; s == DR_OK && i < scene->nmeshes; i++) {
         const DrRenderMesh *m = &scene->meshes[i];
-        s = emit_mesh(v, m, cam, oc, m->mat == DR_MATERIAL_LIQUID ? liquid : opaque, err);
+        DrTriList *list = m->mat == DR_MATERIAL_LIQUID ? liquid : m->mat == DR_MATERIAL_WALL ? walls : opaque;
+        s = emit_mesh(v, m, cam, oc, list, err);
     }
     for (int i = 0; s == DR_OK && i < scene->nstrands; i++) {
         const DrRenderStrands *st = &scene->strands[i];
@@ -265,14 +279,15 @@ static DrStatus emit_scene(const View *v, const DrRenderScene *scene, int sample
 
 typedef struct Scratch {
     float *op_iz, *op_n, *lq_near, *lq_n, *lq_far;
+    float *wall_front, *wall_back; /* transmittance of the wall panels in front of / behind the liquid */
     uint8_t *shade;
 } Scratch;
 
 typedef struct Job {
     const View *view;
     const DrShadeCtx *sc;
-    const DrTriList *opaque, *liquid;
-    const DrBins *bins_opaque, *bins_liquid;
+    const DrTriList *opaque, *liquid, *walls;
+    const DrBins *bins_opaque, *bins_liquid, *bins_walls;
     const float *bg; /* 3 per pixel row */
     const DrSrgbTable *srgb;
     Scratch *scratch;
@@ -280,8 +295,17 @@ typedef struct Job {
     DrImage *out;
 } Job;
 
-/* Colour of sample k at raster point (sx, sy): background, or the opaque surface, seen through the liquid
- * when there is some in front. */
+/* `c` seen through wall panels of transmittance t: every panel has the same colour, so the panels' order
+ * does not matter. */
+static DrVec3 through_walls(DrVec3 c, float t)
+{
+    if (t >= 1.0f) return c;
+    static const DrVec3 glass = {0.55, 0.62, 0.70};
+    return dr_v3_add(dr_v3_scale(c, t), dr_v3_scale(glass, 1.0 - t));
+}
+
+/* Colour of sample k at raster point (sx, sy): background, or the opaque surface, seen through the walls
+ * behind the liquid, the liquid when there is some in front, and the walls in front of it. */
 static DrVec3 sample_colour(const DrShadeCtx *sc, const Scratch *s, size_t k, int sx, int sy, const float *bg,
                             double filter)
 {
@@ -290,9 +314,10 @@ static DrVec3 sample_colour(const DrShadeCtx *sc, const Scratch *s, size_t k, in
         c = dr_v3(bg[0], bg[1], bg[2]);
     else
         c = dr_render_shade_opaque_(sc, dir, s->shade[k], s->op_iz[k], s->op_n + 3 * k, filter);
+    c = through_walls(c, s->wall_back[k]);
     if (s->lq_near[k] > 0.0f)
         c = dr_render_shade_liquid_(sc, dir, c, s->lq_near[k], s->lq_n + 3 * k, s->lq_far[k], s->op_iz[k]);
-    return c;
+    return through_walls(c, s->wall_front[k]);
 }
 
 /* Attributes a and b point within about 8 degrees of each other (cos² >= 0.98; unnormalised vectors). */
@@ -314,6 +339,9 @@ static bool pixel_uniform(const Scratch *s, int ws, int S, size_t k0, size_t kc)
         for (int b = 0; b < S; b++) {
             size_t k = k0 + (size_t)a * ws + (size_t)b;
             if (s->shade[k] != code || (s->lq_near[k] > 0.0f) != liquid) return false;
+            /* a wall panel's edge, or where its opacity changes fast (grazing), is shaded per sample */
+            if (fabsf(s->wall_front[k] - s->wall_front[kc]) > 0.01f || fabsf(s->wall_back[k] - s->wall_back[kc]) > 0.01f)
+                return false;
             if (code >= DR_SHADE_MESH && !similar(s->op_n + 3 * k, s->op_n + 3 * kc)) return false;
             if (liquid && ((s->lq_far[k] < s->lq_near[k]) != two || !similar(s->lq_n + 3 * k, s->lq_n + 3 * kc)))
                 return false;
@@ -338,14 +366,18 @@ static void band_pass(const Job *job, Scratch *s, int b)
             s->shade[k] = t > 0.0 ? DR_SHADE_GROUND : DR_SHADE_NONE;
         }
     for (size_t k = 0; k < ns; k++) s->lq_near[k] = 0.0f, s->lq_far[k] = FLT_MAX;
-    /* 2. opaque, 3. liquid layers */
+    for (size_t k = 0; k < ns; k++) s->wall_front[k] = s->wall_back[k] = 1.0f;
+    /* 2. opaque, 3. liquid layers, 4. wall panels in front of the opaque surface, split by the liquid's */
     DrDepthBand band = {row0, rows, ws, s->op_iz, s->op_n, s->shade};
     for (size_t k = job->bins_opaque->start[b]; k < job->bins_opaque->start[b + 1]; k++)
         dr_render_raster_opaque_(&job->opaque->t[job->bins_opaque->idx[k]], &band);
     for (size_t k = job->bins_liquid->start[b]; k < job->bins_liquid->start[b + 1]; k++)
         dr_render_raster_liquid_(&job->liquid->t[job->bins_liquid->idx[k]], s->op_iz, row0, rows, ws, s->lq_near,
                                  s->lq_n, s->lq_far);
-    /* 4. shade: a pixel whose samples all see one smooth surface is shaded once at its centre sample, as
+    for (size_t k = job->bins_walls->start[b]; k < job->bins_walls->start[b + 1]; k++)
+        dr_render_raster_wall_(&job->walls->t[job->bins_walls->idx[k]], s->op_iz, s->lq_near, row0, rows, ws,
+                               s->wall_front, s->wall_back);
+    /* 5. shade: a pixel whose samples all see one smooth surface is shaded once at its centre sample, as
           multisampling does (most of a frame: ground, sky, the inside of surfaces); edges, creases and
           strands are shaded sample by sample and box-filtered */
     int cs = S / 2;
@@ -384,6 +416,7 @@ static void worker(long begin, long end, void *ctx)
 static void scratch_free(Scratch *s)
 {
     free(s->op_iz), free(s->op_n), free(s->lq_near), free(s->lq_n), free(s->lq_far), free(s->shade);
+    free(s->wall_front), free(s->wall_back);
     *s = (Scratch){0};
 }
 
@@ -395,6 +428,8 @@ static DrStatus scratch_alloc(Scratch *s, size_t ns, DrError *err)
     if (st == DR_OK) st = dr_calloc(3 * ns, sizeof *s->lq_n, &s->lq_n, err);
     if (st == DR_OK) st = dr_calloc(ns, sizeof *s->lq_far, &s->lq_far, err);
     if (st == DR_OK) st = dr_calloc(ns, sizeof *s->shade, &s->shade, err);
+    if (st == DR_OK) st = dr_calloc(ns, sizeof *s->wall_front, &s->wall_front, err);
+    if (st == DR_OK) st = dr_calloc(ns, sizeof *s->wall_back, &s->wall_back, err);
     if (st != DR_OK) scratch_free(s);
     return st;
 }
@@ -426,14 +461,21 @@ static void shade_setup(const DrRenderScene *scene, const DrCamera *cam, const D
     /* scales of the ground's checker and of contact darkening: the scene's size, but no more than twice the
        eye-target distance (a floor kilometres wide must not make the checker kilometres wide) */
     double view_dist = dr_v3_norm(dr_v3_sub(cam->target, cam->eye));
-    double extent = dr_render_scene_bounds(scene, &lo, &hi) ? max_side(lo, hi) : 0.0;
+    /* a size the caller fixes for a whole sequence, else what this frame draws */
+    double extent = desc->scene_size > 0.0 ? desc->scene_size
+                    : dr_render_scene_bounds(scene, &lo, &hi) ? max_side(lo, hi)
+                                                               : 0.0;
     if (!(extent > 0.0)) extent = view_dist;
     sc->ground_cell = nice_step(fmin(extent, 2.0 * view_dist) / 6.0);
     sc->fog_dist = 20.0 * fmax(extent, view_dist);
-    double opaque = dr_render_bounds_of_(scene, false, &lo, &hi) ? max_side(lo, hi) : extent;
+    double opaque = desc->scene_size > 0.0 ? desc->scene_size
+                    : dr_render_bounds_of_(scene, false, &lo, &hi) ? max_side(lo, hi)
+                                                                    : extent;
     sc->contact_reach = 0.12 * fmin(opaque > 0.0 ? opaque : extent, 2.0 * view_dist);
     /* absorption scaled to the liquid's size, so a tank and a droplet read alike: red goes first, blue last */
-    double ls = dr_render_bounds_of_(scene, true, &lo, &hi) ? max_side(lo, hi) : 1.0;
+    double ls = desc->liquid_size > 0.0 ? desc->liquid_size
+                : dr_render_bounds_of_(scene, true, &lo, &hi) ? max_side(lo, hi)
+                                                               : 1.0;
     if (!(ls > 0.0)) ls = 1.0;
     sc->sigma = dr_v3_scale(dr_v3(7.0, 2.4, 1.7), 1.0 / ls);
     sc->water_scatter = dr_v3(0.02, 0.11, 0.14);
@@ -462,8 +504,8 @@ DrStatus dr_render_image(const DrRenderScene *scene, const DrCamera *cam, const 
     int workers = desc->threads == 1 ? 1 : dr_threads();
     if (desc->threads > 1 && desc->threads < workers) workers = desc->threads;
 
-    DrTriList opaque = {0}, liquid = {0};
-    DrBins bo = {0}, bl = {0};
+    DrTriList opaque = {0}, liquid = {0}, walls = {0};
+    DrBins bo = {0}, bl = {0}, bw = {0};
     float *bg = NULL;
     Scratch *scratch = NULL;
     size_t band_samples = (size_t)BAND_PX * S * (size_t)v.ws;
@@ -477,13 +519,14 @@ DrStatus dr_render_image(const DrRenderScene *scene, const DrCamera *cam, const 
     if (s == DR_OK) s = dr_render_shadow_build_(scene, cam, desc, res, &sc.sm, err);
     if (s == DR_OK && desc->ground)
         s = dr_render_contact_build_(scene, desc->ground_height, sc.contact_reach, &sc.cg, err);
-    if (s == DR_OK) s = emit_scene(&v, scene, S, &opaque, &liquid, err);
+    if (s == DR_OK) s = emit_scene(&v, scene, S, &opaque, &liquid, &walls, err);
     if (s == DR_OK) s = dr_render_bin_(&opaque, v.hs, BAND_PX * S, &bo, err);
     if (s == DR_OK) s = dr_render_bin_(&liquid, v.hs, BAND_PX * S, &bl, err);
+    if (s == DR_OK) s = dr_render_bin_(&walls, v.hs, BAND_PX * S, &bw, err);
     if (s == DR_OK) {
         for (int j = 0; j < cam->height; j++) dr_render_background_linear_(&v.cf, j, bg + 3 * (size_t)j);
-        Job job = {&v, &sc, &opaque, &liquid, &bo, &bl, bg, &srgb, scratch, workers, bo.nbands, cam->width,
-                   cam->height, S, out};
+        Job job = {&v, &sc, &opaque, &liquid, &walls, &bo, &bl, &bw, bg, &srgb, scratch, workers, bo.nbands,
+                   cam->width, cam->height, S, out};
         dr_render_run_(workers, desc->threads, worker, &job);
     }
     for (int w = 0; scratch && w < workers; w++) scratch_free(&scratch[w]);
@@ -491,8 +534,10 @@ DrStatus dr_render_image(const DrRenderScene *scene, const DrCamera *cam, const 
     free(bg);
     free(opaque.t);
     free(liquid.t);
+    free(walls.t);
     dr_render_bins_free_(&bo);
     dr_render_bins_free_(&bl);
+    dr_render_bins_free_(&bw);
     dr_render_shadow_free_(&sc.sm);
     dr_render_contact_free_(&sc.cg);
     if (s != DR_OK) dr_image_free(out);

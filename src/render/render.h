@@ -14,8 +14,9 @@
  * inside a closed mesh work; vertex normals more than ~25° off their face are taken as creases (a box's
  * joined corner normals) and that face is drawn flat. The ground is an infinite plane y = ground_height
  * with a faint checker whose cell is a round size (1, 2 or 5 × 10^k m) near a sixth of the scene's
- * extent (at most a third of the eye-target distance), fading into the horizon colour with distance;
- * it is seen only from above.
+ * extent (desc.scene_size, else what is drawn; at most a third of the eye-target distance), fading into
+ * the horizon colour with distance; it is seen only from above. Wall panels (DR_MATERIAL_WALL) are
+ * composited over what lies behind them, after the liquid when in front of it.
  *
  * Camera: a pinhole at `eye` looking at `target`, `up` giving the roll, `fov_deg` the vertical field of
  * view, `width`×`height` pixels. Pixel (i, j) has its centre at image-plane point (i + 0.5, j + 0.5),
@@ -116,6 +117,11 @@ typedef enum DrRenderMaterial {
     DR_MATERIAL_COLLIDER, /* matte grey-blue solid */
     DR_MATERIAL_SOLID,    /* deformable solids (MPM, BEM, cloth): warm matte */
     DR_MATERIAL_HAIR,     /* hair/fur strands: dark brown, anisotropic highlight */
+    DR_MATERIAL_WALL,     /* faint glass panels (a tank's or a simulation domain's walls): each panel in front
+                             of the opaque geometry tints what lies behind it towards a pale blue-grey, by 5 %
+                             facing the camera and up to 30 % at grazing angles (so its edges read); panels behind
+                             the liquid's near surface are seen through the liquid. Walls occlude nothing,
+                             cast no shadow and take no contact shadow; triangles only. */
 } DrRenderMaterial;
 
 typedef struct DrRenderDesc {
@@ -126,6 +132,15 @@ typedef struct DrRenderDesc {
     bool shadows;         /* shadow map for the key light; default true */
     int threads;          /* 0 = all threads (dr_parallel_for), 1 = calling thread only, n > 1 = at most
                              n of dr_parallel_for's threads; default 0 */
+    double scene_size;    /* metres, >= 0: the size the ground's checker cell (a round number near a sixth
+                             of it), its fog and the contact shadows' reach follow; 0 (default) = the
+                             largest side of what is drawn. Frames of one sequence must share one size
+                             (the render stage passes the extent of the shot's domains and still colliders),
+                             or the checker changes scale as things move */
+    double liquid_size;   /* metres, >= 0: the liquid's absorption scale (Beer–Lambert, red fading over a
+                             seventh of it, blue over two thirds); 0 (default) = the largest side of the
+                             liquid drawn. A sequence passes one size (the render stage: the liquid's
+                             Domain), or the water's tint changes with how far it has spread */
 } DrRenderDesc;
 DrRenderDesc dr_render_desc_default(void);
 
@@ -144,7 +159,7 @@ DR_NODISCARD DrStatus dr_render_scene_add_mesh(DrRenderScene *scene, const DrTri
  * (so consecutive segments join without gaps), depth tested against everything else, lit with Kajiya–Kay
  * along its tangent (a dark brown for DR_MATERIAL_HAIR); strands cast shadows. A strand of fewer than 2
  * vertices draws nothing; count 0 adds nothing. DR_ERR_INPUT for offsets[0] != 0, decreasing offsets, a
- * non-finite point, a negative or non-finite radius (naming the strand), or the liquid material. */
+ * non-finite point, a negative or non-finite radius (naming the strand), or the liquid or wall material. */
 DR_NODISCARD DrStatus dr_render_scene_add_polylines(DrRenderScene *scene, const double *points,
                                                     const int *offsets, int count, const double *radius,
                                                     DrRenderMaterial mat, DrError *err);
@@ -154,7 +169,8 @@ bool dr_render_scene_bounds(const DrRenderScene *scene, DrVec3 *lo, DrVec3 *hi);
 /* Renders the scene through `cam` into *out (allocated here; caller frees with dr_image_free). Nothing in
  * view renders the background alone (sky gradient, and the ground if enabled); a camera inside geometry
  * or looking at nothing is not an error. DR_ERR_INPUT for an invalid camera (dr_camera_check) or desc
- * (samples outside 1..8, a non-finite ground_height, a zero or non-finite light_dir, threads < 0), with
+ * (samples outside 1..8, a non-finite ground_height, a zero or non-finite light_dir, threads < 0, a
+ * negative or non-finite scene_size or liquid_size), with
  * *out zeroed; DR_ERR_NOMEM when buffers cannot be allocated. */
 DR_NODISCARD DrStatus dr_render_image(const DrRenderScene *scene, const DrCamera *cam, const DrRenderDesc *desc,
                                       DrImage *out, DrError *err);

@@ -118,6 +118,12 @@ void dr_render_raster_depth_(const DrRTri *t, DrDepthBand *band);
 void dr_render_raster_liquid_(const DrRTri *t, const float *opaque_iz, int row0, int rows, int w, float *near_iz,
                               float *near_n, float *far_iz);
 
+/* Wall panels: per sample in front of the opaque depth, multiplies the panel's transmittance (1 − its opacity,
+ * carried in the attribute's first component) into t_front where it is nearer than the liquid's near surface
+ * `liquid_iz` (0: none), else into t_back. */
+void dr_render_raster_wall_(const DrRTri *t, const float *opaque_iz, const float *liquid_iz, int row0, int rows, int w,
+                            float *t_front, float *t_back);
+
 /* Runs fn over [0, count) on the calling thread (threads == 1) or through dr_parallel_for (render.c). */
 void dr_render_run_(long count, int threads, DrRangeFn fn, void *ctx);
 

@@ -37,7 +37,7 @@ void dr_render_scene_destroy(DrRenderScene **scene)
 static bool material_valid(DrRenderMaterial mat)
 {
     return mat == DR_MATERIAL_LIQUID || mat == DR_MATERIAL_COLLIDER || mat == DR_MATERIAL_SOLID ||
-           mat == DR_MATERIAL_HAIR;
+           mat == DR_MATERIAL_HAIR || mat == DR_MATERIAL_WALL;
 }
 
 /* Area-weighted vertex normals: the sum of the (unnormalised) cross products of the adjacent faces, whose
@@ -121,9 +121,9 @@ DrStatus dr_render_scene_add_polylines(DrRenderScene *scene, const double *point
                                        const double *radius, DrRenderMaterial mat, DrError *err)
 {
     assert(scene && material_valid(mat));
-    if (mat == DR_MATERIAL_LIQUID)
+    if (mat == DR_MATERIAL_LIQUID || mat == DR_MATERIAL_WALL)
         return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
-                            "polylines cannot be drawn as liquid; use a hair, solid or collider material");
+                            "polylines cannot be drawn as liquid or wall panels; use a hair, solid or collider material");
     if (count < 0 || (count > 0 && (!offsets || !radius)))
         return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "polyline count %d is invalid", count);
     if (count == 0) return DR_OK;

@@ -670,6 +670,96 @@ static void test_liquid_reads_as_water(void **state)
     dr_image_free(&img[1]);
 }
 
+/* ---- 5b. sizes fixed for a sequence, wall panels ------------------------------------------------------------- */
+
+static int colour_diff(const uint8_t *a, const uint8_t *b) { return abs(a[0] - b[0]) + abs(a[1] - b[1]) + abs(a[2] - b[2]); }
+
+/* A shot's frames draw what moves: with desc.scene_size and liquid_size given, the ground far from a cube and the
+ * colour through a liquid slab do not change when something else (a splash far away) widens what is drawn; measured
+ * from what is drawn (0), both change, which flickered the checker and tinted spreading water paler frame by frame. */
+static void test_fixed_sizes(void **state)
+{
+    (void)state;
+    DrCamera cam = camera(dr_v3(0, 0.8, 2.5), dr_v3(0, 0, 0), dr_v3(0, 1, 0), 50, 160, 90);
+    for (int fixed = 0; fixed < 2; fixed++) {
+        DrRenderDesc desc = dr_render_desc_default();
+        desc.ground_height = -0.3;
+        if (fixed) desc.scene_size = 2.0, desc.liquid_size = 1.0;
+        DrImage img[2];
+        for (int k = 0; k < 2; k++) {
+            DrRenderScene *s = new_scene();
+            add_mesh(s, make_box(dr_v3(-0.2, -0.3, -0.2), dr_v3(0.2, 0.1, 0.2)), DR_MATERIAL_LIQUID);
+            add_mesh(s, make_box(dr_v3(-1.0, -0.3, -0.5), dr_v3(-0.8, -0.1, -0.3)), DR_MATERIAL_COLLIDER);
+            /* a splash far off to the right and back, out of view: only the bounds see it */
+            if (k) add_mesh(s, make_box(dr_v3(6.0, -0.3, -6.0), dr_v3(6.1, -0.2, -5.9)), DR_MATERIAL_LIQUID);
+            img[k] = render(s, &cam, &desc);
+            dr_render_scene_destroy(&s);
+        }
+        int ground = 0, liquid = colour_diff(px(&img[0], 80, 48), px(&img[1], 80, 48));
+        for (int j = 60; j < 90; j++)
+            for (int i = 0; i < 40; i++) ground += colour_diff(px(&img[0], i, j), px(&img[1], i, j));
+        print_message("%s sizes: ground region differs by %d, liquid centre by %d\n", fixed ? "fixed" : "measured",
+                      ground, liquid);
+        if (fixed) {
+            assert_int_equal(ground, 0);
+            assert_int_equal(liquid, 0);
+        } else {
+            assert_true(ground > 0 && liquid > 0); /* what the stage's fixed sizes are for */
+        }
+        dr_image_free(&img[0]);
+        dr_image_free(&img[1]);
+    }
+    DrRenderDesc bad = dr_render_desc_default();
+    bad.scene_size = -1.0;
+    DrRenderScene *s = new_scene();
+    DrImage img;
+    DrError err;
+    assert_int_equal(dr_render_image(s, &cam, &bad, &img, &err), DR_ERR_INPUT);
+    assert_non_null(strstr(err.message, "scene_size"));
+    dr_render_scene_destroy(&s);
+}
+
+/* Wall panels are faint: the ground seen through one changes a little (more than nothing, less than a tenth of its
+ * value), a collider behind one is still seen, and walls cast no shadow. */
+static void test_wall_panels(void **state)
+{
+    (void)state;
+    DrCamera cam = camera(dr_v3(0, 0.6, 3), dr_v3(0, 0, 0), dr_v3(0, 1, 0), 40, 120, 90);
+    DrRenderDesc desc = dr_render_desc_default();
+    desc.ground_height = -0.5;
+    DrImage img[3];
+    for (int k = 0; k < 3; k++) {
+        DrRenderScene *s = new_scene();
+        add_mesh(s, make_box(dr_v3(-0.2, -0.5, -0.2), dr_v3(0.2, -0.1, 0.2)), DR_MATERIAL_COLLIDER);
+        if (k >= 1) add_mesh(s, make_box(dr_v3(-1, -0.5, -1), dr_v3(1, 0.5, 1)), DR_MATERIAL_WALL);
+        if (k == 2) { /* the same with the collider moved out: what the wall alone shows */
+            dr_render_scene_destroy(&s);
+            s = new_scene();
+            add_mesh(s, make_box(dr_v3(-1, -0.5, -1), dr_v3(1, 0.5, 1)), DR_MATERIAL_WALL);
+        }
+        img[k] = render(s, &cam, &desc);
+        dr_render_scene_destroy(&s);
+    }
+    /* the collider's centre, behind the front panel: still the collider, not the wall */
+    const uint8_t *c0 = px(&img[0], 60, 52), *c1 = px(&img[1], 60, 52), *w = px(&img[2], 60, 52);
+    int through = colour_diff(c0, c1), covered = colour_diff(c1, w);
+    print_message("wall: collider seen through it changes by %d, and differs from the wall alone by %d\n", through,
+                  covered);
+    assert_true(through > 0 && through < 0.1 * (c0[0] + c0[1] + c0[2]));
+    assert_true(covered > 3 * through);
+    /* ground inside the tank beside the collider: faintly tinted; no shadow of the walls on it */
+    const uint8_t *g0 = px(&img[0], 15, 80), *g1 = px(&img[1], 15, 80);
+    assert_true(colour_diff(g0, g1) < 0.15 * (g0[0] + g0[1] + g0[2]));
+    for (int k = 0; k < 3; k++) dr_image_free(&img[k]);
+    /* strands cannot be walls */
+    DrRenderScene *s = new_scene();
+    double pts[6] = {0, 0, 0, 0, 1, 0}, r = 0.01;
+    int off[2] = {0, 2};
+    DrError err;
+    assert_int_equal(dr_render_scene_add_polylines(s, pts, off, 1, &r, DR_MATERIAL_WALL, &err), DR_ERR_INPUT);
+    dr_render_scene_destroy(&s);
+}
+
 /* ---- 6. shadows ------------------------------------------------------------------------------------------ */
 
 static double luma(const uint8_t *p) { return 0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2]; }
@@ -1189,6 +1279,8 @@ int main(void)
         cmocka_unit_test(test_watertight_fan),
         cmocka_unit_test(test_box_faces_flat),
         cmocka_unit_test(test_liquid_reads_as_water),
+        cmocka_unit_test(test_fixed_sizes),
+        cmocka_unit_test(test_wall_panels),
         cmocka_unit_test(test_shadow_under_cube),
         cmocka_unit_test(test_strands),
         cmocka_unit_test(test_strand_columns),
