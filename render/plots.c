@@ -22,6 +22,14 @@ enum { P_SECONDS, P_ITERATIONS, P_DRIFT, P_ENERGY, P_MOMENTUM, NPLOTS };
 static const char *const plot_names[NPLOTS] = {"seconds_per_frame", "solver_iterations", "volume_drift",
                                                "energy", "momentum"};
 
+/* One colour per series, told apart at a glance (Paul Tol's "muted" and "light" schemes, then a few darker
+ * tones): gnuplot's own cycle repeats after 8, and a frame's phases (liquid, MPM, hair, BEM, output) are 17. */
+static const char *const palette[] = {"#332288", "#88ccee", "#44aa99", "#117733", "#999933", "#ddcc77", "#cc6677",
+                                      "#882255", "#aa4499", "#ee8866", "#bbcc33", "#77aadd", "#ee3377", "#0077bb",
+                                      "#555555", "#e69f00", "#009e73", "#cc3311", "#33bbee", "#bbbbbb", "#000000",
+                                      "#f0e442", "#8c564b", "#9467bd"};
+#define NPALETTE ((int)(sizeof palette / sizeof palette[0]))
+
 typedef struct Row { json_int_t frame; int line; json_t *obj; } Row;
 
 /* A column of the .dat: a flattened key and its value per frame, NaN where that frame's line lacks
@@ -202,12 +210,16 @@ static bool any_nonzero(const Column *c, int nrows)
 static int plot_of(const Column *c, int nrows)
 {
     const char *n = c->name;
-    if (starts(n, "seconds.") && strcmp(n, "seconds.frame")) return P_SECONDS;
-    if (!strcmp(n, "substeps") || starts(n, "iterations.") || (toplevel(n) && strstr(n, "iterations")))
-        return P_ITERATIONS;
-    /* a count of unconverged solves is worth a line only when there was one */
-    if (strstr(n, "not_converged") && any_nonzero(c, nrows)) return P_ITERATIONS;
-    if (!strcmp(n, "volume_drift")) return P_DRIFT;
+    /* a phase that took no time in any frame is a solver the shot does not have: no layer for it */
+    if (starts(n, "seconds.") && strcmp(n, "seconds.frame")) return any_nonzero(c, nrows) ? P_SECONDS : -1;
+    if (!strcmp(n, "substeps")) return P_ITERATIONS;
+    /* iteration counts that stay 0 are a solver the shot does not have (a liquid's pressure solve in a scene
+       without liquid); a count of unconverged solves is worth a line only when there was one */
+    if (starts(n, "iterations.") || (toplevel(n) && strstr(n, "iterations")) || strstr(n, "not_converged"))
+        return any_nonzero(c, nrows) ? P_ITERATIONS : -1;
+    /* the liquid's volume as its particles carry it; the occupied-cell estimate ("volume_drift") counts a splash's
+       partly filled cells as full and reads high, so it is not drawn */
+    if (!strcmp(n, "liquid_particle_volume")) return P_DRIFT;
     if (!strcmp(n, "energy") || starts(n, "energy.") || (toplevel(n) && strstr(n, "_energy"))) return P_ENERGY;
     if (!strcmp(n, "momentum") || starts(n, "momentum.")) return P_MOMENTUM;
     return -1;
@@ -305,6 +317,8 @@ static DrStatus write_script(const char *path, const char *dat, const Table *t, 
     const char *style = t->nrows <= 60 ? "linespoints pt 7 ps 0.5 lw 1.5" : "lines lw 1.5";
     char using[4096];
     fputs("set encoding utf8\nset terminal pngcairo size 960,540 font 'sans,10' noenhanced\n", f);
+    for (int k = 0; k < NPALETTE; k++) fprintf(f, "set linetype %d lc rgb '%s'\n", k + 1, palette[k]);
+    fprintf(f, "set linetype cycle %d\n", NPALETTE);
     for (int p = 0; p < NPLOTS; p++) {
         const int *pc = cols + p * t->ncols;
         made[p] = n[p] > 0 || (p == P_SECONDS && total >= 0);
@@ -352,13 +366,19 @@ static DrStatus write_script(const char *path, const char *dat, const Table *t, 
             fputc('\n', f);
             break;
         }
-        case P_DRIFT:
-            gp_begin(f, png_tmp[p], "Liquid volume drift against the first frame (occupied cells x dx^3: a coarse estimate, splashes read high)", "volume drift (%)", KEY_BELOW);
+        case P_DRIFT: {
+            /* against the first frame that has a volume: emitters and kill boxes change it, nothing else does */
+            double v0 = NAN;
+            for (int r = 0; r < t->nrows && isnan(v0); r++) v0 = t->cols[pc[0]].v[r];
+            if (!(v0 > 0.0)) v0 = 1.0; /* no liquid at first: the line shows the volume in % of a cubic metre */
+            gp_begin(f, png_tmp[p], "Liquid volume against the first frame: particles x the volume each was seeded with",
+                     "volume change (%)", KEY_BELOW);
             fputs("set xzeroaxis lt -1\n", f);
-            snprintf(using, sizeof using, "(100*$%d)", pc[0] + 1);
-            gp_line(f, dat, using, style, "volume_drift", true);
+            snprintf(using, sizeof using, "(100*($%d/%.17g-1))", pc[0] + 1, v0);
+            gp_line(f, dat, using, style, "liquid_particle_volume", true);
             fputc('\n', f);
             break;
+        }
         case P_ENERGY:
             gp_begin(f, png_tmp[p], "Energy per frame", "energy (J)", KEY_BELOW);
             for (int i = 0; i < n[p]; i++) {

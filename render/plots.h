@@ -8,13 +8,16 @@
 /* Turns a bake's progress.jsonl into PNG plots in out_dir (created if missing) with gnuplot:
  *   seconds_per_frame.png  (wall-clock seconds per phase vs frame, stacked, plus the frame total)
  *   solver_iterations.png  (every iteration count present vs frame; substeps too)
- *   volume_drift.png       (liquid volume drift in % vs frame, when present)
+ *   volume_drift.png       (the liquid's volume as its particles carry it, "liquid_particle_volume", in % of
+ *                           the first frame's, only when the lines have it: a shot with liquid)
  *   energy.png             (kinetic energy and any "energy" group, when present)
  *   momentum.png           (when a "momentum" group is present)
  * and returns the number of plots written in *written (0 when the lines hold nothing plottable).
  *
- * The plots are generic over the keys present: every key under "seconds" except "frame" is a phase,
- * a key absent from some lines leaves a gap (a phase absent counts 0 s). When several lines carry
+ * The plots are generic over the keys present: every key under "seconds" except "frame" is a phase
+ * (drawn only when some frame spent time in it), a key absent from some lines leaves a gap (a phase
+ * absent counts 0 s); an iteration count that is 0 in every frame is left out. Every series of a plot
+ * has its own colour, from a fixed palette of 24. When several lines carry
  * the same frame (a resumed bake appends again) the last one wins. Plots that do not apply to this
  * bake are removed from out_dir so that none from an earlier bake is left next to the new ones.
  *
