@@ -78,12 +78,14 @@ build/tests/%: tests/%.c $(LIB)
 	@mkdir -p $(@D)
 	$(CC) $(CPPFLAGS) $(CFLAGS) $< $(LIB) $(LDLIBS) -lcmocka -o $@
 
-build/tests/objcheck: tests/pipeline/objcheck.c $(LIB)
+# Helpers of the pipeline tests: objcheck (OBJ surfaces), pngstat (image regions).
+TEST_HELPERS := build/tests/objcheck build/tests/pngstat
+$(TEST_HELPERS): build/tests/%: tests/pipeline/%.c $(LIB)
 	@mkdir -p $(@D)
 	$(CC) $(CPPFLAGS) $(CFLAGS) $< $(LIB) $(LDLIBS) -o $@
 
 test: test-deps
-	@$(MAKE) --no-print-directory all $(TEST_BIN) build/tests/objcheck
+	@$(MAKE) --no-print-directory all $(TEST_BIN) $(TEST_HELPERS)
 	@bash tests/run_tests.sh $(TEST_BIN)
 
 bench: deps
