@@ -935,11 +935,12 @@ extern "C" DrStatus dr_vdb_surface_from_particles(const double *pos, const doubl
 
         /* 1. union of spheres (ParticlesToLevelSet), carrying the closest particle's velocity, at
          *    the radius dilated by the closing. The raster band (background = w * dx) reaches as
-         *    deep as the erosion below plus the final band, so every voxel of that band has a
-         *    transferred velocity. */
+         *    deep as a closing's erosion below plus the final band, so every voxel of that band
+         *    has a transferred velocity. */
+        const bool closing = desc->closing > 0.0;
         const double dilated = radius + desc->closing;
         const double erosion = dilated - desc->radius; /* >= 0: the closing, plus what step 0 raised */
-        const double raster_w = kRasterHalfWidth + std::ceil(erosion / dx);
+        const double raster_w = kRasterHalfWidth + (closing ? std::ceil(erosion / dx) : 0.0);
         openvdb::FloatGrid::Ptr raw = openvdb::createLevelSet<openvdb::FloatGrid>(dx, static_cast<float>(raster_w));
         ParticleList particles{pos, vel, static_cast<size_t>(n), dilated};
         openvdb::tools::ParticlesToLevelSet<openvdb::FloatGrid, openvdb::Vec3s> raster(*raw);
@@ -957,16 +958,16 @@ extern "C" DrStatus dr_vdb_surface_from_particles(const double *pos, const doubl
         }
         openvdb::Vec3SGrid::Ptr att = raster.attributeGrid();
 
-        /* 2. rasterising leaves the interior active and the band ragged, and inside the union its
-         *    values are the distance to the nearest particle's sphere, not to the union's surface.
-         *    Eroding the union of the dilated spheres back to the requested radius (spheres smaller
-         *    than ParticlesToLevelSet resolves, and the closing) therefore takes a true signed
-         *    distance first: a rebuild at zero with an interior band as deep as the erosion, then
-         *    a rebuild of a clean narrow band of kSurfaceHalfWidth voxels at the level −erosion
-         *    (phi is negative inside). Without an erosion one rebuild at zero does. What the
-         *    erosion removes from the dilated union is what it added, except in the dips between
-         *    spheres narrower than the dilation: those stay filled, which is the closing. */
-        if (erosion > 0.0) {
+        /* 2. rasterising leaves the interior active and the band ragged: rebuild a clean narrow
+         *    band of kSurfaceHalfWidth voxels at the level −erosion (phi is negative inside).
+         *    Inside the union the raw values are the distance to the nearest particle's sphere, so
+         *    without a closing that level is the union of the requested spheres: spheres smaller
+         *    than ParticlesToLevelSet resolves were rasterised larger and come back sphere by
+         *    sphere. A closing erodes the union of the dilated spheres itself, which takes a true
+         *    signed distance first (a rebuild at zero with an interior band as deep as the
+         *    erosion): the erosion then removes what the dilation added, except in the dips
+         *    between spheres narrower than it, which stay filled. */
+        if (closing) {
             openvdb::FloatGrid::Ptr sdf = openvdb::tools::levelSetRebuild(
                 *raw, 0.0f, kSurfaceHalfWidth, static_cast<float>(erosion / dx) + kSurfaceHalfWidth + 1.0f);
             raw = sdf;

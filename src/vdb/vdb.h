@@ -102,7 +102,8 @@ typedef struct DrVdbSurfaceDesc {
                           solid) otherwise give a flat face one bump per particle column: 0.28 spacings
                           high for spheres of 0.8 spacings after one smoothing pass, against 0.02 with a
                           closing of one radius (the mesh stage's choice for MPM solids). Gaps narrower than about 2 * closing between separate
-                          bodies are bridged; 0 = the union of spheres as it is. */
+                          bodies are bridged; 0 = the union of spheres as it is (as before the
+                          closing existed, bit for bit). */
 } DrVdbSurfaceDesc;
 
 /* voxel_size 0.004 m, radius 0.006 m (1.5 voxels), smoothing 1, adaptivity 0, closing 0. */
@@ -115,8 +116,9 @@ typedef struct DrVdbSurface DrVdbSurface;
 
 /* Builds the liquid surface as the union of spheres of `desc->radius` around the particles, closed
  * by `desc->closing`: tools::ParticlesToLevelSet at the radius plus the closing (and at least 1.5
- * voxels), then tools::levelSetRebuild to a signed distance and again at the level that erodes it
- * back to the radius, then `desc->smoothing` passes of tools::LevelSetFilter::meanCurvature.
+ * voxels), then tools::levelSetRebuild at the level that takes the spheres back to the radius
+ * (with a closing: first to a signed distance, then at the level that erodes the union back), then
+ * `desc->smoothing` passes of tools::LevelSetFilter::meanCurvature.
  * pos: 3n doubles (m); vel: 3n doubles (m/s) or NULL (then "vel" is zero). n may be 0: an empty
  * surface (no active voxels). At each active voxel of the surface "vel" holds the velocity of the
  * particle closest to the voxel centre (ParticlesToLevelSet attribute transfer; a voxel exactly
