@@ -26,7 +26,7 @@ check "it writes exactly one cache/bem/<key>.h5" test "$(h5files "$bem")" -eq 1
 f=$(find "$bem" -maxdepth 1 -name '*.h5' 2>/dev/null | head -1); f=${f:-$bem/none.h5}; key=$(basename "$f" .h5)
 check "the file is named by a 32-hex-digit key" grep -Eq '^[0-9a-f]{32}$' <<<"$key"
 check "nothing else is left in cache/bem" test "$(ls -A "$bem" 2>/dev/null | wc -l)" -eq 1
-check "the summary line counts the body as computed" grep -Eq '^precompute: 1 bem body, 0 hits, 1 computed, [0-9.]+ s$' <<<"$out"
+check "the summary line counts the body as computed" grep -Eq '^precompute: 1 bem body, 0 hits, 1 computed, [0-9.]+ s, peak RSS [0-9.]+ [KMG]iB$' <<<"$out"
 check "the weld is logged" grep -q "bem: jelly: .*bem_ico1.obj: 42 vertices, 80 triangles (0 of 42 vertices merged" <<<"$out"
 check "the MANIFEST lists the body and its key" grep -q "^input bem jelly $key$" "$DRENCH_OUT/bem_a/precompute/MANIFEST"
 sizes_ok() {

@@ -143,8 +143,8 @@ check "--preview exits 0 and says where the image is" bash -c "[ $rc -eq 0 ] && 
 check "--preview writes out/<shot>/preview.png and nothing else" test "$(cd "$pv" && find . -type f)" = "./small_dam/preview.png"
 check "--preview image has the scene's resolution" test "$(od -An -tu1 -j16 -N8 "$pv/small_dam/preview.png" | awk '{print $3*256+$4, $7*256+$8}')" = "960 540"
 # the liquid source is drawn: without it the image differs where the water stands
-nosrc="$WORK/scenes/nosource.json"
-sed 's/"LiquidSource": { "box": \[\[0, 0, 0\], \[0.15, 0.2, 0.2\]\] },//' "$scene" >"$nosrc"
+nosrc="$WORK/scenes/nosource.json" # beside a copy of the meshes, which the scene names relative to itself
+sed 's/"LiquidSource": { "box": \[\[0, 0, 0\], \[0.15, 0.2, 0.2\]\] },//' "$(stage_scene small_dam.json)" >"$nosrc"
 DRENCH_OUT="$WORK/preview2" "$BIN/render" "$nosrc" --preview -q 2>/dev/null
 check "--preview draws the liquid source" bash -c "[ -s '$WORK/preview2/small_dam/preview.png' ] && [ -s '$pv/small_dam/preview.png' ] &&
   ! cmp -s '$pv/small_dam/preview.png' '$WORK/preview2/small_dam/preview.png'"
