@@ -3,12 +3,14 @@
 #include "io/io.h"
 
 #include <errno.h>
+#include <fcntl.h>
 #include <hdf5.h>
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
 
 typedef enum ElemKind { ELEM_F64, ELEM_I64, ELEM_U64, ELEM_I32 } ElemKind;
+static size_t kind_size(ElemKind kind) { return kind == ELEM_I32 ? 4 : 8; }
 
 /* How one dataset is stored: compress = false gives CONTIGUOUS, compress = true the handle's
  * DrH5Compress (DEFLATE for DR_H5_COMPRESS_ALL, ONE_VALUE for DR_H5_COMPRESS_ONE_VALUE). */
@@ -36,6 +38,7 @@ struct DrH5 {
     DrH5Compress compress;     /* what compress = true means for the datasets written next */
     char path[DR_IO_PATH_MAX]; /* final path (write) or opened path (read) */
     char tmp[DR_IO_PATH_MAX];  /* temporary path being written, "" for read and deferred handles */
+    int fd;                    /* the temporary file, open for writing (write handles), else -1 */
     H5Op *ops;                 /* deferred: the recorded calls, in call order */
     int nops, cap;
 };
@@ -69,6 +72,9 @@ enum { DEFLATE_LEVEL = 1 };
 enum { CHUNK_BYTES = 256 * 1024 };
 /* Below this a dataset of one value is left contiguous: a chunk index costs more than it saves. */
 enum { CONSTANT_MIN_BYTES = 4096 };
+/* The in-memory file grows by at least this much at a time, and by the data's size plus this slack (object
+ * headers, attributes) when the size is known (a deferred handle). */
+enum { CORE_INCREMENT_MIN = 1 << 20, CORE_SLACK_BYTES = 256 * 1024 };
 
 static void h5_quiet(void)
 {
@@ -180,36 +186,58 @@ static DrStatus alloc_handle(const char *path, DrH5 **out, DrError *err)
     DrH5 *h;
     DR_TRY(dr_calloc(1, sizeof *h, &h, err));
     h->file = -1;
+    h->fd = -1;
     snprintf(h->path, sizeof h->path, "%s", path);
     *out = h;
     return DR_OK;
 }
 
-DrStatus dr_h5_create(const char *final_path, DrH5 **out, DrError *err)
+/* A write handle's file lives in memory (HDF5's core driver without a backing store) until dr_h5_commit writes
+ * its image through the temporary file opened here. HDF5 then never writes to disk itself: with the default
+ * driver, a disk that fills up while H5Fclose flushes the metadata left the file half closed, and HDF5's own
+ * cleanup at exit crashed on it (SIGSEGV, exit 139, after the error had been reported). Now every write to disk
+ * is this module's, and its failure is an ordinary DR_ERR_IO. size_hint (bytes, 0 when unknown) sizes the first
+ * allocation, so that a file of known size grows without copies. */
+static DrStatus create_in_memory(const char *final_path, size_t size_hint, DrH5 **out, DrError *err)
 {
     h5_quiet();
     DrH5 *h;
     DR_TRY(alloc_handle(final_path, &h, err));
     h->writable = true;
     dr_io_tmp_path(final_path, h->tmp, sizeof h->tmp);
-    /* STRONG close: H5Fclose closes every object still open, so the file on disk is complete
-     * when dr_h5_commit renames it. */
+    h->fd = open(h->tmp, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0666);
+    if (h->fd < 0) {
+        DrStatus s = dr_error_set(err, DR_ERR_IO, final_path, 0, 0,
+                                  "cannot create %s: %s; check that the directory exists and is writable", h->tmp,
+                                  strerror(errno));
+        free(h);
+        return s;
+    }
+    /* STRONG close: H5Fclose closes every object still open, so the image is complete. */
+    size_t increment = size_hint + CORE_SLACK_BYTES;
+    if (increment < CORE_INCREMENT_MIN) increment = CORE_INCREMENT_MIN;
     hid_t fapl = H5Pcreate(H5P_FILE_ACCESS);
-    if (fapl >= 0) H5Pset_fclose_degree(fapl, H5F_CLOSE_STRONG);
-    h->file = fapl >= 0 ? H5Fcreate(h->tmp, H5F_ACC_TRUNC, H5P_DEFAULT, fapl) : -1;
+    bool ok = fapl >= 0 && H5Pset_fclose_degree(fapl, H5F_CLOSE_STRONG) >= 0 &&
+              H5Pset_fapl_core(fapl, increment, 0) >= 0;
+    h->file = ok ? H5Fcreate(h->tmp, H5F_ACC_TRUNC, H5P_DEFAULT, fapl) : -1;
     char msg[512] = "";
     if (h->file < 0) h5_msg(msg, sizeof msg); /* before any other call clears the error stack */
     if (fapl >= 0) H5Pclose(fapl);
     if (h->file < 0) {
+        close(h->fd);
         unlink(h->tmp);
-        DrStatus s = dr_error_set(err, DR_ERR_IO, final_path, 0, 0,
-                                  "cannot create HDF5 file %s: %s; check that the directory exists and is writable",
+        DrStatus s = dr_error_set(err, DR_ERR_RUNTIME, final_path, 0, 0, "cannot start HDF5 file %s in memory: %s",
                                   h->tmp, msg);
         free(h);
         return s;
     }
     *out = h;
     return DR_OK;
+}
+
+DrStatus dr_h5_create(const char *final_path, DrH5 **out, DrError *err)
+{
+    return create_in_memory(final_path, 0, out, err);
 }
 
 DrStatus dr_h5_create_deferred(const char *final_path, DrH5 **out, DrError *err)
@@ -271,6 +299,69 @@ static void free_ops(DrH5 *h)
 
 static DrStatus replay(const H5Op *op, DrH5 *h, DrError *err);
 
+/* Bytes of data a deferred handle recorded: the in-memory file's first allocation. */
+static size_t recorded_bytes(const DrH5 *h)
+{
+    size_t n = 0;
+    for (int i = 0; i < h->nops; i++) {
+        const H5Op *op = &h->ops[i];
+        if (op->kind != OP_DATASET) continue;
+        size_t count = 1;
+        for (int d = 0; d < op->rank; d++) count *= (size_t)op->dims[d]; /* checked when recorded */
+        n += count * kind_size(op->elem);
+    }
+    return n;
+}
+
+/* Writes size bytes to fd; false with errno set on failure (a short write of a full disk is ENOSPC). */
+static bool write_all(int fd, const unsigned char *buf, size_t size)
+{
+    size_t done = 0;
+    while (done < size) {
+        ssize_t w = write(fd, buf + done, size - done);
+        if (w < 0 && errno == EINTR) continue;
+        if (w < 0) return false;
+        if (w == 0) {
+            errno = ENOSPC;
+            return false;
+        }
+        done += (size_t)w;
+    }
+    return true;
+}
+
+/* Closes the in-memory file of a write handle and writes its image to the temporary file; on failure the
+ * temporary file is removed. The HDF5 file is closed whatever happens, before anything touches the disk. */
+static DrStatus write_image(DrH5 *h, DrError *err)
+{
+    h5_quiet();
+    /* the image is of what has been flushed: metadata still cached would be missing from it */
+    ssize_t size = H5Fflush(h->file, H5F_SCOPE_GLOBAL) >= 0 ? H5Fget_file_image(h->file, NULL, 0) : -1;
+    unsigned char *image = size > 0 ? malloc((size_t)size) : NULL;
+    bool got = image && H5Fget_file_image(h->file, image, (size_t)size) == size;
+    char msg[512] = "";
+    if (!got) h5_msg(msg, sizeof msg);
+    bool closed = H5Fclose(h->file) >= 0;
+    if (!closed && got) h5_msg(msg, sizeof msg);
+    h->file = -1;
+    DrStatus s = DR_OK;
+    if (size > 0 && !image)
+        s = dr_error_set(err, DR_ERR_NOMEM, h->path, 0, 0, "out of memory for the %zd bytes of the file's image",
+                         size);
+    else if (!got || !closed)
+        s = dr_error_set(err, DR_ERR_RUNTIME, h->path, 0, 0, "cannot finish the HDF5 file in memory: %s", msg);
+    else if (!write_all(h->fd, image, (size_t)size))
+        s = dr_error_set(err, DR_ERR_IO, h->path, 0, 0, "cannot write %s: %s; check free disk space", h->tmp,
+                         strerror(errno));
+    free(image);
+    if (close(h->fd) != 0 && s == DR_OK)
+        s = dr_error_set(err, DR_ERR_IO, h->path, 0, 0, "cannot write %s: %s; check free disk space", h->tmp,
+                         strerror(errno));
+    h->fd = -1;
+    if (s != DR_OK) unlink(h->tmp);
+    return s;
+}
+
 DrStatus dr_h5_commit(DrH5 **hp, DrError *err)
 {
     DrH5 *h = *hp;
@@ -280,7 +371,7 @@ DrStatus dr_h5_commit(DrH5 **hp, DrError *err)
         /* The recorded calls go to a real handle in their order, so the file is the one a direct
          * handle given the same calls would have written. */
         DrH5 *real = NULL;
-        DrStatus s = dr_h5_create(h->path, &real, err);
+        DrStatus s = create_in_memory(h->path, recorded_bytes(h), &real, err);
         for (int i = 0; s == DR_OK && i < h->nops; i++) s = replay(&h->ops[i], real, err);
         if (s == DR_OK) s = dr_h5_commit(&real, err);
         else dr_h5_close(&real);
@@ -288,17 +379,8 @@ DrStatus dr_h5_commit(DrH5 **hp, DrError *err)
         free(h);
         return s;
     }
-    h5_quiet();
-    DrStatus s = DR_OK;
-    if (H5Fclose(h->file) < 0) {
-        char msg[512];
-        h5_msg(msg, sizeof msg);
-        unlink(h->tmp);
-        s = dr_error_set(err, DR_ERR_IO, h->path, 0, 0, "cannot finish writing the HDF5 file: %s; check free disk space",
-                         msg);
-    } else {
-        s = dr_io_commit(h->tmp, h->path, err);
-    }
+    DrStatus s = write_image(h, err);
+    if (s == DR_OK) s = dr_io_commit(h->tmp, h->path, err);
     free(h);
     return s;
 }
@@ -315,6 +397,7 @@ void dr_h5_close(DrH5 **hp)
     }
     h5_quiet();
     if (h->file >= 0 && H5Fclose(h->file) < 0) H5Eclear2(H5E_DEFAULT);
+    if (h->fd >= 0) close(h->fd);
     if (h->writable) unlink(h->tmp);
     free(h);
 }
@@ -347,8 +430,6 @@ static void chunk_shape(int rank, const uint64_t *dims, hsize_t *chunk)
         if (rows > 0) break;
     }
 }
-
-static size_t kind_size(ElemKind kind) { return kind == ELEM_I32 ? 4 : 8; }
 
 /* True when all count elements of `size` bytes hold the same bytes: each element equals the next. */
 static bool one_value(const void *data, size_t count, size_t size)
