@@ -5,12 +5,24 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <hdf5.h>
+#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
 
 typedef enum ElemKind { ELEM_F64, ELEM_I64, ELEM_U64, ELEM_I32 } ElemKind;
 static size_t kind_size(ElemKind kind) { return kind == ELEM_I32 ? 4 : 8; }
+
+/* The content checksum of every dataset (DR_H5_CHECKSUM_ATTR): XXH3-128 of its elements' bytes in the order the
+ * file stores them, little-endian, which is the memory order of every machine drench builds for. */
+_Static_assert(__BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__, "dataset checksums hash memory in file (little-endian) order");
+static void checksum_hex(const void *data, size_t bytes, char hex[33])
+{
+    dr_hash_hex(dr_hash_bytes(bytes > 0 ? data : "", bytes), hex);
+}
+
+/* What a reader is told to do with a damaged or foreign file. */
+#define DAMAGED_FIX "delete it and rerun the stage that writes it"
 
 /* How one dataset is stored: compress = false gives CONTIGUOUS, compress = true the handle's
  * DrH5Compress (DEFLATE for DR_H5_COMPRESS_ALL, ONE_VALUE for DR_H5_COMPRESS_ONE_VALUE). */
@@ -548,6 +560,9 @@ static DrStatus write_dataset(DrH5 *h, const char *path, int rank, const uint64_
     if (!ok)
         return dr_error_set(err, DR_ERR_IO, h->path, 0, 0, "cannot write dataset %s: %s; check free disk space",
                             path, msg);
+    char sum[33];
+    checksum_hex(data, bytes, sum);
+    DR_TRY(dr_h5_attr_str(h, path, DR_H5_CHECKSUM_ATTR, sum, err));
     if (units) DR_TRY(dr_h5_attr_str(h, path, "units", units, err));
     return DR_OK;
 }
@@ -610,6 +625,56 @@ static const char *kind_name(ElemKind kind)
     return "";
 }
 
+/* Reads the checksum attribute of an open dataset into hex: 1 when read, 0 when the dataset has none, -1 when
+ * it is not a string of 32 characters. */
+static int read_checksum_attr(hid_t dset, char hex[33])
+{
+    htri_t exists = H5Aexists(dset, DR_H5_CHECKSUM_ATTR);
+    if (exists <= 0) {
+        H5Eclear2(H5E_DEFAULT);
+        return 0;
+    }
+    hid_t a = H5Aopen(dset, DR_H5_CHECKSUM_ATTR, H5P_DEFAULT);
+    hid_t type = a >= 0 ? H5Aget_type(a) : -1;
+    int r = -1;
+    if (type >= 0 && H5Tget_class(type) == H5T_STRING && H5Tis_variable_str(type) == 0 && H5Tget_size(type) <= 33) {
+        char buf[34] = {0};
+        if (H5Aread(a, type, buf) >= 0 && strlen(buf) == 32) {
+            memcpy(hex, buf, 33);
+            r = 1;
+        }
+    }
+    if (type >= 0) H5Tclose(type);
+    if (a >= 0) H5Aclose(a);
+    if (r < 0) H5Eclear2(H5E_DEFAULT);
+    return r;
+}
+
+/* Compares the bytes read from dataset `path` with its stored checksum: DR_ERR_INPUT naming file and dataset when
+ * the dataset has none (written by an older drench or another program) or when they differ (damaged). */
+static DrStatus check_sum(DrH5 *h, hid_t dset, const char *path, const void *data, size_t bytes, DrError *err)
+{
+    char stored[33], actual[33];
+    int got = read_checksum_attr(dset, stored);
+    if (got == 0)
+        return dr_error_set(err, DR_ERR_INPUT, h->path, 0, 0,
+                            "dataset %s has no checksum (attribute " DR_H5_CHECKSUM_ATTR
+                            "): the file was written by an older drench or by another program; " DAMAGED_FIX,
+                            path);
+    if (got < 0)
+        return dr_error_set(err, DR_ERR_INPUT, h->path, 0, 0,
+                            "dataset %s: its checksum attribute " DR_H5_CHECKSUM_ATTR
+                            " is not 32 hex digits; the file is damaged: " DAMAGED_FIX,
+                            path);
+    checksum_hex(data, bytes, actual);
+    if (strcmp(stored, actual) != 0)
+        return dr_error_set(err, DR_ERR_INPUT, h->path, 0, 0,
+                            "dataset %s does not match its checksum (stored %s, data %s): the file is damaged; "
+                            DAMAGED_FIX,
+                            path, stored, actual);
+    return DR_OK;
+}
+
 static DrStatus read_dataset(DrH5 *h, const char *path, ElemKind kind, hid_t mem_type, int *rank, uint64_t dims[4],
                              void **data, DrError *err)
 {
@@ -649,8 +714,13 @@ static DrStatus read_dataset(DrH5 *h, const char *path, ElemKind kind, hid_t mem
         h5_msg(msg, sizeof msg);
         free(*data);
         *data = NULL;
-        s = dr_error_set(err, DR_ERR_IO, h->path, 0, 0, "cannot read dataset %s: %s; the file may be corrupt", path,
-                         msg);
+        s = dr_error_set(err, DR_ERR_INPUT, h->path, 0, 0,
+                         "cannot read dataset %s: %s; the file is damaged: " DAMAGED_FIX, path, msg);
+    }
+    if (s == DR_OK) s = check_sum(h, dset, path, *data, count * kind_size(kind), err);
+    if (s != DR_OK) {
+        free(*data);
+        *data = NULL;
     }
     if (s == DR_OK) *rank = r;
     if (space >= 0) H5Sclose(space);
@@ -677,6 +747,130 @@ DrStatus dr_h5_read_u64(DrH5 *h, const char *path, int *rank, uint64_t dims[4], 
 DrStatus dr_h5_read_i32(DrH5 *h, const char *path, int *rank, uint64_t dims[4], int32_t **data, DrError *err)
 {
     return read_dataset(h, path, ELEM_I32, H5T_NATIVE_INT32, rank, dims, (void **)data, err);
+}
+
+/* ---- whole-file verification ---- */
+
+typedef struct Datasets {
+    char **paths; /* absolute paths of the file's datasets, in visiting order */
+    int count, cap;
+    bool failed;
+} Datasets;
+
+static herr_t collect_dataset(hid_t obj, const char *name, const H5O_info_t *info, void *data)
+{
+    (void)obj;
+    Datasets *d = data;
+    if (info->type != H5O_TYPE_DATASET) return 0;
+    if (d->count == d->cap) {
+        int cap = d->cap ? 2 * d->cap : 32;
+        char **grown = realloc(d->paths, (size_t)cap * sizeof *grown);
+        if (!grown) {
+            d->failed = true;
+            return -1;
+        }
+        d->paths = grown;
+        d->cap = cap;
+    }
+    size_t len = strlen(name) + 2;
+    char *p = malloc(len);
+    if (!p) {
+        d->failed = true;
+        return -1;
+    }
+    snprintf(p, len, "/%s", name);
+    d->paths[d->count++] = p;
+    return 0;
+}
+
+static void free_datasets(Datasets *d)
+{
+    for (int i = 0; i < d->count; i++) free(d->paths[i]);
+    free(d->paths);
+}
+
+/* One dataset of dr_h5_verify: read whole into *buf (grown as needed), checked against its checksum, and with
+ * `finite` its 64-bit floats for NaN and infinity. */
+static DrStatus verify_dataset(DrH5 *h, const char *path, bool finite, void **buf, size_t *cap, DrError *err)
+{
+    hid_t dset = H5Dopen2(h->file, path, H5P_DEFAULT);
+    if (dset < 0) {
+        char msg[512];
+        h5_msg(msg, sizeof msg);
+        return dr_error_set(err, DR_ERR_INPUT, h->path, 0, 0, "cannot open dataset %s: %s; the file is damaged: " DAMAGED_FIX,
+                            path, msg);
+    }
+    hid_t type = H5Dget_type(dset), space = H5Dget_space(dset);
+    const ElemKind kinds[4] = {ELEM_F64, ELEM_I64, ELEM_U64, ELEM_I32};
+    const hid_t mem[4] = {H5T_NATIVE_DOUBLE, H5T_NATIVE_INT64, H5T_NATIVE_UINT64, H5T_NATIVE_INT32};
+    int k = 0;
+    while (k < 4 && !(type >= 0 && type_is(type, kinds[k]))) k++;
+    int r = space >= 0 ? H5Sget_simple_extent_ndims(space) : -1;
+    DrStatus s = DR_OK;
+    size_t count = 1;
+    if (k == 4 || r < 0 || r > 4) {
+        s = dr_error_set(err, DR_ERR_INPUT, h->path, 0, 0,
+                         "dataset %s is not one drench writes (8-byte floats or integers, 4-byte integers, rank up to "
+                         "4); the file is damaged or foreign: " DAMAGED_FIX,
+                         path);
+    } else {
+        hsize_t hd[4] = {0, 0, 0, 0};
+        uint64_t dims[4] = {0, 0, 0, 0};
+        H5Sget_simple_extent_dims(space, hd, NULL);
+        for (int i = 0; i < r; i++) dims[i] = hd[i];
+        s = element_count(h, path, r, dims, &count, err);
+    }
+    size_t bytes = s == DR_OK ? count * kind_size(kinds[k]) : 0;
+    if (s == DR_OK && bytes > *cap) {
+        void *grown = realloc(*buf, bytes);
+        if (!grown) s = dr_error_set(err, DR_ERR_NOMEM, h->path, 0, 0, "out of memory reading dataset %s", path);
+        else *buf = grown, *cap = bytes;
+    }
+    if (s == DR_OK && count > 0 && H5Dread(dset, mem[k], H5S_ALL, H5S_ALL, H5P_DEFAULT, *buf) < 0) {
+        char msg[512];
+        h5_msg(msg, sizeof msg);
+        s = dr_error_set(err, DR_ERR_INPUT, h->path, 0, 0, "cannot read dataset %s: %s; the file is damaged: " DAMAGED_FIX,
+                         path, msg);
+    }
+    if (s == DR_OK) s = check_sum(h, dset, path, *buf, bytes, err);
+    if (s == DR_OK && finite && kinds[k] == ELEM_F64) {
+        const double *v = *buf;
+        for (size_t i = 0; i < count; i++)
+            if (!isfinite(v[i])) {
+                s = dr_error_set(err, DR_ERR_INPUT, h->path, 0, 0, "dataset %s holds %g at element %zu", path, v[i], i);
+                break;
+            }
+    }
+    if (space >= 0) H5Sclose(space);
+    if (type >= 0) H5Tclose(type);
+    H5Dclose(dset);
+    return s;
+}
+
+DrStatus dr_h5_verify(DrH5 *h, bool finite, char *bad_dataset, size_t bad_size, DrError *err)
+{
+    assert(!h->deferred && !h->writable);
+    h5_quiet();
+    if (bad_dataset && bad_size) bad_dataset[0] = '\0';
+    Datasets d = {0};
+    if (H5Ovisit2(h->file, H5_INDEX_NAME, H5_ITER_INC, collect_dataset, &d, H5O_INFO_BASIC) < 0 || d.failed) {
+        char msg[512];
+        h5_msg(msg, sizeof msg);
+        free_datasets(&d);
+        if (d.failed) return dr_error_set(err, DR_ERR_NOMEM, h->path, 0, 0, "out of memory listing the datasets");
+        return dr_error_set(err, DR_ERR_INPUT, h->path, 0, 0,
+                            "cannot list the datasets: %s; the file is damaged: " DAMAGED_FIX, msg);
+    }
+    void *buf = NULL;
+    size_t cap = 0;
+    DrStatus s = DR_OK;
+    for (int i = 0; s == DR_OK && i < d.count; i++) {
+        s = verify_dataset(h, d.paths[i], finite, &buf, &cap, err);
+        if (s != DR_OK && bad_dataset && bad_size) snprintf(bad_dataset, bad_size, "%s", d.paths[i]);
+    }
+    free(buf);
+    free_datasets(&d);
+    return s;
 }
 
 /* ---- attributes ---- */
