@@ -1286,7 +1286,7 @@ static void test_precache(void **state)
     assert_true(dr_io_exists(path));
 
     bool found = false;
-    assert_int_equal(dr_io_precache_open(root, "bem", key, &h, &found, &err), DR_OK);
+    assert_int_equal(dr_io_precache_open(root, "bem", key, &h, &found, NULL, &err), DR_OK);
     assert_true(found);
     assert_non_null(h);
     const char *names[] = {"kind", "key", "inputs", "asset_hash", "drench_version", "created"};
@@ -1307,23 +1307,23 @@ static void test_precache(void **state)
     dr_h5_close(&h);
 
     /* Another key: no file, not found. Another kind: not found. */
-    assert_int_equal(dr_io_precache_open(root, "bem", "abcd", &h, &found, &err), DR_OK);
+    assert_int_equal(dr_io_precache_open(root, "bem", "abcd", &h, &found, NULL, &err), DR_OK);
     assert_false(found);
     assert_null(h);
-    assert_int_equal(dr_io_precache_open(root, "cohesion", key, &h, &found, &err), DR_OK);
+    assert_int_equal(dr_io_precache_open(root, "cohesion", key, &h, &found, NULL, &err), DR_OK);
     assert_false(found);
 
     /* A file whose recorded key differs from its name is not trusted. */
     dr_log_set_level(DR_LOG_ERROR); /* the warnings below are expected */
     dr_io_precache_path(root, "bem", "abcd", other, sizeof other);
     assert_int_equal(rename(path, other), 0);
-    assert_int_equal(dr_io_precache_open(root, "bem", "abcd", &h, &found, &err), DR_OK);
+    assert_int_equal(dr_io_precache_open(root, "bem", "abcd", &h, &found, NULL, &err), DR_OK);
     assert_false(found);
     assert_null(h);
     /* Nor is a corrupt one. */
     dr_io_precache_path(root, "bem", "ef01", other, sizeof other);
     assert_int_equal(dr_io_write_text_atomic(other, "truncated", &err), DR_OK);
-    assert_int_equal(dr_io_precache_open(root, "bem", "ef01", &h, &found, &err), DR_OK);
+    assert_int_equal(dr_io_precache_open(root, "bem", "ef01", &h, &found, NULL, &err), DR_OK);
     assert_false(found);
     assert_null(h);
     dr_log_set_level(DR_LOG_INFO);
@@ -1331,7 +1331,7 @@ static void test_precache(void **state)
     /* Cohesion table without an asset; bad kinds and keys are refused. */
     assert_int_equal(dr_io_precache_create(root, "cohesion", "42", "{}", NULL, &h, &err), DR_OK);
     assert_int_equal(dr_h5_commit(&h, &err), DR_OK);
-    assert_int_equal(dr_io_precache_open(root, "cohesion", "42", &h, &found, &err), DR_OK);
+    assert_int_equal(dr_io_precache_open(root, "cohesion", "42", &h, &found, NULL, &err), DR_OK);
     assert_true(found);
     char *s = NULL;
     assert_int_equal(dr_h5_read_attr_str(h, "/", "asset_hash", &s, &err), DR_OK);
@@ -1341,7 +1341,7 @@ static void test_precache(void **state)
     assert_int_equal(dr_io_precache_create(root, "fluid", key, "{}", NULL, &h, &err), DR_ERR_INPUT);
     assert_non_null(strstr(err.message, "\"fluid\""));
     assert_int_equal(dr_io_precache_create(root, "bem", "../evil", "{}", NULL, &h, &err), DR_ERR_INPUT);
-    assert_int_equal(dr_io_precache_open(root, "bem", "", &h, &found, &err), DR_ERR_INPUT);
+    assert_int_equal(dr_io_precache_open(root, "bem", "", &h, &found, NULL, &err), DR_ERR_INPUT);
     assert_null(h);
     char bemdir[600];
     snprintf(bemdir, sizeof bemdir, "%s/bem", root);
