@@ -217,6 +217,13 @@ DrStatus dr_stage_begin(DrStageId stage, int argc, char **argv, DrStageArgs *arg
         *done = s == DR_OK;
         return s;
     }
+    /* The assets are checked as loading them in the stage would (so a key is printed only for a scene the stage
+       accepts); --print-out-dir and --print-frames only name things. */
+    if (!args->print_out_dir) s = dr_stage_check_assets(*scene, err);
+    if (s < 0) {
+        dr_scene_destroy(scene);
+        return s;
+    }
     if (args->print_key || args->print_out_dir) {
         printf("%s\n", args->print_key ? stage_key(keys, stage) : dir);
         dr_scene_destroy(scene);

@@ -68,6 +68,26 @@ DR_NODISCARD DrStatus dr_stage_motion_keys(const DrElement *e, int first_frame, 
  * key. Fails as dr_bem_asset_load, the message starting with "<element>.Mesh.file: "; *out holds nothing to free
  * then. */
 typedef struct DrBemAsset DrBemAsset;
+
+/* ---- checks before anything is written (stage_check.c) ---------------------------------------------------- */
+
+/* Loads every asset the scene's elements reference as the world loads them and checks what the world would
+ * refuse, so that a scene fails at once (and --print-key fails) rather than after a stage has written something:
+ * collider meshes and MPM shape meshes must load and be closed, bem_solid meshes pass dr_stage_load_bem_asset,
+ * liquid source meshes, hair scalps and hair curves must load. Errors (DR_ERR_INPUT) name the element, the field
+ * and the file. dr_stage_begin calls it for every stage. */
+DR_NODISCARD DrStatus dr_stage_check_assets(const DrScene *scene, DrError *err);
+
+/* Frame caches as later stages trust them: <bake_dir>/frame.NNNN.h5 exists, opens, holds `frame` (root attribute
+ * frame: a file copied over another frame's is refused), was baked under bake_key (root attribute scene_key) and
+ * every dataset matches its checksum (dr_h5_verify). DR_ERR_INPUT naming the file and what is wrong (the caller
+ * says which stage to rerun); DR_ERR_NOMEM. */
+DR_NODISCARD DrStatus dr_stage_check_frame(const char *bake_dir, int frame, const char *bake_key, DrError *err);
+/* Checks frames first..last in order and stops at the first bad one: *good_through is the last frame of the
+ * unbroken run of good frames from `first` (first − 1 when frame `first` is bad). DR_OK when all are good, else
+ * that frame's failure as DR_ERR_INPUT (DR_ERR_NOMEM kept). */
+DR_NODISCARD DrStatus dr_stage_check_frames(const char *bake_dir, int first, int last, const char *bake_key,
+                                            int *good_through, DrError *err);
 DR_NODISCARD DrStatus dr_stage_load_bem_asset(const DrElement *e, DrBemAsset *out, DrError *err);
 
 #endif

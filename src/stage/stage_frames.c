@@ -1,0 +1,51 @@
+/* Frame caches as the stages after bake trust them (stage.h). In a file of its own so that only the stages that
+ * read frames link HDF5's checks. */
+#include "stage/stage.h"
+
+#include <stdlib.h>
+#include <string.h>
+
+/* ---- frame caches ------------------------------------------------------------------------------------------- */
+
+DrStatus dr_stage_check_frame(const char *bake_dir, int frame, const char *bake_key, DrError *err)
+{
+    char path[DR_IO_PATH_MAX];
+    dr_stage_frame_path(bake_dir, "frame", frame, "h5", path, sizeof path);
+    if (!dr_io_exists(path))
+        return dr_error_set(err, DR_ERR_INPUT, path, 0, 0, "frame %d has not been baked (the file is missing)", frame);
+    DrH5 *h = NULL;
+    DR_TRY(dr_h5_open(path, &h, err));
+    int64_t stored = 0;
+    char *key = NULL;
+    DrStatus s = dr_h5_read_attr_i64(h, "/", "frame", &stored, err);
+    if (s == DR_OK && stored != frame)
+        s = dr_error_set(err, DR_ERR_INPUT, path, 0, 0,
+                         "the file holds frame %lld (its attribute frame), not frame %d: it was copied or renamed over "
+                         "this frame's file",
+                         (long long)stored, frame);
+    if (s == DR_OK) s = dr_h5_read_attr_str(h, "/", "scene_key", &key, err);
+    if (s == DR_OK && strcmp(key, bake_key) != 0)
+        s = dr_error_set(err, DR_ERR_INPUT, path, 0, 0,
+                         "frame %d was baked from another version of the scene (bake key %s, now %s)", frame, key,
+                         bake_key);
+    if (s == DR_OK) s = dr_h5_verify(h, false, NULL, 0, err);
+    free(key);
+    dr_h5_close(&h);
+    return s;
+}
+
+DrStatus dr_stage_check_frames(const char *bake_dir, int first, int last, const char *bake_key, int *good_through,
+                               DrError *err)
+{
+    *good_through = first - 1;
+    for (int f = first; f <= last; f++) {
+        DrStatus s = dr_stage_check_frame(bake_dir, f, bake_key, err);
+        if (s == DR_ERR_NOMEM) return s;
+        if (s != DR_OK) { /* a missing, damaged or foreign frame alike: bad input to whoever reads it */
+            err->status = DR_ERR_INPUT;
+            return DR_ERR_INPUT;
+        }
+        *good_through = f;
+    }
+    return DR_OK;
+}
