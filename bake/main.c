@@ -281,6 +281,36 @@ static int fail(const DrError *err)
     return dr_exit_code(err->status);
 }
 
+/* bake --verify: the frames shot_first..last and the checkpoint, checked as --resume and the later stages take
+ * them; prints what pipeline.sh reads (good_through, checkpoint) on stdout and what is wrong on stderr. Exit 0
+ * when every frame is good, 2 otherwise (a missing, damaged or foreign frame alike). */
+static int verify(const char *dir, const char *key, int shot_first, int shot_last, int last)
+{
+    DrError err, cerr;
+    dr_error_clear(&err);
+    int good, ckpt;
+    DrStatus s = dr_stage_check_frames(dir, shot_first, last, key, &good, &err);
+    char path[4096];
+    snprintf(path, sizeof path, "%s/checkpoint.h5", dir);
+    DrStatus cs = dr_stage_check_checkpoint(path, key, shot_first, shot_last, &ckpt, &cerr);
+    printf("good_through %d\n", good);
+    if (cs == DR_OK) printf("checkpoint %d\n", ckpt);
+    else printf("checkpoint none\n");
+    fflush(stdout);
+    if (cs < 0 && dr_io_exists(path)) {
+        dr_error_prefix(cs, &cerr, "bake --resume cannot continue from it");
+        dr_error_print("bake", &cerr);
+    }
+    if (s < 0) {
+        if (s == DR_ERR_INPUT)
+            dr_error_prefix(s, &err, "frame %d (frames %d-%d %s good)", good + 1, shot_first, good,
+                            good >= shot_first ? "are" : "none");
+        return fail(&err);
+    }
+    fprintf(stderr, "bake: frames %d-%d are good\n", shot_first, last);
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
     DrError err;
@@ -299,11 +329,16 @@ int main(int argc, char **argv)
         dr_scene_destroy(&scene);
         return fail(&err);
     }
-    int shot_first = first;
+    int shot_first = first, shot_last = last;
     {
         int fr[2];
         dr_component_int2(dr_scene_section(scene, "shot"), "frames", fr);
         shot_first = fr[0];
+        shot_last = fr[1];
+    }
+    if (args.verify) {
+        dr_scene_destroy(&scene);
+        return verify(dir, keys.bake, shot_first, shot_last, last);
     }
     if (args.frames_given && !args.resume && first != shot_first) {
         dr_error_set(&err, DR_ERR_INPUT, NULL, 0, 0,
@@ -325,6 +360,14 @@ int main(int argc, char **argv)
     if (s == DR_OK && args.resume) {
         if (dr_io_exists(ckpt)) {
             s = dr_world_read_checkpoint(world, ckpt, keys.bake, &err);
+            /* the frames before the checkpoint are not baked again: they must all be there and intact */
+            int good = 0;
+            if (s == DR_OK) s = dr_stage_check_frames(dir, shot_first, dr_world_frame(world), keys.bake, &good, &err);
+            if (s == DR_ERR_INPUT)
+                s = dr_error_prefix(s, &err,
+                                    "bake --resume: the checkpoint continues after frame %d, but frame %d is not usable; "
+                                    "bake without --resume to bake every frame again (pipeline.sh does it)",
+                                    dr_world_frame(world), good + 1);
             if (s == DR_OK) dr_log_info("resuming after frame %d from %s", dr_world_frame(world), ckpt);
         } else {
             dr_log_info("no checkpoint in %s: baking from the first frame", dir);
@@ -494,13 +537,15 @@ int main(int argc, char **argv)
         fprintf(stderr, "bake: %s\n", msg);
         return EXIT_INTERRUPTED;
     }
-    if (s >= 0 && last == fr[1]) {
+    if (s >= 0) {
+        /* every frame from the first to the one the world is at is on disk, written now or checked on resume */
+        int done = dr_world_frame(world);
         const char *inputs[1] = {path};
-        snprintf(path, sizeof path, "frames %d-%d", fr[0], fr[1]);
-        s = dr_io_manifest_write(dir, "bake", keys.bake, dr_scene_path(scene), inputs, 1, &err);
-    } else if (s >= 0) {
-        dr_log_info("partial bake (frames up to %d of %d): MANIFEST not written, later stages see bake as stale",
-                    last, fr[1]);
+        snprintf(path, sizeof path, "frames %d-%d", fr[0], done);
+        s = dr_io_manifest_write_frames(dir, "bake", keys.bake, dr_scene_path(scene), fr[0], done, inputs, 1, &err);
+        if (s >= 0 && done < fr[1])
+            dr_log_info("partial bake: frames %d-%d of %d-%d done; bake --resume continues it", fr[0], done, fr[0],
+                        fr[1]);
     }
     dr_world_destroy(&world);
     dr_scene_destroy(&scene);

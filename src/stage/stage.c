@@ -23,7 +23,7 @@ static void print_help(DrStageId stage)
 {
     const char *n = dr_stage_name(stage);
     printf("usage: %s SCENE.json [options]\n\n%s %s.\n\noptions:\n", n, n, stage_summary(stage));
-    if (stage != DR_STAGE_PRECOMPUTE) printf("  --frames A-B        limit to frames A..B of the shot (no MANIFEST is written)\n");
+    if (stage != DR_STAGE_PRECOMPUTE) printf("  --frames A-B        limit to frames A..B of the shot (the MANIFEST records the frames done)\n");
     if (stage == DR_STAGE_MESH || stage == DR_STAGE_RENDER)
         printf("  --finish            after frame ranges ran separately (a farm's job array): check every\n"
                "                      frame's output is there and write the MANIFEST%s\n",
@@ -34,6 +34,11 @@ static void print_help(DrStageId stage)
     if (stage == DR_STAGE_BAKE) {
         printf("  --resume            continue from out/<shot>/bake/checkpoint.h5 (bit-identical to an\n"
                "                      uninterrupted bake)\n"
+               "  --verify            check, writing nothing, the frames from the shot's first to its last (or\n"
+               "                      to B of --frames A-B) and the checkpoint: print \"good_through N\" (the\n"
+               "                      last frame of the unbroken run of good frames) and \"checkpoint N\" (the\n"
+               "                      frame a --resume continues after, or \"none\"); exit 0 when every frame is\n"
+               "                      good, 2 otherwise, naming the first bad frame's file and what is wrong\n"
                "  --sync-writes       write each frame and checkpoint on the main thread before the next\n"
                "                      frame starts (by default a writer thread writes them while the next\n"
                "                      frame is simulated; the files are the same)\n"
@@ -113,6 +118,8 @@ DrStatus dr_stage_parse_args(DrStageId stage, int argc, char **argv, DrStageArgs
             else a->cache_root = argv[++i];
         } else if (!strcmp(s, "--resume") && stage == DR_STAGE_BAKE) {
             a->resume = true;
+        } else if (!strcmp(s, "--verify") && stage == DR_STAGE_BAKE) {
+            a->verify = true;
         } else if (!strcmp(s, "--sync-writes") && stage == DR_STAGE_BAKE) {
             a->sync_writes = true;
         } else if (!strcmp(s, "--finish") && (stage == DR_STAGE_MESH || stage == DR_STAGE_RENDER)) {
@@ -143,6 +150,8 @@ DrStatus dr_stage_parse_args(DrStageId stage, int argc, char **argv, DrStageArgs
     }
     if (!a->scene_path && !a->list_components)
         return usage_error(stage, err, "%s", "no scene given: pass the scene file, e.g. assets/scenes/default.json");
+    if (a->verify && (a->resume || a->print_key || a->print_out_dir || a->print_frames))
+        return usage_error(stage, err, "%s", "--verify only checks: it does not combine with --resume or --print-*");
     if (a->finish && a->frames_given)
         return usage_error(stage, err, "%s", "--finish covers the whole shot; it does not take --frames");
     if (a->plots_only && (a->finish || a->no_plots))

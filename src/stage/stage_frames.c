@@ -49,3 +49,32 @@ DrStatus dr_stage_check_frames(const char *bake_dir, int first, int last, const 
     }
     return DR_OK;
 }
+
+DrStatus dr_stage_check_checkpoint(const char *path, const char *bake_key, int first, int last, int *frame,
+                                   DrError *err)
+{
+    *frame = first - 1;
+    if (!dr_io_exists(path))
+        return dr_error_set(err, DR_ERR_INPUT, path, 0, 0, "there is no checkpoint: the bake starts from frame %d",
+                            first);
+    DrH5 *h = NULL;
+    DR_TRY(dr_h5_open(path, &h, err));
+    char *key = NULL;
+    int64_t f = 0;
+    DrStatus s = dr_h5_read_attr_str(h, "/", "scene_key", &key, err);
+    if (s == DR_OK && strcmp(key, bake_key) != 0)
+        s = dr_error_set(err, DR_ERR_INPUT, path, 0, 0,
+                         "the checkpoint was written for another version of the scene (bake key %s, now %s)", key,
+                         bake_key);
+    if (s == DR_OK) s = dr_h5_read_attr_i64(h, "/", "frame", &f, err);
+    if (s == DR_OK && (f < first - 1 || f > last))
+        s = dr_error_set(err, DR_ERR_INPUT, path, 0, 0, "the checkpoint is after frame %lld, outside the shot's frames %d-%d",
+                         (long long)f, first, last);
+    char bad[512] = "";
+    if (s == DR_OK) s = dr_h5_verify(h, true, bad, sizeof bad, err);
+    if (s == DR_OK) *frame = (int)f;
+    free(key);
+    dr_h5_close(&h);
+    if (s < 0 && s != DR_ERR_NOMEM) err->status = s = DR_ERR_INPUT;
+    return s;
+}

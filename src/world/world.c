@@ -300,6 +300,29 @@ DrStatus dr_world_write_checkpoint(const DrWorld *w, const char *bake_key, DrH5 
     return DR_OK;
 }
 
+/* Every dataset of the checkpoint against its checksum, every number finite, before any solver takes a value from
+ * it: a damaged checkpoint is named as such (with the element whose data is wrong), not left to surface frames later
+ * as a solver's blow-up. */
+static DrStatus check_checkpoint_data(const DrWorld *w, DrH5 *h, const char *path, int frame, DrError *err)
+{
+    char bad[512] = "";
+    DrStatus s = dr_h5_verify(h, true, bad, sizeof bad, err);
+    if (s != DR_ERR_INPUT) return s;
+    /* the first component of a dataset's path is an element's group, or a solver's own (hair_solver) */
+    char group[256] = "";
+    if (bad[0] == '/') snprintf(group, sizeof group, "%.*s", (int)strcspn(bad + 1, "/"), bad + 1);
+    const DrElement *e = group[0] ? dr_scene_find(w->scene, group) : NULL;
+    char who[320];
+    if (e) snprintf(who, sizeof who, "%s '%s'", e->type, e->name);
+    else snprintf(who, sizeof who, "solver state '%s'", group[0] ? group : "/");
+    char msg[sizeof err->message];
+    snprintf(msg, sizeof msg, "%s", err->message);
+    return dr_error_set(err, DR_ERR_INPUT, path, 0, 0,
+                        "the checkpoint after frame %d is damaged (%s of %s): %s; it cannot be resumed from: bake "
+                        "without --resume to bake every frame again (pipeline.sh does it)",
+                        frame, who, dr_scene_path(w->scene), msg);
+}
+
 DrStatus dr_world_read_checkpoint(DrWorld *w, const char *path, const char *bake_key, DrError *err)
 {
     DrH5 *h = NULL;
@@ -312,9 +335,10 @@ DrStatus dr_world_read_checkpoint(DrWorld *w, const char *path, const char *bake
                          "checkpoint was written for another version of the scene (key %s, now %s); bake without "
                          "--resume to start over", key, bake_key);
     if (s == DR_OK) s = dr_h5_read_attr_i64(h, "/", "frame", &frame, err);
-    if (s == DR_OK && (frame < w->first_frame - 1 || frame >= w->last_frame))
+    if (s == DR_OK && (frame < w->first_frame - 1 || frame > w->last_frame))
         s = dr_error_set(err, DR_ERR_INPUT, path, 0, 0, "checkpoint frame %lld is outside the shot's frames %d-%d",
                          (long long)frame, w->first_frame, w->last_frame);
+    if (s == DR_OK) s = check_checkpoint_data(w, h, path, (int)frame, err);
     WorldCtx c = context(w, (int)frame);
     for (int i = 0; s == DR_OK && i < w->nsolvers; i++)
         s = w->solvers[i].read(w->solvers[i].self, &c, h, path, (int)frame, err);
