@@ -282,8 +282,8 @@ static int fail(const DrError *err)
 }
 
 /* bake --verify: the frames shot_first..last and the checkpoint, checked as --resume and the later stages take
- * them; prints what pipeline.sh reads (good_through, checkpoint) on stdout and what is wrong on stderr. Exit 0
- * when every frame is good, 2 otherwise (a missing, damaged or foreign frame alike). */
+ * them; prints what pipeline.sh reads on stdout ("shot F L", "good_through G", "checkpoint C|none") and what is
+ * wrong on stderr. Exit 0 when every frame is good, 2 otherwise (a missing, damaged or foreign frame alike). */
 static int verify(const char *dir, const char *key, int shot_first, int shot_last, int last)
 {
     DrError err, cerr;
@@ -293,6 +293,7 @@ static int verify(const char *dir, const char *key, int shot_first, int shot_las
     char path[4096];
     snprintf(path, sizeof path, "%s/checkpoint.h5", dir);
     DrStatus cs = dr_stage_check_checkpoint(path, key, shot_first, shot_last, &ckpt, &cerr);
+    printf("shot %d %d\n", shot_first, shot_last);
     printf("good_through %d\n", good);
     if (cs == DR_OK) printf("checkpoint %d\n", ckpt);
     else printf("checkpoint none\n");
@@ -301,12 +302,14 @@ static int verify(const char *dir, const char *key, int shot_first, int shot_las
         dr_error_prefix(cs, &cerr, "bake --resume cannot continue from it");
         dr_error_print("bake", &cerr);
     }
-    if (s < 0) {
-        if (s == DR_ERR_INPUT)
-            dr_error_prefix(s, &err, "frame %d (frames %d-%d %s good)", good + 1, shot_first, good,
-                            good >= shot_first ? "are" : "none");
-        return fail(&err);
+    if (s == DR_ERR_INPUT) {
+        char msg[sizeof err.message], before[64] = "no frame before it is good";
+        snprintf(msg, sizeof msg, "%s", err.message);
+        if (good >= shot_first) snprintf(before, sizeof before, "frames %d-%d before it are good", shot_first, good);
+        dr_error_set(&err, s, err.file, 0, 0, "%s; %s: bake from frame %d again (pipeline.sh does it)", msg, before,
+                     good + 1);
     }
+    if (s < 0) return fail(&err);
     fprintf(stderr, "bake: frames %d-%d are good\n", shot_first, last);
     return 0;
 }

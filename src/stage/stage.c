@@ -34,11 +34,12 @@ static void print_help(DrStageId stage)
     if (stage == DR_STAGE_BAKE) {
         printf("  --resume            continue from out/<shot>/bake/checkpoint.h5 (bit-identical to an\n"
                "                      uninterrupted bake)\n"
-               "  --verify            check, writing nothing, the frames from the shot's first to its last (or\n"
-               "                      to B of --frames A-B) and the checkpoint: print \"good_through N\" (the\n"
-               "                      last frame of the unbroken run of good frames) and \"checkpoint N\" (the\n"
-               "                      frame a --resume continues after, or \"none\"); exit 0 when every frame is\n"
-               "                      good, 2 otherwise, naming the first bad frame's file and what is wrong\n"
+               "  --verify            check, writing nothing, the frames from the shot's first to its last\n"
+               "                      (or to B of --frames A-B) and the checkpoint; print \"shot F L\" (the\n"
+               "                      shot's frames), \"good_through N\" (the last frame of the unbroken run\n"
+               "                      of good frames) and \"checkpoint N\" (the frame --resume continues\n"
+               "                      after) or \"checkpoint none\"; exit 0 when every frame is good, else 2\n"
+               "                      naming the first bad frame's file and what is wrong\n"
                "  --sync-writes       write each frame and checkpoint on the main thread before the next\n"
                "                      frame starts (by default a writer thread writes them while the next\n"
                "                      frame is simulated; the files are the same)\n"
@@ -49,7 +50,8 @@ static void print_help(DrStageId stage)
            "  --out DIR           output root (default $DRENCH_OUT or ./out)\n"
            "  --cache DIR         precompute cache root (default $DRENCH_CACHE or ./cache)\n"
            "  --print-key         print this stage's cache key for the scene and exit\n"
-           "  --print-out-dir     print this stage's output folder for the scene and exit\n"
+           "  --print-out-dir     print this stage's output folder for the scene and exit (after the key\n"
+           "                      with --print-key)\n"
            "  --print-frames      print the shot's first and last frame (after --frames) and exit\n"
            "  -q, --quiet         only warnings and errors\n"
            "  --help, --version\n\n"
@@ -228,13 +230,14 @@ DrStatus dr_stage_begin(DrStageId stage, int argc, char **argv, DrStageArgs *arg
     }
     /* The assets are checked as loading them in the stage would (so a key is printed only for a scene the stage
        accepts); --print-out-dir and --print-frames only name things. */
-    if (!args->print_out_dir) s = dr_stage_check_assets(*scene, err);
+    if (args->print_key || !args->print_out_dir) s = dr_stage_check_assets(*scene, err);
     if (s < 0) {
         dr_scene_destroy(scene);
         return s;
     }
     if (args->print_key || args->print_out_dir) {
-        printf("%s\n", args->print_key ? stage_key(keys, stage) : dir);
+        if (args->print_key) printf("%s\n", stage_key(keys, stage));
+        if (args->print_out_dir) printf("%s\n", dir); /* both: the key, then the folder (pipeline.sh asks so) */
         dr_scene_destroy(scene);
         *done = true;
     }
