@@ -303,6 +303,7 @@ static int verify(const char *dir, const char *key, int shot_first, int shot_las
         dr_error_print("bake", &cerr);
     }
     if (s == DR_ERR_INPUT) {
+        dr_h5_drop_fix(&err);
         char msg[sizeof err.message], before[64] = "no frame before it is good";
         snprintf(msg, sizeof msg, "%s", err.message);
         if (good >= shot_first) snprintf(before, sizeof before, "frames %d-%d before it are good", shot_first, good);
@@ -366,6 +367,7 @@ int main(int argc, char **argv)
             /* the frames before the checkpoint are not baked again: they must all be there and intact */
             int good = 0;
             if (s == DR_OK) s = dr_stage_check_frames(dir, shot_first, dr_world_frame(world), keys.bake, &good, &err);
+            if (s == DR_ERR_INPUT) dr_h5_drop_fix(&err);
             if (s == DR_ERR_INPUT)
                 s = dr_error_prefix(s, &err,
                                     "bake --resume: the checkpoint continues after frame %d, but frame %d is not usable; "

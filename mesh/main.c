@@ -429,6 +429,7 @@ static DrStatus check_bake(const char *bake_dir, const char *bake_key, int first
         if (s == DR_ERR_NOMEM) return s;
         if (s < 0) {
             err->status = DR_ERR_INPUT;
+            dr_h5_drop_fix(err);
             char msg[sizeof err->message];
             snprintf(msg, sizeof msg, "%s", err->message);
             return dr_error_set(err, DR_ERR_INPUT, err->file, 0, 0,

@@ -121,6 +121,9 @@ DR_NODISCARD DrStatus dr_io_manifest_remove(const char *dir, DrError *err);
  * cannot read are DR_ERR_INPUT naming file and dataset, and say to delete the file and rerun the stage that
  * writes it (callers name the stage). Equal data gives equal checksums, so files stay bit-identical between runs. */
 #define DR_H5_CHECKSUM_ATTR "xxh3"
+/* The advice those messages end with; a caller that says itself which stage to rerun drops it first. */
+#define DR_H5_DAMAGED_FIX "delete it and rerun the stage that writes it"
+void dr_h5_drop_fix(DrError *err);
 typedef struct DrH5 DrH5;
 
 /* Creates "<final_path>.tmp.<pid>" for writing; nothing appears at final_path until dr_h5_commit.

@@ -22,7 +22,15 @@ static void checksum_hex(const void *data, size_t bytes, char hex[33])
 }
 
 /* What a reader is told to do with a damaged or foreign file. */
-#define DAMAGED_FIX "delete it and rerun the stage that writes it"
+#define DAMAGED_FIX DR_H5_DAMAGED_FIX
+
+void dr_h5_drop_fix(DrError *err)
+{
+    char *fix = strstr(err->message, DAMAGED_FIX);
+    if (!fix || fix - err->message < 2) return;
+    char *cut = fix - 2, *rest = fix + strlen(DAMAGED_FIX); /* "; " or ": " before it */
+    if ((cut[0] == ';' || cut[0] == ':') && cut[1] == ' ') memmove(cut, rest, strlen(rest) + 1);
+}
 
 /* How one dataset is stored: compress = false gives CONTIGUOUS, compress = true the handle's
  * DrH5Compress (DEFLATE for DR_H5_COMPRESS_ALL, ONE_VALUE for DR_H5_COMPRESS_ONE_VALUE). */

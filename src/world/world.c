@@ -78,6 +78,66 @@ DrStatus dr_world_create(const DrScene *scene, DrWorld **out, DrError *err)
     return dr_world_create_desc(scene, &d, out, err);
 }
 
+/* ---- failures: who, where, when --------------------------------------------------------------------------------
+ * A solver's failure (a blow-up, running out of memory) is told with the elements it simulates, the scene file and
+ * the frame, whatever the solver's own message names: "scene.json: error: hair 'fur', frame 5: ...". */
+
+/* "<type> 'a', 'b'": the elements of one kind (e NULL), or element e alone. */
+static void describe_elements(const DrScene *scene, DrElementKind kind, const DrElement *e, char *buf, size_t size)
+{
+    size_t n = 0;
+    buf[0] = '\0';
+    for (int i = 0; i < dr_scene_element_count(scene) && n < size; i++) {
+        const DrElement *x = dr_scene_element(scene, i);
+        if (e ? x != e : x->kind != kind) continue;
+        n += (size_t)snprintf(buf + n, size - n, n ? ", '%s'" : "%s '%s'", x->type, x->name);
+    }
+}
+
+/* Adds what the failure's message does not say yet (the elements, the frame) in front of it, and the scene file
+ * when it names no file. */
+static DrStatus failed(const DrWorld *w, DrElementKind kind, const DrElement *e, int frame, DrStatus s, DrError *err)
+{
+    if (s >= 0 || !err) return s;
+    char who[512], when[32];
+    describe_elements(w->scene, kind, e, who, sizeof who);
+    snprintf(when, sizeof when, "frame %d", frame);
+    const char *first_name = strchr(who, '\'');
+    char quoted[160] = "";
+    if (first_name) snprintf(quoted, sizeof quoted, "%.*s", (int)strcspn(first_name + 1, "'") + 2, first_name);
+    bool named = !who[0] || (quoted[0] && strstr(err->message, quoted)) ||
+                 (e && strncmp(err->message, e->name, strlen(e->name)) == 0);
+    bool dated = strstr(err->message, when) != NULL;
+    if (!err->file[0]) {
+        snprintf(err->file, sizeof err->file, "%s", dr_scene_path(w->scene));
+        err->line = err->col = 0;
+    }
+    if (!named && !dated) return dr_error_prefix(s, err, "%s, %s", who, when);
+    if (!named) return dr_error_prefix(s, err, "%s", who);
+    if (!dated) return dr_error_prefix(s, err, "%s", when);
+    return s;
+}
+
+/* failed() for the solver at w->solvers[i]: a liquid element of its own, or every element of its kind. */
+static DrStatus solver_failed(const DrWorld *w, int i, int frame, DrStatus s, DrError *err)
+{
+    if (s >= 0) return s;
+    const WorldSolver *sv = &w->solvers[i];
+    if (sv == w->mpm) return failed(w, DR_ELEMENT_MPM_SOLID, NULL, frame, s, err);
+    if (sv == w->hair) return failed(w, DR_ELEMENT_HAIR, NULL, frame, s, err);
+    if (sv == w->bem) return failed(w, DR_ELEMENT_BEM_SOLID, NULL, frame, s, err);
+    for (int k = 0, liquid = 0; k < dr_scene_element_count(w->scene); k++) {
+        const DrElement *e = dr_scene_element(w->scene, k);
+        if (e->kind == DR_ELEMENT_LIQUID && liquid++ == i) return failed(w, e->kind, e, frame, s, err);
+    }
+    return s;
+}
+#define SOLVER_TRY(i, frame, expr)                                                                                     \
+    do {                                                                                                           \
+        DrStatus solver_status_ = (expr);                                                                          \
+        if (solver_status_ < 0) return solver_failed(w, (i), (frame), solver_status_, err);                        \
+    } while (0)
+
 static DrStatus build(DrWorld *w, const DrWorldDesc *desc, DrError *err)
 {
     const DrScene *scene = w->scene;
@@ -85,7 +145,8 @@ static DrStatus build(DrWorld *w, const DrWorldDesc *desc, DrError *err)
     DR_TRY(world_kinematics_create(scene, w->first_frame, w->fps, &w->kin, err));
     WorldCtx c = context(w, w->frame + 1);
     /* the bodies before the liquid: it seeds no particle inside them */
-    DR_TRY(world_bem_adapter(&c, desc->cache_root, &w->bem_built, err));
+    DR_TRY(failed(w, DR_ELEMENT_BEM_SOLID, NULL, c.frame, world_bem_adapter(&c, desc->cache_root, &w->bem_built, err),
+                  err));
     const DrBemSolid *const *solids = NULL;
     const DrElement *const *elements = NULL;
     int nbodies = w->bem_built.self ? world_bem_solids(&w->bem_built, &solids, &elements) : 0;
@@ -97,17 +158,17 @@ static DrStatus build(DrWorld *w, const DrWorldDesc *desc, DrError *err)
     for (int i = 0; i < dr_scene_element_count(scene); i++) {
         const DrElement *e = dr_scene_element(scene, i);
         if (e->kind != DR_ELEMENT_LIQUID) continue;
-        DR_TRY(world_liquid_adapter(&c, e, &w->solvers[w->nsolvers], err));
+        DR_TRY(failed(w, e->kind, e, c.frame, world_liquid_adapter(&c, e, &w->solvers[w->nsolvers], err), err));
         w->nsolvers++;
         w->nliquids++;
     }
     WorldSolver s;
-    DR_TRY(world_mpm_adapter(&c, &s, err));
+    DR_TRY(failed(w, DR_ELEMENT_MPM_SOLID, NULL, c.frame, world_mpm_adapter(&c, &s, err), err));
     if (s.self) {
         w->solvers[w->nsolvers] = s;
         w->mpm = &w->solvers[w->nsolvers++];
     }
-    DR_TRY(world_lagrangian_adapter(&c, &s, err));
+    DR_TRY(failed(w, DR_ELEMENT_HAIR, NULL, c.frame, world_lagrangian_adapter(&c, &s, err), err));
     if (s.self) {
         w->solvers[w->nsolvers] = s;
         w->hair = &w->solvers[w->nsolvers++];
@@ -215,7 +276,8 @@ DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrError *err)
     double t = c.t0;
     while (t < c.t1) {
         for (int i = 0; i < w->nsolvers; i++)
-            if (w->solvers[i].step_first) DR_TRY(w->solvers[i].step_first(w->solvers[i].self, &c, t, c.t1, err));
+            if (w->solvers[i].step_first)
+                SOLVER_TRY(i, c.frame, w->solvers[i].step_first(w->solvers[i].self, &c, t, c.t1, err));
         double land = c.t1;
         for (int i = 0; i < w->nsolvers; i++) {
             const WorldSolver *s = &w->solvers[i];
@@ -225,7 +287,7 @@ DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrError *err)
         for (int i = 0; i < w->nsolvers; i++) {
             WorldSolver *s = &w->solvers[i];
             if (!s->next_time) continue;
-            if (isnan(w->proposal[i])) DR_TRY(s->next_time(s->self, &c, w->at[i], &w->proposal[i], err));
+            if (isnan(w->proposal[i])) SOLVER_TRY(i, c.frame, s->next_time(s->self, &c, w->at[i], &w->proposal[i], err));
             t_next = fmin(t_next, w->proposal[i]);
         }
         /* a proposal a rounding error short of a landing time lands on it (no step of a few ulps after it) */
@@ -235,7 +297,7 @@ DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrError *err)
             WorldSolver *s = &w->solvers[i];
             if (!s->step) continue;
             if (t_next < c.t1 && s->next_time && t_next < w->proposal[i]) continue; /* its own step ends later */
-            DR_TRY(s->step(s->self, &c, w->at[i], t_next, err));
+            SOLVER_TRY(i, c.frame, s->step(s->self, &c, w->at[i], t_next, err));
             w->at[i] = t_next;
             w->proposal[i] = NAN;
         }
@@ -243,9 +305,9 @@ DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrError *err)
         t = t_next;
     }
     /* the blocks in the order the kinetic energies were summed before: BEM, liquids, MPM, hair */
-    if (w->bem) DR_TRY(w->bem->end_frame(w->bem->self, &c, stats, err));
+    if (w->bem) SOLVER_TRY((int)(w->bem - w->solvers), c.frame, w->bem->end_frame(w->bem->self, &c, stats, err));
     for (int i = 0; i < w->nsolvers; i++)
-        if (&w->solvers[i] != w->bem) DR_TRY(w->solvers[i].end_frame(w->solvers[i].self, &c, stats, err));
+        if (&w->solvers[i] != w->bem) SOLVER_TRY(i, c.frame, w->solvers[i].end_frame(w->solvers[i].self, &c, stats, err));
     stats->kinetic_energy = stats->bem.kinetic_energy;
     stats->kinetic_energy += stats->liquid.kinetic_energy;
     stats->kinetic_energy += stats->mpm.kinetic_energy;
@@ -315,6 +377,7 @@ static DrStatus check_checkpoint_data(const DrWorld *w, DrH5 *h, const char *pat
     char who[320];
     if (e) snprintf(who, sizeof who, "%s '%s'", e->type, e->name);
     else snprintf(who, sizeof who, "solver state '%s'", group[0] ? group : "/");
+    dr_h5_drop_fix(err);
     char msg[sizeof err->message];
     snprintf(msg, sizeof msg, "%s", err->message);
     return dr_error_set(err, DR_ERR_INPUT, path, 0, 0,
