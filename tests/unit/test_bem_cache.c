@@ -600,6 +600,27 @@ static void test_inconsistent_datasets_are_not_trusted(void **state)
         {"a missing row pointer", NULL, 0, "/H/2/row_ptr"},
         {"missing rest positions", NULL, 0, "/mesh/x"},
     };
+    /* a value edited in place (an uncompressed dataset, its shape unchanged): its checksum no longer matches */
+    m = make_set(true, false, 23);
+    write_set(root, m, key);
+    free_by_hand(&m);
+    {
+        char path[1024];
+        file_path(root, key, path, sizeof path);
+        hid_t f = H5Fopen(path, H5F_ACC_RDWR, H5P_DEFAULT);
+        assert_true(f >= 0);
+        hid_t d = H5Dopen2(f, "/body/volume", H5P_DEFAULT);
+        assert_true(d >= 0);
+        double v = 12.5;
+        assert_true(H5Dwrite(d, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, &v) >= 0);
+        H5Dclose(d);
+        assert_true(H5Fclose(f) >= 0);
+        read_set(root, key, false);
+        assert_int_equal(g_rejected.status, DR_ERR_INPUT);
+        assert_string_equal(g_rejected.file, path);
+        assert_non_null(strstr(g_rejected.message, "/body/volume does not match its checksum"));
+    }
+
     for (size_t i = 0; i < sizeof edits / sizeof edits[0]; i++) {
         m = make_set(i % 2 == 1, false, 17 + i); /* H compressed where its row pointer is removed */
         write_set(root, m, key);
