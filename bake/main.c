@@ -304,10 +304,11 @@ static int verify(const char *dir, const char *key, int shot_first, int shot_las
     }
     if (s == DR_ERR_INPUT) {
         dr_h5_drop_fix(&err);
-        char msg[sizeof err.message], before[64] = "no frame before it is good";
+        char msg[sizeof err.message], file[sizeof err.file], before[64] = "no frame before it is good";
         snprintf(msg, sizeof msg, "%s", err.message);
+        snprintf(file, sizeof file, "%s", err.file);
         if (good >= shot_first) snprintf(before, sizeof before, "frames %d-%d before it are good", shot_first, good);
-        dr_error_set(&err, s, err.file, 0, 0, "%s; %s: bake from frame %d again (pipeline.sh does it)", msg, before,
+        dr_error_set(&err, s, file, 0, 0, "%s; %s: bake from frame %d again (pipeline.sh does it)", msg, before,
                      good + 1);
     }
     if (s < 0) return fail(&err);
@@ -364,15 +365,22 @@ int main(int argc, char **argv)
     if (s == DR_OK && args.resume) {
         if (dr_io_exists(ckpt)) {
             s = dr_world_read_checkpoint(world, ckpt, keys.bake, &err);
-            /* the frames before the checkpoint are not baked again: they must all be there and intact */
+            /* the frames before the checkpoint are not baked again: they must all be there and intact (and a
+               MANIFEST that says they are is wrong) */
             int good = 0;
-            if (s == DR_OK) s = dr_stage_check_frames(dir, shot_first, dr_world_frame(world), keys.bake, &good, &err);
-            if (s == DR_ERR_INPUT) dr_h5_drop_fix(&err);
-            if (s == DR_ERR_INPUT)
-                s = dr_error_prefix(s, &err,
-                                    "bake --resume: the checkpoint continues after frame %d, but frame %d is not usable; "
-                                    "bake without --resume to bake every frame again (pipeline.sh does it)",
-                                    dr_world_frame(world), good + 1);
+            DrStatus fs = s == DR_OK ? dr_stage_check_frames(dir, shot_first, dr_world_frame(world), keys.bake, &good,
+                                                             &err)
+                                     : DR_OK;
+            if (fs == DR_ERR_INPUT) {
+                dr_h5_drop_fix(&err);
+                fs = dr_error_prefix(fs, &err,
+                                     "bake --resume: the checkpoint continues after frame %d, but frame %d is not "
+                                     "usable; bake without --resume to bake every frame again (pipeline.sh does it)",
+                                     dr_world_frame(world), good + 1);
+                DrError merr;
+                if (dr_io_manifest_remove(dir, &merr) < 0) dr_error_print("bake", &merr);
+            }
+            if (s == DR_OK) s = fs;
             if (s == DR_OK) dr_log_info("resuming after frame %d from %s", dr_world_frame(world), ckpt);
         } else {
             dr_log_info("no checkpoint in %s: baking from the first frame", dir);

@@ -428,11 +428,11 @@ static DrStatus check_bake(const char *bake_dir, const char *bake_key, int first
         DrStatus s = dr_stage_check_frame(bake_dir, f, bake_key, err);
         if (s == DR_ERR_NOMEM) return s;
         if (s < 0) {
-            err->status = DR_ERR_INPUT;
             dr_h5_drop_fix(err);
-            char msg[sizeof err->message];
+            char msg[sizeof err->message], file[sizeof err->file];
             snprintf(msg, sizeof msg, "%s", err->message);
-            return dr_error_set(err, DR_ERR_INPUT, err->file, 0, 0,
+            snprintf(file, sizeof file, "%s", err->file);
+            return dr_error_set(err, DR_ERR_INPUT, file, 0, 0,
                                 "frame %d cannot be meshed: %s; bake it again (pipeline.sh re-bakes from the first bad "
                                 "frame)",
                                 f, msg);

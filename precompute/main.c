@@ -71,6 +71,7 @@ static DrStatus ensure_cached(const Body *body, const char *cache_root, bool *hi
     DrError rejected;
     DR_TRY(dr_bem_cache_read(cache_root, b->key, &m, hit, &rejected, err));
     if (!*hit && rejected.status < 0) {
+        dr_h5_drop_fix(&rejected);
         char why[sizeof rejected.message + 64];
         dr_error_format(&rejected, why, sizeof why);
         dr_log_warn("bem: %s: %s; it will be recomputed", e->name, why);

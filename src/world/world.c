@@ -94,20 +94,21 @@ static void describe_elements(const DrScene *scene, DrElementKind kind, const Dr
     }
 }
 
-/* Adds what the failure's message does not say yet (the elements, the frame) in front of it, and the scene file
- * when it names no file. */
+/* Adds what the failure's message does not say yet (the elements, and with frame > 0 the frame) in front of it, and
+ * the scene file when it names no file. */
 static DrStatus failed(const DrWorld *w, DrElementKind kind, const DrElement *e, int frame, DrStatus s, DrError *err)
 {
     if (s >= 0 || !err) return s;
-    char who[512], when[32];
+    char who[512], when[32] = "";
     describe_elements(w->scene, kind, e, who, sizeof who);
-    snprintf(when, sizeof when, "frame %d", frame);
-    const char *first_name = strchr(who, '\'');
-    char quoted[160] = "";
-    if (first_name) snprintf(quoted, sizeof quoted, "%.*s", (int)strcspn(first_name + 1, "'") + 2, first_name);
-    bool named = !who[0] || (quoted[0] && strstr(err->message, quoted)) ||
-                 (e && strncmp(err->message, e->name, strlen(e->name)) == 0);
-    bool dated = strstr(err->message, when) != NULL;
+    if (frame > 0) snprintf(when, sizeof when, "frame %d", frame);
+    /* named when the message names the first of them, quoted or leading ("jelly: ..." or "... 'jelly' ...") */
+    const char *q = strchr(who, '\'');
+    char name[160] = "", quoted[164] = "";
+    if (q) snprintf(name, sizeof name, "%.*s", (int)strcspn(q + 1, "'"), q + 1);
+    snprintf(quoted, sizeof quoted, "'%s'", name);
+    bool named = !name[0] || strstr(err->message, quoted) || strncmp(err->message, name, strlen(name)) == 0;
+    bool dated = !when[0] || strstr(err->message, when) != NULL;
     if (!err->file[0]) {
         snprintf(err->file, sizeof err->file, "%s", dr_scene_path(w->scene));
         err->line = err->col = 0;
@@ -132,6 +133,13 @@ static DrStatus solver_failed(const DrWorld *w, int i, int frame, DrStatus s, Dr
     }
     return s;
 }
+/* A solver's constructor: bad input (a file, a field) is told without a frame, anything else with the first. */
+#define BUILD_TRY(kind, e, expr)                                                                                       \
+    do {                                                                                                           \
+        DrStatus build_status_ = (expr);                                                                           \
+        if (build_status_ < 0)                                                                                     \
+            return failed(w, (kind), (e), build_status_ == DR_ERR_INPUT ? 0 : c.frame, build_status_, err);        \
+    } while (0)
 #define SOLVER_TRY(i, frame, expr)                                                                                     \
     do {                                                                                                           \
         DrStatus solver_status_ = (expr);                                                                          \
@@ -145,8 +153,7 @@ static DrStatus build(DrWorld *w, const DrWorldDesc *desc, DrError *err)
     DR_TRY(world_kinematics_create(scene, w->first_frame, w->fps, &w->kin, err));
     WorldCtx c = context(w, w->frame + 1);
     /* the bodies before the liquid: it seeds no particle inside them */
-    DR_TRY(failed(w, DR_ELEMENT_BEM_SOLID, NULL, c.frame, world_bem_adapter(&c, desc->cache_root, &w->bem_built, err),
-                  err));
+    BUILD_TRY(DR_ELEMENT_BEM_SOLID, NULL, world_bem_adapter(&c, desc->cache_root, &w->bem_built, err));
     const DrBemSolid *const *solids = NULL;
     const DrElement *const *elements = NULL;
     int nbodies = w->bem_built.self ? world_bem_solids(&w->bem_built, &solids, &elements) : 0;
@@ -158,17 +165,17 @@ static DrStatus build(DrWorld *w, const DrWorldDesc *desc, DrError *err)
     for (int i = 0; i < dr_scene_element_count(scene); i++) {
         const DrElement *e = dr_scene_element(scene, i);
         if (e->kind != DR_ELEMENT_LIQUID) continue;
-        DR_TRY(failed(w, e->kind, e, c.frame, world_liquid_adapter(&c, e, &w->solvers[w->nsolvers], err), err));
+        BUILD_TRY(e->kind, e, world_liquid_adapter(&c, e, &w->solvers[w->nsolvers], err));
         w->nsolvers++;
         w->nliquids++;
     }
     WorldSolver s;
-    DR_TRY(failed(w, DR_ELEMENT_MPM_SOLID, NULL, c.frame, world_mpm_adapter(&c, &s, err), err));
+    BUILD_TRY(DR_ELEMENT_MPM_SOLID, NULL, world_mpm_adapter(&c, &s, err));
     if (s.self) {
         w->solvers[w->nsolvers] = s;
         w->mpm = &w->solvers[w->nsolvers++];
     }
-    DR_TRY(failed(w, DR_ELEMENT_HAIR, NULL, c.frame, world_lagrangian_adapter(&c, &s, err), err));
+    BUILD_TRY(DR_ELEMENT_HAIR, NULL, world_lagrangian_adapter(&c, &s, err));
     if (s.self) {
         w->solvers[w->nsolvers] = s;
         w->hair = &w->solvers[w->nsolvers++];

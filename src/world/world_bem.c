@@ -128,6 +128,7 @@ static DrStatus matrices_of(WorldBem *b, const DrScene *scene, const DrElement *
                         "cannot read its matrices", err));
     char path[DR_IO_PATH_MAX];
     dr_io_precache_path(cache_root, "bem", a->key, path, sizeof path);
+    if (!found && rejected.status < 0) dr_h5_drop_fix(&rejected);
     if (!found && rejected.status < 0)
         return dr_error_set(err, DR_ERR_INPUT, path, 0, 0,
                             "%s: its precomputed BEM matrices cannot be used: %s; run precompute on this scene, which "
