@@ -127,7 +127,11 @@ void dr_h5_drop_fix(DrError *err);
 typedef struct DrH5 DrH5;
 
 /* Creates "<final_path>.tmp.<pid>" for writing; nothing appears at final_path until dr_h5_commit.
- * DR_ERR_IO naming the file on failure. */
+ * The HDF5 file itself is built in memory (HDF5's core driver, no backing store) and written to the
+ * temporary file by dr_h5_commit, so HDF5 never writes to disk: a disk that fills up is this module's
+ * DR_ERR_IO wherever it strikes, never a half-closed HDF5 file (whose cleanup at exit crashed). Memory:
+ * the file's size while it is open, twice that while it is committed. DR_ERR_IO naming the file when
+ * the temporary file cannot be created. */
 DR_NODISCARD DrStatus dr_h5_create(const char *final_path, DrH5 **out, DrError *err);
 /* A deferred write handle for final_path: it takes the same dataset and attribute writers as one of
  * dr_h5_create but makes no HDF5 call and touches no file. Each call is checked as far as it can be
@@ -224,9 +228,10 @@ DR_NODISCARD DrStatus dr_h5_verify(DrH5 *h, bool finite, char *bad_dataset, size
  * *count malloc'd strings (free each, then the array; NULL when *count is 0). A missing group is
  * DR_ERR_INPUT naming it. */
 DR_NODISCARD DrStatus dr_h5_list(DrH5 *h, const char *group, char ***names, int *count, DrError *err);
-/* Write handle: closes the file, fsyncs it and renames it into place, then frees *h and sets it NULL
- * (also on failure, in which case the temporary file is removed and DR_ERR_IO names the file). A
- * deferred handle is first written (see dr_h5_create_deferred). */
+/* Write handle: closes the file in memory, writes its image to the temporary file, fsyncs it and renames
+ * it into place, then frees *h and sets it NULL (also on failure, in which case the temporary file is
+ * removed and DR_ERR_IO names the file, e.g. "No space left on device"). A deferred handle is first
+ * written (see dr_h5_create_deferred). The bytes are those HDF5 writes to a file of its own. */
 DR_NODISCARD DrStatus dr_h5_commit(DrH5 **h, DrError *err);
 /* Read handle: closes. Write handle not committed: closes and deletes the temporary file, so neither
  * it nor the final file exists afterwards. Frees *h and sets it NULL; NULL is a no-op. */
