@@ -105,72 +105,93 @@ for i in "${!stages[@]}"; do
 done
 
 # The frames: the shot's (shot_first..shot_last), those asked for (want_first..want_last), the bake's good ones
-# (shot_first..good) and its checkpoint.
-good=""; ckpt=none
-if [ "$whole_from" -le 1 ]; then
-  read -r shot_first shot_last < <("$bin/bake" --print-frames "$scene") || exit $?
-else
-  verify_args=("$scene" --verify)
+# (shot_first..good) and its checkpoint. verify [--quick]: asks bake --verify (--quick: the frames' files, numbers
+# and keys, not their data).
+verify() {
+  local verify_args=("$scene" --verify "$@") verify_log="${TMPDIR:-/tmp}/drench-verify.$$" verify_out
   [ -n "$frames" ] && verify_args+=(--frames "$frames")
-  verify_log="${TMPDIR:-/tmp}/drench-verify.$$"
   verify_rc=0; verify_out=$("$bin/bake" "${verify_args[@]}" 2>"$verify_log") || verify_rc=$?
-  verify_msg=$(grep -v '^bake: frames .* are good$' "$verify_log" || true); rm -f "$verify_log"
+  verify_msg=$(grep -v '^bake: frames .* are good' "$verify_log" || true); rm -f "$verify_log"
   read -r _ shot_first shot_last < <(echo "$verify_out" | awk '$1=="shot"') || true
   [ -n "${shot_first:-}" ] || { echo "$verify_msg" >&2; exit "$verify_rc"; }
   good=$(echo "$verify_out" | awk '$1=="good_through"{print $2}')
   ckpt=$(echo "$verify_out" | awk '$1=="checkpoint"{print $2}')
-fi
-want_first=$shot_first; want_last=$shot_last
-[ -n "$frames" ] && { want_first=${frames%-*}; want_last=${frames#*-}; }
+  want_first=$shot_first; want_last=$shot_last
+  [ -n "$frames" ] && { want_first=${frames%-*}; want_last=${frames#*-}; }
+  return 0
+}
 
-redo=$((want_last + 1)) # the first frame the stage before rewrites in this run
-resume=0
-for i in 1 2 3; do
-  st=${stages[$i]}
-  key_var="key_$st"; dir_var="dir_$st"
-  lo=$want_first; [ "$st" = bake ] && lo=$shot_first # a bake starts at the shot's first frame
-  if [ "$i" -ge "$whole_from" ]; then
-    todo_first[$st]=$lo; todo_last[$st]=$want_last; redo=$want_first; continue
-  fi
-  # what the MANIFEST holds (under the current key: an older key made the stage stale as a whole above)
-  held=$(manifest_field "${!dir_var}" frames)
-  d1=""; d2=""
-  if [ -n "$(manifest_field "${!dir_var}" key)" ]; then
-    if [ -n "$held" ]; then d1=${held%-*}; d2=${held#*-}; else d1=$shot_first; d2=$shot_last; fi
-  fi
-  if [ "$st" = bake ]; then
-    if [ -n "$d2" ] && [ "$d2" -ge "$want_last" ] && [ "$good" -ge "$want_last" ]; then
-      reason_of[$st]=""
-    else
-      todo_first[$st]=$shot_first; todo_last[$st]=$want_last
-      if [ -n "$d2" ] && [ "$d2" -gt "$good" ]; then
-        reason_of[$st]="frame $((good + 1)) is missing or damaged"
-        echo "$verify_msg" >&2 # what is wrong with a frame the MANIFEST claims
-      elif [ "$good" -lt "$want_last" ]; then
-        reason_of[$st]="frames $((good + 1))-$want_last are not baked yet"
-      else
-        reason_of[$st]="frames $shot_first-$want_last are there but the bake did not finish"
-      fi
-      if [ "$ckpt" != none ] && [ "$ckpt" -le "$good" ]; then
-        resume=1; reason_of[$st]+="; continuing after frame $ckpt (--resume)"
-      elif [ "$good" -ge "$shot_first" ]; then
-        reason_of[$st]+="; baking again from frame $shot_first (no usable checkpoint before frame $((good + 1)))"
-      fi
-      redo=$((good + 1))
+# frame_stages: the reason and the frames to do of bake, mesh and render from what verify found.
+frame_stages() {
+  local i st key_var dir_var lo held d1 d2
+  redo=$((want_last + 1)) # the first frame the stage before rewrites in this run
+  resume=0; damaged_msg=""
+  for i in 1 2 3; do
+    st=${stages[$i]}
+    key_var="key_$st"; dir_var="dir_$st"
+    lo=$want_first; [ "$st" = bake ] && lo=$shot_first # a bake starts at the shot's first frame
+    if [ "$i" -ge "$whole_from" ]; then
+      todo_first[$st]=$lo; todo_last[$st]=$want_last; redo=$want_first; continue
     fi
-    continue
+    # what the MANIFEST holds (under the current key: an older key made the stage stale as a whole above)
+    held=$(manifest_field "${!dir_var}" frames)
+    d1=""; d2=""
+    if [ -n "$(manifest_field "${!dir_var}" key)" ]; then
+      if [ -n "$held" ]; then d1=${held%-*}; d2=${held#*-}; else d1=$shot_first; d2=$shot_last; fi
+    fi
+    if [ "$st" = bake ]; then
+      if [ -n "$d2" ] && [ "$d2" -ge "$want_last" ] && [ "$good" -ge "$want_last" ]; then
+        reason_of[$st]=""
+      else
+        todo_first[$st]=$shot_first; todo_last[$st]=$want_last
+        if [ -n "$d2" ] && [ "$d2" -gt "$good" ]; then
+          reason_of[$st]="frame $((good + 1)) is missing or damaged"
+          damaged_msg=$verify_msg # what is wrong with a frame the MANIFEST claims
+        elif [ "$good" -lt "$want_last" ]; then
+          reason_of[$st]="frames $((good + 1))-$want_last are not baked yet"
+        else
+          reason_of[$st]="frames $shot_first-$want_last are there but the bake did not finish"
+        fi
+        if [ "$ckpt" != none ] && [ "$ckpt" -le "$good" ]; then
+          resume=1; reason_of[$st]+="; continuing after frame $ckpt (--resume)"
+        elif [ "$good" -ge "$shot_first" ]; then
+          reason_of[$st]+="; baking again from frame $shot_first (no usable checkpoint before frame $((good + 1)))"
+        fi
+        redo=$((good + 1))
+      fi
+      continue
+    fi
+    [ -n "$d2" ] && [ "$d2" -ge "$redo" ] && d2=$((redo - 1))
+    if [ -n "$d1" ] && [ "$d1" -le "$want_first" ] && [ "$d2" -ge "$want_last" ]; then
+      reason_of[$st]=""; redo=$((want_last + 1))
+    elif [ -n "$d1" ] && [ "$d1" -le "$want_first" ] && [ "$d2" -ge "$want_first" ]; then
+      todo_first[$st]=$((d2 + 1)); todo_last[$st]=$want_last; redo=$((d2 + 1))
+      reason_of[$st]="frames $((d2 + 1))-$want_last to do (frames $d1-$d2 kept)"
+    else
+      todo_first[$st]=$want_first; todo_last[$st]=$want_last; redo=$want_first
+      reason_of[$st]="frames $want_first-$want_last to do"
+    fi
+  done
+}
+
+good=""; ckpt=none
+if [ "$whole_from" -le 1 ]; then
+  read -r shot_first shot_last < <("$bin/bake" --print-frames "$scene") || exit $?
+  want_first=$shot_first; want_last=$shot_last
+  [ -n "$frames" ] && { want_first=${frames%-*}; want_last=${frames#*-}; }
+  frame_stages
+else
+  # The frames' data are read only when a stage is going to run: a run with nothing to do checks that every frame
+  # is there, holds its own number and was baked under the current key (a few milliseconds a frame); bake --verify
+  # and every stage that reads the frames check their data whole.
+  verify --quick
+  frame_stages
+  if [ -n "${reason_of[bake]}${reason_of[mesh]}${reason_of[render]}" ]; then
+    verify
+    frame_stages
   fi
-  [ -n "$d2" ] && [ "$d2" -ge "$redo" ] && d2=$((redo - 1))
-  if [ -n "$d1" ] && [ "$d1" -le "$want_first" ] && [ "$d2" -ge "$want_last" ]; then
-    reason_of[$st]=""; redo=$((want_last + 1))
-  elif [ -n "$d1" ] && [ "$d1" -le "$want_first" ] && [ "$d2" -ge "$want_first" ]; then
-    todo_first[$st]=$((d2 + 1)); todo_last[$st]=$want_last; redo=$((d2 + 1))
-    reason_of[$st]="frames $((d2 + 1))-$want_last to do (frames $d1-$d2 kept)"
-  else
-    todo_first[$st]=$want_first; todo_last[$st]=$want_last; redo=$want_first
-    reason_of[$st]="frames $want_first-$want_last to do"
-  fi
-done
+  [ -z "$damaged_msg" ] || echo "$damaged_msg" >&2
+fi
 
 if [ -z "$farm" ]; then
   extra=()

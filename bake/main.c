@@ -284,12 +284,12 @@ static int fail(const DrError *err)
 /* bake --verify: the frames shot_first..last and the checkpoint, checked as --resume and the later stages take
  * them; prints what pipeline.sh reads on stdout ("shot F L", "good_through G", "checkpoint C|none") and what is
  * wrong on stderr. Exit 0 when every frame is good, 2 otherwise (a missing, damaged or foreign frame alike). */
-static int verify(const char *dir, const char *key, int shot_first, int shot_last, int last)
+static int verify(const char *dir, const char *key, int shot_first, int shot_last, int last, bool data)
 {
     DrError err, cerr;
     dr_error_clear(&err);
     int good, ckpt;
-    DrStatus s = dr_stage_check_frames(dir, shot_first, last, key, &good, &err);
+    DrStatus s = dr_stage_check_frames(dir, shot_first, last, key, data, &good, &err);
     char path[4096];
     snprintf(path, sizeof path, "%s/checkpoint.h5", dir);
     DrStatus cs = dr_stage_check_checkpoint(path, key, shot_first, shot_last, &ckpt, &cerr);
@@ -312,7 +312,7 @@ static int verify(const char *dir, const char *key, int shot_first, int shot_las
                      good + 1);
     }
     if (s < 0) return fail(&err);
-    fprintf(stderr, "bake: frames %d-%d are good\n", shot_first, last);
+    fprintf(stderr, "bake: frames %d-%d are good%s\n", shot_first, last, data ? "" : " (files, numbers and keys)");
     return 0;
 }
 
@@ -343,7 +343,7 @@ int main(int argc, char **argv)
     }
     if (args.verify) {
         dr_scene_destroy(&scene);
-        return verify(dir, keys.bake, shot_first, shot_last, last);
+        return verify(dir, keys.bake, shot_first, shot_last, last, !args.quick);
     }
     if (args.frames_given && !args.resume && first != shot_first) {
         dr_error_set(&err, DR_ERR_INPUT, NULL, 0, 0,
@@ -368,8 +368,8 @@ int main(int argc, char **argv)
             /* the frames before the checkpoint are not baked again: they must all be there and intact (and a
                MANIFEST that says they are is wrong) */
             int good = 0;
-            DrStatus fs = s == DR_OK ? dr_stage_check_frames(dir, shot_first, dr_world_frame(world), keys.bake, &good,
-                                                             &err)
+            DrStatus fs = s == DR_OK ? dr_stage_check_frames(dir, shot_first, dr_world_frame(world), keys.bake, true,
+                                                             &good, &err)
                                      : DR_OK;
             if (fs == DR_ERR_INPUT) {
                 dr_h5_drop_fix(&err);

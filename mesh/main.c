@@ -424,21 +424,16 @@ static DrStatus check_bake(const char *bake_dir, const char *bake_key, int first
                             "--frames %d-%d (pipeline.sh does it)",
                             f, m.first, m.last, m.first, last);
     }
-    for (int f = first; f <= last; f++) {
-        DrStatus s = dr_stage_check_frame(bake_dir, f, bake_key, err);
-        if (s == DR_ERR_NOMEM) return s;
-        if (s < 0) {
-            dr_h5_drop_fix(err);
-            char msg[sizeof err->message], file[sizeof err->file];
-            snprintf(msg, sizeof msg, "%s", err->message);
-            snprintf(file, sizeof file, "%s", err->file);
-            return dr_error_set(err, DR_ERR_INPUT, file, 0, 0,
-                                "frame %d cannot be meshed: %s; bake it again (pipeline.sh re-bakes from the first bad "
-                                "frame)",
-                                f, msg);
-        }
-    }
-    return DR_OK;
+    int good;
+    DrStatus s = dr_stage_check_frames(bake_dir, first, last, bake_key, true, &good, err);
+    if (s != DR_ERR_INPUT) return s;
+    dr_h5_drop_fix(err);
+    char msg[sizeof err->message], file[sizeof err->file];
+    snprintf(msg, sizeof msg, "%s", err->message);
+    snprintf(file, sizeof file, "%s", err->file);
+    return dr_error_set(err, DR_ERR_INPUT, file, 0, 0,
+                        "frame %d cannot be meshed: %s; bake it again (pipeline.sh re-bakes from the first bad frame)",
+                        good + 1, msg);
 }
 
 /* rest[i]: element i's collider mesh in its scene pose (loaded once; empty for other elements). */

@@ -181,8 +181,10 @@ int dr_bem_history_length(const DrBemDesc *d, double r_max);
 
 /* ---- cache (cache/bem/<key>.h5) ---------------------------------------------------------------------
  * The key hashes the mesh file's bytes, the parameters that enter the matrices (material, Δt, margin, ε,
- * compression, quadrature) and DR_BEM_VERSION. A file is trusted only if it records that key. */
-#define DR_BEM_VERSION "bem-1"
+ * compression, quadrature) and DR_BEM_VERSION. A file is trusted only if it records that key and every
+ * dataset matches its checksum (io.h). bem-2: files carry checksums, so files of bem-1 (which have none)
+ * are not looked up: the new key makes precompute compute them again. */
+#define DR_BEM_VERSION "bem-2"
 void dr_bem_cache_key(const char *mesh_hash_hex, const DrBemDesc *d, char key_hex[33]);
 /* Write atomically (temporary file renamed into place); inputs_json describes the parameters. */
 DR_NODISCARD DrStatus dr_bem_cache_write(const char *cache_root, const char *key_hex, const char *inputs_json,

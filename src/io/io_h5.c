@@ -270,6 +270,12 @@ DrStatus dr_h5_create_deferred(const char *final_path, DrH5 **out, DrError *err)
     return DR_OK;
 }
 
+bool dr_h5_threadsafe(void)
+{
+    hbool_t safe = 0;
+    return H5is_library_threadsafe(&safe) >= 0 && safe;
+}
+
 bool dr_h5_deferred(const DrH5 *h)
 {
     return h->deferred;
@@ -799,7 +805,21 @@ static void free_datasets(Datasets *d)
 
 /* One dataset of dr_h5_verify: read whole into *buf (grown as needed), checked against its checksum, and with
  * `finite` its 64-bit floats for NaN and infinity. */
-static DrStatus verify_dataset(DrH5 *h, const char *path, bool finite, void **buf, size_t *cap, DrError *err)
+/* Reads size bytes at offset; false on any failure (the caller then asks HDF5). */
+static bool pread_all(int fd, void *buf, size_t size, off_t offset)
+{
+    size_t done = 0;
+    while (done < size) {
+        ssize_t r = pread(fd, (char *)buf + done, size - done, offset + (off_t)done);
+        if (r < 0 && errno == EINTR) continue;
+        if (r <= 0) return false;
+        done += (size_t)r;
+    }
+    return true;
+}
+
+/* fd: the file opened for reading when its addresses are file offsets (no user block), else -1. */
+static DrStatus verify_dataset(DrH5 *h, int fd, const char *path, bool finite, void **buf, size_t *cap, DrError *err)
 {
     hid_t dset = H5Dopen2(h->file, path, H5P_DEFAULT);
     if (dset < 0) {
@@ -834,7 +854,19 @@ static DrStatus verify_dataset(DrH5 *h, const char *path, bool finite, void **bu
         if (!grown) s = dr_error_set(err, DR_ERR_NOMEM, h->path, 0, 0, "out of memory reading dataset %s", path);
         else *buf = grown, *cap = bytes;
     }
-    if (s == DR_OK && count > 0 && H5Dread(dset, mem[k], H5S_ALL, H5S_ALL, H5P_DEFAULT, *buf) < 0) {
+    /* A contiguous dataset's bytes are read straight from the file (pread: about three times HDF5's read rate
+       from the page cache, measured on the default shot's frames); the file stores them little-endian, as they
+       were hashed. Anything else (compressed, not allocated) goes through HDF5. */
+    bool raw = false;
+    if (s == DR_OK && count > 0 && fd >= 0) {
+        hid_t dcpl = H5Dget_create_plist(dset);
+        haddr_t off = H5Dget_offset(dset);
+        raw = dcpl >= 0 && H5Pget_layout(dcpl) == H5D_CONTIGUOUS && off != HADDR_UNDEF &&
+              H5Dget_storage_size(dset) == (hsize_t)bytes && pread_all(fd, *buf, bytes, (off_t)off);
+        if (dcpl >= 0) H5Pclose(dcpl);
+        H5Eclear2(H5E_DEFAULT);
+    }
+    if (s == DR_OK && count > 0 && !raw && H5Dread(dset, mem[k], H5S_ALL, H5S_ALL, H5P_DEFAULT, *buf) < 0) {
         char msg[512];
         h5_msg(msg, sizeof msg);
         s = dr_error_set(err, DR_ERR_INPUT, h->path, 0, 0, "cannot read dataset %s: %s; the file is damaged: " DAMAGED_FIX,
@@ -872,10 +904,16 @@ DrStatus dr_h5_verify(DrH5 *h, bool finite, char *bad_dataset, size_t bad_size, 
     void *buf = NULL;
     size_t cap = 0;
     DrStatus s = DR_OK;
+    hid_t fcpl = H5Fget_create_plist(h->file);
+    hsize_t userblock = 1;
+    if (fcpl >= 0) H5Pget_userblock(fcpl, &userblock);
+    if (fcpl >= 0) H5Pclose(fcpl);
+    int fd = userblock == 0 ? open(h->path, O_RDONLY | O_CLOEXEC) : -1;
     for (int i = 0; s == DR_OK && i < d.count; i++) {
-        s = verify_dataset(h, d.paths[i], finite, &buf, &cap, err);
+        s = verify_dataset(h, fd, d.paths[i], finite, &buf, &cap, err);
         if (s != DR_OK && bad_dataset && bad_size) snprintf(bad_dataset, bad_size, "%s", d.paths[i]);
     }
+    if (fd >= 0) close(fd);
     free(buf);
     free_datasets(&d);
     return s;

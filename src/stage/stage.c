@@ -39,7 +39,8 @@ static void print_help(DrStageId stage)
                "                      shot's frames), \"good_through N\" (the last frame of the unbroken run\n"
                "                      of good frames) and \"checkpoint N\" (the frame --resume continues\n"
                "                      after) or \"checkpoint none\"; exit 0 when every frame is good, else 2\n"
-               "                      naming the first bad frame's file and what is wrong\n"
+               "                      naming the first bad frame's file and what is wrong; with --quick,\n"
+               "                      the frames' files, numbers and keys only, not their data\n"
                "  --sync-writes       write each frame and checkpoint on the main thread before the next\n"
                "                      frame starts (by default a writer thread writes them while the next\n"
                "                      frame is simulated; the files are the same)\n"
@@ -122,6 +123,8 @@ DrStatus dr_stage_parse_args(DrStageId stage, int argc, char **argv, DrStageArgs
             a->resume = true;
         } else if (!strcmp(s, "--verify") && stage == DR_STAGE_BAKE) {
             a->verify = true;
+        } else if (!strcmp(s, "--quick") && stage == DR_STAGE_BAKE) {
+            a->quick = true;
         } else if (!strcmp(s, "--sync-writes") && stage == DR_STAGE_BAKE) {
             a->sync_writes = true;
         } else if (!strcmp(s, "--finish") && (stage == DR_STAGE_MESH || stage == DR_STAGE_RENDER)) {
@@ -152,6 +155,7 @@ DrStatus dr_stage_parse_args(DrStageId stage, int argc, char **argv, DrStageArgs
     }
     if (!a->scene_path && !a->list_components)
         return usage_error(stage, err, "%s", "no scene given: pass the scene file, e.g. assets/scenes/default.json");
+    if (a->quick && !a->verify) return usage_error(stage, err, "%s", "--quick goes with --verify");
     if (a->verify && (a->resume || a->print_key || a->print_out_dir || a->print_frames))
         return usage_error(stage, err, "%s", "--verify only checks: it does not combine with --resume or --print-*");
     if (a->finish && a->frames_given)

@@ -155,6 +155,18 @@ check "pipeline.sh finds a damaged frame and reruns from it: bake, then mesh and
   "mesh: running \(frames 8-12 to do \(frames 1-7 kept\)\)" "render: running \(frames 8-12 to do \(frames 1-7 kept\)\)"
 check "meshes and images of the good frames are kept" test "$(inode "$M/water.0004.obj")" = "$ino" -a "$(inode "$R/frame.0004.png")" = "$ino_r"
 check "the frames are good again" "$BIN/bake" "$scene" --verify
+# a bit flipped in a frame's data: a run with nothing to do reads no frame data (bake --quick-checks the files); a
+# run whose later stages read the frames checks them whole first and bakes from the damaged one
+off=$(offset_of "$B/frame.0010.h5" /water/position)
+flip_byte "$B/frame.0010.h5" $((off + 5000))
+out=$(pipeline); rc=$?
+check "with every stage complete, a bit flipped in frame 10 is left for the stages that read it" said 0 "$out" \
+  "pipeline: 0 stage\(s\) ran"
+out=$(pipeline --from mesh); rc=$?
+check "a run that meshes finds it first and bakes again from frame 10" said 0 "$out" \
+  "frame.0010.h5: error: dataset /water/position does not match its checksum" \
+  "bake: running \(frame 10 is missing or damaged; continuing after frame 9|bake: running \(frame 10 is missing or damaged; baking again"
+check "the frames are good after it" "$BIN/bake" "$scene" --verify
 
 # a stopped bake (no MANIFEST, a good checkpoint) is resumed by pipeline.sh, the frames before it untouched
 fresh
