@@ -98,9 +98,8 @@ for i in "${!stages[@]}"; do
   fi
   reason_of[$st]="$reason"
   # a frame stage without a MANIFEST may hold frames all the same (a stopped bake): the frames below decide
-  if [ -n "$reason" ] && [ "$i" -lt "$whole_from" ] && { [ "$st" = precompute ] || [ -n "$have" ] || [ "$reason" != "no complete output yet" ]; }; then
-    whole_from=$i
-  fi
+  partial=0; [ "$st" != precompute ] && [ "$reason" = "no complete output yet" ] && partial=1
+  [ -n "$reason" ] && [ "$i" -lt "$whole_from" ] && [ "$partial" = 0 ] && whole_from=$i
   eval "key_$st=\$key; dir_$st=\$dir"
 done
 
