@@ -6,7 +6,8 @@
 #   ./pipeline.sh --preview [SCENE] [-j N] [--no-build]    ./pipeline.sh --version
 #
 # Each stage prints its cache key (`--print-key`); the key is compared with the MANIFEST in the stage's
-# output folder, and a stage runs when the two differ, when it is forced, or when an earlier stage ran.
+# output folder, and a stage runs when the two differ, when it is forced, or when an earlier stage ran; bake,
+# mesh and render run only for the frames they lack or hold damaged, and a stopped bake is resumed.
 # SCENE defaults to assets/scenes/default.json. Outputs go to out/<shot>/ (DRENCH_OUT to change).
 # --farm slurm submits the stale stages as Slurm jobs instead (scripts kept in out/<shot>/farm/);
 # README "Running on a Slurm farm" lists the DRENCH_SLURM_* settings.
@@ -42,6 +43,7 @@ while [ $# -gt 0 ]; do
     --from) [ $# -ge 2 ] || die "--from needs a stage"; from="$2"; stage_index "$2" >/dev/null; shift 2 ;;
     --frames) [ $# -ge 2 ] || die "--frames needs a range A-B"; frames="$2"; shift 2 ;;
     -j) [ $# -ge 2 ] || die "-j needs a thread count"; threads="$2"; shift 2 ;;
+    --resume) shift ;; # the default: a bake whose checkpoint is usable always continues from it
     --no-build) build=0; shift ;;
     --no-plots) plots=0; shift ;;
     --farm) [ $# -ge 2 ] || die "--farm needs a scheduler (slurm)"; farm="$2"; shift 2
@@ -86,18 +88,24 @@ fi
 [ -z "$frames" ] || "$bin/bake" "$scene" --print-frames --frames "$frames" >/dev/null || exit $?
 
 # Stale stages, in order: a stage runs when forced, when its key differs from its MANIFEST, or when an
-# earlier stage runs.
-first_stale=99
-[ -n "$from" ] && first_stale=$(stage_index "$from")
-declare -A reason_of
+# earlier stage runs as a whole. bake, mesh and render work frame by frame: their MANIFEST records the frames
+# they hold ("frames A-B"), and with an unchanged key they run only for the frames they lack or that the stage
+# before them rewrites. `bake --verify` checks every frame the bake holds (frame number, key, checksums) and the
+# checkpoint: a bake runs from its first missing or damaged frame on, continuing with --resume when the
+# checkpoint is good and no frame before it is bad, else baking again from the first frame (bit-identically, so
+# later stages keep what they made from the good frames).
+whole_from=99
+[ -n "$from" ] && whole_from=$(stage_index "$from")
+declare -A reason_of todo_first todo_last
+manifest_field() { # manifest_field DIR FIELD: the value on FIELD's line of DIR/MANIFEST ("key", "frames")
+  [ -f "$1/MANIFEST" ] && awk -v f="$2" '$1==f{print $2; exit}' "$1/MANIFEST" || true; }
 for i in "${!stages[@]}"; do
   st=${stages[$i]}
-  key=$("$bin/$st" --print-key "$scene") || exit $?
-  dir=$("$bin/$st" --print-out-dir "$scene") || exit $?
-  have=""
-  [ -f "$dir/MANIFEST" ] && have=$(awk '$1=="key"{print $2; exit}' "$dir/MANIFEST")
+  out=$("$bin/$st" --print-key --print-out-dir "$scene") || exit $?
+  key=${out%%$'\n'*}; dir=${out#*$'\n'}
+  have=$(manifest_field "$dir" key)
   reason=""
-  if [ "$i" -ge "$first_stale" ]; then reason="an earlier stage is stale or --from"
+  if [ "$i" -ge "$whole_from" ]; then reason="an earlier stage is stale or --from"
   elif [ "$st" = "$force" ]; then reason="--force"
   elif [ -z "$have" ]; then reason="no complete output yet"
   elif [ "$have" != "$key" ]; then reason="inputs changed"
@@ -108,9 +116,100 @@ for i in "${!stages[@]}"; do
     done < <(awk '$1=="input" && NF==4 && length($4)==32' "$dir/MANIFEST")
   fi
   reason_of[$st]="$reason"
-  [ -n "$reason" ] && [ "$i" -lt "$first_stale" ] && first_stale=$i
-  eval "key_$st=\$key"
+  # a frame stage without a MANIFEST may hold frames all the same (a stopped bake): the frames below decide
+  partial=0; [ "$st" != precompute ] && [ "$reason" = "no complete output yet" ] && partial=1
+  [ -n "$reason" ] && [ "$i" -lt "$whole_from" ] && [ "$partial" = 0 ] && whole_from=$i
+  eval "key_$st=\$key; dir_$st=\$dir"
 done
+
+# The frames: the shot's (shot_first..shot_last), those asked for (want_first..want_last), the bake's good ones
+# (shot_first..good) and its checkpoint. verify [--quick]: asks bake --verify (--quick: the frames' files, numbers
+# and keys, not their data).
+verify() {
+  local verify_args=("$scene" --verify "$@") verify_log="${TMPDIR:-/tmp}/drench-verify.$$" verify_out
+  [ -n "$frames" ] && verify_args+=(--frames "$frames")
+  verify_rc=0; verify_out=$("$bin/bake" "${verify_args[@]}" 2>"$verify_log") || verify_rc=$?
+  verify_msg=$(grep -v '^bake: frames .* are good' "$verify_log" || true); rm -f "$verify_log"
+  read -r _ shot_first shot_last < <(echo "$verify_out" | awk '$1=="shot"') || true
+  [ -n "${shot_first:-}" ] || { echo "$verify_msg" >&2; exit "$verify_rc"; }
+  good=$(echo "$verify_out" | awk '$1=="good_through"{print $2}')
+  ckpt=$(echo "$verify_out" | awk '$1=="checkpoint"{print $2}')
+  want_first=$shot_first; want_last=$shot_last
+  [ -n "$frames" ] && { want_first=${frames%-*}; want_last=${frames#*-}; }
+  return 0
+}
+
+# frame_stages: the reason and the frames to do of bake, mesh and render from what verify found.
+frame_stages() {
+  local i st key_var dir_var lo held d1 d2
+  redo=$((want_last + 1)) # the first frame the stage before rewrites in this run
+  resume=0; damaged_msg=""
+  for i in 1 2 3; do
+    st=${stages[$i]}
+    key_var="key_$st"; dir_var="dir_$st"
+    lo=$want_first; [ "$st" = bake ] && lo=$shot_first # a bake starts at the shot's first frame
+    if [ "$i" -ge "$whole_from" ]; then
+      todo_first[$st]=$lo; todo_last[$st]=$want_last; redo=$want_first; continue
+    fi
+    # what the MANIFEST holds (under the current key: an older key made the stage stale as a whole above)
+    held=$(manifest_field "${!dir_var}" frames)
+    d1=""; d2=""
+    if [ -n "$(manifest_field "${!dir_var}" key)" ]; then
+      if [ -n "$held" ]; then d1=${held%-*}; d2=${held#*-}; else d1=$shot_first; d2=$shot_last; fi
+    fi
+    if [ "$st" = bake ]; then
+      if [ -n "$d2" ] && [ "$d2" -ge "$want_last" ] && [ "$good" -ge "$want_last" ]; then
+        reason_of[$st]=""
+      else
+        todo_first[$st]=$shot_first; todo_last[$st]=$want_last
+        if [ -n "$d2" ] && [ "$d2" -gt "$good" ]; then
+          reason_of[$st]="frame $((good + 1)) is missing or damaged"
+          damaged_msg=$verify_msg # what is wrong with a frame the MANIFEST claims
+        elif [ "$good" -lt "$want_last" ]; then
+          reason_of[$st]="frames $((good + 1))-$want_last are not baked yet"
+        else
+          reason_of[$st]="frames $shot_first-$want_last are there but the bake did not finish"
+        fi
+        if [ "$ckpt" != none ] && [ "$ckpt" -le "$good" ]; then
+          resume=1; reason_of[$st]+="; continuing after frame $ckpt (--resume)"
+        elif [ "$good" -ge "$shot_first" ]; then
+          reason_of[$st]+="; baking again from frame $shot_first (no usable checkpoint before frame $((good + 1)))"
+        fi
+        redo=$((good + 1))
+      fi
+      continue
+    fi
+    [ -n "$d2" ] && [ "$d2" -ge "$redo" ] && d2=$((redo - 1))
+    if [ -n "$d1" ] && [ "$d1" -le "$want_first" ] && [ "$d2" -ge "$want_last" ]; then
+      reason_of[$st]=""; redo=$((want_last + 1))
+    elif [ -n "$d1" ] && [ "$d1" -le "$want_first" ] && [ "$d2" -ge "$want_first" ]; then
+      todo_first[$st]=$((d2 + 1)); todo_last[$st]=$want_last; redo=$((d2 + 1))
+      reason_of[$st]="frames $((d2 + 1))-$want_last to do (frames $d1-$d2 kept)"
+    else
+      todo_first[$st]=$want_first; todo_last[$st]=$want_last; redo=$want_first
+      reason_of[$st]="frames $want_first-$want_last to do"
+    fi
+  done
+}
+
+good=""; ckpt=none
+if [ "$whole_from" -le 1 ]; then
+  read -r shot_first shot_last < <("$bin/bake" --print-frames "$scene") || exit $?
+  want_first=$shot_first; want_last=$shot_last
+  [ -n "$frames" ] && { want_first=${frames%-*}; want_last=${frames#*-}; }
+  frame_stages
+else
+  # The frames' data are read only when a stage is going to run: a run with nothing to do checks that every frame
+  # is there, holds its own number and was baked under the current key (a few milliseconds a frame); bake --verify
+  # and every stage that reads the frames check their data whole.
+  verify --quick
+  frame_stages
+  if [ -n "${reason_of[bake]}${reason_of[mesh]}${reason_of[render]}" ]; then
+    verify
+    frame_stages
+  fi
+  [ -z "$damaged_msg" ] || echo "$damaged_msg" >&2
+fi
 
 if [ -z "$farm" ]; then
   extra=()
@@ -123,7 +222,11 @@ if [ -z "$farm" ]; then
     fi
     echo "$st: running (${reason_of[$st]})"
     args=("$scene" "${extra[@]}")
-    [ -n "$frames" ] && [ "$st" != precompute ] && args+=(--frames "$frames")
+    if [ "$st" != precompute ]; then
+      a=${todo_first[$st]}; b=${todo_last[$st]}
+      [ "$a" = "$shot_first" ] && [ "$b" = "$shot_last" ] || args+=(--frames "$a-$b")
+    fi
+    [ "$st" = bake ] && [ "$resume" = 1 ] && args+=(--resume)
     [ "$st" = render ] && [ "$plots" = 0 ] && args+=(--no-plots)
     "$bin/$st" "${args[@]}"
     ran=$((ran + 1))
@@ -198,7 +301,7 @@ script_precompute() {
 # the frame in progress, checkpoints and exits 3) and requeues itself; the requeued job resumes.
 script_bake() {
   header "$1" "$bake_time_limit" "" "--signal=B:USR1@$signal_lead" --requeue --open-mode=append
-  echo "resume=()"
+  echo "resume=($([ "$resume" = 1 ] && echo --resume))" # a stopped bake whose checkpoint is usable continues
   echo "[ \"\${SLURM_RESTART_COUNT:-0}\" -gt 0 ] && resume=(--resume)"
   echo "'$bin/bake' '$scene_abs' -j \"\$threads\" \"\${resume[@]}\" &"
   echo "pid=\$!"

@@ -329,6 +329,41 @@ static int fail(const DrError *err)
     return dr_exit_code(err->status);
 }
 
+/* bake --verify: the frames shot_first..last and the checkpoint, checked as --resume and the later stages take
+ * them; prints what pipeline.sh reads on stdout ("shot F L", "good_through G", "checkpoint C|none") and what is
+ * wrong on stderr. Exit 0 when every frame is good, 2 otherwise (a missing, damaged or foreign frame alike). */
+static int verify(const char *dir, const char *key, int shot_first, int shot_last, int last, bool data)
+{
+    DrError err, cerr;
+    dr_error_clear(&err);
+    int good, ckpt;
+    DrStatus s = dr_stage_check_frames(dir, shot_first, last, key, data, &good, &err);
+    char path[4096];
+    snprintf(path, sizeof path, "%s/checkpoint.h5", dir);
+    DrStatus cs = dr_stage_check_checkpoint(path, key, shot_first, shot_last, &ckpt, &cerr);
+    printf("shot %d %d\n", shot_first, shot_last);
+    printf("good_through %d\n", good);
+    if (cs == DR_OK) printf("checkpoint %d\n", ckpt);
+    else printf("checkpoint none\n");
+    fflush(stdout);
+    if (cs < 0 && dr_io_exists(path)) {
+        dr_error_prefix(cs, &cerr, "bake --resume cannot continue from it");
+        dr_error_print("bake", &cerr);
+    }
+    if (s == DR_ERR_INPUT) {
+        dr_h5_drop_fix(&err);
+        char msg[sizeof err.message], file[sizeof err.file], before[64] = "no frame before it is good";
+        snprintf(msg, sizeof msg, "%s", err.message);
+        snprintf(file, sizeof file, "%s", err.file);
+        if (good >= shot_first) snprintf(before, sizeof before, "frames %d-%d before it are good", shot_first, good);
+        dr_error_set(&err, s, file, 0, 0, "%s; %s: bake from frame %d again (pipeline.sh does it)", msg, before,
+                     good + 1);
+    }
+    if (s < 0) return fail(&err);
+    fprintf(stderr, "bake: frames %d-%d are good%s\n", shot_first, last, data ? "" : " (files, numbers and keys)");
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
     DrError err;
@@ -347,11 +382,16 @@ int main(int argc, char **argv)
         dr_scene_destroy(&scene);
         return fail(&err);
     }
-    int shot_first = first;
+    int shot_first = first, shot_last = last;
     {
         int fr[2];
         dr_component_int2(dr_scene_section(scene, "shot"), "frames", fr);
         shot_first = fr[0];
+        shot_last = fr[1];
+    }
+    if (args.verify) {
+        dr_scene_destroy(&scene);
+        return verify(dir, keys.bake, shot_first, shot_last, last, !args.quick);
     }
     if (args.frames_given && !args.resume && first != shot_first) {
         dr_error_set(&err, DR_ERR_INPUT, NULL, 0, 0,
@@ -373,6 +413,22 @@ int main(int argc, char **argv)
     if (s == DR_OK && args.resume) {
         if (dr_io_exists(ckpt)) {
             s = dr_world_read_checkpoint(world, ckpt, keys.bake, &err);
+            /* the frames before the checkpoint are not baked again: they must all be there and intact (and a
+               MANIFEST that says they are is wrong) */
+            int good = 0;
+            DrStatus fs = s == DR_OK ? dr_stage_check_frames(dir, shot_first, dr_world_frame(world), keys.bake, true,
+                                                             &good, &err)
+                                     : DR_OK;
+            if (fs == DR_ERR_INPUT) {
+                dr_h5_drop_fix(&err);
+                fs = dr_error_prefix(fs, &err,
+                                     "bake --resume: the checkpoint continues after frame %d, but frame %d is not "
+                                     "usable; bake without --resume to bake every frame again (pipeline.sh does it)",
+                                     dr_world_frame(world), good + 1);
+                DrError merr;
+                if (dr_io_manifest_remove(dir, &merr) < 0) dr_error_print("bake", &merr);
+            }
+            if (s == DR_OK) s = fs;
             if (s == DR_OK) dr_log_info("resuming after frame %d from %s", dr_world_frame(world), ckpt);
         } else {
             dr_log_info("no checkpoint in %s: baking from the first frame", dir);
@@ -543,13 +599,15 @@ int main(int argc, char **argv)
         fprintf(stderr, "bake: %s\n", msg);
         return EXIT_INTERRUPTED;
     }
-    if (s >= 0 && last == fr[1]) {
+    if (s >= 0) {
+        /* every frame from the first to the one the world is at is on disk, written now or checked on resume */
+        int done = dr_world_frame(world);
         const char *inputs[1] = {path};
-        snprintf(path, sizeof path, "frames %d-%d", fr[0], fr[1]);
-        s = dr_io_manifest_write(dir, "bake", keys.bake, dr_scene_path(scene), inputs, 1, &err);
-    } else if (s >= 0) {
-        dr_log_info("partial bake (frames up to %d of %d): MANIFEST not written, later stages see bake as stale",
-                    last, fr[1]);
+        snprintf(path, sizeof path, "frames %d-%d", fr[0], done);
+        s = dr_io_manifest_write_frames(dir, "bake", keys.bake, dr_scene_path(scene), fr[0], done, inputs, 1, &err);
+        if (s >= 0 && done < fr[1])
+            dr_log_info("partial bake: frames %d-%d of %d-%d done; bake --resume continues it", fr[0], done, fr[0],
+                        fr[1]);
     }
     dr_world_destroy(&world);
     dr_scene_destroy(&scene);

@@ -399,6 +399,43 @@ static DrStatus check_ribbon_names(const DrScene *scene, DrError *err)
     return DR_OK;
 }
 
+/* The bake must hold this run's frames, whole, before anything is written: its MANIFEST, under the current bake
+ * key, records them (a bake that stopped or failed, or ran for fewer frames, does not), and each frame file holds
+ * its own frame, under that key, every dataset matching its checksum. Any of these is DR_ERR_INPUT (exit 2). */
+static DrStatus check_bake(const char *bake_dir, const char *bake_key, int first, int last, DrError *err)
+{
+    DrManifest m;
+    DR_TRY(dr_io_manifest_read(bake_dir, &m, err));
+    char path[4096];
+    snprintf(path, sizeof path, "%s/MANIFEST", bake_dir);
+    if (!m.found)
+        return dr_error_set(err, DR_ERR_INPUT, path, 0, 0,
+                            "the shot has not been baked completely: the bake folder has no MANIFEST (the bake never "
+                            "ran, or it stopped or failed); continue it with bake --resume, or run pipeline.sh");
+    if (strcmp(m.key, bake_key) != 0)
+        return dr_error_set(err, DR_ERR_INPUT, path, 0, 0,
+                            "the frames were baked from another version of the scene (bake key %s, now %s); rerun "
+                            "bake (pipeline.sh does it)",
+                            m.key, bake_key);
+    if (m.has_frames && (first < m.first || last > m.last)) {
+        int f = first < m.first ? first : m.last + 1;
+        return dr_error_set(err, DR_ERR_INPUT, path, 0, 0,
+                            "frame %d has not been baked: the bake holds frames %d-%d; continue it with bake --resume "
+                            "--frames %d-%d (pipeline.sh does it)",
+                            f, m.first, m.last, m.first, last);
+    }
+    int good;
+    DrStatus s = dr_stage_check_frames(bake_dir, first, last, bake_key, true, &good, err);
+    if (s != DR_ERR_INPUT) return s;
+    dr_h5_drop_fix(err);
+    char msg[sizeof err->message], file[sizeof err->file];
+    snprintf(msg, sizeof msg, "%s", err->message);
+    snprintf(file, sizeof file, "%s", err->file);
+    return dr_error_set(err, DR_ERR_INPUT, file, 0, 0,
+                        "frame %d cannot be meshed: %s; bake it again (pipeline.sh re-bakes from the first bad frame)",
+                        good + 1, msg);
+}
+
 /* rest[i]: element i's collider mesh in its scene pose (loaded once; empty for other elements). */
 static DrStatus mesh_frame(const DrScene *scene, const DrTriMesh *rest, const char *bake_dir, const char *dir,
                            int frame, int first_frame, const char *bake_key, double fps, long *triangles,
@@ -577,7 +614,8 @@ int main(int argc, char **argv)
         snprintf(line, sizeof line, "frames %d-%d (ran in separate ranges)", first, last);
         const char *inputs[2] = {line, keys.bake};
         s = check_outputs(scene, dir, first, last, &err);
-        if (s == DR_OK) s = dr_io_manifest_write(dir, "mesh", keys.mesh, dr_scene_path(scene), inputs, 2, &err);
+        if (s == DR_OK)
+            s = dr_io_manifest_write_frames(dir, "mesh", keys.mesh, dr_scene_path(scene), first, last, inputs, 2, &err);
         dr_scene_destroy(&scene);
         if (s < 0) return fail(&err);
         fprintf(stderr, "mesh: frames %d-%d complete in %s; MANIFEST written\n", first, last, dir);
@@ -592,9 +630,13 @@ int main(int argc, char **argv)
         const DrElement *e = dr_scene_element(scene, i);
         if (e->kind == DR_ELEMENT_COLLIDER) s = dr_stage_load_collider_mesh(e, &rest[i], &err);
     }
+    if (s == DR_OK) s = check_bake(bake_dir, keys.bake, first, last, &err);
     if (s == DR_OK) s = dr_vdb_init(&err);
     if (s == DR_OK) s = dr_io_mkdirs(dir, &err);
-    if (s == DR_OK) s = dr_io_manifest_remove(dir, &err);
+    const char *inputs[1] = {keys.bake};
+    DrStageFrames run;
+    if (s == DR_OK)
+        s = dr_stage_frames_begin(dir, DR_STAGE_MESH, keys.mesh, scene, first, last, true, inputs, 1, &run, &err);
     /* A frame range may run beside others on other machines (a farm's job array), whose temporary files
        look stale from here: only a run that owns the whole folder clears them. */
     if (s == DR_OK && !args.frames_given) dr_io_remove_stale_tmp(dir);
@@ -617,14 +659,7 @@ int main(int argc, char **argv)
         snprintf(detail, sizeof detail, "frame %d %.2fs", f, dr_time_now() - tf);
         if (s == DR_OK) dr_progress_step(&prog, detail);
     }
-    int fr[2];
-    dr_component_int2(dr_scene_section(scene, "shot"), "frames", fr);
-    if (s == DR_OK && first == fr[0] && last == fr[1]) {
-        char line[128];
-        snprintf(line, sizeof line, "frames %d-%d", first, last);
-        const char *inputs[2] = {line, keys.bake};
-        s = dr_io_manifest_write(dir, "mesh", keys.mesh, dr_scene_path(scene), inputs, 2, &err);
-    }
+    if (s == DR_OK) s = dr_stage_frames_end(&run, inputs, 1, &err);
     char hair[64] = "";
     if (dr_scene_count_kind(scene, DR_ELEMENT_HAIR) > 0) snprintf(hair, sizeof hair, " and %ld strands", strands);
     for (int i = 0; rest && i < nel; i++) dr_trimesh_free(&rest[i]);

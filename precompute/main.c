@@ -68,7 +68,14 @@ static DrStatus ensure_cached(const Body *body, const char *cache_root, bool *hi
     const DrBemAsset *b = &body->a;
     const DrElement *e = body->e;
     DrBemMatrices *m = NULL;
-    DR_TRY(dr_bem_cache_read(cache_root, b->key, &m, hit, err));
+    DrError rejected;
+    DR_TRY(dr_bem_cache_read(cache_root, b->key, &m, hit, &rejected, err));
+    if (!*hit && rejected.status < 0) {
+        dr_h5_drop_fix(&rejected);
+        char why[sizeof rejected.message + 64];
+        dr_error_format(&rejected, why, sizeof why);
+        dr_log_warn("bem: %s: %s; it will be recomputed", e->name, why);
+    }
     if (*hit) {
         dr_log_info("bem: %s: cache hit %s (n_max %d)", e->name, b->key, m->n_max);
         dr_bem_matrices_destroy(&m);

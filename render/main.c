@@ -250,7 +250,11 @@ int main(int argc, char **argv)
     if (s == DR_OK) shot_ground_and_sizes(scene, draw, ndraw, &desc, &err, &s);
 
     if (s == DR_OK) s = dr_io_mkdirs(dir, &err);
-    if (s == DR_OK) s = dr_io_manifest_remove(dir, &err);
+    const char *inputs[1] = {keys.mesh};
+    DrStageFrames run;
+    if (s == DR_OK)
+        s = dr_stage_frames_begin(dir, DR_STAGE_RENDER, keys.render, scene, first, last, !args.finish, inputs, 1, &run,
+                                  &err);
     /* A frame range may run beside others on other machines (a farm's job array), whose temporary files
        look stale from here: only a run that owns the whole folder clears them. */
     if (s == DR_OK && !args.frames_given) dr_io_remove_stale_tmp(dir);
@@ -283,8 +287,11 @@ int main(int argc, char **argv)
     }
     double t_frames = dr_time_now() - t0;
 
-    /* 3. a whole shot (a full run or --finish after separate ranges): contact sheet, plots, MANIFEST */
-    bool whole = first == shot[0] && last == shot[1];
+    /* 3. a whole shot (a full run, --finish after separate ranges, or a range that completes earlier ones): contact
+       sheet, plots, MANIFEST */
+    int done_first = first, done_last = last;
+    if (s == DR_OK) dr_stage_frames_done(&run, &done_first, &done_last);
+    bool whole = done_first == shot[0] && done_last == shot[1];
     for (int f = first; s == DR_OK && args.finish && f <= last; f++) {
         dr_stage_frame_path(dir, "frame", f, "png", path, sizeof path);
         if (!dr_io_exists(path))
@@ -294,7 +301,7 @@ int main(int argc, char **argv)
                              f, f, f);
     }
     int plots = 0;
-    if (s == DR_OK && whole) s = write_contact_sheet(dir, first, last,
+    if (s == DR_OK && whole) s = write_contact_sheet(dir, shot[0], shot[1],
                                                       dr_component_int(dr_scene_section(scene, "render"), "contact_every"), &err);
     if (s == DR_OK && whole && !args.no_plots) {
         snprintf(path, sizeof path, "%s/progress.jsonl", bake_dir);
@@ -303,12 +310,7 @@ int main(int argc, char **argv)
         /* the images are the product; plots that cannot be drawn are reported, not fatal */
         if (plots_write(path, plots_dir, &plots, &perr) < 0) dr_error_print("render: warning: plots", &perr);
     }
-    if (s == DR_OK && whole) {
-        char line[128];
-        snprintf(line, sizeof line, "frames %d-%d%s", first, last, args.finish ? " (ran in separate ranges)" : "");
-        const char *inputs[2] = {line, keys.mesh};
-        s = dr_io_manifest_write(dir, "render", keys.render, dr_scene_path(scene), inputs, 2, &err);
-    }
+    if (s == DR_OK) s = dr_stage_frames_end(&run, inputs, 1, &err);
 
     for (int i = 0; draw && i < ndraw; i++) dr_trimesh_free(&draw[i].still);
     free(draw);

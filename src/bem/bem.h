@@ -181,16 +181,21 @@ int dr_bem_history_length(const DrBemDesc *d, double r_max);
 
 /* ---- cache (cache/bem/<key>.h5) ---------------------------------------------------------------------
  * The key hashes the mesh file's bytes, the parameters that enter the matrices (material, Δt, margin, ε,
- * compression, quadrature) and DR_BEM_VERSION. A file is trusted only if it records that key. */
-#define DR_BEM_VERSION "bem-1"
+ * compression, quadrature) and DR_BEM_VERSION. A file is trusted only if it records that key and every
+ * dataset matches its checksum (io.h). bem-2: files carry checksums, so files of bem-1 (which have none)
+ * are not looked up: the new key makes precompute compute them again. */
+#define DR_BEM_VERSION "bem-2"
 void dr_bem_cache_key(const char *mesh_hash_hex, const DrBemDesc *d, char key_hex[33]);
 /* Write atomically (temporary file renamed into place); inputs_json describes the parameters. */
 DR_NODISCARD DrStatus dr_bem_cache_write(const char *cache_root, const char *key_hex, const char *inputs_json,
                                          const char *mesh_hash_hex, const DrBemMatrices *m, DrError *err);
-/* found = false (and *out NULL) when no trusted file holds the key. The cache never holds H_dense/G_dense: a read
- * returns them NULL with desc.keep_dense false. */
+/* found = false (and *out NULL) when no trusted file holds the key: none is there, or the one there is not trusted,
+ * and then `rejected` (NULL: not wanted; cleared otherwise) says why, naming the file: unreadable, another key,
+ * a dataset that does not match its checksum (damaged or edited), sizes that disagree. Nothing is logged: the
+ * caller says what follows. The cache never holds H_dense/G_dense: a read returns them NULL with desc.keep_dense
+ * false. */
 DR_NODISCARD DrStatus dr_bem_cache_read(const char *cache_root, const char *key_hex, DrBemMatrices **out,
-                                        bool *found, DrError *err);
+                                        bool *found, DrError *rejected, DrError *err);
 
 /* ---- a body's mesh as the matrices take it (bem_asset.c) ----------------------------------------------------
  * The mesh file loaded, welded (vertices closer than 1e-9 of the bounding-box diagonal merged: OBJ files split them

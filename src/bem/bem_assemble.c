@@ -30,23 +30,6 @@ extern void dgetri_(const int *n, double *a, const int *lda, const int *ipiv, do
 extern void dgetrs_(const char *trans, const int *n, const int *nrhs, const double *a, const int *lda,
                     const int *ipiv, double *b, const int *ldb, int *info, size_t);
 
-void dr_bem_desc_default(DrBemDesc *d)
-{
-    *d = (DrBemDesc){
-        .material = {.density = 1000.0, .shear_modulus = 1e5, .poisson = 0.4},
-        .dt = 1.0 / 240.0,
-        .history_margin = 2.0,
-        .cq_epsilon = 1e-10,
-        .compression_ratio = 32.0,
-        .ordering = DR_BEM_ORDER_VERTEX_XYZ,
-        .wavelet = true,
-        .quad_levels = 1,
-        .near_factor = 1.5,
-        .singular_order = 8,
-        .keep_dense = false,
-    };
-}
-
 int dr_bem_history_length(const DrBemDesc *d, double r_max)
 {
     double c2 = sqrt(d->material.shear_modulus / d->material.density);

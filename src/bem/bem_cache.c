@@ -25,65 +25,6 @@
 #define CACHE_KIND "bem"
 #define PATH_LEN 96
 
-/* ---- names ---------------------------------------------------------------------------------------------- */
-
-static const char *const ordering_names[] = {"vertex_xyz", "xyz", "none"};
-
-const char *dr_bem_ordering_name(DrBemOrdering o)
-{
-    assert(o >= DR_BEM_ORDER_VERTEX_XYZ && o <= DR_BEM_ORDER_NONE);
-    return ordering_names[o];
-}
-
-bool dr_bem_ordering_parse(const char *name, DrBemOrdering *out)
-{
-    for (int o = 0; o < 3; o++)
-        if (strcmp(name, ordering_names[o]) == 0) {
-            *out = (DrBemOrdering)o;
-            return true;
-        }
-    return false;
-}
-/* ---- key ------------------------------------------------------------------------------------------------ */
-
-static void feed(DrHasher *h, const char *label, const char *text)
-{
-    dr_hasher_update_str(h, label);
-    dr_hasher_update_str(h, text);
-}
-
-/* Numbers as %.17g text (exact for a double; -0 as 0), the form the scene's canonical JSON uses. */
-static void feed_num(DrHasher *h, const char *label, double v)
-{
-    char buf[40];
-    snprintf(buf, sizeof buf, "%.17g", v == 0.0 ? 0.0 : v);
-    feed(h, label, buf);
-}
-
-/* Everything that changes a matrix or the layout they are stored in. keep_dense is left out: the dense copies
- * are never cached, so a file serves either setting. What precompute does to the mesh before building (the
- * weld tolerance) is part of DR_BEM_VERSION. */
-void dr_bem_cache_key(const char *mesh_hash_hex, const DrBemDesc *d, char key_hex[33])
-{
-    DrHasher h;
-    dr_hasher_init(&h);
-    feed(&h, "version", DR_BEM_VERSION);
-    feed(&h, "mesh", mesh_hash_hex);
-    feed_num(&h, "density", d->material.density);
-    feed_num(&h, "shear_modulus", d->material.shear_modulus);
-    feed_num(&h, "poisson", d->material.poisson);
-    feed_num(&h, "dt", d->dt);
-    feed_num(&h, "history_margin", d->history_margin);
-    feed_num(&h, "cq_epsilon", d->cq_epsilon);
-    feed_num(&h, "compression_ratio", d->compression_ratio);
-    feed(&h, "ordering", dr_bem_ordering_name(d->ordering));
-    feed(&h, "wavelet", d->wavelet ? "true" : "false");
-    feed_num(&h, "quad_levels", d->quad_levels);
-    feed_num(&h, "near_factor", d->near_factor);
-    feed_num(&h, "singular_order", d->singular_order);
-    dr_hash_hex(dr_hasher_final(&h), key_hex);
-}
-
 /* ---- write ---------------------------------------------------------------------------------------------- */
 
 static DrStatus put_f64(DrH5 *h, const char *path, int rank, const uint64_t *dims, const double *data,
@@ -226,7 +167,7 @@ DrStatus dr_bem_cache_write(const char *cache_root, const char *key_hex, const c
 /* ---- read ----------------------------------------------------------------------------------------------- */
 
 /* Every check below fails with DR_ERR_INPUT and a message saying what does not fit; dr_bem_cache_read turns
- * that into "not found" (the file is recomputed), and only running out of memory into a failure. */
+ * that into "not found" with the reason in `rejected`, and only running out of memory into a failure. */
 
 static DrStatus bad(DrH5 *h, DrError *err, const char *fmt, const char *what, long long a, long long b)
 {
@@ -487,13 +428,13 @@ static DrStatus get_all(DrH5 *h, DrBemMatrices *m, DrError *err)
 }
 
 DrStatus dr_bem_cache_read(const char *cache_root, const char *key_hex, DrBemMatrices **out, bool *found,
-                           DrError *err)
+                           DrError *rejected, DrError *err)
 {
     *out = NULL;
     *found = false;
     DrH5 *h;
     bool opened;
-    DR_TRY(dr_io_precache_open(cache_root, CACHE_KIND, key_hex, &h, &opened, err));
+    DR_TRY(dr_io_precache_open(cache_root, CACHE_KIND, key_hex, &h, &opened, rejected, err));
     if (!opened) return DR_OK;
 
     DrBemMatrices *m = NULL;
@@ -510,8 +451,12 @@ DrStatus dr_bem_cache_read(const char *cache_root, const char *key_hex, DrBemMat
             return s;
         }
         /* A file that opens and carries the right key but does not hold what it says (edited, written by a
-         * foreign tool, damaged on disk) is not an error of this run: it is rebuilt. */
-        dr_log_warn("%s: BEM cache file is inconsistent and will be recomputed: %s", dr_h5_path(h), why.message);
+         * foreign tool, damaged on disk: its checksums tell) is not trusted; what follows is the caller's. */
+        if (rejected) {
+            *rejected = why;
+            rejected->status = DR_ERR_INPUT;
+            if (!rejected->file[0]) snprintf(rejected->file, sizeof rejected->file, "%s", dr_h5_path(h));
+        }
         dr_h5_close(&h);
         return DR_OK;
     }

@@ -75,13 +75,29 @@ bool dr_io_exists(const char *path);
 
 /* ---- manifests ----------------------------------------------------------------------------------
  * <dir>/MANIFEST is text, one field a line: "key <hex>", "stage <name>", "time <ISO 8601 UTC>",
- * "drench_version <v>", "scene <path>", then one "input <...>" line per caller-given input. */
+ * "drench_version <v>", "scene <path>", for a stage that works frame by frame "frames <A>-<B>" (the frames
+ * whose outputs the folder holds complete: the whole shot, or the part a run with --frames made), then one
+ * "input <...>" line per caller-given input. */
 
 /* Creates dir if needed and writes <dir>/MANIFEST atomically. key_hex is 1..32 hex digits; an input
  * or name holding a newline is DR_ERR_INPUT; write failures DR_ERR_IO. */
 DR_NODISCARD DrStatus dr_io_manifest_write(const char *dir, const char *stage, const char *key_hex,
                                            const char *scene_path, const char *const *inputs, int ninputs,
                                            DrError *err);
+/* As dr_io_manifest_write, with the line "frames <first>-<last>" (none when first > last). */
+DR_NODISCARD DrStatus dr_io_manifest_write_frames(const char *dir, const char *stage, const char *key_hex,
+                                                  const char *scene_path, int first, int last,
+                                                  const char *const *inputs, int ninputs, DrError *err);
+/* <dir>/MANIFEST as read back: found with its key, and has_frames with the range of its "frames" line. A missing,
+ * unreadable or malformed manifest (a key that is not 1..32 hex digits, a frames line that is not A-B with A <= B)
+ * is not an error: found = false, as for dr_io_manifest_read_key. */
+typedef struct DrManifest {
+    bool found;
+    char key[33];
+    bool has_frames;
+    int first, last;
+} DrManifest;
+DR_NODISCARD DrStatus dr_io_manifest_read(const char *dir, DrManifest *out, DrError *err);
 /* Reads the key of <dir>/MANIFEST into key_out (NUL-terminated, at most 32 hex digits) and sets
  * *found = true. A missing, unreadable or malformed manifest is not an error: *found = false,
  * key_out = "" and DR_OK (the stage is then simply stale). */
@@ -95,11 +111,27 @@ DR_NODISCARD DrStatus dr_io_manifest_remove(const char *dir, DrError *err);
  * absolute HDF5 paths like "/water/position"; "/" is the root group. HDF5's own error printing is
  * turned off; its failures become DrError messages naming the file and the object. Strings are stored
  * as fixed-length, NUL-terminated UTF-8 string attributes (h5dump shows them as text); the readers
- * also accept variable-length strings written by other tools. */
+ * also accept variable-length strings written by other tools.
+ *
+ * Checksums. Every dataset carries a string attribute DR_H5_CHECKSUM_ATTR ("xxh3"): the XXH3-128 hash (32 hex
+ * digits, dr_hash_bytes) of its elements' bytes in file order (little-endian; compressed datasets: the bytes
+ * before compression), written by the same call that writes the data, so every cache (frames, checkpoints,
+ * precompute) has them. Every dataset reader verifies it: a missing checksum (a file of an older drench or of
+ * another program), one that does not match (a damaged file: a flipped bit, an edited value) and a dataset HDF5
+ * cannot read are DR_ERR_INPUT naming file and dataset, and say to delete the file and rerun the stage that
+ * writes it (callers name the stage). Equal data gives equal checksums, so files stay bit-identical between runs. */
+#define DR_H5_CHECKSUM_ATTR "xxh3"
+/* The advice those messages end with; a caller that says itself which stage to rerun drops it first. */
+#define DR_H5_DAMAGED_FIX "delete it and rerun the stage that writes it"
+void dr_h5_drop_fix(DrError *err);
 typedef struct DrH5 DrH5;
 
 /* Creates "<final_path>.tmp.<pid>" for writing; nothing appears at final_path until dr_h5_commit.
- * DR_ERR_IO naming the file on failure. */
+ * The HDF5 file itself is built in memory (HDF5's core driver, no backing store) and written to the
+ * temporary file by dr_h5_commit, so HDF5 never writes to disk: a disk that fills up is this module's
+ * DR_ERR_IO wherever it strikes, never a half-closed HDF5 file (whose cleanup at exit crashed). Memory:
+ * the file's size while it is open, twice that while it is committed. DR_ERR_IO naming the file when
+ * the temporary file cannot be created. */
 DR_NODISCARD DrStatus dr_h5_create(const char *final_path, DrH5 **out, DrError *err);
 /* A deferred write handle for final_path: it takes the same dataset and attribute writers as one of
  * dr_h5_create but makes no HDF5 call and touches no file. Each call is checked as far as it can be
@@ -112,6 +144,8 @@ DR_NODISCARD DrStatus dr_h5_create(const char *final_path, DrH5 **out, DrError *
  * file, with the temporary file removed. dr_h5_close drops the recording. The readers, dr_h5_has and
  * dr_h5_list must not be called on it (asserted). DR_ERR_IO when the path is too long. */
 DR_NODISCARD DrStatus dr_h5_create_deferred(const char *final_path, DrH5 **out, DrError *err);
+/* True when the HDF5 library takes calls from several threads (one at a time, behind its lock). */
+bool dr_h5_threadsafe(void);
 /* True for a handle of dr_h5_create_deferred. */
 bool dr_h5_deferred(const DrH5 *h);
 /* Opens an existing file read-only. DR_ERR_INPUT naming it when missing or not HDF5. */
@@ -185,13 +219,21 @@ DR_NODISCARD DrStatus dr_h5_read_attr_i64(DrH5 *h, const char *obj, const char *
                                           DrError *err);
 /* True when an object (group or dataset) exists at path. */
 bool dr_h5_has(DrH5 *h, const char *path);
+
+/* Checks a whole file opened with dr_h5_open, including the datasets no caller reads: every dataset is read
+ * and compared with its checksum (see "Checksums" above), and with `finite`, its 64-bit floats must hold no
+ * NaN or infinity. The first failure, in name order, is DR_ERR_INPUT naming file and dataset (the dataset's
+ * path also goes to bad_dataset when non-NULL: "" for a failure of the file as a whole); DR_ERR_NOMEM.
+ * Costs one read of the file (about 1 GB/s from the page cache, measured in the README). */
+DR_NODISCARD DrStatus dr_h5_verify(DrH5 *h, bool finite, char *bad_dataset, size_t bad_size, DrError *err);
 /* Names of the direct children of a group in ascending name order: *names is a malloc'd array of
  * *count malloc'd strings (free each, then the array; NULL when *count is 0). A missing group is
  * DR_ERR_INPUT naming it. */
 DR_NODISCARD DrStatus dr_h5_list(DrH5 *h, const char *group, char ***names, int *count, DrError *err);
-/* Write handle: closes the file, fsyncs it and renames it into place, then frees *h and sets it NULL
- * (also on failure, in which case the temporary file is removed and DR_ERR_IO names the file). A
- * deferred handle is first written (see dr_h5_create_deferred). */
+/* Write handle: closes the file in memory, writes its image to the temporary file, fsyncs it and renames
+ * it into place, then frees *h and sets it NULL (also on failure, in which case the temporary file is
+ * removed and DR_ERR_IO names the file, e.g. "No space left on device"). A deferred handle is first
+ * written (see dr_h5_create_deferred). The bytes are those HDF5 writes to a file of its own. */
 DR_NODISCARD DrStatus dr_h5_commit(DrH5 **h, DrError *err);
 /* Read handle: closes. Write handle not committed: closes and deletes the temporary file, so neither
  * it nor the final file exists afterwards. Frees *h and sets it NULL; NULL is a no-op. */
@@ -245,10 +287,12 @@ DR_NODISCARD DrStatus dr_io_precache_create(const char *root, const char *kind, 
                                             DrError *err);
 /* Opens <root>/<kind>/<key_hex>.h5 read-only when it exists, opens as HDF5 and its "kind" and "key"
  * attributes match: *found = true, *out set. Otherwise (missing, unreadable, corrupt, other key)
- * *found = false, *out = NULL and DR_OK: such a file is never trusted, it is recomputed (a corrupt or
- * mismatched file is logged as a warning). A bad kind or key_hex is DR_ERR_INPUT. */
+ * *found = false, *out = NULL and DR_OK: such a file is never trusted. When a file is there but not trusted,
+ * `rejected` (NULL: not wanted) says why, naming the file (status DR_ERR_INPUT; cleared otherwise): the caller
+ * tells the user what follows (precompute recomputes it; a reader asks for precompute). Nothing is logged.
+ * A bad kind or key_hex is DR_ERR_INPUT. */
 DR_NODISCARD DrStatus dr_io_precache_open(const char *root, const char *kind, const char *key_hex, DrH5 **out,
-                                          bool *found, DrError *err);
+                                          bool *found, DrError *rejected, DrError *err);
 
 /* ISO 8601 UTC time of now, "YYYY-MM-DDTHH:MM:SSZ" (21 bytes with NUL). */
 void dr_io_time_iso8601(char buf[32]);

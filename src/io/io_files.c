@@ -272,6 +272,12 @@ static DrStatus check_line(const char *dir, const char *what, const char *s, DrE
 DrStatus dr_io_manifest_write(const char *dir, const char *stage, const char *key_hex, const char *scene_path,
                               const char *const *inputs, int ninputs, DrError *err)
 {
+    return dr_io_manifest_write_frames(dir, stage, key_hex, scene_path, 1, 0, inputs, ninputs, err);
+}
+
+DrStatus dr_io_manifest_write_frames(const char *dir, const char *stage, const char *key_hex, const char *scene_path,
+                                     int first, int last, const char *const *inputs, int ninputs, DrError *err)
+{
     assert(ninputs >= 0 && (ninputs == 0 || inputs));
     if (!is_hex(key_hex, 32))
         return dr_error_set(err, DR_ERR_INPUT, dir, 0, 0, "manifest key \"%s\" is not 1 to 32 hex digits", key_hex);
@@ -292,6 +298,7 @@ DrStatus dr_io_manifest_write(const char *dir, const char *stage, const char *ke
     dr_io_time_iso8601(when);
     size_t len = (size_t)snprintf(text, total, "key %s\nstage %s\ntime %s\ndrench_version %s\nscene %s\n", key_hex,
                                   stage, when, DR_VERSION, scene_path);
+    if (first <= last) len += (size_t)snprintf(text + len, total - len, "frames %d-%d\n", first, last);
     for (int i = 0; i < ninputs; i++) len += (size_t)snprintf(text + len, total - len, "input %s\n", inputs[i]);
     assert(len < total);
     DrStatus s = dr_io_write_text_atomic(path, text, err);
@@ -316,6 +323,35 @@ DrStatus dr_io_manifest_read_key(const char *dir, char key_out[33], bool *found,
     if (!is_hex(key, 32)) return DR_OK;
     memcpy(key_out, key, strlen(key) + 1);
     *found = true;
+    return DR_OK;
+}
+
+DrStatus dr_io_manifest_read(const char *dir, DrManifest *out, DrError *err)
+{
+    memset(out, 0, sizeof *out);
+    char path[DR_IO_PATH_MAX];
+    DR_TRY(manifest_path(dir, path, sizeof path, err));
+    FILE *f = fopen(path, "rb");
+    if (!f) return DR_OK;
+    char line[4224];
+    bool first_line = true, bad = false;
+    while (fgets(line, sizeof line, f)) {
+        line[strcspn(line, "\r\n")] = '\0';
+        if (first_line) {
+            first_line = false;
+            bad = strncmp(line, "key ", 4) != 0 || !is_hex(line + 4, 32);
+            if (bad) break;
+            memcpy(out->key, line + 4, strlen(line + 4) + 1);
+        } else if (strncmp(line, "frames ", 7) == 0) {
+            char tail;
+            bad = sscanf(line + 7, "%d-%d%c", &out->first, &out->last, &tail) != 2 || out->first > out->last;
+            if (bad) break;
+            out->has_frames = true;
+        }
+    }
+    fclose(f);
+    if (bad || first_line) memset(out, 0, sizeof *out);
+    else out->found = true;
     return DR_OK;
 }
 

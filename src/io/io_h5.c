@@ -3,12 +3,34 @@
 #include "io/io.h"
 
 #include <errno.h>
+#include <fcntl.h>
 #include <hdf5.h>
+#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
 
 typedef enum ElemKind { ELEM_F64, ELEM_I64, ELEM_U64, ELEM_I32 } ElemKind;
+static size_t kind_size(ElemKind kind) { return kind == ELEM_I32 ? 4 : 8; }
+
+/* The content checksum of every dataset (DR_H5_CHECKSUM_ATTR): XXH3-128 of its elements' bytes in the order the
+ * file stores them, little-endian, which is the memory order of every machine drench builds for. */
+_Static_assert(__BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__, "dataset checksums hash memory in file (little-endian) order");
+static void checksum_hex(const void *data, size_t bytes, char hex[33])
+{
+    dr_hash_hex(dr_hash_bytes(bytes > 0 ? data : "", bytes), hex);
+}
+
+/* What a reader is told to do with a damaged or foreign file. */
+#define DAMAGED_FIX DR_H5_DAMAGED_FIX
+
+void dr_h5_drop_fix(DrError *err)
+{
+    char *fix = strstr(err->message, DAMAGED_FIX);
+    if (!fix || fix - err->message < 2) return;
+    char *cut = fix - 2, *rest = fix + strlen(DAMAGED_FIX); /* "; " or ": " before it */
+    if ((cut[0] == ';' || cut[0] == ':') && cut[1] == ' ') memmove(cut, rest, strlen(rest) + 1);
+}
 
 /* How one dataset is stored: compress = false gives CONTIGUOUS, compress = true the handle's
  * DrH5Compress (DEFLATE for DR_H5_COMPRESS_ALL, ONE_VALUE for DR_H5_COMPRESS_ONE_VALUE). */
@@ -36,6 +58,7 @@ struct DrH5 {
     DrH5Compress compress;     /* what compress = true means for the datasets written next */
     char path[DR_IO_PATH_MAX]; /* final path (write) or opened path (read) */
     char tmp[DR_IO_PATH_MAX];  /* temporary path being written, "" for read and deferred handles */
+    int fd;                    /* the temporary file, open for writing (write handles), else -1 */
     H5Op *ops;                 /* deferred: the recorded calls, in call order */
     int nops, cap;
 };
@@ -69,6 +92,9 @@ enum { DEFLATE_LEVEL = 1 };
 enum { CHUNK_BYTES = 256 * 1024 };
 /* Below this a dataset of one value is left contiguous: a chunk index costs more than it saves. */
 enum { CONSTANT_MIN_BYTES = 4096 };
+/* The in-memory file grows by at least this much at a time, and by the data's size plus this slack (object
+ * headers, attributes) when the size is known (a deferred handle). */
+enum { CORE_INCREMENT_MIN = 1 << 20, CORE_SLACK_BYTES = 256 * 1024 };
 
 static void h5_quiet(void)
 {
@@ -180,36 +206,58 @@ static DrStatus alloc_handle(const char *path, DrH5 **out, DrError *err)
     DrH5 *h;
     DR_TRY(dr_calloc(1, sizeof *h, &h, err));
     h->file = -1;
+    h->fd = -1;
     snprintf(h->path, sizeof h->path, "%s", path);
     *out = h;
     return DR_OK;
 }
 
-DrStatus dr_h5_create(const char *final_path, DrH5 **out, DrError *err)
+/* A write handle's file lives in memory (HDF5's core driver without a backing store) until dr_h5_commit writes
+ * its image through the temporary file opened here. HDF5 then never writes to disk itself: with the default
+ * driver, a disk that fills up while H5Fclose flushes the metadata left the file half closed, and HDF5's own
+ * cleanup at exit crashed on it (SIGSEGV, exit 139, after the error had been reported). Now every write to disk
+ * is this module's, and its failure is an ordinary DR_ERR_IO. size_hint (bytes, 0 when unknown) sizes the first
+ * allocation, so that a file of known size grows without copies. */
+static DrStatus create_in_memory(const char *final_path, size_t size_hint, DrH5 **out, DrError *err)
 {
     h5_quiet();
     DrH5 *h;
     DR_TRY(alloc_handle(final_path, &h, err));
     h->writable = true;
     dr_io_tmp_path(final_path, h->tmp, sizeof h->tmp);
-    /* STRONG close: H5Fclose closes every object still open, so the file on disk is complete
-     * when dr_h5_commit renames it. */
+    h->fd = open(h->tmp, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0666);
+    if (h->fd < 0) {
+        DrStatus s = dr_error_set(err, DR_ERR_IO, final_path, 0, 0,
+                                  "cannot create %s: %s; check that the directory exists and is writable", h->tmp,
+                                  strerror(errno));
+        free(h);
+        return s;
+    }
+    /* STRONG close: H5Fclose closes every object still open, so the image is complete. */
+    size_t increment = size_hint + CORE_SLACK_BYTES;
+    if (increment < CORE_INCREMENT_MIN) increment = CORE_INCREMENT_MIN;
     hid_t fapl = H5Pcreate(H5P_FILE_ACCESS);
-    if (fapl >= 0) H5Pset_fclose_degree(fapl, H5F_CLOSE_STRONG);
-    h->file = fapl >= 0 ? H5Fcreate(h->tmp, H5F_ACC_TRUNC, H5P_DEFAULT, fapl) : -1;
+    bool ok = fapl >= 0 && H5Pset_fclose_degree(fapl, H5F_CLOSE_STRONG) >= 0 &&
+              H5Pset_fapl_core(fapl, increment, 0) >= 0;
+    h->file = ok ? H5Fcreate(h->tmp, H5F_ACC_TRUNC, H5P_DEFAULT, fapl) : -1;
     char msg[512] = "";
     if (h->file < 0) h5_msg(msg, sizeof msg); /* before any other call clears the error stack */
     if (fapl >= 0) H5Pclose(fapl);
     if (h->file < 0) {
+        close(h->fd);
         unlink(h->tmp);
-        DrStatus s = dr_error_set(err, DR_ERR_IO, final_path, 0, 0,
-                                  "cannot create HDF5 file %s: %s; check that the directory exists and is writable",
+        DrStatus s = dr_error_set(err, DR_ERR_RUNTIME, final_path, 0, 0, "cannot start HDF5 file %s in memory: %s",
                                   h->tmp, msg);
         free(h);
         return s;
     }
     *out = h;
     return DR_OK;
+}
+
+DrStatus dr_h5_create(const char *final_path, DrH5 **out, DrError *err)
+{
+    return create_in_memory(final_path, 0, out, err);
 }
 
 DrStatus dr_h5_create_deferred(const char *final_path, DrH5 **out, DrError *err)
@@ -220,6 +268,12 @@ DrStatus dr_h5_create_deferred(const char *final_path, DrH5 **out, DrError *err)
     h->deferred = true;
     *out = h;
     return DR_OK;
+}
+
+bool dr_h5_threadsafe(void)
+{
+    hbool_t safe = 0;
+    return H5is_library_threadsafe(&safe) >= 0 && safe;
 }
 
 bool dr_h5_deferred(const DrH5 *h)
@@ -271,6 +325,69 @@ static void free_ops(DrH5 *h)
 
 static DrStatus replay(const H5Op *op, DrH5 *h, DrError *err);
 
+/* Bytes of data a deferred handle recorded: the in-memory file's first allocation. */
+static size_t recorded_bytes(const DrH5 *h)
+{
+    size_t n = 0;
+    for (int i = 0; i < h->nops; i++) {
+        const H5Op *op = &h->ops[i];
+        if (op->kind != OP_DATASET) continue;
+        size_t count = 1;
+        for (int d = 0; d < op->rank; d++) count *= (size_t)op->dims[d]; /* checked when recorded */
+        n += count * kind_size(op->elem);
+    }
+    return n;
+}
+
+/* Writes size bytes to fd; false with errno set on failure (a short write of a full disk is ENOSPC). */
+static bool write_all(int fd, const unsigned char *buf, size_t size)
+{
+    size_t done = 0;
+    while (done < size) {
+        ssize_t w = write(fd, buf + done, size - done);
+        if (w < 0 && errno == EINTR) continue;
+        if (w < 0) return false;
+        if (w == 0) {
+            errno = ENOSPC;
+            return false;
+        }
+        done += (size_t)w;
+    }
+    return true;
+}
+
+/* Closes the in-memory file of a write handle and writes its image to the temporary file; on failure the
+ * temporary file is removed. The HDF5 file is closed whatever happens, before anything touches the disk. */
+static DrStatus write_image(DrH5 *h, DrError *err)
+{
+    h5_quiet();
+    /* the image is of what has been flushed: metadata still cached would be missing from it */
+    ssize_t size = H5Fflush(h->file, H5F_SCOPE_GLOBAL) >= 0 ? H5Fget_file_image(h->file, NULL, 0) : -1;
+    unsigned char *image = size > 0 ? malloc((size_t)size) : NULL;
+    bool got = image && H5Fget_file_image(h->file, image, (size_t)size) == size;
+    char msg[512] = "";
+    if (!got) h5_msg(msg, sizeof msg);
+    bool closed = H5Fclose(h->file) >= 0;
+    if (!closed && got) h5_msg(msg, sizeof msg);
+    h->file = -1;
+    DrStatus s = DR_OK;
+    if (size > 0 && !image)
+        s = dr_error_set(err, DR_ERR_NOMEM, h->path, 0, 0, "out of memory for the %zd bytes of the file's image",
+                         size);
+    else if (!got || !closed)
+        s = dr_error_set(err, DR_ERR_RUNTIME, h->path, 0, 0, "cannot finish the HDF5 file in memory: %s", msg);
+    else if (!write_all(h->fd, image, (size_t)size))
+        s = dr_error_set(err, DR_ERR_IO, h->path, 0, 0, "cannot write %s: %s; check free disk space", h->tmp,
+                         strerror(errno));
+    free(image);
+    if (close(h->fd) != 0 && s == DR_OK)
+        s = dr_error_set(err, DR_ERR_IO, h->path, 0, 0, "cannot write %s: %s; check free disk space", h->tmp,
+                         strerror(errno));
+    h->fd = -1;
+    if (s != DR_OK) unlink(h->tmp);
+    return s;
+}
+
 DrStatus dr_h5_commit(DrH5 **hp, DrError *err)
 {
     DrH5 *h = *hp;
@@ -280,7 +397,7 @@ DrStatus dr_h5_commit(DrH5 **hp, DrError *err)
         /* The recorded calls go to a real handle in their order, so the file is the one a direct
          * handle given the same calls would have written. */
         DrH5 *real = NULL;
-        DrStatus s = dr_h5_create(h->path, &real, err);
+        DrStatus s = create_in_memory(h->path, recorded_bytes(h), &real, err);
         for (int i = 0; s == DR_OK && i < h->nops; i++) s = replay(&h->ops[i], real, err);
         if (s == DR_OK) s = dr_h5_commit(&real, err);
         else dr_h5_close(&real);
@@ -288,17 +405,8 @@ DrStatus dr_h5_commit(DrH5 **hp, DrError *err)
         free(h);
         return s;
     }
-    h5_quiet();
-    DrStatus s = DR_OK;
-    if (H5Fclose(h->file) < 0) {
-        char msg[512];
-        h5_msg(msg, sizeof msg);
-        unlink(h->tmp);
-        s = dr_error_set(err, DR_ERR_IO, h->path, 0, 0, "cannot finish writing the HDF5 file: %s; check free disk space",
-                         msg);
-    } else {
-        s = dr_io_commit(h->tmp, h->path, err);
-    }
+    DrStatus s = write_image(h, err);
+    if (s == DR_OK) s = dr_io_commit(h->tmp, h->path, err);
     free(h);
     return s;
 }
@@ -315,6 +423,7 @@ void dr_h5_close(DrH5 **hp)
     }
     h5_quiet();
     if (h->file >= 0 && H5Fclose(h->file) < 0) H5Eclear2(H5E_DEFAULT);
+    if (h->fd >= 0) close(h->fd);
     if (h->writable) unlink(h->tmp);
     free(h);
 }
@@ -347,8 +456,6 @@ static void chunk_shape(int rank, const uint64_t *dims, hsize_t *chunk)
         if (rows > 0) break;
     }
 }
-
-static size_t kind_size(ElemKind kind) { return kind == ELEM_I32 ? 4 : 8; }
 
 /* True when all count elements of `size` bytes hold the same bytes: each element equals the next. */
 static bool one_value(const void *data, size_t count, size_t size)
@@ -467,6 +574,9 @@ static DrStatus write_dataset(DrH5 *h, const char *path, int rank, const uint64_
     if (!ok)
         return dr_error_set(err, DR_ERR_IO, h->path, 0, 0, "cannot write dataset %s: %s; check free disk space",
                             path, msg);
+    char sum[33];
+    checksum_hex(data, bytes, sum);
+    DR_TRY(dr_h5_attr_str(h, path, DR_H5_CHECKSUM_ATTR, sum, err));
     if (units) DR_TRY(dr_h5_attr_str(h, path, "units", units, err));
     return DR_OK;
 }
@@ -529,6 +639,56 @@ static const char *kind_name(ElemKind kind)
     return "";
 }
 
+/* Reads the checksum attribute of an open dataset into hex: 1 when read, 0 when the dataset has none, -1 when
+ * it is not a string of 32 characters. */
+static int read_checksum_attr(hid_t dset, char hex[33])
+{
+    htri_t exists = H5Aexists(dset, DR_H5_CHECKSUM_ATTR);
+    if (exists <= 0) {
+        H5Eclear2(H5E_DEFAULT);
+        return 0;
+    }
+    hid_t a = H5Aopen(dset, DR_H5_CHECKSUM_ATTR, H5P_DEFAULT);
+    hid_t type = a >= 0 ? H5Aget_type(a) : -1;
+    int r = -1;
+    if (type >= 0 && H5Tget_class(type) == H5T_STRING && H5Tis_variable_str(type) == 0 && H5Tget_size(type) <= 33) {
+        char buf[34] = {0};
+        if (H5Aread(a, type, buf) >= 0 && strlen(buf) == 32) {
+            memcpy(hex, buf, 33);
+            r = 1;
+        }
+    }
+    if (type >= 0) H5Tclose(type);
+    if (a >= 0) H5Aclose(a);
+    if (r < 0) H5Eclear2(H5E_DEFAULT);
+    return r;
+}
+
+/* Compares the bytes read from dataset `path` with its stored checksum: DR_ERR_INPUT naming file and dataset when
+ * the dataset has none (written by an older drench or another program) or when they differ (damaged). */
+static DrStatus check_sum(DrH5 *h, hid_t dset, const char *path, const void *data, size_t bytes, DrError *err)
+{
+    char stored[33], actual[33];
+    int got = read_checksum_attr(dset, stored);
+    if (got == 0)
+        return dr_error_set(err, DR_ERR_INPUT, h->path, 0, 0,
+                            "dataset %s has no checksum (attribute " DR_H5_CHECKSUM_ATTR
+                            "): the file was written by an older drench or by another program; " DAMAGED_FIX,
+                            path);
+    if (got < 0)
+        return dr_error_set(err, DR_ERR_INPUT, h->path, 0, 0,
+                            "dataset %s: its checksum attribute " DR_H5_CHECKSUM_ATTR
+                            " is not 32 hex digits; the file is damaged: " DAMAGED_FIX,
+                            path);
+    checksum_hex(data, bytes, actual);
+    if (strcmp(stored, actual) != 0)
+        return dr_error_set(err, DR_ERR_INPUT, h->path, 0, 0,
+                            "dataset %s does not match its checksum (stored %s, data %s): the file is damaged; "
+                            DAMAGED_FIX,
+                            path, stored, actual);
+    return DR_OK;
+}
+
 static DrStatus read_dataset(DrH5 *h, const char *path, ElemKind kind, hid_t mem_type, int *rank, uint64_t dims[4],
                              void **data, DrError *err)
 {
@@ -568,8 +728,13 @@ static DrStatus read_dataset(DrH5 *h, const char *path, ElemKind kind, hid_t mem
         h5_msg(msg, sizeof msg);
         free(*data);
         *data = NULL;
-        s = dr_error_set(err, DR_ERR_IO, h->path, 0, 0, "cannot read dataset %s: %s; the file may be corrupt", path,
-                         msg);
+        s = dr_error_set(err, DR_ERR_INPUT, h->path, 0, 0,
+                         "cannot read dataset %s: %s; the file is damaged: " DAMAGED_FIX, path, msg);
+    }
+    if (s == DR_OK) s = check_sum(h, dset, path, *data, count * kind_size(kind), err);
+    if (s != DR_OK) {
+        free(*data);
+        *data = NULL;
     }
     if (s == DR_OK) *rank = r;
     if (space >= 0) H5Sclose(space);
@@ -596,6 +761,162 @@ DrStatus dr_h5_read_u64(DrH5 *h, const char *path, int *rank, uint64_t dims[4], 
 DrStatus dr_h5_read_i32(DrH5 *h, const char *path, int *rank, uint64_t dims[4], int32_t **data, DrError *err)
 {
     return read_dataset(h, path, ELEM_I32, H5T_NATIVE_INT32, rank, dims, (void **)data, err);
+}
+
+/* ---- whole-file verification ---- */
+
+typedef struct Datasets {
+    char **paths; /* absolute paths of the file's datasets, in visiting order */
+    int count, cap;
+    bool failed;
+} Datasets;
+
+static herr_t collect_dataset(hid_t obj, const char *name, const H5O_info_t *info, void *data)
+{
+    (void)obj;
+    Datasets *d = data;
+    if (info->type != H5O_TYPE_DATASET) return 0;
+    if (d->count == d->cap) {
+        int cap = d->cap ? 2 * d->cap : 32;
+        char **grown = realloc(d->paths, (size_t)cap * sizeof *grown);
+        if (!grown) {
+            d->failed = true;
+            return -1;
+        }
+        d->paths = grown;
+        d->cap = cap;
+    }
+    size_t len = strlen(name) + 2;
+    char *p = malloc(len);
+    if (!p) {
+        d->failed = true;
+        return -1;
+    }
+    snprintf(p, len, "/%s", name);
+    d->paths[d->count++] = p;
+    return 0;
+}
+
+static void free_datasets(Datasets *d)
+{
+    for (int i = 0; i < d->count; i++) free(d->paths[i]);
+    free(d->paths);
+}
+
+/* One dataset of dr_h5_verify: read whole into *buf (grown as needed), checked against its checksum, and with
+ * `finite` its 64-bit floats for NaN and infinity. */
+/* Reads size bytes at offset; false on any failure (the caller then asks HDF5). */
+static bool pread_all(int fd, void *buf, size_t size, off_t offset)
+{
+    size_t done = 0;
+    while (done < size) {
+        ssize_t r = pread(fd, (char *)buf + done, size - done, offset + (off_t)done);
+        if (r < 0 && errno == EINTR) continue;
+        if (r <= 0) return false;
+        done += (size_t)r;
+    }
+    return true;
+}
+
+/* fd: the file opened for reading when its addresses are file offsets (no user block), else -1. */
+static DrStatus verify_dataset(DrH5 *h, int fd, const char *path, bool finite, void **buf, size_t *cap, DrError *err)
+{
+    hid_t dset = H5Dopen2(h->file, path, H5P_DEFAULT);
+    if (dset < 0) {
+        char msg[512];
+        h5_msg(msg, sizeof msg);
+        return dr_error_set(err, DR_ERR_INPUT, h->path, 0, 0, "cannot open dataset %s: %s; the file is damaged: " DAMAGED_FIX,
+                            path, msg);
+    }
+    hid_t type = H5Dget_type(dset), space = H5Dget_space(dset);
+    const ElemKind kinds[4] = {ELEM_F64, ELEM_I64, ELEM_U64, ELEM_I32};
+    const hid_t mem[4] = {H5T_NATIVE_DOUBLE, H5T_NATIVE_INT64, H5T_NATIVE_UINT64, H5T_NATIVE_INT32};
+    int k = 0;
+    while (k < 4 && !(type >= 0 && type_is(type, kinds[k]))) k++;
+    int r = space >= 0 ? H5Sget_simple_extent_ndims(space) : -1;
+    DrStatus s = DR_OK;
+    size_t count = 1;
+    if (k == 4 || r < 0 || r > 4) {
+        s = dr_error_set(err, DR_ERR_INPUT, h->path, 0, 0,
+                         "dataset %s is not one drench writes (8-byte floats or integers, 4-byte integers, rank up to "
+                         "4); the file is damaged or foreign: " DAMAGED_FIX,
+                         path);
+    } else {
+        hsize_t hd[4] = {0, 0, 0, 0};
+        uint64_t dims[4] = {0, 0, 0, 0};
+        H5Sget_simple_extent_dims(space, hd, NULL);
+        for (int i = 0; i < r; i++) dims[i] = hd[i];
+        s = element_count(h, path, r, dims, &count, err);
+    }
+    size_t bytes = s == DR_OK ? count * kind_size(kinds[k]) : 0;
+    if (s == DR_OK && bytes > *cap) {
+        void *grown = realloc(*buf, bytes);
+        if (!grown) s = dr_error_set(err, DR_ERR_NOMEM, h->path, 0, 0, "out of memory reading dataset %s", path);
+        else *buf = grown, *cap = bytes;
+    }
+    /* A contiguous dataset's bytes are read straight from the file (pread: about three times HDF5's read rate
+       from the page cache, measured on the default shot's frames); the file stores them little-endian, as they
+       were hashed. Anything else (compressed, not allocated) goes through HDF5. */
+    bool raw = false;
+    if (s == DR_OK && count > 0 && fd >= 0) {
+        hid_t dcpl = H5Dget_create_plist(dset);
+        haddr_t off = H5Dget_offset(dset);
+        raw = dcpl >= 0 && H5Pget_layout(dcpl) == H5D_CONTIGUOUS && off != HADDR_UNDEF &&
+              H5Dget_storage_size(dset) == (hsize_t)bytes && pread_all(fd, *buf, bytes, (off_t)off);
+        if (dcpl >= 0) H5Pclose(dcpl);
+        H5Eclear2(H5E_DEFAULT);
+    }
+    if (s == DR_OK && count > 0 && !raw && H5Dread(dset, mem[k], H5S_ALL, H5S_ALL, H5P_DEFAULT, *buf) < 0) {
+        char msg[512];
+        h5_msg(msg, sizeof msg);
+        s = dr_error_set(err, DR_ERR_INPUT, h->path, 0, 0, "cannot read dataset %s: %s; the file is damaged: " DAMAGED_FIX,
+                         path, msg);
+    }
+    if (s == DR_OK) s = check_sum(h, dset, path, *buf, bytes, err);
+    if (s == DR_OK && finite && kinds[k] == ELEM_F64) {
+        const double *v = *buf;
+        for (size_t i = 0; i < count; i++)
+            if (!isfinite(v[i])) {
+                s = dr_error_set(err, DR_ERR_INPUT, h->path, 0, 0, "dataset %s holds %g at element %zu", path, v[i], i);
+                break;
+            }
+    }
+    if (space >= 0) H5Sclose(space);
+    if (type >= 0) H5Tclose(type);
+    H5Dclose(dset);
+    return s;
+}
+
+DrStatus dr_h5_verify(DrH5 *h, bool finite, char *bad_dataset, size_t bad_size, DrError *err)
+{
+    assert(!h->deferred && !h->writable);
+    h5_quiet();
+    if (bad_dataset && bad_size) bad_dataset[0] = '\0';
+    Datasets d = {0};
+    if (H5Ovisit2(h->file, H5_INDEX_NAME, H5_ITER_INC, collect_dataset, &d, H5O_INFO_BASIC) < 0 || d.failed) {
+        char msg[512];
+        h5_msg(msg, sizeof msg);
+        free_datasets(&d);
+        if (d.failed) return dr_error_set(err, DR_ERR_NOMEM, h->path, 0, 0, "out of memory listing the datasets");
+        return dr_error_set(err, DR_ERR_INPUT, h->path, 0, 0,
+                            "cannot list the datasets: %s; the file is damaged: " DAMAGED_FIX, msg);
+    }
+    void *buf = NULL;
+    size_t cap = 0;
+    DrStatus s = DR_OK;
+    hid_t fcpl = H5Fget_create_plist(h->file);
+    hsize_t userblock = 1;
+    if (fcpl >= 0) H5Pget_userblock(fcpl, &userblock);
+    if (fcpl >= 0) H5Pclose(fcpl);
+    int fd = userblock == 0 ? open(h->path, O_RDONLY | O_CLOEXEC) : -1;
+    for (int i = 0; s == DR_OK && i < d.count; i++) {
+        s = verify_dataset(h, fd, d.paths[i], finite, &buf, &cap, err);
+        if (s != DR_OK && bad_dataset && bad_size) snprintf(bad_dataset, bad_size, "%s", d.paths[i]);
+    }
+    if (fd >= 0) close(fd);
+    free(buf);
+    free_datasets(&d);
+    return s;
 }
 
 /* ---- attributes ---- */

@@ -69,10 +69,11 @@ static bool root_attr_is(DrH5 *h, const char *name, const char *expected)
 }
 
 DrStatus dr_io_precache_open(const char *root, const char *kind, const char *key_hex, DrH5 **out, bool *found,
-                             DrError *err)
+                             DrError *rejected, DrError *err)
 {
     *out = NULL;
     *found = false;
+    if (rejected) dr_error_clear(rejected);
     DR_TRY(check_kind_key(root, kind, key_hex, err));
     char path[DR_IO_PATH_MAX];
     dr_io_precache_path(root, kind, key_hex, path, sizeof path);
@@ -81,14 +82,16 @@ DrStatus dr_io_precache_open(const char *root, const char *kind, const char *key
     DrH5 *h;
     DrError open_err;
     if (dr_h5_open(path, &h, &open_err) != DR_OK) {
-        dr_log_warn("%s: unreadable precompute cache file, it will be recomputed (%s)", path, open_err.message);
+        if (rejected) dr_error_set(rejected, DR_ERR_INPUT, path, 0, 0, "unreadable precompute cache file: %s",
+                                   open_err.message);
         return DR_OK;
     }
     /* The file name alone is not proof: a file copied or renamed by hand, or written by a run that
      * died between naming and filling it, must not stand in for another computation. */
     if (!root_attr_is(h, "key", key_hex) || !root_attr_is(h, "kind", kind)) {
-        dr_log_warn("%s: precompute cache file records another key or kind than its name, it will be recomputed",
-                    path);
+        if (rejected)
+            dr_error_set(rejected, DR_ERR_INPUT, path, 0, 0,
+                         "the precompute cache file records another key or kind than its name says");
         dr_h5_close(&h);
         return DR_OK;
     }

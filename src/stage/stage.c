@@ -23,7 +23,7 @@ static void print_help(DrStageId stage)
 {
     const char *n = dr_stage_name(stage);
     printf("usage: %s SCENE.json [options]\n\n%s %s.\n\noptions:\n", n, n, stage_summary(stage));
-    if (stage != DR_STAGE_PRECOMPUTE) printf("  --frames A-B        limit to frames A..B of the shot (no MANIFEST is written)\n");
+    if (stage != DR_STAGE_PRECOMPUTE) printf("  --frames A-B        limit to frames A..B of the shot (the MANIFEST records the frames done)\n");
     if (stage == DR_STAGE_MESH || stage == DR_STAGE_RENDER)
         printf("  --finish            after frame ranges ran separately (a farm's job array): check every\n"
                "                      frame's output is there and write the MANIFEST%s\n",
@@ -38,6 +38,13 @@ static void print_help(DrStageId stage)
     if (stage == DR_STAGE_BAKE) {
         printf("  --resume            continue from out/<shot>/bake/checkpoint.h5 (bit-identical to an\n"
                "                      uninterrupted bake)\n"
+               "  --verify            check, writing nothing, the frames from the shot's first to its last\n"
+               "                      (or to B of --frames A-B) and the checkpoint; print \"shot F L\" (the\n"
+               "                      shot's frames), \"good_through N\" (the last frame of the unbroken run\n"
+               "                      of good frames) and \"checkpoint N\" (the frame --resume continues\n"
+               "                      after) or \"checkpoint none\"; exit 0 when every frame is good, else 2\n"
+               "                      naming the first bad frame's file and what is wrong; with --quick,\n"
+               "                      the frames' files, numbers and keys only, not their data\n"
                "  --sync-writes       write each frame and checkpoint on the main thread before the next\n"
                "                      frame starts (by default a writer thread writes them while the next\n"
                "                      frame is simulated; the files are the same)\n"
@@ -48,7 +55,8 @@ static void print_help(DrStageId stage)
            "  --out DIR           output root (default $DRENCH_OUT or ./out)\n"
            "  --cache DIR         precompute cache root (default $DRENCH_CACHE or ./cache)\n"
            "  --print-key         print this stage's cache key for the scene and exit\n"
-           "  --print-out-dir     print this stage's output folder for the scene and exit\n"
+           "  --print-out-dir     print this stage's output folder for the scene and exit (after the key\n"
+           "                      with --print-key)\n"
            "  --print-frames      print the shot's first and last frame (after --frames) and exit\n"
            "  -q, --quiet         only warnings and errors: no progress bar or per-frame lines\n"
            "  -v, --verbose       also debug lines%s\n"
@@ -122,6 +130,10 @@ DrStatus dr_stage_parse_args(DrStageId stage, int argc, char **argv, DrStageArgs
             else a->cache_root = argv[++i];
         } else if (!strcmp(s, "--resume") && stage == DR_STAGE_BAKE) {
             a->resume = true;
+        } else if (!strcmp(s, "--verify") && stage == DR_STAGE_BAKE) {
+            a->verify = true;
+        } else if (!strcmp(s, "--quick") && stage == DR_STAGE_BAKE) {
+            a->quick = true;
         } else if (!strcmp(s, "--sync-writes") && stage == DR_STAGE_BAKE) {
             a->sync_writes = true;
         } else if (!strcmp(s, "--finish") && (stage == DR_STAGE_MESH || stage == DR_STAGE_RENDER)) {
@@ -156,6 +168,9 @@ DrStatus dr_stage_parse_args(DrStageId stage, int argc, char **argv, DrStageArgs
     }
     if (!a->scene_path && !a->list_components)
         return usage_error(stage, err, "%s", "no scene given: pass the scene file, e.g. assets/scenes/default.json");
+    if (a->quick && !a->verify) return usage_error(stage, err, "%s", "--quick goes with --verify");
+    if (a->verify && (a->resume || a->print_key || a->print_out_dir || a->print_frames))
+        return usage_error(stage, err, "%s", "--verify only checks: it does not combine with --resume or --print-*");
     if (a->finish && a->frames_given)
         return usage_error(stage, err, "%s", "--finish covers the whole shot; it does not take --frames");
     if (a->plots_only && (a->finish || a->no_plots))
@@ -235,8 +250,16 @@ DrStatus dr_stage_begin(DrStageId stage, int argc, char **argv, DrStageArgs *arg
         *done = s == DR_OK;
         return s;
     }
+    /* The assets are checked as loading them in the stage would (so a key is printed only for a scene the stage
+       accepts); --print-out-dir and --print-frames only name things. */
+    if (args->print_key || !args->print_out_dir) s = dr_stage_check_assets(*scene, err);
+    if (s < 0) {
+        dr_scene_destroy(scene);
+        return s;
+    }
     if (args->print_key || args->print_out_dir) {
-        printf("%s\n", args->print_key ? stage_key(keys, stage) : dir);
+        if (args->print_key) printf("%s\n", stage_key(keys, stage));
+        if (args->print_out_dir) printf("%s\n", dir); /* both: the key, then the folder (pipeline.sh asks so) */
         dr_scene_destroy(scene);
         *done = true;
     }

@@ -17,6 +17,8 @@ typedef struct DrStageArgs {
     int frame_first, frame_last; /* --frames A-B; 0,0 when not given */
     bool frames_given;
     bool resume;             /* bake --resume */
+    bool verify;             /* bake --verify: check the frames and the checkpoint, write nothing */
+    bool quick;              /* bake --verify --quick: the frames' files, numbers and keys, not their data */
     bool sync_writes;        /* bake --sync-writes: frames and checkpoints written on the main thread */
     bool finish;             /* mesh/render --finish: seal frame ranges that ran separately */
     bool plots_only, no_plots; /* render --plots / --no-plots */
@@ -75,6 +77,65 @@ DR_NODISCARD DrStatus dr_stage_load_groom(const DrElement *e, DrGroom *g, DrErro
  * key. Fails as dr_bem_asset_load, the message starting with "<element>.Mesh.file: "; *out holds nothing to free
  * then. */
 typedef struct DrBemAsset DrBemAsset;
+
+/* ---- the MANIFEST of a frame stage (stage_manifest.c) ------------------------------------------------------
+ * mesh and render record in their MANIFEST the frames whose outputs are complete ("frames A-B", io.h), so that
+ * a run over part of the shot is kept: `--frames 1-10` twice does the work once, and `--frames 11-20` after it
+ * leaves the folder complete for 1-20. A farm's ranges, run apart, may under-claim (each keeps what it saw when
+ * it started); `--finish` then claims the whole shot after checking every file. */
+typedef struct DrStageFrames {
+    char dir[2048];
+    DrStageId stage;
+    char key[33];
+    const DrScene *scene;
+    int first, last;              /* this run's frames */
+    int shot_first, shot_last;
+    bool had;                     /* an earlier MANIFEST under the same key */
+    int had_first, had_last;      /* and its frames */
+} DrStageFrames;
+/* Before a run over first..last writes anything: reads the folder's MANIFEST. When the run `rewrites` those
+ * frames' outputs, under the same key the MANIFEST's frames before `first` stay claimed (it is rewritten to them,
+ * with `inputs`), otherwise it is removed, so a run that fails leaves no claim on the frames it was rewriting; a
+ * run that only checks them (--finish) leaves it alone. DR_ERR_IO naming the MANIFEST on failure. */
+DR_NODISCARD DrStatus dr_stage_frames_begin(const char *dir, DrStageId stage, const char *key, const DrScene *scene,
+                                            int first, int last, bool rewrites, const char *const *inputs,
+                                            int ninputs, DrStageFrames *run, DrError *err);
+/* The frames the MANIFEST claims once this run has written its own: them, joined with the earlier range when the
+ * two touch or overlap (the MANIFEST holds one range: an earlier one apart from this run's is dropped). */
+void dr_stage_frames_done(const DrStageFrames *run, int *done_first, int *done_last);
+/* After the run wrote every output of its frames (and, when they complete the shot, what the whole shot gets): the
+ * MANIFEST claims dr_stage_frames_done's range. DR_ERR_IO naming it on failure. */
+DR_NODISCARD DrStatus dr_stage_frames_end(const DrStageFrames *run, const char *const *inputs, int ninputs,
+                                          DrError *err);
+/* True when done_first..done_last covers the shot. */
+bool dr_stage_frames_whole(const DrStageFrames *run, int done_first, int done_last);
+
+/* ---- checks before anything is written (stage_check.c) ---------------------------------------------------- */
+
+/* Loads every asset the scene's elements reference as the world loads them and checks what the world would
+ * refuse, so that a scene fails at once (and --print-key fails) rather than after a stage has written something:
+ * collider meshes and MPM shape meshes must load and be closed, bem_solid meshes pass dr_stage_load_bem_asset,
+ * liquid source meshes, hair scalps and hair curves must load. Errors (DR_ERR_INPUT) name the element, the field
+ * and the file. dr_stage_begin calls it for every stage. */
+DR_NODISCARD DrStatus dr_stage_check_assets(const DrScene *scene, DrError *err);
+
+/* Frame caches as later stages trust them: <bake_dir>/frame.NNNN.h5 exists, opens, holds `frame` (root attribute
+ * frame: a file copied over another frame's is refused), was baked under bake_key (root attribute scene_key) and
+ * every dataset matches its checksum (dr_h5_verify). DR_ERR_INPUT naming the file and what is wrong (the caller
+ * says which stage to rerun); DR_ERR_NOMEM. */
+DR_NODISCARD DrStatus dr_stage_check_frame(const char *bake_dir, int frame, const char *bake_key, DrError *err);
+/* Checks frames first..last (in parallel where HDF5 allows threads): *good_through is the last frame of the
+ * unbroken run of good frames from `first` (first − 1 when frame `first` is bad). DR_OK when all are good, else
+ * the first bad frame's failure as DR_ERR_INPUT (DR_ERR_NOMEM kept). Without `data`, the datasets' checksums
+ * are left out (the file, its frame and its key only: a few milliseconds a frame instead of one read of it). */
+DR_NODISCARD DrStatus dr_stage_check_frames(const char *bake_dir, int first, int last, const char *bake_key,
+                                            bool data, int *good_through, DrError *err);
+/* The bake's checkpoint at `path` as bake --resume would take it: written under bake_key, after a frame in
+ * first−1..last (the shot's frames), every dataset matching its checksum and every number finite. DR_OK with
+ * *frame the frame it follows; else DR_ERR_INPUT saying why (a missing file included) and *frame = first − 1;
+ * DR_ERR_NOMEM. */
+DR_NODISCARD DrStatus dr_stage_check_checkpoint(const char *path, const char *bake_key, int first, int last,
+                                                int *frame, DrError *err);
 DR_NODISCARD DrStatus dr_stage_load_bem_asset(const DrElement *e, DrBemAsset *out, DrError *err);
 
 #endif

@@ -78,6 +78,74 @@ DrStatus dr_world_create(const DrScene *scene, DrWorld **out, DrError *err)
     return dr_world_create_desc(scene, &d, out, err);
 }
 
+/* ---- failures: who, where, when --------------------------------------------------------------------------------
+ * A solver's failure (a blow-up, running out of memory) is told with the elements it simulates, the scene file and
+ * the frame, whatever the solver's own message names: "scene.json: error: hair 'fur', frame 5: ...". */
+
+/* "<type> 'a', 'b'": the elements of one kind (e NULL), or element e alone. */
+static void describe_elements(const DrScene *scene, DrElementKind kind, const DrElement *e, char *buf, size_t size)
+{
+    size_t n = 0;
+    buf[0] = '\0';
+    for (int i = 0; i < dr_scene_element_count(scene) && n < size; i++) {
+        const DrElement *x = dr_scene_element(scene, i);
+        if (e ? x != e : x->kind != kind) continue;
+        n += (size_t)snprintf(buf + n, size - n, n ? ", '%s'" : "%s '%s'", x->type, x->name);
+    }
+}
+
+/* Adds what the failure's message does not say yet (the elements, and with frame > 0 the frame) in front of it, and
+ * the scene file when it names no file. */
+static DrStatus failed(const DrWorld *w, DrElementKind kind, const DrElement *e, int frame, DrStatus s, DrError *err)
+{
+    if (s >= 0 || !err) return s;
+    char who[512], when[32] = "";
+    describe_elements(w->scene, kind, e, who, sizeof who);
+    if (frame > 0) snprintf(when, sizeof when, "frame %d", frame);
+    /* named when the message names the first of them, quoted or leading ("jelly: ..." or "... 'jelly' ...") */
+    const char *q = strchr(who, '\'');
+    char name[160] = "", quoted[164] = "";
+    if (q) snprintf(name, sizeof name, "%.*s", (int)strcspn(q + 1, "'"), q + 1);
+    snprintf(quoted, sizeof quoted, "'%s'", name);
+    bool named = !name[0] || strstr(err->message, quoted) || strncmp(err->message, name, strlen(name)) == 0;
+    bool dated = !when[0] || strstr(err->message, when) != NULL;
+    if (!err->file[0]) {
+        snprintf(err->file, sizeof err->file, "%s", dr_scene_path(w->scene));
+        err->line = err->col = 0;
+    }
+    if (!named && !dated) return dr_error_prefix(s, err, "%s, %s", who, when);
+    if (!named) return dr_error_prefix(s, err, "%s", who);
+    if (!dated) return dr_error_prefix(s, err, "%s", when);
+    return s;
+}
+
+/* failed() for the solver at w->solvers[i]: a liquid element of its own, or every element of its kind. */
+static DrStatus solver_failed(const DrWorld *w, int i, int frame, DrStatus s, DrError *err)
+{
+    if (s >= 0) return s;
+    const WorldSolver *sv = &w->solvers[i];
+    if (sv == w->mpm) return failed(w, DR_ELEMENT_MPM_SOLID, NULL, frame, s, err);
+    if (sv == w->hair) return failed(w, DR_ELEMENT_HAIR, NULL, frame, s, err);
+    if (sv == w->bem) return failed(w, DR_ELEMENT_BEM_SOLID, NULL, frame, s, err);
+    for (int k = 0, liquid = 0; k < dr_scene_element_count(w->scene); k++) {
+        const DrElement *e = dr_scene_element(w->scene, k);
+        if (e->kind == DR_ELEMENT_LIQUID && liquid++ == i) return failed(w, e->kind, e, frame, s, err);
+    }
+    return s;
+}
+/* A solver's constructor: bad input (a file, a field) is told without a frame, anything else with the first. */
+#define BUILD_TRY(kind, e, expr)                                                                                       \
+    do {                                                                                                           \
+        DrStatus build_status_ = (expr);                                                                           \
+        if (build_status_ < 0)                                                                                     \
+            return failed(w, (kind), (e), build_status_ == DR_ERR_INPUT ? 0 : c.frame, build_status_, err);        \
+    } while (0)
+#define SOLVER_TRY(i, frame, expr)                                                                                     \
+    do {                                                                                                           \
+        DrStatus solver_status_ = (expr);                                                                          \
+        if (solver_status_ < 0) return solver_failed(w, (i), (frame), solver_status_, err);                        \
+    } while (0)
+
 static DrStatus build(DrWorld *w, const DrWorldDesc *desc, DrError *err)
 {
     const DrScene *scene = w->scene;
@@ -85,7 +153,7 @@ static DrStatus build(DrWorld *w, const DrWorldDesc *desc, DrError *err)
     DR_TRY(world_kinematics_create(scene, w->first_frame, w->fps, &w->kin, err));
     WorldCtx c = context(w, w->frame + 1);
     /* the bodies before the liquid: it seeds no particle inside them */
-    DR_TRY(world_bem_adapter(&c, desc->cache_root, &w->bem_built, err));
+    BUILD_TRY(DR_ELEMENT_BEM_SOLID, NULL, world_bem_adapter(&c, desc->cache_root, &w->bem_built, err));
     const DrBemSolid *const *solids = NULL;
     const DrElement *const *elements = NULL;
     int nbodies = w->bem_built.self ? world_bem_solids(&w->bem_built, &solids, &elements) : 0;
@@ -97,17 +165,17 @@ static DrStatus build(DrWorld *w, const DrWorldDesc *desc, DrError *err)
     for (int i = 0; i < dr_scene_element_count(scene); i++) {
         const DrElement *e = dr_scene_element(scene, i);
         if (e->kind != DR_ELEMENT_LIQUID) continue;
-        DR_TRY(world_liquid_adapter(&c, e, &w->solvers[w->nsolvers], err));
+        BUILD_TRY(e->kind, e, world_liquid_adapter(&c, e, &w->solvers[w->nsolvers], err));
         w->nsolvers++;
         w->nliquids++;
     }
     WorldSolver s;
-    DR_TRY(world_mpm_adapter(&c, &s, err));
+    BUILD_TRY(DR_ELEMENT_MPM_SOLID, NULL, world_mpm_adapter(&c, &s, err));
     if (s.self) {
         w->solvers[w->nsolvers] = s;
         w->mpm = &w->solvers[w->nsolvers++];
     }
-    DR_TRY(world_lagrangian_adapter(&c, &s, err));
+    BUILD_TRY(DR_ELEMENT_HAIR, NULL, world_lagrangian_adapter(&c, &s, err));
     if (s.self) {
         w->solvers[w->nsolvers] = s;
         w->hair = &w->solvers[w->nsolvers++];
@@ -215,7 +283,8 @@ DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrError *err)
     double t = c.t0;
     while (t < c.t1) {
         for (int i = 0; i < w->nsolvers; i++)
-            if (w->solvers[i].step_first) DR_TRY(w->solvers[i].step_first(w->solvers[i].self, &c, t, c.t1, err));
+            if (w->solvers[i].step_first)
+                SOLVER_TRY(i, c.frame, w->solvers[i].step_first(w->solvers[i].self, &c, t, c.t1, err));
         double land = c.t1;
         for (int i = 0; i < w->nsolvers; i++) {
             const WorldSolver *s = &w->solvers[i];
@@ -225,7 +294,7 @@ DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrError *err)
         for (int i = 0; i < w->nsolvers; i++) {
             WorldSolver *s = &w->solvers[i];
             if (!s->next_time) continue;
-            if (isnan(w->proposal[i])) DR_TRY(s->next_time(s->self, &c, w->at[i], &w->proposal[i], err));
+            if (isnan(w->proposal[i])) SOLVER_TRY(i, c.frame, s->next_time(s->self, &c, w->at[i], &w->proposal[i], err));
             t_next = fmin(t_next, w->proposal[i]);
         }
         /* a proposal a rounding error short of a landing time lands on it (no step of a few ulps after it) */
@@ -235,7 +304,7 @@ DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrError *err)
             WorldSolver *s = &w->solvers[i];
             if (!s->step) continue;
             if (t_next < c.t1 && s->next_time && t_next < w->proposal[i]) continue; /* its own step ends later */
-            DR_TRY(s->step(s->self, &c, w->at[i], t_next, err));
+            SOLVER_TRY(i, c.frame, s->step(s->self, &c, w->at[i], t_next, err));
             w->at[i] = t_next;
             w->proposal[i] = NAN;
         }
@@ -243,9 +312,9 @@ DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrError *err)
         t = t_next;
     }
     /* the blocks in the order the kinetic energies were summed before: BEM, liquids, MPM, hair */
-    if (w->bem) DR_TRY(w->bem->end_frame(w->bem->self, &c, stats, err));
+    if (w->bem) SOLVER_TRY((int)(w->bem - w->solvers), c.frame, w->bem->end_frame(w->bem->self, &c, stats, err));
     for (int i = 0; i < w->nsolvers; i++)
-        if (&w->solvers[i] != w->bem) DR_TRY(w->solvers[i].end_frame(w->solvers[i].self, &c, stats, err));
+        if (&w->solvers[i] != w->bem) SOLVER_TRY(i, c.frame, w->solvers[i].end_frame(w->solvers[i].self, &c, stats, err));
     stats->kinetic_energy = stats->bem.kinetic_energy;
     stats->kinetic_energy += stats->liquid.kinetic_energy;
     stats->kinetic_energy += stats->mpm.kinetic_energy;
@@ -300,6 +369,30 @@ DrStatus dr_world_write_checkpoint(const DrWorld *w, const char *bake_key, DrH5 
     return DR_OK;
 }
 
+/* Every dataset of the checkpoint against its checksum, every number finite, before any solver takes a value from
+ * it: a damaged checkpoint is named as such (with the element whose data is wrong), not left to surface frames later
+ * as a solver's blow-up. */
+static DrStatus check_checkpoint_data(const DrWorld *w, DrH5 *h, const char *path, int frame, DrError *err)
+{
+    char bad[512] = "";
+    DrStatus s = dr_h5_verify(h, true, bad, sizeof bad, err);
+    if (s != DR_ERR_INPUT) return s;
+    /* the first component of a dataset's path is an element's group, or a solver's own (hair_solver) */
+    char group[256] = "";
+    if (bad[0] == '/') snprintf(group, sizeof group, "%.*s", (int)strcspn(bad + 1, "/"), bad + 1);
+    const DrElement *e = group[0] ? dr_scene_find(w->scene, group) : NULL;
+    char who[320];
+    if (e) snprintf(who, sizeof who, "%s '%s'", e->type, e->name);
+    else snprintf(who, sizeof who, "solver state '%s'", group[0] ? group : "/");
+    dr_h5_drop_fix(err);
+    char msg[sizeof err->message];
+    snprintf(msg, sizeof msg, "%s", err->message);
+    return dr_error_set(err, DR_ERR_INPUT, path, 0, 0,
+                        "the checkpoint after frame %d is damaged (%s of %s): %s; it cannot be resumed from: bake "
+                        "without --resume to bake every frame again (pipeline.sh does it)",
+                        frame, who, dr_scene_path(w->scene), msg);
+}
+
 DrStatus dr_world_read_checkpoint(DrWorld *w, const char *path, const char *bake_key, DrError *err)
 {
     DrH5 *h = NULL;
@@ -312,9 +405,10 @@ DrStatus dr_world_read_checkpoint(DrWorld *w, const char *path, const char *bake
                          "checkpoint was written for another version of the scene (key %s, now %s); bake without "
                          "--resume to start over", key, bake_key);
     if (s == DR_OK) s = dr_h5_read_attr_i64(h, "/", "frame", &frame, err);
-    if (s == DR_OK && (frame < w->first_frame - 1 || frame >= w->last_frame))
+    if (s == DR_OK && (frame < w->first_frame - 1 || frame > w->last_frame))
         s = dr_error_set(err, DR_ERR_INPUT, path, 0, 0, "checkpoint frame %lld is outside the shot's frames %d-%d",
                          (long long)frame, w->first_frame, w->last_frame);
+    if (s == DR_OK) s = check_checkpoint_data(w, h, path, (int)frame, err);
     WorldCtx c = context(w, (int)frame);
     for (int i = 0; s == DR_OK && i < w->nsolvers; i++)
         s = w->solvers[i].read(w->solvers[i].self, &c, h, path, (int)frame, err);

@@ -123,10 +123,17 @@ static DrStatus matrices_of(WorldBem *b, const DrScene *scene, const DrElement *
         }
     DrBemMatrices *m = NULL;
     bool found = false;
-    DR_TRY(body_context(dr_bem_cache_read(cache_root, a->key, &m, &found, err), e->name, "cannot read its matrices",
-                        err));
+    DrError rejected;
+    DR_TRY(body_context(dr_bem_cache_read(cache_root, a->key, &m, &found, &rejected, err), e->name,
+                        "cannot read its matrices", err));
     char path[DR_IO_PATH_MAX];
     dr_io_precache_path(cache_root, "bem", a->key, path, sizeof path);
+    if (!found && rejected.status < 0) dr_h5_drop_fix(&rejected);
+    if (!found && rejected.status < 0)
+        return dr_error_set(err, DR_ERR_INPUT, path, 0, 0,
+                            "%s: its precomputed BEM matrices cannot be used: %s; run precompute on this scene, which "
+                            "computes them again (pipeline.sh --from precompute does it)",
+                            e->name, rejected.message);
     if (!found)
         return dr_error_set(err, DR_ERR_INPUT, dr_scene_path(scene), 0, 0,
                             "%s: no precomputed BEM matrices for its cache key %s (%s is missing or unfinished); run "

@@ -41,7 +41,7 @@ material_ok() {
   [ "$(attr "$f" poisson)" = 0.4 ] && [ "$(attr "$f" shear_wave_speed)" = 10 ] &&
   awk -v c="$(attr "$f" longitudinal_wave_speed)" 'BEGIN{exit !(c > 24.49 && c < 24.50)}' && # c₁ = c₂√(2(1−ν)/(1−2ν))
   [ "$(attr "$f" compression_ratio)" = 4 ] && [ "$(attr "$f" ordering)" = vertex_xyz ] &&
-  [ "$(attr "$f" bem_version)" = bem-1 ]
+  [ "$(attr "$f" bem_version)" = bem-2 ]
 }
 check "h5dump -A: material, time step, wave speeds, compression" material_ok
 inputs_ok() {

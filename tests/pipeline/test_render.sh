@@ -41,12 +41,16 @@ away="$WORK/scenes/away.json"
 sed 's/"target": \[0.2, 0.08, 0.1\]/"target": [5, 3, 9]/' "$scene" > "$away"
 expect_exit "camera looking at nothing renders" 0 "render:" "$BIN/render" "$away" --frames 1-2 -q
 
-# frame ranges run apart (a farm's array), then --finish seals them
+# frame ranges run apart (a farm's array), then --finish seals them; a range records its frames in the MANIFEST,
+# and the range that completes the shot writes the contact sheet
 rm -rf "$rd"
 "$BIN/render" "$scene" --frames 1-6 -q 2>/dev/null
-check "a frame range writes no MANIFEST and no contact sheet" test ! -e "$rd/MANIFEST" -a ! -e "$rd/contact_sheet.png"
+check "a frame range's MANIFEST claims its frames only, and there is no contact sheet" \
+  bash -c "grep -qx 'frames 1-6' '$rd/MANIFEST' && [ ! -e '$rd/contact_sheet.png' ]"
 expect_exit "--finish with frames missing exits 2" 2 "frame 7 has not been rendered" "$BIN/render" "$scene" --finish
 "$BIN/render" "$scene" --frames 7-12 -q 2>/dev/null
+check "the range that completes the shot claims it whole and writes the contact sheet" \
+  bash -c "grep -qx 'frames 1-12' '$rd/MANIFEST' && [ -s '$rd/contact_sheet.png' ]"
 expect_exit "--finish after every range" 0 "MANIFEST written" "$BIN/render" "$scene" --finish
 check "--finish wrote the contact sheet and MANIFEST" test -s "$rd/contact_sheet.png" -a -s "$rd/MANIFEST"
 expect_exit "render --plots" 0 "plots written" "$BIN/render" "$scene" --plots

@@ -301,13 +301,16 @@ static void write_set(const char *root, const DrBemMatrices *m, char key[33])
     if (s != DR_OK) fail_msg("dr_bem_cache_write: %s", err.message);
 }
 
+/* Why the last read_set did not trust its file (status DR_OK when it did, or found none). */
+static DrError g_rejected;
+
 /* Reads key from root and asserts whether it was trusted. */
 static DrBemMatrices *read_set(const char *root, const char *key, bool expect_found)
 {
     DrBemMatrices *m = (DrBemMatrices *)(uintptr_t)1;
     bool found = !expect_found;
     DrError err;
-    DrStatus s = dr_bem_cache_read(root, key, &m, &found, &err);
+    DrStatus s = dr_bem_cache_read(root, key, &m, &found, &g_rejected, &err);
     if (s != DR_OK) fail_msg("dr_bem_cache_read: %s", err.message);
     if (found != expect_found) fail_msg("found = %d, expected %d", found, expect_found);
     if (!found) assert_null(m);
@@ -482,7 +485,7 @@ static void test_missing_file_is_not_found(void **state)
     bool found;
     DrError err;
     /* a key that is not hex never becomes a path */
-    assert_int_equal(dr_bem_cache_read(root, "../../etc/passwd", &m, &found, &err), DR_ERR_INPUT);
+    assert_int_equal(dr_bem_cache_read(root, "../../etc/passwd", &m, &found, NULL, &err), DR_ERR_INPUT);
     assert_false(found);
 }
 
@@ -597,6 +600,27 @@ static void test_inconsistent_datasets_are_not_trusted(void **state)
         {"a missing row pointer", NULL, 0, "/H/2/row_ptr"},
         {"missing rest positions", NULL, 0, "/mesh/x"},
     };
+    /* a value edited in place (an uncompressed dataset, its shape unchanged): its checksum no longer matches */
+    m = make_set(true, false, 23);
+    write_set(root, m, key);
+    free_by_hand(&m);
+    {
+        char path[1024];
+        file_path(root, key, path, sizeof path);
+        hid_t f = H5Fopen(path, H5F_ACC_RDWR, H5P_DEFAULT);
+        assert_true(f >= 0);
+        hid_t d = H5Dopen2(f, "/body/volume", H5P_DEFAULT);
+        assert_true(d >= 0);
+        double v = 12.5;
+        assert_true(H5Dwrite(d, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, &v) >= 0);
+        H5Dclose(d);
+        assert_true(H5Fclose(f) >= 0);
+        read_set(root, key, false);
+        assert_int_equal(g_rejected.status, DR_ERR_INPUT);
+        assert_string_equal(g_rejected.file, path);
+        assert_non_null(strstr(g_rejected.message, "/body/volume does not match its checksum"));
+    }
+
     for (size_t i = 0; i < sizeof edits / sizeof edits[0]; i++) {
         m = make_set(i % 2 == 1, false, 17 + i); /* H compressed where its row pointer is removed */
         write_set(root, m, key);
@@ -615,7 +639,7 @@ static void test_inconsistent_datasets_are_not_trusted(void **state)
         assert_true(H5Fclose(f) >= 0);
         DrBemMatrices *r = (DrBemMatrices *)(uintptr_t)1;
         bool found = true;
-        assert_int_equal(dr_bem_cache_read(root, key, &r, &found, &err), DR_OK);
+        assert_int_equal(dr_bem_cache_read(root, key, &r, &found, NULL, &err), DR_OK);
         if (found) fail_msg("a file with %s was trusted", edits[i].what);
         assert_null(r);
     }

@@ -10,6 +10,9 @@
 #include "core/core.h"
 #include "io/io.h"
 
+#include <hdf5.h>
+#include <math.h>
+
 #include <dirent.h>
 #include <fcntl.h>
 #include <pthread.h>
@@ -664,6 +667,28 @@ static void test_manifest(void **state)
     assert_int_equal(dr_io_manifest_write(dir, "bake", "not-hex", "s.json", NULL, 0, &err), DR_ERR_INPUT);
     assert_false(dr_io_exists(path));
     assert_int_equal(count_tmp_files(dir), 0);
+
+    /* The frames a frame stage holds: written as "frames A-B" after the scene, read back; a MANIFEST without the
+     * line has none, one with a malformed line is not trusted. */
+    DrManifest m;
+    assert_int_equal(dr_io_manifest_write_frames(dir, "bake", key, "s.json", 1, 10, inputs, 2, &err), DR_OK);
+    text = slurp(path);
+    assert_non_null(strstr(text, "\nscene s.json\nframes 1-10\ninput asset"));
+    free(text);
+    assert_int_equal(dr_io_manifest_read(dir, &m, &err), DR_OK);
+    assert_true(m.found && m.has_frames);
+    assert_string_equal(m.key, key);
+    assert_int_equal(m.first, 1);
+    assert_int_equal(m.last, 10);
+    assert_int_equal(dr_io_manifest_write(dir, "precompute", key, "s.json", NULL, 0, &err), DR_OK);
+    assert_int_equal(dr_io_manifest_read(dir, &m, &err), DR_OK);
+    assert_true(m.found && !m.has_frames);
+    assert_int_equal(dr_io_write_text_atomic(path, "key beef\nframes 9-3\n", &err), DR_OK);
+    assert_int_equal(dr_io_manifest_read(dir, &m, &err), DR_OK);
+    assert_false(m.found);
+    assert_int_equal(dr_io_manifest_remove(dir, &err), DR_OK);
+    assert_int_equal(dr_io_manifest_read(dir, &m, &err), DR_OK);
+    assert_false(m.found);
 }
 
 /* ---- HDF5 ---- */
@@ -1264,6 +1289,182 @@ static void test_h5_writer_failure(void **state)
     assert_int_equal(count_tmp_files(g_dir), 0);
 }
 
+
+/* ---- checksums ---- */
+
+/* Offset of the first occurrence of `needle` in file `path`, -1 if none. */
+static long find_bytes(const char *path, const void *needle, size_t n)
+{
+    char *text = NULL;
+    FILE *f = fopen(path, "rb");
+    assert_non_null(f);
+    fseek(f, 0, SEEK_END);
+    long size = ftell(f);
+    fseek(f, 0, SEEK_SET);
+    text = malloc((size_t)size);
+    assert_int_equal(fread(text, 1, (size_t)size, f), (size_t)size);
+    fclose(f);
+    long at = -1;
+    for (long i = 0; at < 0 && i + (long)n <= size; i++)
+        if (memcmp(text + i, needle, n) == 0) at = i;
+    free(text);
+    return at;
+}
+
+static void flip_bit_at(const char *path, long at)
+{
+    FILE *f = fopen(path, "r+b");
+    assert_non_null(f);
+    fseek(f, at, SEEK_SET);
+    int c = fgetc(f);
+    fseek(f, at, SEEK_SET);
+    fputc(c ^ 0x01, f);
+    fclose(f);
+}
+
+/* The sample file of this test: a stored dataset (/a/x, a pattern easy to find on disk), one no reader asks for
+ * (/a/unread), a compressed one, an integer one and an empty one. */
+static void write_checked(const char *path, double first)
+{
+    DrError err;
+    DrH5 *h = NULL;
+    double x[64], unread[64], z[4096] = {0};
+    int32_t tri[6] = {0, 1, 2, 2, 1, 3};
+    for (int i = 0; i < 64; i++) x[i] = first + 0.125 * i, unread[i] = -1000.0 - i;
+    assert_int_equal(dr_h5_create(path, &h, &err), DR_OK);
+    assert_int_equal(dr_h5_write_f64(h, "/a/x", 2, (uint64_t[]){32, 2}, x, "m", false, &err), DR_OK);
+    assert_int_equal(dr_h5_write_f64(h, "/a/unread", 1, (uint64_t[]){64}, unread, "m", false, &err), DR_OK);
+    assert_int_equal(dr_h5_write_f64(h, "/b/zeros", 1, (uint64_t[]){4096}, z, NULL, true, &err), DR_OK);
+    assert_int_equal(dr_h5_write_i32(h, "/b/tri", 2, (uint64_t[]){2, 3}, tri, "1", true, &err), DR_OK);
+    assert_int_equal(dr_h5_write_f64(h, "/b/empty", 2, (uint64_t[]){0, 3}, NULL, "m", false, &err), DR_OK);
+    assert_int_equal(dr_h5_commit(&h, &err), DR_OK);
+}
+
+/* Every dataset carries the XXH3-128 of its bytes; readers and dr_h5_verify check it. A flipped bit in a dataset
+ * (read or not), a dataset rewritten by another tool without its checksum, and one that never had one are refused
+ * as DR_ERR_INPUT naming file and dataset; equal data gives equal files. */
+static void test_h5_checksums(void **state)
+{
+    (void)state;
+    DrError err;
+    char path[512], again[512];
+    scratch_path("checked.h5", path, sizeof path);
+    scratch_path("checked_again.h5", again, sizeof again);
+    write_checked(path, 3.0);
+    write_checked(again, 3.0);
+    assert_true(same_bytes(path, again));
+
+    DrH5 *h = NULL;
+    char *sum = NULL, bad[256];
+    double *v = NULL;
+    int rank;
+    uint64_t dims[4];
+    assert_int_equal(dr_h5_open(path, &h, &err), DR_OK);
+    assert_int_equal(dr_h5_read_attr_str(h, "/a/x", DR_H5_CHECKSUM_ATTR, &sum, &err), DR_OK);
+    double x[64];
+    for (int i = 0; i < 64; i++) x[i] = 3.0 + 0.125 * i;
+    char want[33];
+    dr_hash_hex(dr_hash_bytes(x, sizeof x), want);
+    assert_string_equal(sum, want);
+    free(sum);
+    assert_int_equal(dr_h5_read_f64(h, "/a/x", &rank, dims, &v, &err), DR_OK);
+    free(v);
+    assert_int_equal(dr_h5_verify(h, true, bad, sizeof bad, &err), DR_OK);
+    assert_string_equal(bad, "");
+    dr_h5_close(&h);
+
+    /* one bit of /a/x flipped: the reader and the verification refuse it */
+    long at = find_bytes(path, &x[10], sizeof(double));
+    assert_true(at > 0);
+    flip_bit_at(path, at);
+    assert_int_equal(dr_h5_open(path, &h, &err), DR_OK);
+    assert_int_equal(dr_h5_read_f64(h, "/a/x", &rank, dims, &v, &err), DR_ERR_INPUT);
+    assert_null(v);
+    assert_string_equal(err.file, path);
+    assert_non_null(strstr(err.message, "/a/x does not match its checksum"));
+    assert_int_equal(dr_h5_verify(h, false, bad, sizeof bad, &err), DR_ERR_INPUT);
+    assert_string_equal(bad, "/a/x");
+    dr_h5_close(&h);
+
+    /* a bit flipped in a dataset no caller reads: only the whole-file verification sees it */
+    write_checked(path, 3.0);
+    double u = -1000.0 - 7;
+    flip_bit_at(path, find_bytes(path, &u, sizeof u));
+    assert_int_equal(dr_h5_open(path, &h, &err), DR_OK);
+    assert_int_equal(dr_h5_read_f64(h, "/a/x", &rank, dims, &v, &err), DR_OK);
+    free(v);
+    assert_int_equal(dr_h5_verify(h, false, bad, sizeof bad, &err), DR_ERR_INPUT);
+    assert_string_equal(bad, "/a/unread");
+    assert_non_null(strstr(err.message, "does not match its checksum"));
+    dr_h5_close(&h);
+
+    /* a value edited by another tool (HDF5 directly: its checksum is not updated) */
+    write_checked(path, 3.0);
+    hid_t f = H5Fopen(path, H5F_ACC_RDWR, H5P_DEFAULT);
+    hid_t d = H5Dopen2(f, "/b/tri", H5P_DEFAULT);
+    int32_t edited[6] = {0, 1, 2, 2, 1, 4};
+    assert_true(H5Dwrite(d, H5T_NATIVE_INT32, H5S_ALL, H5S_ALL, H5P_DEFAULT, edited) >= 0);
+    H5Dclose(d);
+    /* and a dataset of another program, which has no checksum */
+    hid_t space = H5Screate_simple(1, (hsize_t[]){3}, NULL);
+    d = H5Dcreate2(f, "/c", H5T_IEEE_F64LE, space, H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+    assert_true(H5Dwrite(d, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, (double[]){1, 2, 3}) >= 0);
+    H5Dclose(d);
+    H5Sclose(space);
+    H5Fclose(f);
+    assert_int_equal(dr_h5_open(path, &h, &err), DR_OK);
+    int32_t *t = NULL;
+    assert_int_equal(dr_h5_read_i32(h, "/b/tri", &rank, dims, &t, &err), DR_ERR_INPUT);
+    assert_non_null(strstr(err.message, "/b/tri does not match its checksum"));
+    assert_int_equal(dr_h5_read_f64(h, "/c", &rank, dims, &v, &err), DR_ERR_INPUT);
+    assert_non_null(strstr(err.message, "/c has no checksum"));
+    assert_int_equal(dr_h5_verify(h, false, bad, sizeof bad, &err), DR_ERR_INPUT);
+    assert_string_equal(bad, "/b/tri"); /* the first in name order */
+    dr_h5_close(&h);
+
+    /* finite: a NaN stored under a valid checksum passes the checksum, not the finite check */
+    DrH5 *w = NULL;
+    double nan3[3] = {1.0, NAN, 2.0};
+    assert_int_equal(dr_h5_create(path, &w, &err), DR_OK);
+    assert_int_equal(dr_h5_write_f64(w, "/g/v", 1, (uint64_t[]){3}, nan3, NULL, false, &err), DR_OK);
+    assert_int_equal(dr_h5_commit(&w, &err), DR_OK);
+    assert_int_equal(dr_h5_open(path, &h, &err), DR_OK);
+    assert_int_equal(dr_h5_verify(h, false, bad, sizeof bad, &err), DR_OK);
+    assert_int_equal(dr_h5_verify(h, true, bad, sizeof bad, &err), DR_ERR_INPUT);
+    assert_string_equal(bad, "/g/v");
+    assert_non_null(strstr(err.message, "nan at element 1"));
+    dr_h5_close(&h);
+}
+
+/* A file whose last bytes HDF5 writes on closing cannot be written (a disk that fills up): DR_ERR_IO naming the file,
+ * no file and no temporary file left, and the process goes on (HDF5 keeps no half-closed file behind). The temporary
+ * path is a link to /dev/full: every write fails there, as on a full disk. */
+static void test_h5_full_disk_on_close(void **state)
+{
+    (void)state;
+    if (!dr_io_exists("/dev/full")) {
+        print_message("no /dev/full: skipped\n");
+        return;
+    }
+    DrError err;
+    char path[512], tmp[600];
+    scratch_path("full.h5", path, sizeof path);
+    dr_io_tmp_path(path, tmp, sizeof tmp);
+    assert_int_equal(symlink("/dev/full", tmp), 0);
+    DrH5 *h = NULL;
+    assert_int_equal(dr_h5_create(path, &h, &err), DR_OK);
+    double v[1000] = {0};
+    assert_int_equal(dr_h5_write_f64(h, "/v", 1, (uint64_t[]){1000}, v, NULL, false, &err), DR_OK);
+    dr_error_clear(&err);
+    assert_int_equal(dr_h5_commit(&h, &err), DR_ERR_IO);
+    assert_null(h);
+    assert_string_equal(err.file, path);
+    assert_non_null(strstr(err.message, "No space left on device"));
+    struct stat sb;
+    assert_true(lstat(tmp, &sb) != 0);
+    assert_false(dr_io_exists(path));
+}
+
 /* ---- precompute cache ---- */
 
 static void test_precache(void **state)
@@ -1286,7 +1487,7 @@ static void test_precache(void **state)
     assert_true(dr_io_exists(path));
 
     bool found = false;
-    assert_int_equal(dr_io_precache_open(root, "bem", key, &h, &found, &err), DR_OK);
+    assert_int_equal(dr_io_precache_open(root, "bem", key, &h, &found, NULL, &err), DR_OK);
     assert_true(found);
     assert_non_null(h);
     const char *names[] = {"kind", "key", "inputs", "asset_hash", "drench_version", "created"};
@@ -1307,23 +1508,23 @@ static void test_precache(void **state)
     dr_h5_close(&h);
 
     /* Another key: no file, not found. Another kind: not found. */
-    assert_int_equal(dr_io_precache_open(root, "bem", "abcd", &h, &found, &err), DR_OK);
+    assert_int_equal(dr_io_precache_open(root, "bem", "abcd", &h, &found, NULL, &err), DR_OK);
     assert_false(found);
     assert_null(h);
-    assert_int_equal(dr_io_precache_open(root, "cohesion", key, &h, &found, &err), DR_OK);
+    assert_int_equal(dr_io_precache_open(root, "cohesion", key, &h, &found, NULL, &err), DR_OK);
     assert_false(found);
 
     /* A file whose recorded key differs from its name is not trusted. */
     dr_log_set_level(DR_LOG_ERROR); /* the warnings below are expected */
     dr_io_precache_path(root, "bem", "abcd", other, sizeof other);
     assert_int_equal(rename(path, other), 0);
-    assert_int_equal(dr_io_precache_open(root, "bem", "abcd", &h, &found, &err), DR_OK);
+    assert_int_equal(dr_io_precache_open(root, "bem", "abcd", &h, &found, NULL, &err), DR_OK);
     assert_false(found);
     assert_null(h);
     /* Nor is a corrupt one. */
     dr_io_precache_path(root, "bem", "ef01", other, sizeof other);
     assert_int_equal(dr_io_write_text_atomic(other, "truncated", &err), DR_OK);
-    assert_int_equal(dr_io_precache_open(root, "bem", "ef01", &h, &found, &err), DR_OK);
+    assert_int_equal(dr_io_precache_open(root, "bem", "ef01", &h, &found, NULL, &err), DR_OK);
     assert_false(found);
     assert_null(h);
     dr_log_set_level(DR_LOG_INFO);
@@ -1331,7 +1532,7 @@ static void test_precache(void **state)
     /* Cohesion table without an asset; bad kinds and keys are refused. */
     assert_int_equal(dr_io_precache_create(root, "cohesion", "42", "{}", NULL, &h, &err), DR_OK);
     assert_int_equal(dr_h5_commit(&h, &err), DR_OK);
-    assert_int_equal(dr_io_precache_open(root, "cohesion", "42", &h, &found, &err), DR_OK);
+    assert_int_equal(dr_io_precache_open(root, "cohesion", "42", &h, &found, NULL, &err), DR_OK);
     assert_true(found);
     char *s = NULL;
     assert_int_equal(dr_h5_read_attr_str(h, "/", "asset_hash", &s, &err), DR_OK);
@@ -1341,7 +1542,7 @@ static void test_precache(void **state)
     assert_int_equal(dr_io_precache_create(root, "fluid", key, "{}", NULL, &h, &err), DR_ERR_INPUT);
     assert_non_null(strstr(err.message, "\"fluid\""));
     assert_int_equal(dr_io_precache_create(root, "bem", "../evil", "{}", NULL, &h, &err), DR_ERR_INPUT);
-    assert_int_equal(dr_io_precache_open(root, "bem", "", &h, &found, &err), DR_ERR_INPUT);
+    assert_int_equal(dr_io_precache_open(root, "bem", "", &h, &found, NULL, &err), DR_ERR_INPUT);
     assert_null(h);
     char bemdir[600];
     snprintf(bemdir, sizeof bemdir, "%s/bem", root);
@@ -1370,6 +1571,8 @@ int main(void)
         cmocka_unit_test(test_h5_writer_order),
         cmocka_unit_test(test_h5_writer_signals),
         cmocka_unit_test(test_h5_writer_failure),
+        cmocka_unit_test(test_h5_checksums),
+        cmocka_unit_test(test_h5_full_disk_on_close),
         cmocka_unit_test(test_precache),
     };
     return cmocka_run_group_tests(tests, group_setup, group_teardown);

@@ -44,7 +44,7 @@ static void precompute(const DrScene *scene)
         DrBemMatrices *m = NULL;
         DrBemMatrices *have = NULL;
         bool hit = false;
-        if (dr_bem_cache_read(g_cache, a.key, &have, &hit, &err) < 0) fail_msg("%s", err.message);
+        if (dr_bem_cache_read(g_cache, a.key, &have, &hit, NULL, &err) < 0) fail_msg("%s", err.message);
         if (have) dr_bem_matrices_destroy(&have);
         if (!hit) {
             if (dr_bem_matrices_build(&a.mesh, &a.desc, NULL, &m, &err) < 0) fail_msg("%s: %s", e->name, err.message);
