@@ -138,6 +138,20 @@ typedef struct DrLiquidStats {
        last dr_liquid_project (N·s; the faces that took them, dr_liquid_project); part of the grid impulse
        above. 0 without an extra coupling (dr_liquid_advance). */
     DrVec3 added_impulse;
+    /* The energy ledger (J), for a caller watching the liquid's energy E = Σ ½m|v|² − m g·x (dr_liquid_totals'
+       kinetic plus the potential): what entered and left it besides gravity. source_work: Σ over substeps of the
+       work of the last projection's sources, the moving solids (each face's blocked part, (1 − w) u_solid Δx²,
+       pushing against the pressure difference across it, Δt (p_hi − p_lo)) and the volume correction (p D Δx³
+       Δt in compressed cells); emitted_energy and killed_energy: E of the particles emitters added and kill boxes
+       removed. The pressure projection, viscosity and the transfers only take energy away, so a stable liquid's
+       E grows by at most source_work + emitted_energy − killed_energy plus its time-stepping error. */
+    double source_work, emitted_energy, killed_energy;
+    /* The implicit viscosity solve (substeps whose explicit viscosity step would be unstable): PCG iterations
+       summed, solves stopped at pressure_max_iter (each also logged as a warning), seconds (part of
+       seconds_other). */
+    long viscosity_iterations;
+    int viscosity_not_converged;
+    double seconds_viscosity;
 } DrLiquidStats;
 
 typedef struct DrLiquid DrLiquid;
@@ -246,6 +260,12 @@ DR_NODISCARD DrStatus dr_liquid_restore(DrLiquid *liq, long n, const double *x, 
    (APIC: L_p = x_p × m_p v_p + m_p ε:(B_pᵀ), B_p = C_p D), kinetic energy ½ Σ m |v_p|². */
 void dr_liquid_totals(const DrLiquid *liq, double *mass, DrVec3 *momentum, DrVec3 *angular, double *kinetic);
 double dr_liquid_particle_mass(const DrLiquid *liq); /* density·dx³/per_cell */
+/* The volume the particles fill, m³: each stands for Δx³/per_cell of liquid, counted per block of 2×2×2 cells up to
+   the block's 8 cells (particles squeezed beyond the seeded density add nothing), and *nominal, what they would fill
+   at the seeded density (n Δx³/per_cell). A liquid freshly seeded fills its nominal volume; well-mixed particles
+   about 95 % of it (the count per block scatters around its mean); liquid that collapses, its particles piled into
+   a few cells, far less. Uses scratch of its own (allocated on the first call: DR_ERR_NOMEM). */
+DR_NODISCARD DrStatus dr_liquid_particle_volume(DrLiquid *liq, double *volume, double *nominal, DrError *err);
 const DrMacGrid *dr_liquid_grid(const DrLiquid *liq);
 
 #endif
