@@ -117,6 +117,8 @@ typedef struct WorldWatch {
     WorldEnergy start;       /* the energy at the start of the frame being advanced */
     WorldEnergy first;       /* ... and at the start of first_frame */
     double work_total;       /* J, the work summed since then */
+    bool cumulative_only;    /* check against first only (a solver whose measured energy leaves a part out that may
+                                turn back into it: the BEM bodies' rigid motion after a bounce) */
 } WorldWatch;
 void world_watch_init(WorldWatch *w, const DrScene *scene);
 /* The state at the start of frame `frame` (after building or restoring): the reference of the next check. */
@@ -125,6 +127,11 @@ void world_watch_start(WorldWatch *w, int frame, const WorldEnergy *e);
    names what is checked (e.g. "mpm_solid 'ball'"), `fix` says what to change. */
 DR_NODISCARD DrStatus world_watch_energy(WorldWatch *w, const WorldCtx *c, const WorldEnergy *e, const char *element,
                                          const char *fix, DrError *err);
+/* The frame against the solver's step: DR_ERR_INPUT naming shot.fps and solver.max_substeps when a frame of 1/fps
+   needs more than max_substeps substeps of `step` (s; the step the solver cannot exceed as soon as anything moves,
+   `why` says which), which the solver would otherwise stretch until it falls through its domain. */
+DR_NODISCARD DrStatus world_watch_frame_length(const WorldCtx *c, const char *element, double step, const char *why,
+                                               DrError *err);
 /* A warning, or with solver.on_instability "fail" DR_ERR_RUNTIME, carrying message (for other watches: volume). */
 DR_NODISCARD DrStatus world_watch_alarm(const WorldWatch *w, const char *message, DrError *err);
 

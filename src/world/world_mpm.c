@@ -4,6 +4,7 @@
 #include "world_adapter.h"
 
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -322,6 +323,10 @@ static DrStatus build_mpm(const WorldCtx *c, WorldMpm *m, int n, DrError *err)
     d.cfl = dr_component_num(solver, "cfl");
     m->max_substeps = dr_component_int(solver, "max_substeps");
     m->lo = lo, m->hi = hi, m->dx = d.dx, m->gravity = d.gravity;
+    /* a frame must hold the substeps of a body starting to fall: Δt(S + |g|Δt) = νΔx with S = 0 (mpm.h) */
+    if (dr_v3_norm(d.gravity) > 0.0)
+        DR_TRY(world_watch_frame_length(c, "the MPM solids", sqrt(d.cfl * d.dx / dr_v3_norm(d.gravity)),
+                                        "their stable step as a body starts to fall, sqrt(cfl*dx/|g|)", err));
     world_watch_init(&m->watch, scene);
     DR_TRY(dr_mpm_create(&d, &m->mpm, err));
 

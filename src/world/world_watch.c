@@ -49,7 +49,7 @@ DrStatus world_watch_energy(WorldWatch *w, const WorldCtx *c, const WorldEnergy 
     w->start = *e;
     w->start.work = 0.0;
     char msg[sizeof err->message];
-    if (gain > frame_margin && isfinite(gain)) {
+    if (!w->cumulative_only && gain > frame_margin && isfinite(gain)) {
         snprintf(msg, sizeof msg,
                  "frame %d: %s: the energy grew by %.3g J in the frame (from %.6g J to %.6g J; %.0f %% of the %.3g J "
                  "it had available) beyond the %.3g J of work done on it: the solver is unstable at its step; %s",
@@ -74,4 +74,20 @@ void world_watch_start(WorldWatch *w, int frame, const WorldEnergy *e)
     w->first_frame = frame;
     w->start = *e;
     w->start.work = 0.0;
+}
+
+DrStatus world_watch_frame_length(const WorldCtx *c, const char *element, double step, const char *why, DrError *err)
+{
+    const DrComponent *solver = dr_scene_section(c->scene, "solver");
+    int max_substeps = dr_component_int(solver, "max_substeps");
+    double frame = 1.0 / c->fps;
+    if (!(step > 0.0) || !isfinite(step)) return DR_OK;
+    double need = ceil(frame / step * (1.0 - 1e-9));
+    if (need <= max_substeps) return DR_OK;
+    double fps_min = c->fps * need / max_substeps;
+    return dr_error_set(err, DR_ERR_INPUT, dr_scene_path(c->scene), 0, 0,
+                        "shot.fps = %g: a frame of %g s needs at least %.0f substeps of %s (%s: %.3g s) but "
+                        "solver.max_substeps is %d, and longer substeps would collapse it; raise shot.fps to at "
+                        "least %.3g or solver.max_substeps to at least %.0f",
+                        c->fps, frame, need, element, why, step, max_substeps, fps_min, need);
 }
