@@ -22,7 +22,7 @@ DrStatus world_watch_alarm(const WorldWatch *w, const char *message, DrError *er
 
 /* The margins. A solver that is stable at its step keeps its energy or loses it (the transfers, contacts, the
    pressure projection and BDF1 dissipate) up to errors of the time integration that fall with the step: the
-   midpoint MPM's contacts at the CFL step gave up to 7 % of the available energy in a frame (a brick sliding off a
+   midpoint MPM's contacts at the CFL step gave up to 6 % of the available energy in a frame (a brick sliding off a
    post in assets/scenes/jelly_drop.json) and 3 % over a shot. An unstable one gains a fixed factor per step or per
    frame (×1.3 to ×8 in four frames in the cases the stress tests keep). So the per-frame margin is 10 % of the
    energy available at the frame's start and the cumulative one 10 % of the first frame's, on top of the work. */
