@@ -1689,6 +1689,7 @@ static void impulse_slices(long begin, long end, void *vctx)
     const double *open = L->cpl->open[a], *vs = L->cpl->velocity[a];
     long cstride = a == 0 ? 1 : (a == 1 ? g->nx : (long)g->nx * g->ny);
     int n = a == 0 ? g->nx : (a == 1 ? g->ny : g->nz);
+    double inv_rho_dx2 = 1.0 / (L->d.density * g->dx * g->dx);
     for (long k = begin; k < end; k++) {
         double P = 0.0, Lx = 0.0, Ly = 0.0, Lz = 0.0, gain = 0.0, work = 0.0;
         for (int j = 0; j < dim[1]; j++)
@@ -1705,6 +1706,9 @@ static void impulse_slices(long begin, long end, void *vctx)
                     work += (1.0 - open[f]) * vs[f] * (qhi - qlo);
                 }
                 if (m[f] == 0.0) continue;
+                /* the collider velocity constraint after the projection (slip, friction, no-slip) moved the face from
+                   tmp to u: its impulse times the solid's velocity, scaled back by 1/(ρΔx²) like the term above */
+                if (vs[f] != 0.0 && L->nframes > 0) work += m[f] * (u[f] - L->tmp[a][f]) * vs[f] * inv_rho_dx2;
                 double gf = fabs(u[f]) - fabs(u0[f]);
                 if (!(gf <= gain)) gain = gf; /* NaN propagates */
                 double mu = m[f] * (u[f] - u0[f]);
@@ -1745,8 +1749,9 @@ static void grid_impulse(DrLiquid *L, double dt, DrLiquidStats *stats)
         stats->grid_angular_impulse = dr_v3_add(stats->grid_angular_impulse, Lm);
     }
     L->accel = sqrt(gain2) / dt;
-    /* the work of the last projection's sources, J: the moving solids' faces (impulse_slices) and the volume
-       correction's divergence target D in compressed cells, p D Δx³ Δt = ρ q (Δx·D) Δx² (pressure_row) */
+    /* the work of the last projection's sources, J: the moving solids' faces (impulse_slices: their pressure and their
+       velocity constraint) and the volume correction's divergence target D in compressed cells, p D Δx³ Δt =
+       ρ q (Δx·D) Δx² (pressure_row) */
     for (long r = 0; r < L->nrow && L->d.volume_correction > 0.0; r++)
         work += L->q[r] * volume_target(L, L->cells_of_row[r]);
     stats->source_work += L->d.density * g->dx * g->dx * work;

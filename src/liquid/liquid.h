@@ -142,8 +142,9 @@ typedef struct DrLiquidStats {
     /* The energy ledger (J), for a caller watching the liquid's energy E = Σ ½m|v|² − m g·x (dr_liquid_totals'
        kinetic plus the potential): what entered and left it besides gravity. source_work: Σ over substeps of the
        work of the last projection's sources, the moving solids (each face's blocked part, (1 − w) u_solid Δx²,
-       pushing against the pressure difference across it, Δt (p_hi − p_lo)) and the volume correction (p D Δx³
-       Δt in compressed cells); emitted_energy and killed_energy: E of the particles emitters added and kill boxes
+       pushing against the pressure difference across it, Δt (p_hi − p_lo), and the impulse their velocity
+       constraint gave the faces near them times u_solid) and the volume correction (p D Δx³ Δt in compressed
+       cells); emitted_energy and killed_energy: E of the particles emitters added and kill boxes
        removed. The pressure projection, viscosity and the transfers only take energy away, so a stable liquid's
        E grows by at most source_work + emitted_energy − killed_energy plus its time-stepping error. */
     double source_work, emitted_energy, killed_energy;
