@@ -2222,7 +2222,7 @@ static DrStatus stable_step(DrLiquid *L, const DrCollider *const *colliders, int
         clamped = true;
         if (!L->ival_warned) {
             dr_log_warn("liquid: the CFL condition needs more than max_substeps = %d substeps in [%g, %g] s; "
-                        "clamping (raise max_substeps for accuracy)", L->d.max_substeps, L->ival_t0, t1);
+                        "clamping (raise solver.max_substeps for accuracy)", L->d.max_substeps, L->ival_t0, t1);
             L->ival_warned = true;
         }
     }
