@@ -59,10 +59,15 @@ DrStatus world_watch_energy(WorldWatch *w, const WorldCtx *c, const WorldEnergy 
     }
     if (total_gain > total_margin && isfinite(total_gain)) {
         snprintf(msg, sizeof msg,
-                 "frame %d: %s: the energy grew by %.3g J since frame %d (from %.6g J to %.6g J; %.0f %% of the %.3g J "
-                 "it had available) beyond the %.3g J of work done on it: the solver is unstable at its step; %s",
+                 "frame %d: %s: the energy grew by %.3g J since the start of frame %d (from %.6g J to %.6g J; %.0f %% "
+                 "of the %.3g J it had available) beyond the %.3g J of work done on it: the solver is unstable at its "
+                 "step; %s",
                  c->frame, element, total_gain, w->first_frame, w->first.energy, e->energy,
                  100.0 * total_gain / fmax(w->first.available, 1e-300), w->first.available, w->work_total, fix);
+        /* the next alarm only for a further growth from here (a warning each frame would bury the first) */
+        w->first = *e;
+        w->first_frame = c->frame + 1;
+        w->work_total = 0.0;
         return world_watch_alarm(w, msg, err);
     }
     return DR_OK;
