@@ -83,14 +83,16 @@ static DrStatus ensure_cached(const Body *body, const char *cache_root, bool *hi
     }
     dr_log_info("bem: %s: computing %s (%d vertices, dt %.6g s, compression 1/%g)", e->name, b->key, b->mesh.nv,
                 b->desc.dt, b->desc.compression_ratio);
-    /* The Haar coefficients kept per row of a 3N × 3N matrix: the sphere under sudden pressure (tests/validation/
-       test_bem_solid) settles within 3 % of Lamé's solution with ~120 per row (162 vertices at 4x) and 10 % with 60
-       (642 vertices at 32x), but 41 % with 15; the 2,906-vertex bench keeps 270 at 32x. */
-    double per_row = 3.0 * b->mesh.nv / b->desc.compression_ratio;
-    if (b->desc.compression_ratio > 1 && per_row < 100)
+    /* The Haar coefficients kept per row of a 3N × 3N matrix (bem.h: dr_bem_coefficients_per_row): the sphere under
+       sudden pressure settles within 3 % of Lamé's solution with ~120 per row, 10 % with 60, 41 % with 15; the
+       2,906-vertex bench keeps 270 at 32x. */
+    double per_row = dr_bem_coefficients_per_row(b->mesh.nv, b->desc.compression_ratio);
+    if (b->desc.compression_ratio > 1 && per_row < DR_BEM_MIN_COEFFICIENTS_PER_ROW)
         dr_log_warn("bem: %s: Compression.ratio %g keeps %.0f coefficients per row of this %d-vertex body; below ~100 "
-                    "the response of the body is off by 10 %% or more: use a ratio of at most %.0f (3N/100), or 1",
-                    e->name, b->desc.compression_ratio, per_row, b->mesh.nv, fmax(1.0, floor(3.0 * b->mesh.nv / 100)));
+                    "the response of the body is off by 10 %% or more: set %s.Compression.ratio to at most %.0f "
+                    "(3N/100), or 1",
+                    e->name, b->desc.compression_ratio, per_row, b->mesh.nv, e->name,
+                    fmax(1.0, floor(3.0 * b->mesh.nv / DR_BEM_MIN_COEFFICIENTS_PER_ROW)));
     double t0 = dr_time_now();
     DR_TRY(dr_bem_matrices_build(&b->mesh, &b->desc, e->name, &m, err));
     double t_build = dr_time_now() - t0;

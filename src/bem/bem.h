@@ -119,6 +119,13 @@ void dr_bem_layout_to_coeff(const DrBemLayout *l, bool dense, const double *x, d
 void dr_bem_layout_from_coeff(const DrBemLayout *l, bool dense, const double *yt, double *y, double *scratch);
 void dr_bem_cmat_matvec_coeff(const DrBemCMat *m, const double *xt, double *yt); /* ỹ = M̃ x̃ */
 size_t dr_bem_cmat_bytes(const DrBemCMat *m); /* storage of the kept values and indices */
+/* The Haar coefficients a compressed 3N × 3N matrix of an N-vertex body keeps per row on average, 3N/ratio (all 3N at
+   ratio 1), and the fewest that keep the body's response close: a sphere under sudden pressure (tests/validation/
+   test_bem_solid) settles within 3 % of Lamé's solution with ~120 per row, 10 % with 60 and 41 % with 15, whatever
+   N; so a small body needs a smaller ratio than a large one (3N/100: at most 19 at 642 vertices, 87 at 2,906).
+   precompute warns below it. */
+#define DR_BEM_MIN_COEFFICIENTS_PER_ROW 100.0
+double dr_bem_coefficients_per_row(int nv, double ratio);
 
 /* 1-D orthonormal Haar transform of x[0..n) in place (forward: averages first, details after, level by
  * level; inverse undoes it exactly); scratch holds n doubles. */

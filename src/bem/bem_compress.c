@@ -1095,6 +1095,8 @@ void dr_bem_cmat_free(DrBemCMat *m)
     memset(m, 0, sizeof *m);
 }
 
+double dr_bem_coefficients_per_row(int nv, double ratio) { return 3.0 * nv / (ratio > 1.0 ? ratio : 1.0); }
+
 size_t dr_bem_cmat_bytes(const DrBemCMat *m)
 {
     assert(m);

@@ -3,6 +3,7 @@
 #include "liquid/liquid.h"
 
 #include "linalg/linalg.h"
+#include "liquid/viscosity.h"
 
 #include <limits.h>
 #include <stdlib.h>
@@ -10,8 +11,9 @@
 
 #define MAX_COLLIDERS_FRAME 64
 #define EXTRAP_LAYERS 4
-/* Per z-slice partials of the grid passes (impulse_partial): momentum, angular momentum (3) and largest
-   speed gain (grid_impulse); largest face speed and the x, y range of faces with mass (grid_speed). */
+/* Per z-slice partials of the grid passes (impulse_partial): momentum, angular momentum (3), largest speed gain
+   and the moving solids' pressure work (grid_impulse); largest face speed and the x, y range of faces with mass
+   (grid_speed). */
 #define IMPULSE_PARTS 6
 /* Smallest amount of work (faces, cells or particles) worth a parallel chunk. A parallel region costs a
    fork and a barrier, and when another process holds a core the barrier waits for a descheduled thread
@@ -58,7 +60,11 @@ struct DrLiquid {
     double *dens;            /* per cell: P2G face masses / (6ρΔx³), 0 in cells without particles */
     double *div_target;      /* per pressure row: Δx·D, the volume-correction divergence target (m/s) */
     double span;             /* duration of the current dr_liquid_advance call (a frame), s */
+    int *blocks;             /* particle count per 2×2×2 block of cells (dr_liquid_particle_volume), on first use */
+    DrViscosity *visc;       /* the implicit viscosity solve and its cells' liquid fractions, on first use */
+    float *vfill;
     int *row;                /* cell → pressure unknown, −1 if not a fluid cell */
+    long nrow;               /* pressure unknowns of the last projection */
     long *cells_of_row;
     DrCsr *A;
     DrMic0 *M;
@@ -84,11 +90,14 @@ struct DrLiquid {
     double t_step, h_step;   /* its start and length (dr_liquid_begin) */
     double h_stable;         /* the length dr_liquid_stable_dt gave */
     bool step_lands;         /* that length ends the interval */
-    bool step_clamped;       /* max_substeps clamped it (viscosity then takes its limit without a log line) */
+    bool step_clamped;       /* max_substeps clamped it */
     int nproj;               /* projections since dr_liquid_begin */
     bool sample_ok;          /* the grid holds a projection's velocities and pressure (dr_liquid_sample) */
     DrVec3 added;            /* momentum the extra coupling's impulses gave in the last projection, N·s */
     double pend_p2g, pend_other; /* seconds spent before the stats of dr_liquid_end can take them */
+    long pend_visc_iterations;   /* the implicit viscosity solve's figures, likewise */
+    int pend_visc_not_converged;
+    double pend_visc_seconds;
 };
 
 /* The phases of a substep, in order; each public phase function asserts the one before it. */
@@ -403,7 +412,8 @@ void dr_liquid_destroy(DrLiquid **liq)
     }
     for (int a = 0; a < 3; a++) free(L->dsum[a]);
     free(L->nphi); free(L->nphi_static); free(L->open); free(L->near); free(L->cphi); free(L->dens);
-    free(L->div_target); free(L->row); free(L->cells_of_row);
+    free(L->div_target); free(L->row); free(L->cells_of_row); free(L->blocks); free(L->vfill);
+    dr_viscosity_destroy(&L->visc);
     free(L->rhs); free(L->q); free(L->work); free(L->impulse_partial);
     dr_csr_destroy(&L->A);
     dr_mic0_destroy(&L->M);
@@ -456,6 +466,34 @@ DrStatus dr_liquid_restore(DrLiquid *liq, long n, const double *x, const double 
     liq->phase = PHASE_IDLE;
     liq->sample_ok = false;
     liq->ival_t0 = liq->ival_t1 = NAN;
+    return DR_OK;
+}
+
+DrStatus dr_liquid_particle_volume(DrLiquid *liq, double *volume, double *nominal, DrError *err)
+{
+    DrLiquid *L = liq;
+    const DrMacGrid *g = L->g;
+    int nb[3] = {(g->nx + 1) / 2, (g->ny + 1) / 2, (g->nz + 1) / 2};
+    long nblocks = (long)nb[0] * nb[1] * nb[2];
+    if (!L->blocks) DR_TRY(dr_calloc((size_t)nblocks, sizeof(int), &L->blocks, err));
+    memset(L->blocks, 0, (size_t)nblocks * sizeof(int));
+    for (long p = 0; p < L->st.n; p++) {
+        long b = 0, stride = 1;
+        for (int a = 0; a < 3; a++) {
+            double f = (L->st.x[3 * p + a] - dr_v3_get(g->origin, a)) / (2.0 * g->dx);
+            long i = (long)floor(f);
+            i = i < 0 ? 0 : (i >= nb[a] ? nb[a] - 1 : i);
+            b += i * stride;
+            stride *= nb[a];
+        }
+        L->blocks[b]++;
+    }
+    /* a block holds at most 8 cells of seeded liquid: particles beyond that are liquid squeezed into less space */
+    long full = 8L * L->d.per_cell, counted = 0;
+    for (long b = 0; b < nblocks; b++) counted += L->blocks[b] < full ? L->blocks[b] : full;
+    double per = g->dx * g->dx * g->dx / L->d.per_cell;
+    *volume = (double)counted * per;
+    *nominal = (double)L->st.n * per;
     return DR_OK;
 }
 
@@ -1341,6 +1379,7 @@ static DrStatus pressure_solve(DrLiquid *L, const DrFaceCoupling *extra, DrLiqui
         }
     }
     stats->liquid_cells = nrow;
+    L->nrow = nrow;
     for (int a = 0; a < 3; a++) run_faces(L, shut_slices, a);
     if (extra) add_impulse(L, extra);
     if (nrow == 0) return DR_OK;
@@ -1647,12 +1686,29 @@ static void impulse_slices(long begin, long end, void *vctx)
     int a = ctx->a;
     const int *dim = g->fdim[a];
     const double *m = L->fm[a], *u = g->f[a], *u0 = L->uold[a];
+    const double *open = L->cpl->open[a], *vs = L->cpl->velocity[a];
+    long cstride = a == 0 ? 1 : (a == 1 ? g->nx : (long)g->nx * g->ny);
+    int n = a == 0 ? g->nx : (a == 1 ? g->ny : g->nz);
+    double inv_rho_dx2 = 1.0 / (L->d.density * g->dx * g->dx);
     for (long k = begin; k < end; k++) {
-        double P = 0.0, Lx = 0.0, Ly = 0.0, Lz = 0.0, gain = 0.0;
+        double P = 0.0, Lx = 0.0, Ly = 0.0, Lz = 0.0, gain = 0.0, work = 0.0;
         for (int j = 0; j < dim[1]; j++)
             for (int i = 0; i < dim[0]; i++) {
                 long f = dr_mac_face_index(g, a, i, j, (int)k);
+                if (vs[f] != 0.0 && open[f] < 1.0) {
+                    /* the blocked part of the face moves at vs into the cell above it and out of the one below:
+                       the pressure there does the work (1 − w) vs Δx² (p_hi − p_lo) Δt, Δt p = ρ q (×ρΔx² below) */
+                    int ijk[3] = {i, j, (int)k};
+                    long chi = ijk[a] < n ? dr_mac_cell_index(g, i, j, (int)k) : -1;
+                    long clo = ijk[a] > 0 ? (ijk[a] < n ? chi - cstride : dr_mac_cell_index(g, i, j, (int)k) - cstride) : -1;
+                    double qhi = chi >= 0 && L->row[chi] >= 0 ? L->q[L->row[chi]] : 0.0;
+                    double qlo = clo >= 0 && L->row[clo] >= 0 ? L->q[L->row[clo]] : 0.0;
+                    work += (1.0 - open[f]) * vs[f] * (qhi - qlo);
+                }
                 if (m[f] == 0.0) continue;
+                /* the collider velocity constraint after the projection (slip, friction, no-slip) moved the face from
+                   tmp to u: its impulse times the solid's velocity, scaled back by 1/(ρΔx²) like the term above */
+                if (vs[f] != 0.0 && L->nframes > 0) work += m[f] * (u[f] - L->tmp[a][f]) * vs[f] * inv_rho_dx2;
                 double gf = fabs(u[f]) - fabs(u0[f]);
                 if (!(gf <= gain)) gain = gf; /* NaN propagates */
                 double mu = m[f] * (u[f] - u0[f]);
@@ -1663,7 +1719,7 @@ static void impulse_slices(long begin, long end, void *vctx)
                 Lx += t.x; Ly += t.y; Lz += t.z;
             }
         double *out = ctx->partial + IMPULSE_PARTS * k;
-        out[0] = P; out[1] = Lx; out[2] = Ly; out[3] = Lz; out[4] = gain;
+        out[0] = P; out[1] = Lx; out[2] = Ly; out[3] = Lz; out[4] = gain; out[5] = work;
     }
 }
 
@@ -1673,7 +1729,7 @@ static void impulse_slices(long begin, long end, void *vctx)
 static void grid_impulse(DrLiquid *L, double dt, DrLiquidStats *stats)
 {
     const DrMacGrid *g = L->g;
-    double gain2 = 0.0;
+    double gain2 = 0.0, work = 0.0;
     for (int a = 0; a < 3; a++) {
         ImpulseCtx ctx = {L, a, L->impulse_partial};
         dr_parallel_for(g->fdim[a][2], slice_grain(g, a), impulse_slices, &ctx);
@@ -1686,12 +1742,19 @@ static void grid_impulse(DrLiquid *L, double dt, DrLiquidStats *stats)
             if (!(p[4] <= gain)) gain = p[4];
         }
         gain2 += gain * gain;
+        for (int k = 0; k < g->fdim[a][2]; k++) work += L->impulse_partial[IMPULSE_PARTS * k + 5];
         double *lin = a == 0 ? &stats->grid_linear_impulse.x : (a == 1 ? &stats->grid_linear_impulse.y
                                                                          : &stats->grid_linear_impulse.z);
         *lin += P;
         stats->grid_angular_impulse = dr_v3_add(stats->grid_angular_impulse, Lm);
     }
     L->accel = sqrt(gain2) / dt;
+    /* the work of the last projection's sources, J: the moving solids' faces (impulse_slices: their pressure and their
+       velocity constraint) and the volume correction's divergence target D in compressed cells, p D Δx³ Δt =
+       ρ q (Δx·D) Δx² (pressure_row) */
+    for (long r = 0; r < L->nrow && L->d.volume_correction > 0.0; r++)
+        work += L->q[r] * volume_target(L, L->cells_of_row[r]);
+    stats->source_work += L->d.density * g->dx * g->dx * work;
 }
 
 /* Largest face speed after P2G per component (faces with mass), combined as a vector: the bound of every
@@ -1900,6 +1963,14 @@ static DrStatus emit(DrLiquid *L, double t, DrLiquidStats *stats, DrError *err)
     return DR_OK;
 }
 
+/* ½ m |v|² − m g·x of particle p, J */
+static double particle_energy(const DrLiquid *L, long p)
+{
+    const double *x = L->st.x + 3 * p, *v = L->st.v + 3 * p;
+    DrVec3 g = L->d.gravity;
+    return L->pmass * (0.5 * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) - (g.x * x[0] + g.y * x[1] + g.z * x[2]));
+}
+
 static void kill(DrLiquid *L, DrLiquidStats *stats)
 {
     if (L->d.nkill_boxes == 0) return;
@@ -1908,7 +1979,10 @@ static void kill(DrLiquid *L, DrLiquidStats *stats)
         DrVec3 x = dr_v3(L->st.x[3 * p], L->st.x[3 * p + 1], L->st.x[3 * p + 2]);
         bool dead = false;
         for (int b = 0; b < L->d.nkill_boxes && !dead; b++) dead = in_box(x, L->kill_lo[b], L->kill_hi[b]);
-        if (dead) continue;
+        if (dead) {
+            stats->killed_energy += particle_energy(L, p);
+            continue;
+        }
         if (w != p) {
             memcpy(L->st.x + 3 * w, L->st.x + 3 * p, 3 * sizeof(double));
             memcpy(L->st.v + 3 * w, L->st.v + 3 * p, 3 * sizeof(double));
@@ -1967,10 +2041,47 @@ static DrStatus substep_p2g(DrLiquid *L, DrError *err)
     return DR_OK;
 }
 
+/* The implicit viscosity step (viscosity.h) of a substep over dt, after the boundary conditions: the cells' liquid
+   fractions from their particle counts (as the free surface's count_phi: the count over what the open part of the
+   cell holds when full), closed faces at the colliders' velocities. */
+static DrStatus implicit_viscosity(DrLiquid *L, double dt, bool count, DrError *err)
+{
+    DrMacGrid *g = L->g;
+    if (!L->visc) DR_TRY(dr_viscosity_create(&L->visc, err));
+    if (!L->vfill) DR_TRY(dr_calloc((size_t)L->ncells, sizeof(float), &L->vfill, err));
+    for (long c = 0; c < L->ncells; c++) {
+        long cnt = L->bins->cell_start[c + 1] - L->bins->cell_start[c];
+        double om = fmax((double)L->open[c], 1.0 / L->d.per_cell);
+        double frac = (double)cnt / (L->d.per_cell * om);
+        L->vfill[c] = (float)(frac > 1.0 ? 1.0 : frac);
+    }
+    DrViscosityInput in = {.g = g,
+                           .mass = {L->fm[0], L->fm[1], L->fm[2]},
+                           .open = {L->own.open[0], L->own.open[1], L->own.open[2]},
+                           .velocity = {L->own.velocity[0], L->own.velocity[1], L->own.velocity[2]},
+                           .fill = L->vfill,
+                           .mu = L->d.viscosity,
+                           .dt = dt,
+                           .no_slip = L->d.wall_no_slip,
+                           .tolerance = L->d.pressure_tol,
+                           .max_iterations = L->d.pressure_max_iter};
+    DrViscosityStats vs;
+    DR_TRY(dr_viscosity_solve(L->visc, &in, &vs, err));
+    if (count) L->pend_visc_iterations += vs.iterations;
+    if (!vs.converged && count) {
+        L->pend_visc_not_converged++;
+        dr_log_warn("liquid: the viscosity solve stopped at solver.pressure_max_iterations = %d with relative residual "
+                    "%.3e (tolerance solver.pressure_tolerance = %.1e); the step is kept", vs.iterations,
+                    vs.rel_residual, L->d.pressure_tol);
+    }
+    return DR_OK;
+}
+
 /* 2.–3. of a substep from t to t + dt, after substep_p2g: the colliders posed at t + dt, the forces, the
-   colliders' face coupling (own) and the cells' open fractions. */
-static void grid_begin(DrLiquid *L, const DrCollider *const *colliders, int ncolliders, double t, double dt,
-                       bool visc_clamped)
+   colliders' face coupling (own) and the cells' open fractions. Viscosity: explicit ν∇²u while νΔt/Δx² ≤ 1/6 (its
+   stability limit), else the implicit solve after the boundary conditions (implicit_viscosity). */
+static DrStatus grid_begin(DrLiquid *L, const DrCollider *const *colliders, int ncolliders, double t, double dt,
+                           bool count, DrError *err)
 {
     DrMacGrid *g = L->g;
     double t_1 = dr_time_now();
@@ -1983,14 +2094,9 @@ static void grid_begin(DrLiquid *L, const DrCollider *const *colliders, int ncol
         dr_parallel_for(g->fdim[a][2], slice_grain(g, a), gravity_slices, &fc);
     }
     double nu = L->d.viscosity / L->d.density;
-    if (nu > 0.0) {
-        double alpha = nu * dt / (g->dx * g->dx);
-        double amax = (1.0 / 6.0) * (1.0 - 1e-9);
-        if (alpha > amax) {
-            if (!visc_clamped)
-                dr_log_debug("liquid: viscosity step clamped to its stability limit (nu*dt/dx^2 = %g)", alpha);
-            alpha = amax;
-        }
+    double alpha = nu * dt / (g->dx * g->dx);
+    bool implicit = alpha > (1.0 / 6.0) * (1.0 - 1e-9);
+    if (nu > 0.0 && !implicit) {
         for (int a = 0; a < 3; a++) {
             memcpy(L->tmp[a], g->f[a], (size_t)g->nfaces[a] * sizeof(double));
             FaceCtx fc = {L, a, dt, alpha};
@@ -2006,7 +2112,13 @@ static void grid_begin(DrLiquid *L, const DrCollider *const *colliders, int ncol
     dr_parallel_for(g->nz, cgrain, open_slices, &bctx);
     if (L->nframes > 0 && L->d.pressure == DR_PRESSURE_MASS_WEIGHTED)
         dr_parallel_for(g->nz, cgrain, near_slices, &bctx);
+    if (nu > 0.0 && implicit) {
+        double t_v = dr_time_now();
+        DR_TRY(implicit_viscosity(L, dt, count, err));
+        if (count) L->pend_visc_seconds += dr_time_now() - t_v;
+    }
     L->pend_other += dr_time_now() - t_1;
+    return DR_OK;
 }
 
 /* 4.–6. of a substep, after grid_begin: the pressure projection with the coupling `extra` added to the
@@ -2074,8 +2186,7 @@ static void interval_start(DrLiquid *L, double t0, double t1)
 static DrStatus stable_step(DrLiquid *L, const DrCollider *const *colliders, int ncolliders, double t, double *h,
                             DrError *err)
 {
-    const DrMacGrid *g = L->g;
-    double t1 = L->ival_t1, nu = L->d.viscosity / L->d.density;
+    double t1 = L->ival_t1;
     L->phase = PHASE_IDLE;
     L->sample_ok = false;
     DR_TRY(substep_p2g(L, err));
@@ -2091,7 +2202,7 @@ static DrStatus stable_step(DrLiquid *L, const DrCollider *const *colliders, int
         memset(&trial, 0, sizeof trial);
         L->accel = dr_v3_norm(L->d.gravity);
         double ht = fmin(cfl_step(L, umax), t1 - t);
-        grid_begin(L, colliders, ncolliders, t, ht, true);
+        DR_TRY(grid_begin(L, colliders, ncolliders, t, ht, false, err));
         DR_TRY(grid_project(L, NULL, &trial, err));
         grid_impulse(L, ht, &trial);
         L->sample_ok = false;
@@ -2101,8 +2212,7 @@ static DrStatus stable_step(DrLiquid *L, const DrCollider *const *colliders, int
     if (!isfinite(umax) || !isfinite(L->accel))
         return dr_error_set(err, DR_ERR_RUNTIME, NULL, 0, 0,
                             "liquid: velocities became non-finite at t = %g s; lower cfl or raise max_substeps.", t);
-    double dt = cfl_step(L, umax);
-    if (nu > 0.0) dt = fmin(dt, g->dx * g->dx / (6.0 * nu));
+    double dt = cfl_step(L, umax); /* viscosity takes any step: explicit within its limit, else implicit */
     double remaining = t1 - t;
     double nneed = ceil(remaining / dt);
     int left = L->d.max_substeps - L->ival_substeps;
@@ -2112,7 +2222,7 @@ static DrStatus stable_step(DrLiquid *L, const DrCollider *const *colliders, int
         clamped = true;
         if (!L->ival_warned) {
             dr_log_warn("liquid: the CFL condition needs more than max_substeps = %d substeps in [%g, %g] s; "
-                        "clamping (raise max_substeps for accuracy)", L->d.max_substeps, L->ival_t0, t1);
+                        "clamping (raise solver.max_substeps for accuracy)", L->d.max_substeps, L->ival_t0, t1);
             L->ival_warned = true;
         }
     }
@@ -2128,9 +2238,10 @@ static DrStatus stable_step(DrLiquid *L, const DrCollider *const *colliders, int
 }
 
 /* 2.–3. from t over h, after stable_step at t; keep: save the velocities the projection starts from. */
-static void step_begin(DrLiquid *L, const DrCollider *const *colliders, int ncolliders, double t, double h, bool keep)
+static DrStatus step_begin(DrLiquid *L, const DrCollider *const *colliders, int ncolliders, double t, double h,
+                           bool keep, DrError *err)
 {
-    grid_begin(L, colliders, ncolliders, t, h, L->step_clamped);
+    DR_TRY(grid_begin(L, colliders, ncolliders, t, h, true, err));
     L->t_step = t;
     L->h_step = h;
     L->nproj = 0;
@@ -2140,6 +2251,7 @@ static void step_begin(DrLiquid *L, const DrCollider *const *colliders, int ncol
         L->pend_other += dr_time_now() - t_0;
     }
     L->phase = PHASE_BEGUN;
+    return DR_OK;
 }
 
 /* 4.–6.; from the second call on, from the velocities step_begin saved. */
@@ -2178,7 +2290,12 @@ static DrStatus step_end(DrLiquid *L, DrLiquidStats *stats, bool report, DrError
     stats->added_impulse = dr_v3_add(stats->added_impulse, L->added);
     stats->seconds_p2g += L->pend_p2g;
     stats->seconds_other += L->pend_other;
-    L->pend_p2g = L->pend_other = 0.0;
+    stats->viscosity_iterations += L->pend_visc_iterations;
+    stats->viscosity_not_converged += L->pend_visc_not_converged;
+    stats->seconds_viscosity += L->pend_visc_seconds;
+    L->pend_p2g = L->pend_other = L->pend_visc_seconds = 0.0;
+    L->pend_visc_iterations = 0;
+    L->pend_visc_not_converged = 0;
     double t_5 = dr_time_now();
     stats->seconds_other += t_5 - t_4;
 
@@ -2198,7 +2315,9 @@ static DrStatus step_end(DrLiquid *L, DrLiquidStats *stats, bool report, DrError
     stats->seconds_advect += t_7 - t_6;
 
     /* 9. emitters, kill boxes */
+    long n_before = s->n;
     DR_TRY(emit(L, L->t_step, stats, err));
+    for (long p = n_before; p < s->n; p++) stats->emitted_energy += particle_energy(L, p);
     kill(L, stats);
     stats->seconds_other += dr_time_now() - t_7;
     stats->substeps++;
@@ -2228,7 +2347,7 @@ DrStatus dr_liquid_advance(DrLiquid *liq, const DrCollider *const *colliders, in
         double dt;
         DR_TRY(stable_step(liq, colliders, ncolliders, t, &dt, err));
         bool last = liq->step_lands;
-        step_begin(liq, colliders, ncolliders, t, dt, false);
+        DR_TRY(step_begin(liq, colliders, ncolliders, t, dt, false, err));
         DR_TRY(step_project(liq, NULL, stats, err));
         DR_TRY(step_end(liq, stats, false, err));
         t = last ? t1 : t + dt;
@@ -2263,7 +2382,7 @@ DrStatus dr_liquid_begin(DrLiquid *liq, const DrCollider *const *colliders, int 
                             liq->h_stable);
     for (int a = 0; a < 3; a++)
         if (!liq->ustar[a]) DR_TRY(dr_calloc((size_t)liq->g->nfaces[a], sizeof(double), &liq->ustar[a], err));
-    step_begin(liq, colliders, ncolliders, t, h, true);
+    DR_TRY(step_begin(liq, colliders, ncolliders, t, h, true, err));
     return DR_OK;
 }
 

@@ -2,7 +2,8 @@
  *
  * One substep: P2G (transfer.h) → step size (CFL, dr_liquid_advance) → gravity and explicit viscosity →
  * boundary conditions (domain walls; colliders as variational face fractions with their velocity on
- * blocked faces) → pressure projection (DrPressureFormulation below; PCG + MIC(0)) → extrapolation of the
+ * blocked faces) → implicit viscosity, for a substep whose explicit step would be unstable (ν Δt/Δx² > 1/6:
+ * the variational solve of Batty & Bridson 2008, liquid/viscosity.h) → pressure projection (DrPressureFormulation below; PCG + MIC(0)) → extrapolation of the
  * grid's velocity change into the faces the projection did not update → collider velocity constraint
  * (slip with Coulomb friction, or no-slip) → G2P → x += Δt v_p^{n+1} → push out of colliders, clamp into
  * the domain → emitters, kill boxes.
@@ -138,6 +139,21 @@ typedef struct DrLiquidStats {
        last dr_liquid_project (N·s; the faces that took them, dr_liquid_project); part of the grid impulse
        above. 0 without an extra coupling (dr_liquid_advance). */
     DrVec3 added_impulse;
+    /* The energy ledger (J), for a caller watching the liquid's energy E = Σ ½m|v|² − m g·x (dr_liquid_totals'
+       kinetic plus the potential): what entered and left it besides gravity. source_work: Σ over substeps of the
+       work of the last projection's sources, the moving solids (each face's blocked part, (1 − w) u_solid Δx²,
+       pushing against the pressure difference across it, Δt (p_hi − p_lo), and the impulse their velocity
+       constraint gave the faces near them times u_solid) and the volume correction (p D Δx³ Δt in compressed
+       cells); emitted_energy and killed_energy: E of the particles emitters added and kill boxes
+       removed. The pressure projection, viscosity and the transfers only take energy away, so a stable liquid's
+       E grows by at most source_work + emitted_energy − killed_energy plus its time-stepping error. */
+    double source_work, emitted_energy, killed_energy;
+    /* The implicit viscosity solve (substeps whose explicit viscosity step would be unstable): PCG iterations
+       summed, solves stopped at pressure_max_iter (each also logged as a warning), seconds (part of
+       seconds_other). */
+    long viscosity_iterations;
+    int viscosity_not_converged;
+    double seconds_viscosity;
 } DrLiquidStats;
 
 typedef struct DrLiquid DrLiquid;
@@ -153,9 +169,10 @@ void dr_liquid_destroy(DrLiquid **liq);
    with a large affine matrix inflates for the whole liquid), a⁺ the largest speed gain per second of a
    face in the previous substep (measured before a liquid's first substep by a trial of the grid phases,
    then discarded): still water takes whole frames, falling water the steps of the usual √(5·dx·|g|)
-   term. Also the explicit-viscosity limit dx²/(6ν); at most max_substeps — if the CFL would need more,
-   the substeps are clamped and a warning is logged once per call; viscosity then acts with the largest
-   stable coefficient. Fills *stats (zeroed first) with the sums/maxima over all substeps.
+   term. Viscosity does not limit the step: within its explicit limit (ν Δt/Δx² ≤ 1/6) the explicit update,
+   beyond it the implicit solve. At most max_substeps — if the CFL would need more, the substeps are
+   clamped and a warning is logged once per call. Fills *stats (zeroed first) with the sums/maxima over all
+   substeps.
    A pressure solve that does not converge is a warning (stats), never a failure. DR_ERR_RUNTIME if the
    solver breaks down (non-finite values); DR_ERR_NOMEM if growing for emitters fails. */
 DR_NODISCARD DrStatus dr_liquid_advance(DrLiquid *liq, const DrCollider *const *colliders, int ncolliders,
@@ -170,8 +187,8 @@ DR_NODISCARD DrStatus dr_liquid_advance(DrLiquid *liq, const DrCollider *const *
  * are good for one substep only.
  *
  * stable_dt: the length h of the substep from t that dr_liquid_advance would take next towards t_end: the
- *   CFL bound (above; on the liquid's first substep a⁺ comes from a trial of the grid phases), the explicit-
- *   viscosity limit and max_substeps, with the interval [t, t_end] split into equal substeps, so h ≤ t_end −
+ *   CFL bound (above; on the liquid's first substep a⁺ comes from a trial of the grid phases) and
+ *   max_substeps, with the interval [t, t_end] split into equal substeps, so h ≤ t_end −
  *   t and h == t_end − t when the substep lands on t_end (then take t_end as the next t: t + h may differ
  *   in the last bit). The interval: the first call with a given t_end (or with t before the interval's
  *   start) opens [t, t_end]; its duration is the volume correction's T and max_substeps counts the
@@ -182,10 +199,12 @@ DR_NODISCARD DrStatus dr_liquid_advance(DrLiquid *liq, const DrCollider *const *
 DR_NODISCARD DrStatus dr_liquid_stable_dt(DrLiquid *liq, const DrCollider *const *colliders, int ncolliders,
                                           double t, double t_end, double *h, DrError *err);
 /* begin: the substep from t (the t of the stable_dt call just before) over h, 0 < h ≤ (1 + 1e-9)·the stable_dt
-   result: the colliders posed at t + h, gravity and viscosity on the grid, the colliders' face coupling
-   (their face weights and velocities) and the cells' open fractions; keeps a copy of the face velocities
-   the projection starts from. DR_ERR_INPUT for h out of range or a bad collider count; DR_ERR_NOMEM (the
-   copy is allocated on the first call). */
+   result: the colliders posed at t + h, gravity and viscosity on the grid (implicit beyond the explicit
+   limit, after the colliders' face coupling, whose closed faces it holds at their velocity), the colliders'
+   face coupling (their face weights and velocities) and the cells' open fractions; keeps a copy of the face
+   velocities the projection starts from. DR_ERR_INPUT for h out of range or a bad collider count;
+   DR_ERR_RUNTIME if the viscosity solve breaks down; DR_ERR_NOMEM (the copy, and the viscosity solve's
+   storage, are allocated on the first call). */
 DR_NODISCARD DrStatus dr_liquid_begin(DrLiquid *liq, const DrCollider *const *colliders, int ncolliders, double t,
                                       double h, DrError *err);
 /* project: the pressure solve, the velocity update, the extrapolation of the grid change into the faces the
@@ -246,6 +265,12 @@ DR_NODISCARD DrStatus dr_liquid_restore(DrLiquid *liq, long n, const double *x, 
    (APIC: L_p = x_p × m_p v_p + m_p ε:(B_pᵀ), B_p = C_p D), kinetic energy ½ Σ m |v_p|². */
 void dr_liquid_totals(const DrLiquid *liq, double *mass, DrVec3 *momentum, DrVec3 *angular, double *kinetic);
 double dr_liquid_particle_mass(const DrLiquid *liq); /* density·dx³/per_cell */
+/* The volume the particles fill, m³: each stands for Δx³/per_cell of liquid, counted per block of 2×2×2 cells up to
+   the block's 8 cells (particles squeezed beyond the seeded density add nothing), and *nominal, what they would fill
+   at the seeded density (n Δx³/per_cell). A liquid freshly seeded fills its nominal volume; well-mixed particles
+   about 95 % of it (the count per block scatters around its mean); liquid that collapses, its particles piled into
+   a few cells, far less. Uses scratch of its own (allocated on the first call: DR_ERR_NOMEM). */
+DR_NODISCARD DrStatus dr_liquid_particle_volume(DrLiquid *liq, double *volume, double *nominal, DrError *err);
 const DrMacGrid *dr_liquid_grid(const DrLiquid *liq);
 
 #endif

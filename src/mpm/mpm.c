@@ -90,6 +90,8 @@ struct DrMpm {
     unsigned char *con0; /* con as the prediction recorded it (a solve releases contacts in con only) */
     double *cnrm;       /* per node (3): contact normal, orthogonal to the wall-fixed axes, unit length */
     double *cinfo;      /* per node (4): friction coefficient and velocity of the collider in contact */
+    double *cvel;       /* per node (3): surface velocity of the last collider the node met in this step */
+    unsigned char *touch; /* per node: it met a collider in this step (cvel is set) */
     /* compact solve vectors, 3 per active node */
     long *act;
     long nact;
@@ -201,6 +203,8 @@ DrStatus dr_mpm_create(const DrMpmDesc *desc, DrMpm **out, DrError *err)
     if (s == DR_OK) s = dr_calloc((size_t)nn, sizeof(unsigned char), &m->con0, err);
     if (s == DR_OK) s = dr_calloc(3 * (size_t)nn, sizeof(double), &m->cnrm, err);
     if (s == DR_OK) s = dr_calloc(4 * (size_t)nn, sizeof(double), &m->cinfo, err);
+    if (s == DR_OK) s = dr_calloc(3 * (size_t)nn, sizeof(double), &m->cvel, err);
+    if (s == DR_OK) s = dr_calloc((size_t)nn, sizeof(unsigned char), &m->touch, err);
     if (s == DR_OK) s = dr_calloc((size_t)nn, sizeof(long), &m->act, err);
     if (s != DR_OK) {
         dr_mpm_destroy(&m);
@@ -233,7 +237,7 @@ void dr_mpm_destroy(DrMpm **mpm)
     void *arrays[] = {m->x, m->v, m->C, m->F, m->mass, m->vol0, m->mu, m->lam, m->ak, m->at, m->model, m->body,
                       m->G, m->Fu, m->Q, m->dG, m->dM, m->px, m->pf, m->bx, m->bv, m->bC, m->bF, m->psi,
                       m->pvol, m->sv, m->xf, m->xs, m->body_start, m->mats, m->cols, m->vn, m->v0, m->vnew,
-                      m->uf, m->ff, m->tf, m->fe, m->fv, m->fix, m->con, m->con0, m->cnrm, m->cinfo, m->act,
+                      m->uf, m->ff, m->tf, m->fe, m->fv, m->fix, m->con, m->con0, m->cnrm, m->cinfo, m->cvel, m->touch, m->act,
                       m->mact, m->dv, m->res, m->del, m->tmp, m->cgw};
     for (size_t k = 0; k < sizeof arrays / sizeof *arrays; k++) free(arrays[k]);
     free(m);
@@ -545,6 +549,41 @@ static double explicit_dt(const DrMpm *m)
     return dt;
 }
 
+/* The midpoint rule's limit for stiff, turning bodies: Δt ≤ √(4ν Δx / (c_p ‖∇v_p‖_F)) over the particles, c_p the
+   dilatational wave speed √((λ+2μ)/ρ) of the particle's material and ∇v_p its velocity gradient: APIC's and RPIC's
+   affine matrix C_p, or for FLIP and PIC (whose particles carry none) the gradient of the P2G grid velocity at the
+   particle. Why: the grid moves its nodes on straight lines through a step, so the deformation it hands the solve
+   and the F update, I + Δt∇v, is not a rotation where the body turns: it stretches the body by about (Δt‖∇v‖)², a
+   strain that costs energy in proportion to the stiffness. The midpoint rule keeps energy only for quadratic
+   energies; with that stretch, a stiff body's fastest modes (a period of Δx/c, far below Δt) are driven at every
+   step and, undamped by the midpoint rule, grow. The number of wave crossings of a cell in a step times the rotation
+   in it, Q = (cΔt/Δx)(Δt‖∇v‖), decides: measured on spheres of E = 1e8–1e10 Pa turning at 30–360°/s and landing on
+   a wall, Q ≤ 4 kept the energy within 2 %, Q ≤ 8 within 17 %, and the §4.3 step alone (Q up to 150) let it grow ×8
+   in four frames (tests/stress/test_mpm_stress.c). Soft bodies (cΔt/Δx of a few cells) never reach it: §4.3 already
+   bounds Δt‖C‖ by about 0.4ν. Backward Euler damps those modes and symplectic Euler has its own wave limit: midpoint
+   only. For FLIP and PIC this transfers the particles to the grid's scratch. */
+static double rotation_dt(const DrMpm *m)
+{
+    if (m->d.integrator != DR_MPM_MIDPOINT || m->n == 0) return INFINITY;
+    bool affine = affine_scheme(m);
+    if (!affine) {
+        DrError e;
+        if (dr_node_bins_build(m->grid, m->n, m->x, m->bins, &e) != DR_OK) return INFINITY; /* predict reports it */
+        dr_node_p2g(m->bins, m->x, m->v, NULL, m->mass, m->grid);
+        dr_node_gather_gradient(m->grid, m->grid->vel, m->n, m->x, m->G);
+    }
+    double worst = 0.0; /* max over particles of c_p ‖∇v_p‖ */
+    for (long p = 0; p < m->n; p++) {
+        const double *c = (affine ? m->C : m->G) + 9 * p;
+        double cn = 0.0;
+        for (int k = 0; k < 9; k++) cn += c[k] * c[k];
+        double rho = m->mass[p] / m->vol0[p];
+        double s = sqrt((m->lam[p] + 2.0 * m->mu[p]) / rho) * sqrt(cn);
+        if (s > worst) worst = s;
+    }
+    return worst > 0.0 ? sqrt(4.0 * m->d.cfl * m->d.dx / worst) : INFINITY;
+}
+
 /* ---- per-particle kernels ------------------------------------------------------------------- */
 
 typedef struct Eval {
@@ -718,6 +757,8 @@ static bool collide_node(DrMpm *m, long node, DrVec3 xi, double *vel, bool recor
         if (m->dim == 2) n = dr_v3_normalize(dr_v3(n.x, n.y, 0.0));
         DrVec3 cv = col->velocity_at ? col->velocity_at(xi, col->ctx) : col->velocity;
         if (m->dim == 2) cv.z = 0.0;
+        m->touch[node] = 1;
+        m->cvel[3 * node] = cv.x, m->cvel[3 * node + 1] = cv.y, m->cvel[3 * node + 2] = cv.z;
         DrVec3 vr = dr_v3_sub(dr_v3(vel[0], vel[1], vel[2]), cv);
         if (record) record_contact(m, node, col, cv, col->sticky ? NULL : &n);
         if (col->sticky) {
@@ -1082,6 +1123,29 @@ static void contact_friction(const DrMpm *m, const double *u, double *vnew)
     }
 }
 
+/* The work the colliders did on the grid in the solved step, J: Σ over the nodes that met one of J_i · V_i, V_i that
+   collider's surface velocity and J_i = m_i (ṽ_i − v_i) − Δt (f_i + m_i g) the impulse the constraints gave the node
+   (its velocity change beyond what its forces f_i, taken where the solve took them, and gravity gave). A static
+   collider (V = 0) and a wall do no work; the projections only take energy away from the motion relative to a
+   collider, so the bodies' energy may grow by at most this in a step (the energy watch of src/world). */
+static double collider_work(const DrMpm *m, double dt, bool explicit_step, bool external)
+{
+    double W = 0.0;
+    for (long k = 0; k < m->nact; k++) {
+        long i = m->act[k];
+        if (!m->touch[i]) continue;
+        double mi = m->mact[3 * k], Ji[3];
+        for (int a = 0; a < 3; a++) {
+            double f = m->ff[3 * i + a];
+            if (explicit_step && m->anchors) f += m->tf[3 * i + a];
+            if (explicit_step && external) f += m->fe[3 * i + a];
+            Ji[a] = mi * (m->vnew[3 * i + a] - m->vn[3 * i + a]) - dt * (f + mi * dr_v3_get(m->d.gravity, a));
+        }
+        W += Ji[0] * m->cvel[3 * i] + Ji[1] * m->cvel[3 * i + 1] + Ji[2] * m->cvel[3 * i + 2];
+    }
+    return W;
+}
+
 /* ---- one step -------------------------------------------------------------------------------- */
 
 typedef struct FCtx { DrMpm *m; double dt; bool order2; } FCtx;
@@ -1156,6 +1220,7 @@ DrStatus dr_mpm_predict(DrMpm *mpm, double h, DrError *err)
     for (long k = 0; k < m->nact; k++) {
         long i = m->act[k];
         double *u = m->v0 + 3 * i;
+        m->touch[i] = 0;
         project_fixed(m, i, u);
         if (m->ncol) collide_node(m, i, dr_node_position(g, i), u, true);
         projected = projected || u[0] != m->vn[3 * i] || u[1] != m->vn[3 * i + 1] || u[2] != m->vn[3 * i + 2];
@@ -1257,9 +1322,11 @@ static DrStatus grid_solve(DrMpm *m, const double *force, const double *dfdv, Dr
         }
         if (m->ncol) contact_friction(m, m->uf, m->vnew);
     }
-    if (m->ncol)
+    if (m->ncol) {
         for (long k = 0; k < m->nact; k++)
             collide_node(m, m->act[k], dr_node_position(g, m->act[k]), m->vnew + 3 * m->act[k], false);
+        st->collider_work += collider_work(m, dt, m->d.integrator == DR_MPM_SYMPLECTIC_EULER, force != NULL);
+    }
     st->seconds_solve += dr_time_now() - t1;
     m->phase = PHASE_SOLVED;
     return status;
@@ -1378,7 +1445,7 @@ double dr_mpm_stable_dt(const DrMpm *mpm)
     double S = isfinite(cfl) ? nudx / cfl : 0.0, gn = dr_v3_norm(mpm->d.gravity);
     double lim = (S > 0.0 || gn > 0.0) ? 2.0 * nudx / (S + sqrt(S * S + 4.0 * gn * nudx)) : INFINITY;
     if (mpm->d.integrator == DR_MPM_SYMPLECTIC_EULER) lim = fmin(lim, explicit_dt(mpm));
-    return lim;
+    return fmin(lim, rotation_dt(mpm));
 }
 
 DrStatus dr_mpm_advance(DrMpm *mpm, double duration, int max_substeps, DrMpmStats *stats, DrError *err)
@@ -1405,6 +1472,7 @@ DrStatus dr_mpm_advance(DrMpm *mpm, double duration, int max_substeps, DrMpmStat
         acc.newton_residual = local.newton_residual;
         acc.seconds_transfer += local.seconds_transfer;
         acc.seconds_solve += local.seconds_solve;
+        acc.collider_work += local.collider_work;
         acc.substeps++;
         done++;
         if (s < 0) {

@@ -122,6 +122,9 @@ typedef struct DrMpmStats {
     double newton_residual;               /* last relative residual */
     int substeps;
     double seconds_transfer, seconds_solve;
+    double collider_work;                 /* J, summed: the work the colliders' surfaces did on the bodies, Σ over
+                                             the grid nodes that met a collider of the constraint impulse times the
+                                             collider's surface velocity (0 for static colliders and walls) */
 } DrMpmStats;
 /* The largest step §4.3 allows: ν Δx / max_p(‖v_p‖ + (6√d/Δx)·‖B_p‖_F), with B_p = C_p D. */
 double dr_mpm_cfl_dt(const DrMpm *mpm);
@@ -129,7 +132,12 @@ double dr_mpm_cfl_dt(const DrMpm *mpm);
    moves, no gravity, and an implicit integrator): §4.3's with the speed gravity adds within the step,
    Δt (S + |g| Δt) <= ν Δx with S = ν Δx / dr_mpm_cfl_dt, i.e. Δt = 2νΔx / (S + √(S² + 4|g|νΔx)); for
    symplectic Euler also the explicit stability limits ν Δx/c (c = √((λ+2μ)/ρ), the fastest body) and
-   2ν/√(k/m) for anchors. dr_mpm_advance substeps by exactly this limit. */
+   2ν/√(k/m) for anchors; for midpoint also Δt ≤ √(4νΔx / (c ‖∇v‖)) over the particles (c the particle's
+   dilatational wave speed √((λ+2μ)/ρ), ∇v its velocity gradient: the affine matrix C of APIC and RPIC, the P2G
+   grid velocity's gradient for FLIP and PIC): the grid moves nodes on straight lines through a step, which
+   stretches a turning body by (Δt‖∇v‖)², and a stiff body's undamped fast modes then grow under the midpoint rule
+   (mpm.c: rotation_dt). For FLIP and PIC it uses the grid as scratch: call it between a commit and the next
+   predict. dr_mpm_advance substeps by exactly this limit. */
 double dr_mpm_stable_dt(const DrMpm *mpm);
 /* One step of dt. Returns DR_OK, DR_WARN_NOT_CONVERGED (positive: Newton stopped at its iteration cap;
    the step is kept) or a negative status (non-finite state: DR_ERR_RUNTIME, naming the particle). */

@@ -41,6 +41,10 @@ static const DrFieldSpec solver_fields[] = {
      .doc = "iteration limit of the pressure solve (reaching it is a warning)"},
     {.name = "checkpoint_every", .kind = DR_FIELD_INT, .unit = "", .def = {1}, RANGE(1, 100000),
      .doc = "frames between checkpoints"},
+    {.name = "on_instability", .kind = DR_FIELD_ENUM, .unit = "", .def_str = "warn", .choices = "warn|fail",
+     .doc = "what bake does when a solver's energy grows beyond the work done on it, or a liquid loses volume "
+            "(README, \"Stability watch\"): warn (log a warning naming element, frame and fix, and go on) or fail "
+            "(stop with exit code 1 after the frames before it)"},
 };
 
 static const DrFieldSpec mesh_fields[] = {

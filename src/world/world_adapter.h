@@ -95,6 +95,46 @@ typedef struct WorldCtx {
     WorldKinematics *kin;      /* colliders posed at the end of the clock step being taken */
 } WorldCtx;
 
+/* ---- the stability watch (world_watch.c) ---------------------------------------------------------------------
+ * Each adapter measures at the end of every frame its solver's energy (kinetic + elastic + gravitational potential,
+ * J), the part of it that could turn into motion (`available`: kinetic, elastic and the potential above the lowest
+ * point the solver can reach), and the work done on it in the frame by what moves it from outside (moving colliders
+ * and scalps, emitters; gravity is in the potential). world_watch_energy raises an alarm when the energy grew beyond
+ * that work by more than 10 % of what was available at the frame's start, or, since the first frame checked, by
+ * more than 10 % of what was available then (plus `floor`, an absolute allowance for round-off near rest). An alarm
+ * is a warning naming the element, the frame and the fix, or, with solver.on_instability "fail", DR_ERR_RUNTIME with
+ * that message (bake exits 1). */
+typedef struct WorldEnergy {
+    double energy;           /* J */
+    double available;        /* J, >= 0 */
+    double work;             /* J, done on the solver within the frame (world_watch_energy) */
+    double floor;            /* J, absolute allowance */
+} WorldEnergy;
+typedef struct WorldWatch {
+    bool fail;               /* solver.on_instability is "fail" */
+    bool have;               /* a frame was checked since world_watch_start */
+    int first_frame;         /* the frame whose start is the cumulative reference */
+    WorldEnergy start;       /* the energy at the start of the frame being advanced */
+    WorldEnergy first;       /* ... and at the start of first_frame */
+    double work_total;       /* J, the work summed since then */
+    bool cumulative_only;    /* check against first only (a solver whose measured energy leaves a part out that may
+                                turn back into it: the BEM bodies' rigid motion after a bounce) */
+} WorldWatch;
+void world_watch_init(WorldWatch *w, const DrScene *scene);
+/* The state at the start of frame `frame` (after building or restoring): the reference of the next check. */
+void world_watch_start(WorldWatch *w, int frame, const WorldEnergy *e);
+/* Checks a frame's end (e->work: the work of the frame); the frame's end becomes the next frame's start. `element`
+   names what is checked (e.g. "mpm_solid 'ball'"), `fix` says what to change. */
+DR_NODISCARD DrStatus world_watch_energy(WorldWatch *w, const WorldCtx *c, const WorldEnergy *e, const char *element,
+                                         const char *fix, DrError *err);
+/* The frame against the solver's step: DR_ERR_INPUT naming shot.fps and solver.max_substeps when a frame of 1/fps
+   needs more than max_substeps substeps of `step` (s; the step the solver cannot exceed as soon as anything moves,
+   `why` says which), which the solver would otherwise stretch until it falls through its domain. */
+DR_NODISCARD DrStatus world_watch_frame_length(const WorldCtx *c, const char *element, double step, const char *why,
+                                               DrError *err);
+/* A warning, or with solver.on_instability "fail" DR_ERR_RUNTIME, carrying message (for other watches: volume). */
+DR_NODISCARD DrStatus world_watch_alarm(const WorldWatch *w, const char *message, DrError *err);
+
 /* One solver of the scene as the orchestrator drives it. Every callback gets `self`, the adapter's own struct. */
 typedef struct WorldSolver {
     const char *name;

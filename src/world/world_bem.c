@@ -66,6 +66,13 @@ typedef struct WorldBem {
     int not_converged;       /* steps of the frame that returned DR_WARN_NOT_CONVERGED */
     DrBemConstraintStats last_contact; /* the last frame's */
     int last_not_converged;
+    /* the stability watch on the bodies' rigid motion (kinetic + potential of their frames), where nothing moving
+       works on them (no keyed collider): only against the start, since elastic energy the watch does not measure
+       turns back into rigid motion after a bounce, but never more than the bodies started with */
+    WorldWatch watch;
+    bool watched;
+    DrVec3 gravity;
+    double low;              /* J/kg: the least potential −g·x of any collider's box, +INFINITY without colliders */
 } WorldBem;
 
 /* ---- the bodies --------------------------------------------------------------------------------------------- */
@@ -503,6 +510,28 @@ static DrStatus build_groups(const WorldCtx *w, WorldBem *b, DrError *err)
     return DR_OK;
 }
 
+/* The bodies' rigid energy, and what of it could turn into motion: the kinetic energy and the potential above the
+   lowest collider (without colliders, above the bodies' own size below them: a free fall keeps its energy exactly). */
+static WorldEnergy bem_energy(const WorldBem *b)
+{
+    WorldEnergy e = {0};
+    double mass = 0.0, size = 0.0, pe = 0.0;
+    for (int i = 0; i < b->nbodies; i++) {
+        DrBemSolidDiag dg;
+        dr_bem_solid_diagnostics(b->bodies[i].solid, &dg);
+        const DrBemBody *body = &dr_bem_solid_matrices(b->bodies[i].solid)->body;
+        e.energy += dg.kinetic + dg.potential;
+        e.available += dg.kinetic;
+        pe += dg.potential;
+        mass += body->mass;
+        size = fmax(size, body->r_max);
+    }
+    double g = dr_v3_norm(b->gravity);
+    e.available += isfinite(b->low) ? fmax(0.0, pe - mass * b->low) : mass * g * size;
+    e.floor = 1e-12 + 1e-3 * mass * g * size;
+    return e;
+}
+
 static DrStatus build_bem(const WorldCtx *w, WorldBem *b, int n, const char *cache_root, DrError *err)
 {
     DR_TRY(dr_calloc((size_t)n, sizeof *b->bodies, &b->bodies, err));
@@ -520,7 +549,23 @@ static DrStatus build_bem(const WorldCtx *w, WorldBem *b, int n, const char *cac
         b->nbodies++;
     }
     DR_TRY(build_colliders(w, b, err));
-    return build_groups(w, b, err);
+    DR_TRY(build_groups(w, b, err));
+    world_watch_init(&b->watch, w->scene);
+    b->watch.cumulative_only = true;
+    b->watched = true;
+    b->gravity = w->gravity;
+    b->low = INFINITY;
+    for (int i = 0; i < b->ncolliders; i++) {
+        b->watched = b->watched && !b->posed[i].moving;
+        DrVec3 lo, hi;
+        dr_collider_frame_bounds(&b->posed[i].frame, &lo, &hi);
+        for (int k = 0; k < 8; k++)
+            b->low = fmin(b->low, -dr_v3_dot(w->gravity, dr_v3(k & 1 ? hi.x : lo.x, k & 2 ? hi.y : lo.y,
+                                                              k & 4 ? hi.z : lo.z)));
+    }
+    WorldEnergy e = bem_energy(b);
+    world_watch_start(&b->watch, w->frame, &e);
+    return DR_OK;
 }
 
 static bool finite_array(const double *a, size_t n)
@@ -729,7 +774,14 @@ static DrStatus bem_end_frame(void *self, const WorldCtx *c, DrFrameStats *stats
         o->seconds_correction += sum.seconds_correction;
         if (wb->steps_per_frame > o->substeps) o->substeps = wb->steps_per_frame;
     }
-    return DR_OK;
+    if (!b->watched) return DR_OK;
+    WorldEnergy e = bem_energy(b);
+    char who[300];
+    if (b->nbodies == 1) snprintf(who, sizeof who, "bem_solid '%s' (its rigid motion)", b->bodies[0].element->name);
+    else snprintf(who, sizeof who, "the %d bem_solid bodies (their rigid motion)", b->nbodies);
+    return world_watch_energy(&b->watch, c, &e, who,
+                              "lower BemSolver.time_step (and run precompute again) or raise "
+                              "BemSolver.history_margin", err);
 }
 
 /* ---- files -------------------------------------------------------------------------------------------------- */
@@ -903,6 +955,8 @@ static DrStatus bem_read(void *self, const WorldCtx *w, DrH5 *h, const char *fil
         free(steps);
         DR_TRY(s);
     }
+    WorldEnergy e = bem_energy(b);
+    world_watch_start(&b->watch, frame + 1, &e);
     return DR_OK;
 }
 

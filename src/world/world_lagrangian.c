@@ -6,6 +6,8 @@
  * whole system, the multipliers, every model commits (hair.h, "in a shared system"). */
 #include "world_adapter.h"
 
+#include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -31,6 +33,11 @@ typedef struct WorldHair {
     DrRodStats frame;        /* the frame being advanced, summed over its steps */
     DrRodStats last;         /* the last frame's */
     int not_converged;
+    /* the stability watch, where nothing outside works on the hair: no scalp motion, only static colliders */
+    WorldWatch watch;
+    bool watched;
+    bool watch_started;      /* a frame's end gave the reference (the first frame after building or resuming) */
+    double drop;             /* J: the weight of the hair lifted by its longest strand, what it can release */
 } WorldHair;
 
 static void hair_destroy(void *self)
@@ -132,6 +139,22 @@ static DrStatus build_hair(const WorldCtx *c, WorldHair *h, int n, DrError *err)
         h->ncolliders = nlive + nbodies;
         if (with_mpm) h->colliders[h->ncolliders++] = mpm; /* the MPM solids' particles as a surface */
     }
+    world_watch_init(&h->watch, scene);
+    h->watched = !h->any_motion && nbodies == 0 && !with_mpm;
+    for (int k = 0; k < nlive; k++) h->watched = h->watched && dr_collider_static(live[k]);
+    DrRodState rs = dr_rod_set_state(h->rods);
+    double mass = 0.0, longest = 0.0;
+    for (int v = 0; v < rs.nverts; v++) mass += rs.mass[v];
+    for (int k = 0; k < rs.nstrands; k++) {
+        double len = 0.0;
+        for (int v = rs.offsets[k]; v + 1 < rs.offsets[k + 1]; v++) {
+            DrVec3 a = dr_v3(rs.x[3 * v], rs.x[3 * v + 1], rs.x[3 * v + 2]);
+            DrVec3 b = dr_v3(rs.x[3 * v + 3], rs.x[3 * v + 4], rs.x[3 * v + 5]);
+            len += dr_v3_norm(dr_v3_sub(b, a));
+        }
+        longest = fmax(longest, len);
+    }
+    h->drop = mass * dr_v3_norm(c->gravity) * longest;
     return DR_OK;
 }
 
@@ -205,8 +228,6 @@ static DrStatus hair_step(void *self, const WorldCtx *c, double t, double t_next
 
 static DrStatus hair_end_frame(void *self, const WorldCtx *c, DrFrameStats *stats, DrError *err)
 {
-    (void)c;
-    (void)err;
     WorldHair *h = self;
     const DrRodStats *st = &h->frame;
     if (h->not_converged_steps)
@@ -229,7 +250,22 @@ static DrStatus hair_end_frame(void *self, const WorldCtx *c, DrFrameStats *stat
     b->elastic_energy = st->elastic;
     b->gravity_energy = st->gravity_potential;
     b->seconds = h->seconds;
-    return DR_OK;
+    if (!h->watched) return DR_OK;
+    /* the energy after the frame's last step; the first frame after building or resuming gives the reference */
+    WorldEnergy e = {0};
+    e.energy = st->kinetic + st->elastic + st->gravity_potential;
+    e.available = st->kinetic + st->elastic + h->drop;
+    e.floor = 1e-12 + 1e-6 * h->drop;
+    if (!h->watch_started) {
+        h->watch_started = true;
+        world_watch_start(&h->watch, c->frame + 1, &e);
+        return DR_OK;
+    }
+    char who[200];
+    if (h->nelements == 1) snprintf(who, sizeof who, "hair '%s'", h->elements[0]->name);
+    else snprintf(who, sizeof who, "the %d hair elements (solved together)", h->nelements);
+    return world_watch_energy(&h->watch, c, &e, who,
+                              "raise HairSolver.substeps (smaller hair steps) or HairSolver.max_iterations", err);
 }
 
 /* ---- files ------------------------------------------------------------------------------------------------- */
@@ -330,6 +366,7 @@ static DrStatus hair_read(void *self, const WorldCtx *c, DrH5 *hf, const char *f
     (void)c;
     (void)frame;
     WorldHair *h = self;
+    h->watch_started = false; /* the next frame's end is the watch's reference */
     DrRodState rs = dr_rod_set_state(h->rods);
     for (int b = 0; b < h->nelements; b++) {
         const char *name = h->elements[b]->name;

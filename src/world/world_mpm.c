@@ -4,6 +4,7 @@
 #include "world_adapter.h"
 
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -31,6 +32,12 @@ typedef struct WorldMpm {
     DrStatus worst;          /* DR_WARN_NOT_CONVERGED when a Newton iteration of the frame stopped at its cap */
     DrMpmStats last_frame;   /* the last frame's stats */
     int not_converged;       /* 1 when a Newton iteration of the last frame stopped at its cap */
+    /* the stability watch: the energy of all bodies together (they exchange it through the grid) */
+    WorldWatch watch;
+    double *body_energy;     /* per body, at the start of the frame: the alarm names the body that gained most */
+    DrVec3 lo, hi;           /* the grid box: the lowest point the bodies reach along gravity is one of its corners */
+    double dx;
+    DrVec3 gravity;
 } WorldMpm;
 
 /* ---- shapes ------------------------------------------------------------------------------------------ */
@@ -209,13 +216,73 @@ static void mpm_destroy(void *self)
     if (!m) return;
     dr_mpm_destroy(&m->mpm);
     free(m->bodies);
+    free(m->body_energy);
     free(m);
+}
+
+/* ---- the stability watch ------------------------------------------------------------------------------------- */
+
+/* The bodies' energy now (kinetic, elastic, gravitational potential; the work of the frame is added by the caller)
+   and what of it could turn into motion: the potential above the grid box's lowest corner along gravity. The floor
+   is a thousandth of the weight of the bodies lifted by a cell: round-off of bodies at rest. */
+static WorldEnergy mpm_energy(const WorldMpm *m)
+{
+    DrVec3 gravity = m->gravity;
+    DrMpmTotals t = dr_mpm_totals(m->mpm, -1);
+    DrMpmState st = dr_mpm_state(m->mpm);
+    double mass = 0.0;
+    for (long p = 0; p < st.n; p++) mass += st.mass[p];
+    double low = INFINITY; /* min over the box corners of −g·x: the least potential per kilogram */
+    for (int k = 0; k < 8; k++) {
+        DrVec3 x = dr_v3(k & 1 ? m->hi.x : m->lo.x, k & 2 ? m->hi.y : m->lo.y, k & 4 ? m->hi.z : m->lo.z);
+        low = fmin(low, -dr_v3_dot(gravity, x));
+    }
+    WorldEnergy e = {0};
+    e.energy = t.kinetic + t.elastic + t.gravity_potential;
+    e.available = fmax(0.0, e.energy - mass * low);
+    e.floor = 1e-12 + 1e-3 * mass * dr_v3_norm(gravity) * m->dx;
+    return e;
+}
+
+/* The state after building or restoring is the start of `frame`. */
+static void watch_start(WorldMpm *m, int frame)
+{
+    WorldEnergy e = mpm_energy(m);
+    world_watch_start(&m->watch, frame, &e);
+    for (int b = 0; b < m->nbodies; b++) {
+        DrMpmTotals t = dr_mpm_totals(m->mpm, m->bodies[b].body);
+        m->body_energy[b] = t.kinetic + t.elastic + t.gravity_potential;
+    }
+}
+
+/* End of a frame: the check, naming the body whose energy grew most. */
+static DrStatus watch_frame(WorldMpm *m, const WorldCtx *c, DrError *err)
+{
+    WorldEnergy e = mpm_energy(m);
+    e.work = m->frame.collider_work;
+    int worst = 0;
+    double most = -INFINITY;
+    for (int b = 0; b < m->nbodies; b++) {
+        DrMpmTotals t = dr_mpm_totals(m->mpm, m->bodies[b].body);
+        double E = t.kinetic + t.elastic + t.gravity_potential;
+        if (E - m->body_energy[b] > most) most = E - m->body_energy[b], worst = b;
+        m->body_energy[b] = E;
+    }
+    char who[300];
+    snprintf(who, sizeof who, "mpm_solid '%s'%s", m->bodies[worst].element->name,
+             m->nbodies > 1 ? " (the body that gained most; the MPM solids exchange energy on their grid)" : "");
+    const char *fix = m->frame.substeps >= m->max_substeps
+                          ? "the frame took all solver.max_substeps substeps, so they were longer than the solver's "
+                            "stable step: raise solver.max_substeps"
+                          : "lower solver.cfl (smaller MPM substeps), or use Integrator.type backward_euler, which damps";
+    return world_watch_energy(&m->watch, c, &e, who, fix, err);
 }
 
 static DrStatus build_mpm(const WorldCtx *c, WorldMpm *m, int n, DrError *err)
 {
     const DrScene *scene = c->scene;
     DR_TRY(dr_calloc((size_t)n, sizeof *m->bodies, &m->bodies, err));
+    DR_TRY(dr_calloc((size_t)n, sizeof *m->body_energy, &m->body_energy, err));
 
     /* The scene parser made every mpm_solid agree on Domain.voxel_size and wall_boundary, Transfer and
        Integrator, so the first element speaks for all; the grid box is the union of the Domain boxes. */
@@ -255,6 +322,12 @@ static DrStatus build_mpm(const WorldCtx *c, WorldMpm *m, int n, DrError *err)
     for (int f = 0; f < 6; f++) d.wall[f] = wall;
     d.cfl = dr_component_num(solver, "cfl");
     m->max_substeps = dr_component_int(solver, "max_substeps");
+    m->lo = lo, m->hi = hi, m->dx = d.dx, m->gravity = d.gravity;
+    /* a frame must hold the substeps of a body starting to fall: Δt(S + |g|Δt) = νΔx with S = 0 (mpm.h) */
+    if (dr_v3_norm(d.gravity) > 0.0)
+        DR_TRY(world_watch_frame_length(c, "the MPM solids", sqrt(d.cfl * d.dx / dr_v3_norm(d.gravity)),
+                                        "their stable step as a body starts to fall, sqrt(cfl*dx/|g|)", err));
+    world_watch_init(&m->watch, scene);
     DR_TRY(dr_mpm_create(&d, &m->mpm, err));
 
     /* the scene colliders, posed by the kinematics at every clock step's end; their surface velocity (keyframed
@@ -273,6 +346,7 @@ static DrStatus build_mpm(const WorldCtx *c, WorldMpm *m, int n, DrError *err)
         if (e->kind != DR_ELEMENT_MPM_SOLID) continue;
         DR_TRY(add_body(c, m, e, d.dx, &m->bodies[m->nbodies++], err));
     }
+    watch_start(m, c->frame);
     return DR_OK;
 }
 
@@ -333,6 +407,7 @@ static DrStatus mpm_step(void *self, const WorldCtx *c, double t, double t_next,
     m->frame.newton_residual = st.newton_residual;
     m->frame.seconds_transfer += st.seconds_transfer;
     m->frame.seconds_solve += st.seconds_solve;
+    m->frame.collider_work += st.collider_work;
     m->frame.substeps++;
     m->done++;
     if (s < 0) return step_failed(s, c->frame, err);
@@ -383,7 +458,7 @@ static DrStatus mpm_end_frame(void *self, const WorldCtx *c, DrFrameStats *stats
     b->angular_momentum = tot.angular;
     b->seconds_transfer = m->frame.seconds_transfer;
     b->seconds_solve = m->frame.seconds_solve;
-    return DR_OK;
+    return watch_frame(m, c, err);
 }
 
 /* ---- frame caches and checkpoints ------------------------------------------------------------------------ */
@@ -536,7 +611,6 @@ static DrStatus read_rows(DrH5 *h, const char *file, const char *name, const cha
 static DrStatus mpm_read(void *self, const WorldCtx *c, DrH5 *h, const char *path, int frame, DrError *err)
 {
     (void)c;
-    (void)frame;
     WorldMpm *m = self;
     DrMpmState st = dr_mpm_state(m->mpm);
     BodyArrays all = {0};
@@ -563,6 +637,7 @@ static DrStatus mpm_read(void *self, const WorldCtx *c, DrH5 *h, const char *pat
     }
     if (s == DR_OK) s = dr_mpm_restore(m->mpm, st.n, all.x, all.v, all.C, all.F, err);
     body_arrays_free(&all);
+    if (s == DR_OK) watch_start(m, frame + 1);
     return s;
 }
 
