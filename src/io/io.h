@@ -240,6 +240,9 @@ DR_NODISCARD DrStatus dr_h5_commit(DrH5 **h, DrError *err);
 void dr_h5_close(DrH5 **h);
 /* The path the handle will have once committed (write) or was opened from (read). */
 const char *dr_h5_path(const DrH5 *h);
+/* True when the HDF5 library is built thread-safe (Debian's is): the dr_h5 functions may then be called from
+ * several threads on different handles, and HDF5 runs them one at a time behind its own lock. */
+bool dr_h5_threadsafe(void);
 
 /* ---- background writer ----------------------------------------------------------------------------
  * A DrH5Writer commits deferred handles on a thread of its own, one at a time, in the order they were

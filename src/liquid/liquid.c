@@ -75,7 +75,9 @@ struct DrLiquid {
     DrParticleBins *bins;
     DrLiquidState st;
     double *sx, *sv, *sc;    /* scratch particle arrays (same capacity) for the sort by cell */
+    int64_t *sid;
     long cap;
+    int64_t next_id;         /* the id the next seeded or emitted particle takes */
     DrRng rng;
     double pmass;
     double vol_density;      /* density·dx³: the face mass of a full face (mass-weighted pressure) */
@@ -153,6 +155,8 @@ static DrStatus reserve_particles(DrLiquid *L, long n, DrError *err)
     DR_TRY(dr_realloc((size_t)cap * 3, sizeof(double), &L->sx, err));
     DR_TRY(dr_realloc((size_t)cap * 3, sizeof(double), &L->sv, err));
     DR_TRY(dr_realloc((size_t)cap * 9, sizeof(double), &L->sc, err));
+    DR_TRY(dr_realloc((size_t)cap, sizeof(int64_t), &L->st.id, err));
+    DR_TRY(dr_realloc((size_t)cap, sizeof(int64_t), &L->sid, err));
     L->cap = cap;
     return DR_OK;
 }
@@ -164,6 +168,7 @@ static DrStatus add_particle(DrLiquid *L, DrVec3 x, DrVec3 v, DrError *err)
     L->st.x[3 * p] = x.x; L->st.x[3 * p + 1] = x.y; L->st.x[3 * p + 2] = x.z;
     L->st.v[3 * p] = v.x; L->st.v[3 * p + 1] = v.y; L->st.v[3 * p + 2] = v.z;
     memset(L->st.c + 9 * p, 0, 9 * sizeof(double));
+    L->st.id[p] = L->next_id++;
     return DR_OK;
 }
 
@@ -424,6 +429,7 @@ void dr_liquid_destroy(DrLiquid **liq)
     free(L->vx); free(L->vv);
     dr_mac_grid_destroy(&L->g);
     free(L->st.x); free(L->st.v); free(L->st.c); free(L->sx); free(L->sv); free(L->sc);
+    free(L->st.id); free(L->sid);
     free(L->emitters); free(L->kill_lo); free(L->kill_hi);
     free(L);
     *liq = NULL;
@@ -442,12 +448,37 @@ void dr_liquid_resume_state(const DrLiquid *liq, DrLiquidResume *out)
 {
     memcpy(out->rng, liq->rng.s, sizeof liq->rng.s);
     out->cfl_accel = liq->accel;
+    out->next_id = liq->next_id;
+}
+
+static int cmp_id(const void *a, const void *b)
+{
+    int64_t x = *(const int64_t *)a, y = *(const int64_t *)b;
+    return (x > y) - (x < y);
+}
+
+/* DR_ERR_INPUT unless the n ids lie in [0, next_id) and no two are equal (checked on a sorted copy in scratch, which
+   must hold n). */
+static DrStatus check_ids(const int64_t *id, long n, int64_t next_id, int64_t *scratch, DrError *err)
+{
+    if (n == 0) return DR_OK;
+    for (long p = 0; p < n; p++)
+        if (id[p] < 0 || id[p] >= next_id)
+            return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "liquid restore: particle %ld has id %lld, outside [0, "
+                                "%lld) (the next id to give).", p, (long long)id[p], (long long)next_id);
+    memcpy(scratch, id, (size_t)n * sizeof *id);
+    qsort(scratch, (size_t)n, sizeof *scratch, cmp_id);
+    for (long p = 1; p < n; p++)
+        if (scratch[p] == scratch[p - 1])
+            return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "liquid restore: two particles have id %lld.",
+                                (long long)scratch[p]);
+    return DR_OK;
 }
 
 DrStatus dr_liquid_restore(DrLiquid *liq, long n, const double *x, const double *v, const double *c,
-                           const DrLiquidResume *resume, DrError *err)
+                           const int64_t *id, const DrLiquidResume *resume, DrError *err)
 {
-    if (n < 0 || (n > 0 && (!x || !v || !c)))
+    if (n < 0 || (n > 0 && (!x || !v || !c || !id)))
         return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "liquid restore: %ld particles but missing arrays.", n);
     if (!(resume->cfl_accel >= 0.0) || !isfinite(resume->cfl_accel))
         return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "liquid restore: CFL acceleration %g is not a finite "
@@ -456,10 +487,13 @@ DrStatus dr_liquid_restore(DrLiquid *liq, long n, const double *x, const double 
         if (!isfinite(x[i]) || !isfinite(v[i]))
             return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "liquid restore: particle %ld is not finite.", i / 3);
     DR_TRY(reserve_particles(liq, n, err));
+    DR_TRY(check_ids(id, n, resume->next_id, liq->sid, err));
     memcpy(liq->st.x, x, (size_t)n * 3 * sizeof(double));
     memcpy(liq->st.v, v, (size_t)n * 3 * sizeof(double));
     memcpy(liq->st.c, c, (size_t)n * 9 * sizeof(double));
+    memcpy(liq->st.id, id, (size_t)n * sizeof *id);
     liq->st.n = n;
+    liq->next_id = resume->next_id;
     memcpy(liq->rng.s, resume->rng, sizeof liq->rng.s);
     liq->accel = resume->cfl_accel;
     liq->accel_known = true;
@@ -1987,6 +2021,7 @@ static void kill(DrLiquid *L, DrLiquidStats *stats)
             memcpy(L->st.x + 3 * w, L->st.x + 3 * p, 3 * sizeof(double));
             memcpy(L->st.v + 3 * w, L->st.v + 3 * p, 3 * sizeof(double));
             memcpy(L->st.c + 9 * w, L->st.c + 9 * p, 9 * sizeof(double));
+            L->st.id[w] = L->st.id[p];
         }
         w++;
     }
@@ -2011,6 +2046,7 @@ static void sort_range(long begin, long end, void *vctx)
         memcpy(L->sx + 3 * q, L->st.x + 3 * p, 3 * sizeof(double));
         memcpy(L->sv + 3 * q, L->st.v + 3 * p, 3 * sizeof(double));
         memcpy(L->sc + 9 * q, L->st.c + 9 * p, 9 * sizeof(double));
+        L->sid[q] = L->st.id[p];
         order[q] = q;
     }
 }
@@ -2023,6 +2059,7 @@ static void sort_particles(DrLiquid *L)
     t = L->st.x; L->st.x = L->sx; L->sx = t;
     t = L->st.v; L->st.v = L->sv; L->sv = t;
     t = L->st.c; L->st.c = L->sc; L->sc = t;
+    int64_t *ti = L->st.id; L->st.id = L->sid; L->sid = ti;
 }
 
 

@@ -31,8 +31,8 @@
  * Memory: everything is sized in dr_liquid_create; particle arrays (and their scratch copies for the
  * sort below) grow (by 1/4 + slack) only when emitters add particles.
  * Particle order: every substep sorts the particles by grid cell (stable: ties keep their order) so the
- * transfers walk memory in grid order; the order, and the array pointers of DrLiquidState, change in
- * dr_liquid_advance and dr_liquid_restore: re-read them after each call. */
+ * transfers walk memory in grid order (each particle's id goes with it); the order, and the array pointers of
+ * DrLiquidState, change in dr_liquid_advance and dr_liquid_restore: re-read them after each call. */
 #ifndef DR_LIQUID_H
 #define DR_LIQUID_H
 
@@ -117,8 +117,12 @@ typedef struct DrLiquidDesc {
    no sources. */
 void dr_liquid_desc_default(DrLiquidDesc *d);
 
-typedef struct DrLiquidState { long n; double *x, *v, *c; } /* 3n positions (m), 3n velocities (m/s), 9n affine:
-      c[9p + 3a + b] = component b of c_pa, the affine vector of face component a (APIC; zero for PIC/FLIP) */ DrLiquidState;
+typedef struct DrLiquidState { long n; double *x, *v, *c; int64_t *id; } /* 3n positions (m), 3n velocities (m/s), 9n
+      affine: c[9p + 3a + b] = component b of c_pa, the affine vector of face component a (APIC; zero for PIC/FLIP);
+      n ids: a particle's id is its own for its whole life. Seeding gives 0, 1, 2 … in seeding order and every
+      emitted particle the next unused one (a counter in DrLiquidResume, so a resumed bake goes on with the same
+      ids); the sort carries each id with its particle and a killed particle's id is never given again. Ids feed
+      nothing back into the simulation (the other arrays' bits are the same without them). */ DrLiquidState;
 
 typedef struct DrLiquidStats {
     int substeps; int pressure_iterations_max; long pressure_iterations_total; double pressure_residual_max;
@@ -250,17 +254,20 @@ DR_NODISCARD DrStatus dr_liquid_end(DrLiquid *liq, DrLiquidStats *stats, DrError
 /* The phase functions add to *stats: zero it before a sequence (dr_liquid_advance zeroes it itself). */
 
 const DrLiquidState *dr_liquid_state(const DrLiquid *liq);
-DrLiquidState *dr_liquid_state_mut(DrLiquid *liq);  /* for initial conditions in tests; keep arrays' length n */
+DrLiquidState *dr_liquid_state_mut(DrLiquid *liq);  /* for initial conditions in tests; keep arrays' length n and
+                                                       the ids as they are */
 /* Checkpoint support: everything besides the particle arrays that a bit-identical continuation needs. */
 typedef struct DrLiquidResume {
     uint64_t rng[4];     /* the seeding rng (emitters) */
     double cfl_accel;    /* a⁺ of the CFL step (dr_liquid_advance), m/s² */
+    int64_t next_id;     /* the id the next seeded or emitted particle takes (DrLiquidState.id) */
 } DrLiquidResume;
 void dr_liquid_resume_state(const DrLiquid *liq, DrLiquidResume *out);
-/* Replaces the particles (copies n rows of x, v, c) and the resume state. DR_ERR_INPUT for n < 0 or
-   non-finite data (a⁺ negative or non-finite too); DR_ERR_NOMEM. */
+/* Replaces the particles (copies n rows of x, v, c and id) and the resume state. DR_ERR_INPUT for n < 0,
+   non-finite data (a⁺ negative or non-finite too), an id outside [0, next_id) or one held by two particles;
+   DR_ERR_NOMEM. */
 DR_NODISCARD DrStatus dr_liquid_restore(DrLiquid *liq, long n, const double *x, const double *v, const double *c,
-                                        const DrLiquidResume *resume, DrError *err);
+                                        const int64_t *id, const DrLiquidResume *resume, DrError *err);
 /* Diagnostics: total mass, linear momentum, angular momentum about the origin INCLUDING the affine part
    (APIC: L_p = x_p × m_p v_p + m_p ε:(B_pᵀ), B_p = C_p D), kinetic energy ½ Σ m |v_p|². */
 void dr_liquid_totals(const DrLiquid *liq, double *mass, DrVec3 *momentum, DrVec3 *angular, double *kinetic);

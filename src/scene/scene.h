@@ -198,9 +198,10 @@ const char *dr_scene_asset(const DrScene *s, int i);
 /* ---- stage cache keys (DESIGN §5) ---------------------------------------------------------------------- */
 
 #define DR_STAGE_VERSION_PRECOMPUTE "precompute-2" /* precompute-2: cache files carry checksums (DR_BEM_VERSION bem-2) */
-#define DR_STAGE_VERSION_BAKE "bake-3" /* bake-2: liquid collider boundary and CFL rework, checkpoint layout;
-                                          bake-3: frames and checkpoints carry checksums */
-#define DR_STAGE_VERSION_MESH "mesh-1"
+#define DR_STAGE_VERSION_BAKE "bake-4" /* bake-2: liquid collider boundary and CFL rework, checkpoint layout;
+                                          bake-3: frames and checkpoints carry checksums; bake-4: the liquid's
+                                          particle ids in frame caches and checkpoints */
+#define DR_STAGE_VERSION_MESH "mesh-2" /* mesh-2: points files, whole-liquid velocity option */
 #define DR_STAGE_VERSION_RENDER "render-1"
 typedef struct DrSceneKeys { char precompute[33], bake[33], mesh[33], render[33]; } DrSceneKeys;
 

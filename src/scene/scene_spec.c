@@ -65,6 +65,12 @@ static const DrFieldSpec mesh_fields[] = {
     {.name = "hair_ribbons", .kind = DR_FIELD_BOOL, .unit = "", .def = {0},
      .doc = "also write each hair element's strands as triangle strips 2 radii wide, <element>_ribbons.NNNN.obj "
             "(for tools that do not draw OBJ polylines); its <element>.NNNN.obj polylines are always written"},
+    {.name = "write_points", .kind = DR_FIELD_BOOL, .unit = "", .def = {1},
+     .doc = "write <element>.NNNN.points.vdb: the particles of liquid and MPM solids and the vertices of hair as "
+            "OpenVDB point data (P, v, id and per kind volume, J, strain, strand, width)"},
+    {.name = "velocity_interior", .kind = DR_FIELD_BOOL, .unit = "", .def = {0},
+     .doc = "the \"vel\" grid of <element>.NNNN.vdb covers the whole liquid or solid (every voxel inside the "
+            "surface); false: the narrow band of the surface only"},
 };
 
 static const DrFieldSpec render_fields[] = {

@@ -17,6 +17,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <limits>
+#include <memory>
 #include <mutex>
 #include <new>
 #include <string>
@@ -38,6 +39,12 @@
 #include <openvdb/tools/ParticlesToLevelSet.h>
 #include <openvdb/tools/VolumeToMesh.h>
 #include <openvdb/tree/LeafManager.h>
+#include <openvdb/points/PointAttribute.h>
+#include <openvdb/points/PointConversion.h>
+#include <openvdb/points/PointCount.h>
+#include <openvdb/points/PointDataGrid.h>
+
+#include <tbb/task_arena.h>
 
 struct DrVdbSurface {
     openvdb::FloatGrid::Ptr surface;
@@ -691,17 +698,24 @@ DrStatus validate_particles(const double *pos, const double *vel, long n, double
     return DR_OK;
 }
 
-/* Fills vel (topology = surface's active voxels) from the attribute grid of the rasteriser: the
- * closest particle's velocity. A band voxel the rasterised bands did not reach (possible only
- * where smoothing moved the surface outward by more than the extra raster voxel) takes the value
- * of the nearest attributed voxel within two voxels; the count of those left at zero is logged. */
+/* Fills vel (topology = surface's active voxels, and with `interior` every voxel inside the surface)
+ * from the attribute grid of the rasteriser: the closest particle's velocity. A band voxel the
+ * rasterised bands did not reach (possible only where smoothing moved the surface outward by more
+ * than the extra raster voxel; inside, only in a void wider than the particles' reach) takes the
+ * value of the nearest attributed voxel within two voxels; the count of those left at zero is
+ * logged. */
 openvdb::Vec3SGrid::Ptr transfer_velocity(const openvdb::FloatGrid &surface,
-                                          const openvdb::Vec3SGrid &att)
+                                          const openvdb::Vec3SGrid &att, bool interior)
 {
     using openvdb::Coord;
     using openvdb::Vec3s;
     openvdb::Vec3STree::Ptr tree(
         new openvdb::Vec3STree(surface.tree(), Vec3s(0.0f, 0.0f, 0.0f), openvdb::TopologyCopy()));
+    if (interior && surface.activeVoxelCount() > 0) {
+        /* the interior as voxels (sdfInteriorMask gives tiles where it can), so that each holds a value */
+        tree->topologyUnion(openvdb::tools::sdfInteriorMask(surface)->tree());
+        tree->voxelizeActiveTiles();
+    }
     std::atomic<long> unset(0);
     openvdb::tree::LeafManager<openvdb::Vec3STree> leaves(*tree);
     leaves.foreach([&](openvdb::Vec3STree::LeafNodeType &leaf, size_t) {
@@ -900,6 +914,7 @@ extern "C" DrVdbSurfaceDesc dr_vdb_surface_desc_default(void)
     d.smoothing = 1;
     d.adaptivity = 0.0;
     d.closing = 0.0;
+    d.velocity_interior = false;
     return d;
 }
 
@@ -984,7 +999,7 @@ extern "C" DrStatus dr_vdb_surface_from_particles(const double *pos, const doubl
         }
 
         /* 4. velocity on the final band's topology */
-        s->vel = transfer_velocity(*s->surface, *att);
+        s->vel = transfer_velocity(*s->surface, *att, desc->velocity_interior);
         name_grids(s);
         *out = s;
         return DR_OK;
@@ -1189,17 +1204,14 @@ static bool stamp_content_uuid(const std::string &path)
     return ok;
 }
 
-extern "C" DrStatus dr_vdb_surface_write(const DrVdbSurface *s, const char *path, const DrVdbMeta *meta,
-                                         DrError *err)
+/* Writes `grids` with the file metadata of dr_vdb_surface_write to "<path>.tmp.<pid>", stamps its UUID,
+ * checks the grid count read back and renames it onto path. Throws what OpenVDB throws (the temporary
+ * file is then removed); returns DR_ERR_IO for the failures it detects itself. */
+static DrStatus write_vdb_file(const openvdb::GridCPtrVec &grids, const char *path, const DrVdbMeta *meta,
+                               DrError *err)
 {
-    assert(s && path && meta);
-    std::string tmp;
+    std::string tmp = std::string(path) + ".tmp." + std::to_string(static_cast<long>(getpid()));
     try {
-        ensure_init();
-        tmp = std::string(path) + ".tmp." + std::to_string(static_cast<long>(getpid()));
-        openvdb::GridCPtrVec grids;
-        grids.push_back(s->surface);
-        grids.push_back(s->vel);
         openvdb::MetaMap info;
         info.insertMeta("creator", openvdb::StringMetadata("drench " DR_VERSION));
         info.insertMeta("frame", openvdb::Int32Metadata(meta->frame));
@@ -1226,12 +1238,12 @@ extern "C" DrStatus dr_vdb_surface_write(const DrVdbSurface *s, const char *path
             size_t count = 0;
             for (auto it = check.beginName(); it != check.endName(); ++it) count++;
             check.close();
-            if (count != 2) {
+            if (count != grids.size()) {
                 std::remove(tmp.c_str());
                 return dr_error_set(err, DR_ERR_IO, path, 0, 0,
-                                    "writing %s: the written file holds %zu grids instead of 2; "
+                                    "writing %s: the written file holds %zu grids instead of %zu; "
                                     "check free disk space",
-                                    path, count);
+                                    path, count, grids.size());
             }
         }
         if (std::rename(tmp.c_str(), path) != 0) {
@@ -1242,7 +1254,22 @@ extern "C" DrStatus dr_vdb_surface_write(const DrVdbSurface *s, const char *path
         }
         return DR_OK;
     } catch (...) {
-        if (!tmp.empty()) std::remove(tmp.c_str());
+        std::remove(tmp.c_str());
+        throw;
+    }
+}
+
+extern "C" DrStatus dr_vdb_surface_write(const DrVdbSurface *s, const char *path, const DrVdbMeta *meta,
+                                         DrError *err)
+{
+    assert(s && path && meta);
+    try {
+        ensure_init();
+        openvdb::GridCPtrVec grids;
+        grids.push_back(s->surface);
+        grids.push_back(s->vel);
+        return write_vdb_file(grids, path, meta, err);
+    } catch (...) {
         return translate_exception("writing the liquid .vdb", path, err);
     }
 }
@@ -1283,5 +1310,254 @@ extern "C" DrStatus dr_vdb_file_meta(const char *path, const char *key, char *va
         return copy_out(item->str(), value, size, "the metadata value", err);
     } catch (...) {
         return translate_exception("reading the .vdb metadata", path, err);
+    }
+}
+
+/* ---- threads ------------------------------------------------------------------------------- */
+
+extern "C" DrStatus dr_vdb_run_with_threads(int threads, DrVdbTask fn, void *ctx, DrError *err)
+{
+    assert(fn);
+    if (threads < 1)
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "OpenVDB thread limit is %d; it must be >= 1",
+                            threads);
+    std::unique_ptr<tbb::task_arena> arena;
+    try {
+        ensure_init();
+        /* one slot for the calling thread, threads - 1 for TBB's workers */
+        arena.reset(new tbb::task_arena(threads));
+        arena->initialize();
+    } catch (...) {
+        return translate_exception("making a TBB task arena", NULL, err);
+    }
+    /* fn is C: nothing it calls lets an exception out (every entry point here catches its own) */
+    arena->execute([&] { fn(ctx); });
+    return DR_OK;
+}
+
+/* ---- particles as OpenVDB point data -------------------------------------------------------- */
+
+namespace {
+
+constexpr const char *kPointsGrid = "points";
+
+/* OpenVDB's attribute arrays stored here: 32-bit floats and 64-bit integers, uncompressed. */
+using FloatAttr = openvdb::points::TypedAttributeArray<float, openvdb::points::NullCodec>;
+using Vec3Attr = openvdb::points::TypedAttributeArray<openvdb::Vec3s, openvdb::points::NullCodec>;
+using Int64Attr = openvdb::points::TypedAttributeArray<int64_t, openvdb::points::NullCodec>;
+
+DrStatus validate_points(long n, const double *pos, const DrVdbPointAttr *attrs, int nattrs, double voxel,
+                         DrError *err)
+{
+    if (n < 0) return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "point count is %ld; it must be >= 0", n);
+    if (n > 0 && !pos)
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "%ld points but no positions were given", n);
+    if (static_cast<unsigned long>(n) > std::numeric_limits<openvdb::Index32>::max())
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                            "%ld points exceed OpenVDB's 32-bit point indices; write fewer points per file", n);
+    if (!(std::isfinite(voxel) && voxel >= 0.0))
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                            "point grid voxel size is %g m; it must be finite and > 0, or 0 (automatic)", voxel);
+    for (long k = 0; k < 3 * n; k++)
+        if (!std::isfinite(pos[k]) || (voxel > 0.0 && std::fabs(pos[k] / voxel) > kMaxIndexCoord))
+            return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                                "point %ld has position component %g m, which is not finite or lies beyond 2^30 "
+                                "voxels; remove escaped particles or use a larger voxel size",
+                                k / 3, pos[k]);
+    if (nattrs < 0 || (nattrs > 0 && !attrs))
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "%d point attributes but none were given", nattrs);
+    for (int a = 0; a < nattrs; a++) {
+        const DrVdbPointAttr &at = attrs[a];
+        if (!at.name || !at.name[0] || !std::strcmp(at.name, "P"))
+            return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                                "point attribute %d is named \"%s\"; give it a name other than \"P\" (the positions)",
+                                a, at.name ? at.name : "");
+        for (int b = 0; b < a; b++)
+            if (!std::strcmp(attrs[b].name, at.name))
+                return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "point attribute \"%s\" is given twice", at.name);
+        const bool ints = at.type == DR_VDB_ATTR_INT64;
+        if (n > 0 && (ints ? !at.i : !at.f))
+            return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "point attribute \"%s\" has no values", at.name);
+        const long count = at.type == DR_VDB_ATTR_VEC3 ? 3 * n : n;
+        for (long k = 0; !ints && k < count; k++)
+            if (!std::isfinite(at.f[k]) || std::fabs(at.f[k]) > std::numeric_limits<float>::max())
+                return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                                    "point attribute \"%s\" of point %ld is %g, not a finite 32-bit float",
+                                    at.name, at.type == DR_VDB_ATTR_VEC3 ? k / 3 : k, at.f[k]);
+    }
+    return DR_OK;
+}
+
+/* Appends attribute `at` to the points of `grid` and fills it in the index grid's order. */
+void add_attribute(openvdb::points::PointDataGrid &grid, const openvdb::tools::PointIndexGrid &index,
+                   const DrVdbPointAttr &at, long n)
+{
+    using namespace openvdb::points;
+    const size_t count = static_cast<size_t>(n);
+    if (at.type == DR_VDB_ATTR_FLOAT) {
+        std::vector<float> v(count);
+        for (size_t k = 0; k < count; k++) v[k] = static_cast<float>(at.f[k]);
+        appendAttribute(grid.tree(), at.name, FloatAttr::attributeType());
+        populateAttribute(grid.tree(), index.tree(), at.name, PointAttributeVector<float>(v));
+    } else if (at.type == DR_VDB_ATTR_VEC3) {
+        std::vector<openvdb::Vec3s> v(count);
+        for (size_t k = 0; k < count; k++)
+            v[k] = openvdb::Vec3s(static_cast<float>(at.f[3 * k]), static_cast<float>(at.f[3 * k + 1]),
+                                  static_cast<float>(at.f[3 * k + 2]));
+        appendAttribute(grid.tree(), at.name, Vec3Attr::attributeType());
+        populateAttribute(grid.tree(), index.tree(), at.name, PointAttributeVector<openvdb::Vec3s>(v));
+    } else {
+        std::vector<int64_t> v(at.i, at.i + count);
+        appendAttribute(grid.tree(), at.name, Int64Attr::attributeType());
+        populateAttribute(grid.tree(), index.tree(), at.name, PointAttributeVector<int64_t>(v));
+    }
+}
+
+/* The PointDataGrid "points" of the file at path (read whole, not delay-loaded); DR_ERR_INPUT when absent. */
+DrStatus open_points(const char *path, openvdb::points::PointDataGrid::Ptr *out, DrError *err)
+{
+    openvdb::io::File file(path);
+    file.open(false);
+    openvdb::GridBase::Ptr base = file.hasGrid(kPointsGrid) ? file.readGrid(kPointsGrid) : nullptr;
+    file.close();
+    *out = openvdb::gridPtrCast<openvdb::points::PointDataGrid>(base);
+    if (!*out)
+        return dr_error_set(err, DR_ERR_INPUT, path, 0, 0, "%s holds no point data grid \"%s\"", path, kPointsGrid);
+    return DR_OK;
+}
+
+} /* namespace */
+
+extern "C" DrStatus dr_vdb_points_write(const char *path, long n, const double *pos, const DrVdbPointAttr *attrs,
+                                        int nattrs, double voxel_size, const DrVdbMeta *meta, DrError *err)
+{
+    assert(path && meta);
+    try {
+        ensure_init();
+        DR_TRY(validate_points(n, pos, attrs, nattrs, voxel_size, err));
+        using namespace openvdb::points;
+        std::vector<openvdb::Vec3d> P(static_cast<size_t>(n));
+        for (size_t k = 0; k < P.size(); k++) P[k] = openvdb::Vec3d(pos[3 * k], pos[3 * k + 1], pos[3 * k + 2]);
+        const PointAttributeVector<openvdb::Vec3d> positions(P);
+        double voxel = voxel_size;
+        if (voxel == 0.0) voxel = n > 0 ? static_cast<double>(computeVoxelSize(positions, 8)) : 0.1;
+        if (!(voxel > 0.0) || !std::isfinite(voxel))
+            return dr_error_set(err, DR_ERR_RUNTIME, path, 0, 0,
+                                "OpenVDB chose point voxel size %g m for %ld points; give a voxel size", voxel, n);
+        for (long k = 0; k < 3 * n; k++)
+            if (std::fabs(pos[k] / voxel) > kMaxIndexCoord)
+                return dr_error_set(err, DR_ERR_INPUT, path, 0, 0,
+                                    "point %ld lies beyond 2^30 voxels of %g m; give a larger voxel size", k / 3,
+                                    voxel);
+        openvdb::math::Transform::Ptr xform = uniform_transform(voxel);
+        openvdb::tools::PointIndexGrid::Ptr index =
+            openvdb::tools::createPointIndexGrid<openvdb::tools::PointIndexGrid>(positions, *xform);
+        PointDataGrid::Ptr grid = createPointDataGrid<NullCodec, PointDataGrid>(*index, positions, *xform);
+        for (int a = 0; a < nattrs; a++) add_attribute(*grid, *index, attrs[a], n);
+        grid->setName(kPointsGrid);
+        openvdb::GridCPtrVec grids;
+        grids.push_back(grid);
+        return write_vdb_file(grids, path, meta, err);
+    } catch (...) {
+        return translate_exception("writing the points .vdb", path, err);
+    }
+}
+
+extern "C" DrStatus dr_vdb_points_read(const char *path, const char *name, long *n, int *width, double **f,
+                                       int64_t **i, DrError *err)
+{
+    assert(path && name && n && width && f && i);
+    *n = 0;
+    *width = 0;
+    *f = nullptr;
+    *i = nullptr;
+    double *fv = nullptr;
+    int64_t *iv = nullptr;
+    try {
+        ensure_init();
+        using namespace openvdb::points;
+        PointDataGrid::Ptr grid;
+        DR_TRY(open_points(path, &grid, err));
+        const openvdb::Index64 count = pointCount(grid->tree());
+        const PointDataTree::LeafCIter first = grid->tree().cbeginLeaf();
+        const size_t at = first ? first->attributeSet().find(name) : AttributeSet::INVALID_POS;
+        if (first && at == AttributeSet::INVALID_POS)
+            return dr_error_set(err, DR_ERR_INPUT, path, 0, 0, "the points of %s have no attribute \"%s\"", path,
+                                name);
+        const openvdb::NamePair type = first ? first->constAttributeArray(at).type() : openvdb::NamePair();
+        const bool is_pos = !std::strcmp(name, "P");
+        const bool is_vec = type.first == openvdb::typeNameAsString<openvdb::Vec3f>();
+        const bool is_float = type.first == openvdb::typeNameAsString<float>() ||
+                              type.first == openvdb::typeNameAsString<double>();
+        const bool is_int = type.first == openvdb::typeNameAsString<int64_t>() ||
+                            type.first == openvdb::typeNameAsString<int32_t>();
+        if (first && !is_vec && !is_float && !is_int)
+            return dr_error_set(err, DR_ERR_INPUT, path, 0, 0, "point attribute \"%s\" of %s has type %s, which "
+                                "this reader does not convert", name, path, type.first.c_str());
+        const int w = (is_vec || (!first && is_pos)) ? 3 : 1;
+        const bool ints = first && is_int;
+        const size_t values = static_cast<size_t>(count) * static_cast<size_t>(w) + 1;
+        DR_TRY(ints ? dr_calloc(values, sizeof(int64_t), &iv, err) : dr_calloc(values, sizeof(double), &fv, err));
+        const openvdb::math::Transform &xf = grid->transform();
+        const std::string &tn = type.first;
+        size_t k = 0;
+        for (auto leaf = grid->tree().cbeginLeaf(); leaf; ++leaf) {
+            const AttributeArray &array = leaf->constAttributeArray(at);
+            if (is_pos) {
+                AttributeHandle<openvdb::Vec3f> h(array);
+                for (auto idx = leaf->beginIndexOn(); idx; ++idx, ++k) {
+                    const openvdb::Vec3d p =
+                        xf.indexToWorld(openvdb::Vec3d(h.get(*idx)) + idx.getCoord().asVec3d());
+                    for (int a = 0; a < 3; a++) fv[3 * k + static_cast<size_t>(a)] = p[a];
+                }
+            } else if (is_vec) {
+                AttributeHandle<openvdb::Vec3f> h(array);
+                for (auto idx = leaf->beginIndexOn(); idx; ++idx, ++k)
+                    for (int a = 0; a < 3; a++) fv[3 * k + static_cast<size_t>(a)] = h.get(*idx)[a];
+            } else if (ints && tn == openvdb::typeNameAsString<int64_t>()) {
+                AttributeHandle<int64_t> h(array);
+                for (auto idx = leaf->beginIndexOn(); idx; ++idx, ++k) iv[k] = h.get(*idx);
+            } else if (ints) {
+                AttributeHandle<int32_t> h(array);
+                for (auto idx = leaf->beginIndexOn(); idx; ++idx, ++k) iv[k] = h.get(*idx);
+            } else if (tn == openvdb::typeNameAsString<float>()) {
+                AttributeHandle<float> h(array);
+                for (auto idx = leaf->beginIndexOn(); idx; ++idx, ++k) fv[k] = h.get(*idx);
+            } else {
+                AttributeHandle<double> h(array);
+                for (auto idx = leaf->beginIndexOn(); idx; ++idx, ++k) fv[k] = h.get(*idx);
+            }
+        }
+        *n = static_cast<long>(count);
+        *width = w;
+        *f = fv;
+        *i = iv;
+        return DR_OK;
+    } catch (...) {
+        std::free(fv);
+        std::free(iv);
+        return translate_exception("reading the points .vdb", path, err);
+    }
+}
+
+extern "C" DrStatus dr_vdb_points_attributes(const char *path, char *names, size_t size, DrError *err)
+{
+    assert(path && names);
+    try {
+        ensure_init();
+        openvdb::points::PointDataGrid::Ptr grid;
+        DR_TRY(open_points(path, &grid, err));
+        std::string list;
+        const auto first = grid->tree().cbeginLeaf();
+        if (first) {
+            const openvdb::points::AttributeSet::Descriptor &d = first->attributeSet().descriptor();
+            std::vector<std::pair<size_t, std::string>> byPos;
+            for (const auto &entry : d.map()) byPos.emplace_back(entry.second, entry.first);
+            std::sort(byPos.begin(), byPos.end());
+            for (const auto &e : byPos) list += (list.empty() ? "" : ",") + e.second;
+        }
+        return copy_out(list, names, size, "the point attribute list", err);
+    } catch (...) {
+        return translate_exception("reading the points .vdb", path, err);
     }
 }

@@ -1,7 +1,7 @@
-/* drench vdb: a C interface over OpenVDB 10 for the three things the pipeline needs from it:
+/* drench vdb: a C interface over OpenVDB 10 for the things the pipeline needs from it:
  * collider signed distance fields sampled on a dense grid, the liquid surface as a narrow-band
- * level set built from particles (with a velocity grid), and that level set as a triangle mesh
- * and as a .vdb file (DESIGN §4 "Mesh outputs").
+ * level set built from particles (with a velocity grid), that level set as a triangle mesh
+ * and as a .vdb file (DESIGN §4 "Mesh outputs"), and particles as OpenVDB point data.
  *
  * Every function catches every C++ exception inside and reports it as a DrStatus:
  * bad arguments -> DR_ERR_INPUT, allocation failure -> DR_ERR_NOMEM, file errors -> DR_ERR_IO,
@@ -9,7 +9,8 @@
  *
  * Thread safety: all functions may be called from several threads on different objects;
  * functions taking a `const DrVdbSurface *` do not modify it. OpenVDB runs its own TBB worker
- * threads inside these calls.
+ * threads inside these calls (as many as there are cores, or as dr_vdb_run_with_threads allows).
+ * Results and files do not depend on the number of threads.
  *
  * Units: metres and metres per second, like the rest of drench. */
 #ifndef DR_VDB_H
@@ -36,6 +37,15 @@ extern "C" {
 /* Initialises OpenVDB (registers grid and metadata types). Idempotent and thread-safe; every other
  * function here calls it itself, so calling it is only needed to report a failure early. */
 DR_NODISCARD DrStatus dr_vdb_init(DrError *err);
+
+/* Runs fn(ctx) on the calling thread with every OpenVDB algorithm it calls (through the functions
+ * below) limited to `threads` threads, the calling one included: a TBB task arena of that
+ * concurrency. So callers on several threads of their own, each with threads = 1, run side by side
+ * without taking each other's cores (the mesh stage's frames in flight), and threads = all cores
+ * gives one caller every core. fn is C and reports its own failures through ctx. DR_ERR_INPUT for
+ * threads < 1; DR_ERR_RUNTIME if TBB cannot make the arena (fn has not run). */
+typedef void (*DrVdbTask)(void *ctx);
+DR_NODISCARD DrStatus dr_vdb_run_with_threads(int threads, DrVdbTask fn, void *ctx, DrError *err);
 
 /* ---- collider signed distance fields --------------------------------------------------------- */
 
@@ -101,17 +111,20 @@ typedef struct DrVdbSurfaceDesc {
                           spheres and leaves convex parts where they are. Particles on a lattice (an MPM
                           solid) otherwise give a flat face one bump per particle column: 0.28 spacings
                           high for spheres of 0.8 spacings after one smoothing pass, against 0.02 with a
-                          closing of one radius (the mesh stage's choice for MPM solids). Gaps narrower than about 2 * closing between separate
-                          bodies are bridged; 0 = the union of spheres as it is (as before the
-                          closing existed, bit for bit). */
+                          closing of one radius (the mesh stage's choice for MPM solids). Gaps narrower than
+                          about 2 * closing between separate bodies are bridged; 0 = the union of spheres as
+                          it is (as before the closing existed, bit for bit). */
+    bool velocity_interior; /* "vel" covers the whole liquid: the narrow band and every voxel inside
+                               the surface; false: the narrow band only */
 } DrVdbSurfaceDesc;
 
-/* voxel_size 0.004 m, radius 0.006 m (1.5 voxels), smoothing 1, adaptivity 0, closing 0. */
+/* voxel_size 0.004 m, radius 0.006 m (1.5 voxels), smoothing 1, adaptivity 0, closing 0, velocity on the band. */
 DrVdbSurfaceDesc dr_vdb_surface_desc_default(void);
 
 /* Owns a FloatGrid "surface" (class level set, narrow band 3 voxels on each side, uniform transform
  * of voxel_size, zero translation: voxel (i,j,k) is centred at voxel_size*(i,j,k)) and a Vec3SGrid
- * "vel" (m/s, contravariant-relative vectors) with the surface grid's active topology. */
+ * "vel" (m/s, contravariant-relative vectors) with the surface grid's active topology, and with
+ * desc.velocity_interior also every voxel inside the surface active (as voxels, not tiles). */
 typedef struct DrVdbSurface DrVdbSurface;
 
 /* Builds the liquid surface as the union of spheres of `desc->radius` around the particles, closed
@@ -120,9 +133,12 @@ typedef struct DrVdbSurface DrVdbSurface;
  * (with a closing: first to a signed distance, then at the level that erodes the union back), then
  * `desc->smoothing` passes of tools::LevelSetFilter::meanCurvature.
  * pos: 3n doubles (m); vel: 3n doubles (m/s) or NULL (then "vel" is zero). n may be 0: an empty
- * surface (no active voxels). At each active voxel of the surface "vel" holds the velocity of the
- * particle closest to the voxel centre (ParticlesToLevelSet attribute transfer; a voxel exactly
- * equidistant from two particles takes either's). Inputs are copied; nothing is kept.
+ * surface (no active voxels). At each active voxel of "vel" (the band's, and with
+ * desc->velocity_interior the interior's) it holds the velocity of the particle closest to the
+ * voxel centre (ParticlesToLevelSet attribute transfer, which reaches radius + 4 voxels from each
+ * particle; a voxel exactly equidistant from two particles takes either's; a voxel out of that
+ * reach takes its nearest reached voxel's within 2 voxels, else zero). Inputs are copied; nothing is
+ * kept.
  * Errors (*out left NULL): DR_ERR_INPUT for n < 0, pos NULL with n > 0, a non-finite position or
  * velocity, a position farther than 2^30 voxels from the origin, or a desc field out of its range;
  * DR_ERR_NOMEM; DR_ERR_RUNTIME. */
@@ -178,6 +194,52 @@ DR_NODISCARD DrStatus dr_vdb_file_info(const char *path, char *grid_names, size_
  * above; DR_ERR_INPUT if the file has no such item or `size` is too small. */
 DR_NODISCARD DrStatus dr_vdb_file_meta(const char *path, const char *key, char *value,
                                        size_t size, DrError *err);
+
+/* ---- particles as OpenVDB point data ---------------------------------------------------------- */
+
+typedef enum DrVdbAttrType {
+    DR_VDB_ATTR_FLOAT, /* one number per point, from `f` (n doubles), stored as a 32-bit float */
+    DR_VDB_ATTR_VEC3,  /* three numbers per point, from `f` (3n doubles), stored as 3 32-bit floats */
+    DR_VDB_ATTR_INT64  /* one 64-bit integer per point, from `i` (n values) */
+} DrVdbAttrType;
+
+/* A point attribute: `name` (not "P", which holds the positions; names unique within a call) and its values,
+ * borrowed for the call. */
+typedef struct DrVdbPointAttr {
+    const char *name;
+    DrVdbAttrType type;
+    const double *f;
+    const int64_t *i;
+} DrVdbPointAttr;
+
+/* Writes n points (pos: 3n doubles, m) as one PointDataGrid named "points" (OpenVDB's points API:
+ * createPointDataGrid, then appendAttribute/populateAttribute per attribute) with the file metadata of
+ * dr_vdb_surface_write. Positions "P" are stored as 32-bit float offsets within their voxel (uncompressed
+ * codec), so they come back to within 1e-7 of a voxel; the points are ordered voxel by voxel (OpenVDB's
+ * layout), every attribute in the same order. voxel_size (m) is the grid's: > 0, or 0 to let OpenVDB choose
+ * one for about 8 points per voxel (points::computeVoxelSize); the transform is uniform with zero
+ * translation. n may be 0 (a grid without points). Atomic and byte-reproducible like dr_vdb_surface_write
+ * (the same inputs give the same bytes). Errors (nothing written): DR_ERR_INPUT for n < 0, pos NULL with
+ * n > 0, a non-finite position or attribute value, a position beyond 2^30 voxels, voxel_size < 0 or not
+ * finite, an attribute named "P", twice, empty, or without its values; DR_ERR_IO naming the path;
+ * DR_ERR_NOMEM; DR_ERR_RUNTIME. */
+DR_NODISCARD DrStatus dr_vdb_points_write(const char *path, long n, const double *pos, const DrVdbPointAttr *attrs,
+                                          int nattrs, double voxel_size, const DrVdbMeta *meta, DrError *err);
+
+/* Reads attribute `name` of the grid "points" of the .vdb at `path`, in the file's point order: "P" gives the
+ * world positions (3 per point), a float attribute 1 number per point, a Vec3 attribute 3 (both into *f), an
+ * integer attribute of any size 1 value per point (into *i). *n is the point count, *width the numbers per
+ * point; the array not filled is NULL, the other is malloc'd (caller frees; non-NULL for 0 points). A grid
+ * without points stores no attributes: any name gives 0 values (width 3 for "P", else 1, into *f). Errors
+ * (outputs NULL): DR_ERR_IO as dr_vdb_file_info; DR_ERR_INPUT when the file has no PointDataGrid "points" or
+ * its points have no such attribute (or one of another type); DR_ERR_NOMEM. */
+DR_NODISCARD DrStatus dr_vdb_points_read(const char *path, const char *name, long *n, int *width, double **f,
+                                         int64_t **i, DrError *err);
+
+/* Comma-separated names of the attributes of the grid "points" of the .vdb at `path` in their stored order
+ * ("P,v,id,volume") into names (empty for a grid without points). Errors as dr_vdb_points_read; DR_ERR_INPUT
+ * also if `size` is too small. */
+DR_NODISCARD DrStatus dr_vdb_points_attributes(const char *path, char *names, size_t size, DrError *err);
 
 #ifdef __cplusplus
 }

@@ -267,10 +267,15 @@ static DrStatus liquid_end_frame(void *self, const WorldCtx *c, DrFrameStats *st
     return watch_frame(wl, c, err);
 }
 
+/* position, velocity, affine (dr_h5_write_particles) and id (N, int64: a particle's own for its life, liquid.h) */
 static DrStatus write_liquid_arrays(DrH5 *h, const WorldLiquid *wl, bool compress, DrError *err)
 {
     const DrLiquidState *st = dr_liquid_state(wl->liquid);
-    return dr_h5_write_particles(h, wl->element->name, st->n, st->x, st->v, st->c, compress, err);
+    DR_TRY(dr_h5_write_particles(h, wl->element->name, st->n, st->x, st->v, st->c, compress, err));
+    char g[512];
+    uint64_t d[1] = {(uint64_t)st->n};
+    PATHF(g, "/%s/id", wl->element->name);
+    return dr_h5_write_i64(h, g, 1, d, st->id, "1", compress, err);
 }
 
 static DrStatus liquid_write(const void *self, const WorldCtx *c, DrH5 *h, bool frame_cache, DrError *err)
@@ -288,6 +293,8 @@ static DrStatus liquid_write(const void *self, const WorldCtx *c, DrH5 *h, bool 
         DR_TRY(dr_h5_write_u64(h, g, 1, d, rs.rng, false, err));
         PATHF(g, "/%s/cfl_acceleration", wl->element->name);
         DR_TRY(dr_h5_write_f64(h, g, 1, d1, &rs.cfl_accel, "m/s^2", false, err));
+        PATHF(g, "/%s/next_id", wl->element->name);
+        DR_TRY(dr_h5_write_i64(h, g, 1, d1, &rs.next_id, "1", false, err));
         PATHF(g, "/%s/volume0", wl->element->name);
         return dr_h5_write_f64(h, g, 1, d1, &wl->volume0, "m^3", false, err);
     }
@@ -322,9 +329,10 @@ static DrStatus read_liquid(DrH5 *h, const char *path, WorldLiquid *wl, const Wo
     const char *name = wl->element->name;
     char p[512];
     int rank;
-    uint64_t dx[4], dv[4], dc[4], dr[4], d0[4], da[4];
+    uint64_t dx[4], dv[4], dc[4], dr[4], d0[4], da[4], di[4], dn[4];
     double *x = NULL, *v = NULL, *c = NULL, *v0 = NULL, *acc = NULL;
     uint64_t *rng = NULL;
+    int64_t *id = NULL, *next_id = NULL;
     DrStatus s;
     PATHF(p, "/%s/position", name);
     s = dr_h5_read_f64(h, p, &rank, dx, &x, err);
@@ -338,14 +346,23 @@ static DrStatus read_liquid(DrH5 *h, const char *path, WorldLiquid *wl, const Wo
     if (s == DR_OK) s = dr_h5_read_f64(h, p, &rank, d0, &v0, err);
     PATHF(p, "/%s/cfl_acceleration", name);
     if (s == DR_OK) s = dr_h5_read_f64(h, p, &rank, da, &acc, err);
-    if (s == DR_OK && (dx[0] != dv[0] || dx[0] != dc[0] || dr[0] != 4 || d0[0] != 1 || da[0] != 1))
+    PATHF(p, "/%s/id", name);
+    if (s == DR_OK && !dr_h5_has(h, p))
+        s = dr_error_set(err, DR_ERR_INPUT, path, 0, 0, "the checkpoint holds no particle ids of '%s' (%s: written "
+                         "by an older drench); delete the checkpoint and bake without --resume", name, p);
+    if (s == DR_OK) s = dr_h5_read_i64(h, p, &rank, di, &id, err);
+    PATHF(p, "/%s/next_id", name);
+    if (s == DR_OK) s = dr_h5_read_i64(h, p, &rank, dn, &next_id, err);
+    if (s == DR_OK && (dx[0] != dv[0] || dx[0] != dc[0] || dx[0] != di[0] || dr[0] != 4 || d0[0] != 1 ||
+                       da[0] != 1 || dn[0] != 1))
         s = dr_error_set(err, DR_ERR_INPUT, path, 0, 0, "checkpoint arrays of '%s' disagree in size; delete the "
                          "checkpoint and bake without --resume", name);
     if (s == DR_OK) {
         DrLiquidResume rs;
         memcpy(rs.rng, rng, sizeof rs.rng);
         rs.cfl_accel = acc[0];
-        s = dr_liquid_restore(wl->liquid, (long)dx[0], x, v, c, &rs, err);
+        rs.next_id = next_id[0];
+        s = dr_liquid_restore(wl->liquid, (long)dx[0], x, v, c, id, &rs, err);
     }
     if (s == DR_OK) wl->volume0 = v0[0];
     if (s == DR_OK) s = watch_start(wl, ctx, frame + 1, err);
@@ -355,6 +372,8 @@ static DrStatus read_liquid(DrH5 *h, const char *path, WorldLiquid *wl, const Wo
     free(rng);
     free(v0);
     free(acc);
+    free(id);
+    free(next_id);
     return s;
 }
 

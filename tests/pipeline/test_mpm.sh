@@ -13,7 +13,7 @@ check "pipeline runs all four stages on an MPM scene" bash -c "[ $rc -eq 0 ] && 
 check "an MPM-only scene builds no liquid grid" grep -q "world: 0 liquid grid(s), one MPM grid with" <<<"$out"
 check "16 frame caches" test "$(ls "$bd"/frame.*.h5 2>/dev/null | wc -l)" -eq 16
 check "16 OBJ and 16 VDB surfaces of the body" \
-  bash -c "[ \$(ls '$md'/jelly.*.obj | wc -l) -eq 16 ] && [ \$(ls '$md'/jelly.*.vdb | wc -l) -eq 16 ]"
+  bash -c "[ \$(ls '$md'/jelly.*.obj | wc -l) -eq 16 ] && [ \$(ls '$md'/jelly.[0-9][0-9][0-9][0-9].vdb | wc -l) -eq 16 ]"
 check "16 PNG frames and a contact sheet" bash -c "[ \$(ls '$rd'/frame.*.png | wc -l) -eq 16 ] && [ -s '$rd/contact_sheet.png' ]"
 check "the body moves in the images" bash -c "! cmp -s '$rd/frame.0001.png' '$rd/frame.0016.png'"
 check "every body surface is closed and reloads" "$ROOT/build/tests/objcheck" "$md"/jelly.*.obj

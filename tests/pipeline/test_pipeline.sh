@@ -6,7 +6,7 @@ out=$("$ROOT/pipeline.sh" --no-build "$scene" 2>&1); rc=$?
 echo "$out" | tail -5
 check "first run succeeds" test "$rc" -eq 0
 check "first run runs all four stages" bash -c "echo '$out' | grep -q 'pipeline: 4 stage(s) ran'"
-check "12 VDB frames" test "$(ls "$mesh_dir"/water.*.vdb 2>/dev/null | wc -l)" -eq 12
+check "12 VDB frames" test "$(ls "$mesh_dir"/water.[0-9][0-9][0-9][0-9].vdb 2>/dev/null | wc -l)" -eq 12
 check "12 OBJ frames" test "$(ls "$mesh_dir"/water.*.obj 2>/dev/null | wc -l)" -eq 12
 check "collider exported once" test -f "$mesh_dir/block.obj"
 check "12 frame caches" test "$(ls "$DRENCH_OUT"/small_dam/bake/frame.*.h5 | wc -l)" -eq 12

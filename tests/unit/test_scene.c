@@ -1188,7 +1188,8 @@ static void test_canonical_json(void **state)
     assert_non_null(strstr(c, "\"fov_deg\":30"));
     free(c);
     c = dr_scene_canonical(s, "mesh");
-    assert_string_equal(c, "{\"adaptivity\":0,\"hair_ribbons\":false,\"radius_scale\":0.80000000000000004,\"smoothing\":1,\"voxel_size\":0,\"write_obj\":true,"
+    assert_string_equal(c, "{\"adaptivity\":0,\"hair_ribbons\":false,\"radius_scale\":0.80000000000000004,\"smoothing\":1,"
+                           "\"velocity_interior\":false,\"voxel_size\":0,\"write_obj\":true,\"write_points\":true,"
                            "\"write_vdb\":true}");
     free(c);
     dr_scene_destroy(&s);

@@ -44,7 +44,7 @@ static double levelset_volume(const DrWorld *w)
     const DrLiquid *liq = dr_world_liquid(w, 0);
     const DrLiquidState *st = dr_liquid_state(liq);
     double dx = dr_liquid_grid(liq)->dx;
-    DrVdbSurfaceDesc d = {0.5 * dx, 0.8 * 0.5 * dx, 1, 0.0, 0.0};
+    DrVdbSurfaceDesc d = {0.5 * dx, 0.8 * 0.5 * dx, 1, 0.0, 0.0, false};
     DrVdbSurface *s = NULL;
     DrError err;
     if (dr_vdb_surface_from_particles(st->x, st->v, st->n, &d, &s, &err) < 0) fail_msg("%s", err.message);
