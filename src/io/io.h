@@ -144,8 +144,6 @@ DR_NODISCARD DrStatus dr_h5_create(const char *final_path, DrH5 **out, DrError *
  * file, with the temporary file removed. dr_h5_close drops the recording. The readers, dr_h5_has and
  * dr_h5_list must not be called on it (asserted). DR_ERR_IO when the path is too long. */
 DR_NODISCARD DrStatus dr_h5_create_deferred(const char *final_path, DrH5 **out, DrError *err);
-/* True when the HDF5 library takes calls from several threads (one at a time, behind its lock). */
-bool dr_h5_threadsafe(void);
 /* True for a handle of dr_h5_create_deferred. */
 bool dr_h5_deferred(const DrH5 *h);
 /* Opens an existing file read-only. DR_ERR_INPUT naming it when missing or not HDF5. */

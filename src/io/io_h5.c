@@ -1245,9 +1245,3 @@ DrStatus dr_h5_write_particles(DrH5 *h, const char *name, long n, const double *
     DR_TRY(join_path(path, sizeof path, group, "affine", err));
     return dr_h5_write_f64(h, path, 3, d3, affine, "1/s", compress, err);
 }
-
-bool dr_h5_threadsafe(void)
-{
-    hbool_t safe = 0;
-    return H5is_library_threadsafe(&safe) >= 0 && safe;
-}
