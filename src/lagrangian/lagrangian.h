@@ -56,11 +56,13 @@
 typedef enum DrLagPrecond {
     DR_LAG_PRECOND_BLOCK,  /* per-object banded Cholesky (Pseudocode S1) */
     DR_LAG_PRECOND_JACOBI, /* diag(A) */
-    DR_LAG_PRECOND_NONE    /* plain CG */
+    DR_LAG_PRECOND_NONE,   /* plain CG */
+    DR_LAG_PRECOND_CLUSTER /* objects joined through K_G in clusters, each cluster's part of A factored whole */
 } DrLagPrecond;
 
 typedef struct DrLagDesc {
     DrLagPrecond precond; /* default BLOCK */
+    double cluster_entries; /* CLUSTER: the most entries (doubles) of one cluster's factor; default 2^26 (512 MiB) */
     double tol;           /* relative mass-weighted residual; default 1e-8 */
     int max_iter;         /* default 1000; reaching it is DR_WARN_NOT_CONVERGED */
     bool local_guess;     /* start from the block solves (S1 lines 1–3); default true. false: q̇₊ = q̇ */
@@ -92,6 +94,12 @@ typedef struct DrLagStats {
     int indefinite_blocks; /* blocks that dropped their geometric stiffness */
     int contact_blocks_dropped; /* blocks preconditioned without their in-band contact terms (which made the
                                    preconditioner block indefinite; see the header) */
+    int clusters;          /* CLUSTER: clusters of two objects or more */
+    int cluster_dofs_max;  /* CLUSTER: DOFs of the largest */
+    int clusters_failed;   /* CLUSTER: clusters preconditioned by their objects' blocks instead (not positive definite) */
+    int cluster_analyses;  /* CLUSTER: symbolic analyses in this solve's factorisations (a cluster whose pattern
+                              changed) */
+    double cluster_entries; /* CLUSTER: entries of the clusters' factors (doubles) */
     double seconds_assemble, seconds_factor, seconds_solve;
 } DrLagStats;
 
