@@ -11,7 +11,7 @@ CFLAGS   += -std=c11 -Wall -Wextra -Werror -ffp-contract=off -fopenmp -MMD -MP
 CXXFLAGS ?= -O2 -g
 CXXFLAGS += -std=c++17 -Wall -Wextra -ffp-contract=off -fopenmp -MMD -MP -Wno-deprecated-declarations
 LDLIBS   := -L$(HDF5_LIB) -lopenvdb -ltbb -lImath-3_1 -lassimp -lhdf5 -ljansson -lxxhash \
-            -lcholmod -lopenblas -lpng -lstdc++ -lgomp -lm -lpthread
+            -lcholmod -lsuitesparseconfig -lopenblas -lpng -lstdc++ -lgomp -lm -lpthread
 
 DEB_PACKAGES := build-essential pkg-config libopenvdb-dev libboost-dev libtbb-dev libassimp-dev \
     libhdf5-dev hdf5-tools libsuitesparse-dev libopenblas-dev libpng-dev libjansson-dev \

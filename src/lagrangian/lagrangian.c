@@ -44,6 +44,26 @@ typedef struct LagObject {
 
 typedef struct LagTriplet { int i, j; double v; } LagTriplet;
 
+/* CLUSTER preconditioner (make_clusters): a pair of objects coupled in K_G with its strength; a unit of the
+   preconditioner (one object and its banded factor, or a cluster and its sparse factor in a slot). */
+typedef struct LagPair { int a, b; double w; } LagPair;
+#define LAG_PROBES 8 /* analyses of oversized patterns kept, so that a fixed one is not analysed at every step */
+typedef struct LagUnit {
+    int first, nobj; /* objects unit_obj[first .. first + nobj), by id */
+    int ndof;
+    int slot;        /* the cluster's slot, -1 for a unit of one object */
+} LagUnit;
+typedef struct LagSlot {
+    DrCsr *A;        /* the cluster's part of A: lower triangle, the cluster's DOFs in object order */
+    DrChol *chol;
+    double *buf;     /* cap_buf: a right-hand side gathered in the cluster's order */
+    size_t cap_buf;
+    DrStatus status; /* of the last analysis or factorisation */
+    int unit;
+    int probe;       /* make_clusters: the probe that holds the analysis of this pattern, or -1 */
+    double entries;  /* make_clusters: entries of the factor */
+} LagSlot;
+
 struct DrLag {
     DrLagDesc desc;
     LagObject *obj;
@@ -73,6 +93,27 @@ struct DrLag {
     int groups_block, groups_global;
     double t_assemble0;
     double *work;             /* 5 n: r, z, p, w, tmp */
+    /* CLUSTER: clusters made at the first solve of a step (make_clusters), factored at every solve */
+    bool clustered;           /* this step's clusters are made */
+    int cap_cl;               /* objects the per-object arrays below hold */
+    int *uf, *uf_dofs, *uf_cap; /* union-find: parent of each object, DOFs of each root's set, DOF cap of each
+                                   object's cluster */
+    int *pair_mark, *pair_at; /* pair extraction: the object whose pairs are gathered, and where its pair with
+                                 each object is */
+    int *obj_local;           /* first DOF of each object in its unit's numbering */
+    int *unit_obj;            /* objects by unit */
+    int *singles;             /* the objects in no cluster */
+    int nsingles;
+    LagUnit *units;
+    int nunits;
+    LagPair *pairs, *pairs_tmp;
+    size_t npairs, cap_pairs, cap_pairs_tmp;
+    bool pairs_slack;
+    int *obj_unit;            /* unit of each object */
+    LagSlot *slots;
+    int nslots, cap_slots;    /* slots in use (clusters this step), slots made */
+    DrChol *probes[LAG_PROBES]; /* analyses of patterns found too large for a cluster, newest last */
+    int nprobes;
     DrLagDofs dofs;           /* dr_lag_dofs: the models' per-DOF arrays */
     int ndof_dofs;            /* the DOF count dofs is sized for (0: none yet) */
     size_t cap_work;
@@ -85,6 +126,7 @@ void dr_lag_desc_default(DrLagDesc *d)
     d->tol = 1e-8;
     d->max_iter = 1000;
     d->local_guess = true;
+    d->cluster_entries = 67108864.0;
 }
 
 DrStatus dr_lag_create(const DrLagDesc *desc, DrLag **out, DrError *err)
@@ -140,6 +182,25 @@ void dr_lag_destroy(DrLag **sp)
     free(s->dofs.qdot_prescribed);
     free(s->dofs.force);
     free(s->dofs.qdot_out);
+    free(s->uf);
+    free(s->uf_dofs);
+    free(s->uf_cap);
+    for (int k = 0; k < s->nprobes; k++) dr_chol_destroy(&s->probes[k]);
+    free(s->pair_mark);
+    free(s->pair_at);
+    free(s->obj_local);
+    free(s->unit_obj);
+    free(s->obj_unit);
+    free(s->singles);
+    free(s->units);
+    free(s->pairs);
+    free(s->pairs_tmp);
+    for (int k = 0; k < s->cap_slots; k++) {
+        dr_csr_destroy(&s->slots[k].A);
+        dr_chol_destroy(&s->slots[k].chol);
+        free(s->slots[k].buf);
+    }
+    free(s->slots);
     free(s);
     *sp = NULL;
 }
@@ -290,6 +351,7 @@ DrStatus dr_lag_begin(DrLag *s, double h, const double *mass, const double *qdot
     s->groups_block = s->groups_global = 0;
     s->begun = true;
     s->assembled = false;
+    s->clustered = false;
     s->t_assemble0 = dr_time_now();
     return DR_OK;
 }
@@ -622,6 +684,346 @@ static void solve_blocks(long begin, long end, void *vctx)
     }
 }
 
+/* ---- the cluster preconditioner -------------------------------------------------------------------------------
+ * The block preconditioner sees each object alone; couplings in K_G stiffer than the objects themselves (bridges,
+ * contacts) leave it blind to the neighbours, and CG pays in iterations. CLUSTER groups objects joined through K_G
+ * into clusters and preconditions each by the Cholesky factor of its whole part of A (its objects' blocks and every
+ * K_G entry between its DOFs), an object without pairs by its banded factor as BLOCK does: block Jacobi over
+ * clusters. A cluster that holds a whole connected part of the system solves it exactly.
+ *
+ * Why whole clusters and not small ones: what costs iterations are the smooth modes across many coupled strands (a
+ * bundle swinging as one), which no block of bounded size sees: in a bundle of 12 × 12 strands joined by 1e3 N/m
+ * springs along their length (tests/bench/bench_hair, part 3), clusters of 16 strands took about as many
+ * iterations as single strands (456–516 against 257–487 per step), clusters of 2 up to three times as many (the
+ * smallest eigenvalue of the preconditioned matrix stayed where it was, more of them gathered near it), and the
+ * whole bundle as one cluster takes 1. In dry contact the factor of a whole groom is hardly larger than its matrix.
+ *
+ * Clusters (make_clusters, once per step, at the first solve): every pair of objects with an entry in K_G gets the
+ * strength max |A_ij| / sqrt(A_ii A_jj) over its entries; pairs are taken from the strongest down (ties in the
+ * order of their objects) and joined by union-find, so a clump of bridged strands is one cluster. The size cap is
+ * the factor's: a cluster whose factor would hold more than desc.cluster_entries entries (CHOLMOD's symbolic
+ * analysis tells before any numeric work) is cut, by union-find again within it under a DOF cap scaled to fit
+ * (fill grows about as DOFs^(4/3) for strands coupled along their length), until every cluster fits. So a groom
+ * in sparse contact stays whole, and a large soaked mass of strands is cut where its couplings are weakest. The
+ * clusters depend on the step's K_G and diagonal only (never on the thread count, nor on earlier steps: a resumed
+ * run makes the same ones); what is kept from step to step (factors, analyses, the analyses of patterns found too
+ * large) saves time only.
+ *
+ * Factors (factor_clusters, every solve: a load changes A): the part of A on a cluster's DOFs is a principal
+ * submatrix of A, so it is positive definite whenever A is, and its factor exists; one that fails all the same (A
+ * not positive definite in round-off, geometric stiffness in K_G) leaves the cluster to its objects' banded factors
+ * (Stats.clusters_failed), and CG goes on. A cluster with the same objects and pattern as the step before keeps its
+ * analysis and allocates nothing. */
+
+static DrStatus cluster_arrays(DrLag *s, DrError *err)
+{
+    if (s->cap_cl >= s->nobj && s->uf) return DR_OK;
+    size_t n = (size_t)s->cap_obj;
+    int **arrays[] = {&s->uf,        &s->uf_dofs,  &s->uf_cap,   &s->pair_mark, &s->pair_at,
+                      &s->obj_local, &s->unit_obj, &s->obj_unit, &s->singles};
+    for (size_t k = 0; k < sizeof arrays / sizeof arrays[0]; k++) DR_TRY(dr_realloc(n, sizeof(int), arrays[k], err));
+    DR_TRY(dr_realloc(n, sizeof(LagUnit), &s->units, err));
+    s->cap_cl = s->cap_obj;
+    return DR_OK;
+}
+
+static int uf_find(int *uf, int x)
+{
+    while (uf[x] != x) {
+        uf[x] = uf[uf[x]];
+        x = uf[x];
+    }
+    return x;
+}
+
+static inline bool pair_stronger(const LagPair *a, const LagPair *b) { return a->w > b->w; }
+DR_DEFINE_STABLE_SORT(pair_sort, LagPair, pair_stronger) /* strongest first; ties keep the order of their objects */
+
+/* 1. The pairs of objects in K_G and their strength, each pair once (from its object of lower id), strongest first. */
+static DrStatus cluster_pairs(DrLag *s, DrError *err)
+{
+    const DrCsr *kg = s->kg;
+    s->npairs = 0;
+    for (int o = 0; o < s->nobj; o++) s->pair_mark[o] = -1;
+    if (kg && s->ntrip > 0)
+        for (int a = 0; a < s->nobj; a++) {
+            const LagObject *oa = &s->obj[a];
+            for (int i = oa->dof0; i < oa->dof0 + oa->ndof; i++)
+                for (int k = kg->rowptr[i]; k < kg->rowptr[i + 1]; k++) {
+                    int j = kg->col[k], b = s->dof_object[j];
+                    if (b <= a) continue;
+                    /* |·| under the root: K_G with geometric stiffness can leave a diagonal entry negative */
+                    double dd = fabs(s->diag[i] * s->diag[j]), w = dd > 0 ? fabs(kg->val[k]) / sqrt(dd) : INFINITY;
+                    if (s->pair_mark[b] == a) {
+                        LagPair *p = &s->pairs[s->pair_at[b]];
+                        if (w > p->w) p->w = w;
+                        continue;
+                    }
+                    DR_TRY(grow((void **)&s->pairs, &s->cap_pairs, s->npairs + 1, sizeof(LagPair), err));
+                    s->pair_mark[b] = a;
+                    s->pair_at[b] = (int)s->npairs;
+                    s->pairs[s->npairs++] = (LagPair){a, b, w};
+                }
+        }
+    if (!s->pairs_slack) { /* as reserve_slack: room for twice the first step's pairs */
+        DR_TRY(grow((void **)&s->pairs, &s->cap_pairs, 2 * s->npairs, sizeof(LagPair), err));
+        s->pairs_slack = true;
+    }
+    if (s->cap_pairs_tmp < s->cap_pairs) {
+        DR_TRY(dr_realloc(s->cap_pairs, sizeof(LagPair), &s->pairs_tmp, err));
+        s->cap_pairs_tmp = s->cap_pairs;
+    }
+    pair_sort(s->pairs, s->pairs_tmp, s->npairs);
+    return DR_OK;
+}
+
+/* 2. Union-find from the strongest pair down, a pair joined unless the joined set would hold more DOFs than either
+   object's cap (uf_cap); a set's root is its object of lowest id. Then the units in the order of their first
+   object, their objects in id order, and a slot for each cluster of two objects or more. */
+static DrStatus cluster_units(DrLag *s, DrError *err)
+{
+    int nobj = s->nobj;
+    for (int o = 0; o < nobj; o++) {
+        s->uf[o] = o;
+        s->uf_dofs[o] = s->obj[o].ndof;
+    }
+    for (size_t k = 0; k < s->npairs; k++) {
+        int a = s->pairs[k].a, b = s->pairs[k].b, ra = uf_find(s->uf, a), rb = uf_find(s->uf, b);
+        int cap = s->uf_cap[a] < s->uf_cap[b] ? s->uf_cap[a] : s->uf_cap[b];
+        if (ra == rb || (long)s->uf_dofs[ra] + s->uf_dofs[rb] > cap) continue;
+        int lo = ra < rb ? ra : rb, hi = ra < rb ? rb : ra;
+        s->uf[hi] = lo;
+        s->uf_dofs[lo] += s->uf_dofs[hi];
+    }
+    int *unit_of = s->obj_unit;
+    s->nunits = 0;
+    for (int o = 0; o < nobj; o++) {
+        int r = uf_find(s->uf, o);
+        if (r == o) s->units[s->nunits++] = (LagUnit){0, 0, 0, -1};
+        unit_of[o] = r == o ? s->nunits - 1 : unit_of[r];
+        s->units[unit_of[o]].nobj++;
+    }
+    for (int u = 0, first = 0; u < s->nunits; u++) {
+        s->units[u].first = first;
+        first += s->units[u].nobj;
+        s->units[u].nobj = 0;
+    }
+    for (int o = 0; o < nobj; o++) {
+        LagUnit *u = &s->units[unit_of[o]];
+        s->unit_obj[u->first + u->nobj++] = o;
+        s->obj_local[o] = u->ndof;
+        u->ndof += s->obj[o].ndof;
+    }
+    s->nslots = s->nsingles = 0;
+    for (int u = 0; u < s->nunits; u++) {
+        if (s->units[u].nobj < 2) {
+            s->singles[s->nsingles++] = s->unit_obj[s->units[u].first];
+            continue;
+        }
+        if (s->nslots == s->cap_slots) {
+            int cap = s->cap_slots ? 2 * s->cap_slots : 16;
+            DR_TRY(dr_realloc((size_t)cap, sizeof(LagSlot), &s->slots, err));
+            memset(s->slots + s->cap_slots, 0, (size_t)(cap - s->cap_slots) * sizeof(LagSlot));
+            s->cap_slots = cap;
+        }
+        LagSlot *sl = &s->slots[s->nslots];
+        if (!sl->A) DR_TRY(dr_csr_create(0, 0, &sl->A, err));
+        if (!sl->chol) DR_TRY(dr_chol_create(&sl->chol, err));
+        DR_TRY(grow((void **)&sl->buf, &sl->cap_buf, (size_t)s->units[u].ndof, sizeof(double), err));
+        sl->unit = u;
+        sl->probe = -1;
+        s->units[u].slot = s->nslots++;
+    }
+    return DR_OK;
+}
+
+/* The cluster's part of A, lower triangle by rows in the cluster's numbering (objects in id order, each one's
+   DOFs in order: monotone in the global numbering, so K_G's column order is kept): per row the K_G entries
+   left of the object's band (other objects of the cluster, or the object's own beyond its band), then the band
+   of the operator with the K_G entries on it added. */
+static DrStatus cluster_assemble(const DrLag *s, LagSlot *sl, DrError *err)
+{
+    const LagUnit *u = &s->units[sl->unit];
+    const DrCsr *kg = s->ntrip > 0 ? s->kg : NULL;
+    const int *unit_of = s->obj_unit;
+    int me = sl->unit;
+    size_t bound = 0;
+    for (int q = 0; q < u->nobj; q++) {
+        const LagObject *o = &s->obj[s->unit_obj[u->first + q]];
+        bound += (size_t)(o->kd + 1) * (size_t)o->ndof;
+        if (kg) bound += (size_t)(kg->rowptr[o->dof0 + o->ndof] - kg->rowptr[o->dof0]);
+    }
+    if (bound > INT_MAX)
+        return dr_error_set(err, DR_ERR_NOMEM, NULL, 0, 0, "a cluster of %d DOFs has over 2^31 entries", u->ndof);
+    DR_TRY(dr_csr_reserve(sl->A, u->ndof, (int)bound, err));
+    DrCsr *A = sl->A;
+    int nnz = 0, row = 0;
+    A->rowptr[0] = 0;
+    for (int q = 0; q < u->nobj; q++) {
+        int oi = s->unit_obj[u->first + q];
+        const LagObject *o = &s->obj[oi];
+        int ld = o->kd + 1, base = s->obj_local[oi];
+        for (int r = 0; r < o->ndof; r++, row++) {
+            int g = o->dof0 + r, lo = r - o->kd > 0 ? r - o->kd : 0;
+            int k = kg ? kg->rowptr[g] : 0, ke = kg ? kg->rowptr[g + 1] : 0;
+            for (; k < ke && kg->col[k] < o->dof0 + lo; k++) {
+                int j = kg->col[k], b = s->dof_object[j];
+                if (unit_of[b] != me) continue;
+                A->col[nnz] = s->obj_local[b] + (j - s->obj[b].dof0);
+                A->val[nnz++] = kg->val[k];
+            }
+            for (int c = lo; c <= r; c++) {
+                double v = o->op[(size_t)(r - c) + (size_t)ld * (size_t)c];
+                if (k < ke && kg->col[k] == o->dof0 + c) v += kg->val[k++];
+                A->col[nnz] = base + c;
+                A->val[nnz++] = v;
+            }
+            A->rowptr[row + 1] = nnz;
+        }
+    }
+    A->n = u->ndof;
+    A->nnz = nnz;
+    return DR_OK;
+}
+
+/* Per slot, in parallel: its matrix, and the size of its factor, from the slot's own analysis when the pattern is
+   the one it analysed last, from a kept analysis of an oversized pattern (probe), or from a new analysis. */
+static void analyse_slots(long begin, long end, void *vctx)
+{
+    DrLag *s = vctx;
+    for (long k = begin; k < end; k++) {
+        LagSlot *sl = &s->slots[k];
+        DrError e;
+        sl->probe = -1;
+        sl->status = cluster_assemble(s, sl, &e);
+        if (sl->status != DR_OK) continue;
+        if (!dr_chol_analysed(sl->chol, sl->A))
+            for (int p = 0; p < s->nprobes; p++)
+                if (dr_chol_analysed(s->probes[p], sl->A)) {
+                    sl->probe = p;
+                    sl->entries = dr_chol_factor_entries(s->probes[p]);
+                    break;
+                }
+        if (sl->probe >= 0) continue;
+        sl->status = dr_chol_analyse(sl->chol, sl->A, &e);
+        sl->entries = dr_chol_factor_entries(sl->chol);
+    }
+}
+
+static DrStatus make_clusters(DrLag *s, DrError *err)
+{
+    DR_TRY(cluster_arrays(s, err));
+    DR_TRY(cluster_pairs(s, err));
+    for (int o = 0; o < s->nobj; o++) s->uf_cap[o] = INT_MAX;
+    double budget = s->desc.cluster_entries;
+    for (;;) {
+        DR_TRY(cluster_units(s, err));
+        dr_parallel_for(s->nslots, 1, analyse_slots, s);
+        bool cut = false;
+        for (int k = 0; k < s->nslots; k++) {
+            LagSlot *sl = &s->slots[k];
+            const LagUnit *u = &s->units[sl->unit];
+            if (sl->status == DR_ERR_NOMEM)
+                return dr_error_set(err, DR_ERR_NOMEM, NULL, 0, 0,
+                                    "out of memory analysing a cluster of %d objects (%d DOFs); lower cluster_entries",
+                                    u->nobj, u->ndof);
+            if (sl->status != DR_OK || sl->entries <= budget) continue;
+            /* too large: its objects' cap scaled to fit (entries ~ DOFs^(4/3)), by a quarter at least */
+            double f = fmin(0.75, 0.9 * pow(budget / sl->entries, 0.75));
+            int cap = (int)(f * u->ndof);
+            for (int q = 0; q < u->nobj; q++) s->uf_cap[s->unit_obj[u->first + q]] = cap;
+            cut = true;
+            if (sl->probe >= 0) continue;
+            /* keep its analysis as a probe (the slot takes a fresh factor, or the oldest probe's) */
+            DrChol *old = NULL;
+            if (s->nprobes == LAG_PROBES) {
+                old = s->probes[0];
+                memmove(s->probes, s->probes + 1, (LAG_PROBES - 1) * sizeof(DrChol *));
+                s->nprobes--;
+            }
+            s->probes[s->nprobes++] = sl->chol;
+            sl->chol = old;
+            if (!sl->chol) DR_TRY(dr_chol_create(&sl->chol, err));
+        }
+        if (!cut) break;
+    }
+    s->clustered = true;
+    return DR_OK;
+}
+
+typedef struct ClusterCtx {
+    DrLag *s;
+    int *analyses; /* per slot, in the factorisation */
+} ClusterCtx;
+
+static void factor_slots(long begin, long end, void *vctx)
+{
+    ClusterCtx *c = vctx;
+    for (long k = begin; k < end; k++) {
+        LagSlot *sl = &c->s->slots[k];
+        DrError e;
+        c->analyses[k] = dr_chol_analyses(sl->chol);
+        sl->status = cluster_assemble(c->s, sl, &e);
+        if (sl->status == DR_OK) sl->status = dr_chol_factor(sl->chol, sl->A, &e);
+        c->analyses[k] = dr_chol_analyses(sl->chol) - c->analyses[k];
+    }
+}
+
+/* Factors every cluster; fills the cluster figures of st. Out of memory is an error; a factorisation that fails
+   otherwise leaves the cluster to its objects' blocks. */
+static DrStatus factor_clusters(DrLag *s, DrLagStats *st, DrError *err)
+{
+    int *analyses = s->obj_status; /* free after factor_blocks: one int per object, more than the slots */
+    ClusterCtx c = {s, analyses};
+    dr_parallel_for(s->nslots, 1, factor_slots, &c);
+    for (int k = 0; k < s->nslots; k++) {
+        const LagSlot *sl = &s->slots[k];
+        const LagUnit *u = &s->units[sl->unit];
+        if (sl->status == DR_ERR_NOMEM)
+            return dr_error_set(err, DR_ERR_NOMEM, NULL, 0, 0,
+                                "out of memory factoring a cluster of %d objects (%d DOFs); lower cluster_entries",
+                                u->nobj, u->ndof);
+        st->clusters++;
+        if (u->ndof > st->cluster_dofs_max) st->cluster_dofs_max = u->ndof;
+        if (sl->status != DR_OK) st->clusters_failed++;
+        else st->cluster_entries += dr_chol_factor_entries(sl->chol);
+        st->cluster_analyses += analyses[k];
+    }
+    return DR_OK;
+}
+
+/* The clusters, each by its factor (or its objects' blocks when the factorisation failed); then the objects in no
+   cluster by their blocks. Two loops, so that the threads share the clusters, which hold most of the work. */
+static void solve_slots(long begin, long end, void *vctx)
+{
+    SolveCtx *c = vctx;
+    const DrLag *s = c->s;
+    for (long k = begin; k < end; k++) {
+        LagSlot *sl = &s->slots[k];
+        const LagUnit *u = &s->units[sl->unit];
+        const int *objs = s->unit_obj + u->first;
+        if (sl->status != DR_OK) {
+            for (int q = 0; q < u->nobj; q++) solve_blocks(objs[q], objs[q] + 1, c);
+            continue;
+        }
+        for (int q = 0; q < u->nobj; q++) {
+            const LagObject *o = &s->obj[objs[q]];
+            memcpy(sl->buf + s->obj_local[objs[q]], c->r + o->dof0, (size_t)o->ndof * sizeof(double));
+        }
+        dr_chol_solve(sl->chol, sl->buf);
+        for (int q = 0; q < u->nobj; q++) {
+            const LagObject *o = &s->obj[objs[q]];
+            memcpy(c->z + o->dof0, sl->buf + s->obj_local[objs[q]], (size_t)o->ndof * sizeof(double));
+        }
+    }
+}
+
+static void solve_singles(long begin, long end, void *vctx)
+{
+    SolveCtx *c = vctx;
+    for (long k = begin; k < end; k++) solve_blocks(c->s->singles[k], c->s->singles[k] + 1, c);
+}
+
 static void precondition(const DrLag *s, const double *r, double *z)
 {
     int n = s->ndof;
@@ -629,6 +1031,12 @@ static void precondition(const DrLag *s, const double *r, double *z)
     case DR_LAG_PRECOND_BLOCK: {
         SolveCtx c = {s, r, z};
         dr_parallel_for(s->nobj, 16, solve_blocks, &c);
+        break;
+    }
+    case DR_LAG_PRECOND_CLUSTER: {
+        SolveCtx c = {s, r, z};
+        dr_parallel_for(s->nslots, 1, solve_slots, &c);
+        dr_parallel_for(s->nsingles, 16, solve_singles, &c);
         break;
     }
     case DR_LAG_PRECOND_JACOBI:
@@ -765,7 +1173,8 @@ DrStatus dr_lag_solve_load(DrLag *s, const DrLagLoad *load, double *x, DrLagStat
     /* 1. factor every block: the block preconditioner and the local guess need the factors, and every
        preconditioner needs the same decision on which blocks keep their geometric stiffness (Cholesky is
        the test of positive definiteness), so that all three solve one and the same system. */
-    bool need_factor = s->desc.precond == DR_LAG_PRECOND_BLOCK;
+    bool clusters = s->desc.precond == DR_LAG_PRECOND_CLUSTER;
+    bool need_factor = s->desc.precond == DR_LAG_PRECOND_BLOCK || clusters;
     int *status = s->obj_status;
     FactorCtx fc = {s, status};
     dr_parallel_for(s->nobj, 16, factor_blocks, &fc);
@@ -791,6 +1200,10 @@ DrStatus dr_lag_solve_load(DrLag *s, const DrLagLoad *load, double *x, DrLagStat
         for (int i = 0; i < n; i++)
             for (int k = s->kg->rowptr[i]; k < s->kg->rowptr[i + 1]; k++)
                 if (s->kg->col[k] == i) s->diag[i] += s->kg->val[k];
+    if (clusters) {
+        if (!s->clustered) DR_TRY(make_clusters(s, err));
+        DR_TRY(factor_clusters(s, &st, err));
+    }
     double t2 = dr_time_now();
     st.seconds_factor = t2 - t1;
 

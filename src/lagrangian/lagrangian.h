@@ -28,6 +28,18 @@
  * matrix, which can be indefinite when a contact's DOFs on one object spread wider than the band (two edges
  * of one strand); a block whose factorisation fails with them is preconditioned without them (Stats counts
  * those blocks), A itself is untouched.
+ * CLUSTER sees K_G too: objects joined through it (strands bridged or in contact) are grouped into clusters, each
+ * preconditioned by the sparse Cholesky factor (CHOLMOD, src/linalg DrChol) of its whole part of A, the others by
+ * their blocks as BLOCK does: a cluster that holds a connected part of the system solves it exactly (a bundle of
+ * 1,024 strands with springs along their length: 1 iteration per step against 120–1,150 with BLOCK; a 1,024-strand
+ * groom in dry contact: 1 against 320). Clusters are made at the first solve of a step by union-find over K_G's
+ * pairs of objects, strongest coupling first, and cut where needed so that no cluster's factor holds more than
+ * desc.cluster_entries entries (the symbolic analysis tells before any numeric work); they depend on that step's
+ * K_G and diagonal alone. A cluster whose factorisation fails (A not positive definite in round-off, geometric
+ * stiffness in K_G) is preconditioned by its objects' blocks (Stats.clusters_failed). The factorisation is the cost:
+ * a cluster of strands coupled along their whole length fills in like a 3-D grid (the 1,024-strand bundle's factor
+ * holds 4e7 entries, 320 MB), so for soft couplings, which BLOCK handles in a few hundred iterations, CLUSTER can be
+ * slower (tests/bench/bench_hair measures both).
  * Jacobi (diag A) and unpreconditioned CG are there for comparison. A block whose geometric stiffness
  * makes it indefinite drops its geometric stiffness (operator and preconditioner alike, so CG still sees
  * one SPD matrix); Stats counts those blocks.
@@ -44,7 +56,13 @@
  * dr_lag_update_multipliers) returns.
  * dr_lag_add may be called concurrently for groups of different objects (each object has its own
  * record buffer); groups that go to K_G must be added from one thread (dr_lag_add_global). Loops run
- * through dr_parallel_for; results are bit-identical for any thread count. */
+ * through dr_parallel_for; results are bit-identical for any thread count, and depend on the step's inputs
+ * only (never on earlier steps), for every preconditioner.
+ *
+ * Memory: a step after the first allocates nothing while its groups fit the buffers (the first step leaves room
+ * for twice its own) and, with CLUSTER, while every cluster keeps the objects and the pattern it had in the step
+ * before (its matrix, analysis and factor are kept; CHOLMOD's own blocks are recycled, dr_alloc_count counts
+ * them). A cluster whose pattern changes (contacts come and go) is analysed again, which may allocate. */
 #ifndef DR_LAGRANGIAN_H
 #define DR_LAGRANGIAN_H
 
@@ -56,11 +74,13 @@
 typedef enum DrLagPrecond {
     DR_LAG_PRECOND_BLOCK,  /* per-object banded Cholesky (Pseudocode S1) */
     DR_LAG_PRECOND_JACOBI, /* diag(A) */
-    DR_LAG_PRECOND_NONE    /* plain CG */
+    DR_LAG_PRECOND_NONE,   /* plain CG */
+    DR_LAG_PRECOND_CLUSTER /* objects joined through K_G in clusters, each cluster's part of A factored whole */
 } DrLagPrecond;
 
 typedef struct DrLagDesc {
     DrLagPrecond precond; /* default BLOCK */
+    double cluster_entries; /* CLUSTER: the most entries (doubles) of one cluster's factor; default 2^26 (512 MiB) */
     double tol;           /* relative mass-weighted residual; default 1e-8 */
     int max_iter;         /* default 1000; reaching it is DR_WARN_NOT_CONVERGED */
     bool local_guess;     /* start from the block solves (S1 lines 1–3); default true. false: q̇₊ = q̇ */
@@ -92,6 +112,12 @@ typedef struct DrLagStats {
     int indefinite_blocks; /* blocks that dropped their geometric stiffness */
     int contact_blocks_dropped; /* blocks preconditioned without their in-band contact terms (which made the
                                    preconditioner block indefinite; see the header) */
+    int clusters;          /* CLUSTER: clusters of two objects or more */
+    int cluster_dofs_max;  /* CLUSTER: DOFs of the largest */
+    int clusters_failed;   /* CLUSTER: clusters preconditioned by their objects' blocks instead (not positive definite) */
+    int cluster_analyses;  /* CLUSTER: symbolic analyses in this solve's factorisations (a cluster whose pattern
+                              changed) */
+    double cluster_entries; /* CLUSTER: entries of the clusters' factors (doubles) */
     double seconds_assemble, seconds_factor, seconds_solve;
 } DrLagStats;
 

@@ -1,6 +1,6 @@
 /* drench linalg: square sparse matrices in CSR form, preconditioned conjugate gradients with an
  * inner-product hook, and two preconditioners (MIC(0) and Jacobi), plus the BLAS-1 helpers the
- * other modules share.
+ * other modules share; banded Cholesky (LAPACK) and sparse Cholesky (CHOLMOD).
  *
  * Determinism. Every reduction here (dr_dot, the norms and dot products inside dr_pcg_solve) splits
  * [0, n) into blocks whose size depends on n only, sums each block sequentially, and adds the block
@@ -11,8 +11,8 @@
  *
  * Thread safety: the functions may be called from several threads on distinct objects; one DrMic0 or
  * DrJacobi may be applied from several threads at once (application only reads it) as long as each
- * caller passes its own output vector. Nothing here allocates except create/reserve/update and
- * dr_pcg_solve with work == NULL. */
+ * caller passes its own output vector. Nothing here allocates except create/reserve/update,
+ * dr_pcg_solve with work == NULL, and a DrChol's analysis (see there). */
 #ifndef DR_LINALG_H
 #define DR_LINALG_H
 
@@ -165,6 +165,39 @@ DR_NODISCARD DrStatus dr_banded_factor(DrBanded *b, DrError *err);
 /* Solves A X = B in place for nrhs right-hand sides stored one after another (x[n·r + i]); needs the
  * factor. */
 void dr_banded_solve(const DrBanded *b, double *x, int nrhs);
+
+/* ---- sparse symmetric positive definite systems (CHOLMOD) ---------------------------------------- */
+
+/* A sparse symmetric positive definite n×n matrix factored by CHOLMOD (fill-reducing order by AMD; supernodal LLᵀ
+ * with BLAS-3 kernels through OpenBLAS when the factor is dense enough, simplicial LDLᵀ otherwise), kept with its
+ * symbolic analysis: a factorisation of the pattern analysed last reuses it, any other pattern is analysed anew. The
+ * factor's bits depend on the matrix only (not on what was factored before). Such as a cluster of hairs joined by
+ * contacts or bridges (src/lagrangian).
+ * Memory: CHOLMOD's allocations go through SuiteSparse's allocator hooks, which the first dr_chol_create points at
+ * linalg's own for the rest of the process (nothing else in drench calls SuiteSparse): every block is counted in
+ * dr_alloc_count, and each DrChol recycles its own, so a factorisation on the pattern of the one before, and every
+ * solve, allocate nothing. Threads: one DrChol is used by one thread at a time (its functions write its
+ * workspace, solves included); distinct ones may be used from different threads at once. A factor and a solve
+ * give the same bits on any thread and for any thread count (the BLAS run in one thread). */
+typedef struct DrChol DrChol;
+DR_NODISCARD DrStatus dr_chol_create(DrChol **out, DrError *err);
+void dr_chol_destroy(DrChol **c);
+/* The symbolic analysis alone (fill-reducing order, the factor's structure) of A's pattern, unless it is the pattern
+ * analysed last; A as for dr_chol_factor (its values are not read). Then dr_chol_factor_entries tells what the
+ * factor will hold before it is computed. DR_ERR_NOMEM on exhaustion, DR_ERR_RUNTIME if CHOLMOD fails otherwise. */
+DR_NODISCARD DrStatus dr_chol_analyse(DrChol *c, const DrCsr *lower, DrError *err);
+/* Whether A has the pattern analysed last (then factoring A needs no new analysis). */
+bool dr_chol_analysed(const DrChol *c, const DrCsr *lower);
+/* Factors A, given as its lower triangle by rows (columns <= row, increasing; n >= 1), analysing its pattern first
+ * unless it is the pattern analysed last. DR_ERR_RUNTIME when A is not numerically positive definite (a pivot
+ * not positive), DR_ERR_NOMEM on exhaustion; the factor is then unusable until a factorisation succeeds. */
+DR_NODISCARD DrStatus dr_chol_factor(DrChol *c, const DrCsr *lower, DrError *err);
+/* x ← A⁻¹ x (length n) with the last successful factorisation. */
+void dr_chol_solve(DrChol *c, double *x);
+/* Symbolic analyses so far (one per change of pattern), and the entries the factor of the pattern analysed last
+ * holds (doubles; 0 before any analysis). */
+int dr_chol_analyses(const DrChol *c);
+double dr_chol_factor_entries(const DrChol *c);
 
 /* ---- BLAS-1 (parallel, bit-identical for any thread count) ------------------------------------ */
 

@@ -105,9 +105,10 @@ static DrStatus build_hair(const WorldCtx *c, WorldHair *h, int n, DrError *err)
         d.hair_contact = contact;
         d.geometric_stiffness = dr_component_bool(solver, "geometric_stiffness");
         const char *pc = dr_component_str(solver, "preconditioner");
-        d.solver.precond = strcmp(pc, "jacobi") == 0 ? DR_LAG_PRECOND_JACOBI
-                           : strcmp(pc, "none") == 0 ? DR_LAG_PRECOND_NONE
-                                                     : DR_LAG_PRECOND_BLOCK;
+        d.solver.precond = strcmp(pc, "jacobi") == 0    ? DR_LAG_PRECOND_JACOBI
+                           : strcmp(pc, "none") == 0    ? DR_LAG_PRECOND_NONE
+                           : strcmp(pc, "cluster") == 0 ? DR_LAG_PRECOND_CLUSTER
+                                                        : DR_LAG_PRECOND_BLOCK;
         d.solver.tol = dr_component_num(solver, "tolerance");
         d.solver.max_iter = dr_component_int(solver, "max_iterations");
         h->substeps = dr_component_int(solver, "substeps");

@@ -4,6 +4,8 @@
 #   hair_error.png: run time against the tips' RMS error at the end (hair_error.csv): the Δt sweep at tol 1e-12
 #     and the tolerance sweep at Δt = 1/240 s for each preconditioner; and the solver's own error (against
 #     tol 1e-12 at the same Δt) against the tolerance. Only runs that finished (status ok) are drawn.
+#   hair_springs.png: strands joined by springs along their length (hair_springs.csv): CG iterations and seconds
+#     per step against the spring stiffness, block and cluster, for the bundle and the clumps, on 1 and 2 threads.
 set datafile separator ","
 set terminal pngcairo size 1500,900 noenhanced
 
@@ -54,7 +56,8 @@ plot "< grep '^dt,block,ok,' hair_error.csv" using ($11 > 0 ? $11 : 1/0):10 with
      "" using ($11 > 0 ? $11 : 1/0):10:(sprintf("1/%d", $4)) with labels offset 0,0.8 font ",8" notitle, \
      "< grep '^tol,block,ok,' hair_error.csv" using 11:10 with linespoints pt 5 title "tol sweep, block (dt 1/240)", \
      "< grep '^tol,jacobi,ok,' hair_error.csv" using 11:10 with linespoints pt 9 title "tol sweep, jacobi", \
-     "< grep '^tol,none,ok,' hair_error.csv" using 11:10 with linespoints pt 11 title "tol sweep, none"
+     "< grep '^tol,none,ok,' hair_error.csv" using 11:10 with linespoints pt 11 title "tol sweep, none", \
+     "< grep '^tol,cluster,ok,' hair_error.csv" using 11:10 with linespoints pt 13 title "tol sweep, cluster"
 set xlabel "tolerance (relative mass-weighted residual)"
 set ylabel "tip error against tol 1e-12 at dt 1/240 s (m)"
 set format y "%.0e"
@@ -63,5 +66,32 @@ set key bottom right
 plot "< grep '^tol,block,ok,' hair_error.csv" using 6:13 with linespoints pt 5 title "block RMS", \
      "" using 6:14 with linespoints pt 4 dt 2 title "block max", \
      "< grep '^tol,jacobi,ok,' hair_error.csv" using 6:13 with linespoints pt 9 title "jacobi RMS", \
-     "< grep '^tol,none,ok,' hair_error.csv" using 6:13 with linespoints pt 11 title "none RMS"
+     "< grep '^tol,none,ok,' hair_error.csv" using 6:13 with linespoints pt 11 title "none RMS", \
+     "< grep '^tol,cluster,ok,' hair_error.csv" using 6:13 with linespoints pt 13 title "cluster RMS"
+unset multiplot
+
+# ---- hair_springs.png -----------------------------------------------------------------------------------------
+reset
+set datafile separator ","
+set terminal pngcairo size 1400,900 noenhanced
+set output "hair_springs.png"
+set multiplot layout 2,2 title "1024 strands x 30 vertices joined by springs at every vertex, dt 1e-3 s, tol 1e-8: mean per step"
+set logscale x
+set grid
+set key top left font ",9"
+set xlabel "spring stiffness (N/m)"
+do for [layout in "bundle clumps"] {
+  file = layout eq "bundle" ? "< grep '^bundle' hair_springs.csv" : "< grep '^64 clumps' hair_springs.csv"
+  set title (layout eq "bundle" ? "one bundle of 32 x 32" : "64 clumps of 4 x 4")." : CG iterations per step"
+  set logscale y
+  set ylabel "CG iterations per step"
+  plot file using ($7 == 1 && strcol(6) eq "block" ? $4 : 1/0):($13 > 0 ? $13 : 0.5) with linespoints pt 5 title "block", \
+       file using ($7 == 1 && strcol(6) eq "cluster" ? $4 : 1/0):($13 > 0 ? $13 : 0.5) with linespoints pt 7 title "cluster"
+  set title (layout eq "bundle" ? "one bundle of 32 x 32" : "64 clumps of 4 x 4")." : seconds per step"
+  set ylabel "seconds per step"
+  plot file using ($7 == 1 && strcol(6) eq "block" ? $4 : 1/0):10 with linespoints pt 5 title "block, 1 thread", \
+       file using ($7 == 2 && strcol(6) eq "block" ? $4 : 1/0):10 with linespoints pt 4 dt 2 title "block, 2 threads", \
+       file using ($7 == 1 && strcol(6) eq "cluster" ? $4 : 1/0):10 with linespoints pt 7 title "cluster, 1 thread", \
+       file using ($7 == 2 && strcol(6) eq "cluster" ? $4 : 1/0):10 with linespoints pt 6 dt 2 title "cluster, 2 threads"
+}
 unset multiplot

@@ -54,8 +54,9 @@ static void sys_free(TestSystem *t)
 }
 
 /* nobj objects of `per` DOFs, half-bandwidth kd; per object `per` random banded groups (1–3 rows, SPD
-   material terms), plus `nglobal` groups joining random DOFs of different objects. */
-static void sys_make(TestSystem *t, int nobj, int per, int kd, int nglobal, uint64_t seed)
+   material terms), plus `nglobal` groups joining random DOFs of different objects, and room for `extra` more groups
+   (sys_spring). */
+static void sys_make_room(TestSystem *t, int nobj, int per, int kd, int nglobal, int extra, uint64_t seed)
 {
     memset(t, 0, sizeof *t);
     DrRng rng;
@@ -75,7 +76,7 @@ static void sys_make(TestSystem *t, int nobj, int per, int kd, int nglobal, uint
         t->v[i] = dr_rng_uniform(&rng) - 0.5;
         t->f[i] = 2 * dr_rng_uniform(&rng) - 1;
     }
-    int cap = nobj * per + nglobal;
+    int cap = nobj * per + nglobal + extra;
     t->groups = calloc((size_t)cap, sizeof(DrLagGroup));
     t->global = calloc((size_t)cap, sizeof(bool));
     t->lambda = calloc((size_t)cap * DR_LAG_MAX_ROWS, sizeof(double));
@@ -113,6 +114,43 @@ static void sys_make(TestSystem *t, int nobj, int per, int kd, int nglobal, uint
         t->global[t->ngroups] = true;
         t->ngroups++;
     }
+}
+
+static void sys_make(TestSystem *t, int nobj, int per, int kd, int nglobal, uint64_t seed)
+{
+    sys_make_room(t, nobj, per, kd, nglobal, 0, seed);
+}
+
+/* Appends a K_G spring φ = q_a − q_b − l (C⁻¹ = k) between DOFs a and b of different objects. */
+static void sys_spring(TestSystem *t, int a, int b, double k, double phi)
+{
+    DrLagGroup *g = &t->groups[t->ngroups];
+    memset(g, 0, sizeof *g);
+    g->kind = DR_LAG_POSITIONAL;
+    g->nrows = 1;
+    g->ndof = 2;
+    g->dof[0] = a;
+    g->dof[1] = b;
+    g->phi[0] = phi;
+    g->cinv[0] = k;
+    g->J[0] = 1;
+    g->J[1] = -1;
+    g->lambda = t->lambda + DR_LAG_MAX_ROWS * t->ngroups;
+    t->global[t->ngroups++] = true;
+}
+
+/* A bundle: side × side objects (strands) of `per` DOFs on a grid, each joined to its grid neighbours by a spring of
+   stiffness k at every DOF, as capillary bridges join wet strands along their whole length. */
+static void sys_bundle(TestSystem *t, int side, int per, int kd, double k, uint64_t seed)
+{
+    sys_make_room(t, side * side, per, kd, 0, 2 * side * side * per, seed);
+    for (int i = 0; i < side; i++)
+        for (int j = 0; j < side; j++)
+            for (int d = 0; d < per; d++) {
+                int o = i * side + j;
+                if (i + 1 < side) sys_spring(t, o * per + d, (o + side) * per + d, k, 0.01 * ((d % 3) - 1));
+                if (j + 1 < side) sys_spring(t, o * per + d, (o + 1) * per + d, k, -0.01 * ((d % 5) - 2));
+            }
 }
 
 /* Dense A (n×n, column-major = row-major: symmetric) and b of eq. (S26) with prescribed DOFs eliminated. */
@@ -245,16 +283,16 @@ static void test_viscous_by_hand(void **state)
     dr_lag_destroy(&s);
 }
 
-/* All three preconditioners solve the same system (checked against the dense assembly) and agree. */
+/* All four preconditioners solve the same system (checked against the dense assembly) and agree. */
 static void test_preconditioners_agree(void **state)
 {
     (void)state;
     TestSystem t;
     sys_make(&t, 12, 20, 5, 30, 7);
-    double *x[3];
-    int iters[3];
-    DrLagPrecond pcs[3] = {DR_LAG_PRECOND_BLOCK, DR_LAG_PRECOND_JACOBI, DR_LAG_PRECOND_NONE};
-    for (int p = 0; p < 3; p++) {
+    double *x[4];
+    int iters[4];
+    DrLagPrecond pcs[4] = {DR_LAG_PRECOND_BLOCK, DR_LAG_PRECOND_JACOBI, DR_LAG_PRECOND_NONE, DR_LAG_PRECOND_CLUSTER};
+    for (int p = 0; p < 4; p++) {
         x[p] = calloc((size_t)t.n, sizeof(double));
         DrLag *s = sys_solver(&t, pcs[p], 1e-12);
         DrLagStats st;
@@ -267,14 +305,14 @@ static void test_preconditioners_agree(void **state)
         assert_true(dense_residual(&t, x[p]) < 1e-10);
         dr_lag_destroy(&s);
     }
-    for (int i = 0; i < t.n; i++) {
-        assert_near(x[1][i], x[0][i], 1e-9 * (1 + fabs(x[0][i])));
-        assert_near(x[2][i], x[0][i], 1e-9 * (1 + fabs(x[0][i])));
-    }
-    /* the block preconditioner captures everything but the 30 inter-object springs */
+    for (int i = 0; i < t.n; i++)
+        for (int p = 1; p < 4; p++) assert_near(x[p][i], x[0][i], 1e-9 * (1 + fabs(x[0][i])));
+    /* the block preconditioner captures everything but the 30 inter-object springs; the cluster one those too (the
+       springs join every object: one cluster, whose factor is A's) */
     assert_true(iters[0] < iters[1]);
-    print_message("iterations: block %d, jacobi %d, none %d\n", iters[0], iters[1], iters[2]);
-    for (int p = 0; p < 3; p++) free(x[p]);
+    assert_true(iters[3] <= 1);
+    print_message("iterations: block %d, jacobi %d, none %d, cluster %d\n", iters[0], iters[1], iters[2], iters[3]);
+    for (int p = 0; p < 4; p++) free(x[p]);
     sys_free(&t);
 }
 
@@ -317,8 +355,8 @@ static void test_prescribed(void **state)
         t.vp[o * t.per] = 0.7;
         t.vp[o * t.per + 1] = -0.2;
     }
-    DrLagPrecond pcs[3] = {DR_LAG_PRECOND_BLOCK, DR_LAG_PRECOND_JACOBI, DR_LAG_PRECOND_NONE};
-    for (int p = 0; p < 3; p++) {
+    DrLagPrecond pcs[4] = {DR_LAG_PRECOND_BLOCK, DR_LAG_PRECOND_JACOBI, DR_LAG_PRECOND_NONE, DR_LAG_PRECOND_CLUSTER};
+    for (int p = 0; p < 4; p++) {
         double *x = calloc((size_t)t.n, sizeof(double));
         DrLag *s = sys_solver(&t, pcs[p], 1e-12);
         assert_int_equal(sys_step(&t, s, x, NULL), DR_OK);
@@ -344,9 +382,9 @@ static void test_indefinite_block(void **state)
     g->kind = DR_LAG_POSITIONAL;
     g->ndof = 2;
     g->G = G;
-    double *x[2];
-    DrLagPrecond pcs[2] = {DR_LAG_PRECOND_BLOCK, DR_LAG_PRECOND_JACOBI};
-    for (int p = 0; p < 2; p++) {
+    double *x[3];
+    DrLagPrecond pcs[3] = {DR_LAG_PRECOND_BLOCK, DR_LAG_PRECOND_JACOBI, DR_LAG_PRECOND_CLUSTER};
+    for (int p = 0; p < 3; p++) {
         x[p] = calloc((size_t)t.n, sizeof(double));
         DrLag *s = sys_solver(&t, pcs[p], 1e-12);
         DrLagStats st;
@@ -356,9 +394,9 @@ static void test_indefinite_block(void **state)
     }
     g->G = NULL; /* the dense reference without it */
     assert_true(dense_residual(&t, x[0]) < 1e-10);
-    for (int i = 0; i < t.n; i++) assert_near(x[1][i], x[0][i], 1e-9 * (1 + fabs(x[0][i])));
-    free(x[0]);
-    free(x[1]);
+    for (int i = 0; i < t.n; i++)
+        for (int p = 1; p < 3; p++) assert_near(x[p][i], x[0][i], 1e-9 * (1 + fabs(x[0][i])));
+    for (int p = 0; p < 3; p++) free(x[p]);
     sys_free(&t);
 }
 
@@ -437,8 +475,8 @@ static void test_bad_groups(void **state)
 static void test_contact_terms_beyond_band(void **state)
 {
     (void)state;
-    DrLagPrecond pcs[2] = {DR_LAG_PRECOND_BLOCK, DR_LAG_PRECOND_JACOBI};
-    for (int p = 0; p < 2; p++) {
+    DrLagPrecond pcs[3] = {DR_LAG_PRECOND_BLOCK, DR_LAG_PRECOND_JACOBI, DR_LAG_PRECOND_CLUSTER};
+    for (int p = 0; p < 3; p++) {
         DrLagDesc d;
         dr_lag_desc_default(&d);
         d.precond = pcs[p];
@@ -578,8 +616,8 @@ static void test_load_dense(void **state)
     int n = t.n;
     double *A = malloc((size_t)n * n * sizeof(double)), *b = malloc((size_t)n * sizeof(double));
     load_dense(&t, &L, A, b);
-    DrLagPrecond pcs[3] = {DR_LAG_PRECOND_BLOCK, DR_LAG_PRECOND_JACOBI, DR_LAG_PRECOND_NONE};
-    for (int p = 0; p < 3; p++) {
+    DrLagPrecond pcs[4] = {DR_LAG_PRECOND_BLOCK, DR_LAG_PRECOND_JACOBI, DR_LAG_PRECOND_NONE, DR_LAG_PRECOND_CLUSTER};
+    for (int p = 0; p < 4; p++) {
         DrLag *s = sys_solver(&t, pcs[p], 1e-12);
         DrError err;
         assert_int_equal(dr_lag_begin(s, t.h, t.mass, t.v, t.f, t.pres, t.vp, &err), DR_OK);
@@ -676,28 +714,231 @@ static void test_iteration_cap(void **state)
     sys_free(&t);
 }
 
+/* 1 and 2 threads give the same bits, with the block and with the cluster preconditioner (several clusters: the
+   60 random springs leave 40 objects in more than one piece, and a small factor budget cuts the large ones). */
 static void test_threads_bit_identical(void **state)
 {
     (void)state;
     TestSystem t;
     sys_make(&t, 40, 30, 6, 60, 21);
-    double *x[2], *lam[2];
+    DrLagPrecond pcs[2] = {DR_LAG_PRECOND_BLOCK, DR_LAG_PRECOND_CLUSTER};
+    for (int pc = 0; pc < 2; pc++) {
+        double *x[2], *lam[2];
+        DrLagStats st[2];
+        for (int p = 0; p < 2; p++) {
+            omp_set_num_threads(p + 1);
+            x[p] = calloc((size_t)t.n, sizeof(double));
+            DrLag *s = sys_solver(&t, pcs[pc], 1e-12);
+            DrLagDesc d;
+            dr_lag_desc_default(&d);
+            d.precond = pcs[pc];
+            d.tol = 1e-12;
+            d.max_iter = 5000;
+            d.cluster_entries = 3000;
+            dr_lag_set_desc(s, &d);
+            assert_int_equal(sys_step(&t, s, x[p], &st[p]), DR_OK);
+            lam[p] = malloc((size_t)t.ngroups * DR_LAG_MAX_ROWS * sizeof(double));
+            memcpy(lam[p], t.lambda, (size_t)t.ngroups * DR_LAG_MAX_ROWS * sizeof(double));
+            dr_lag_destroy(&s);
+        }
+        omp_set_num_threads(2);
+        if (pcs[pc] == DR_LAG_PRECOND_CLUSTER) {
+            print_message("cluster: %d clusters, the largest %d DOFs, %d iterations\n", st[0].clusters,
+                          st[0].cluster_dofs_max, st[0].iterations);
+            assert_true(st[0].clusters >= 2);
+        }
+        assert_memory_equal(x[0], x[1], (size_t)t.n * sizeof(double));
+        assert_memory_equal(lam[0], lam[1], (size_t)t.ngroups * DR_LAG_MAX_ROWS * sizeof(double));
+        for (int p = 0; p < 2; p++) {
+            free(x[p]);
+            free(lam[p]);
+        }
+    }
+    sys_free(&t);
+}
+
+
+/* ---- the cluster preconditioner ---------------------------------------------------------------------------- */
+
+static DrLag *cluster_solver(const TestSystem *t, double tol, double entries)
+{
+    DrLag *s = sys_solver(t, DR_LAG_PRECOND_CLUSTER, tol);
+    DrLagDesc d;
+    dr_lag_desc_default(&d);
+    d.precond = DR_LAG_PRECOND_CLUSTER;
+    d.tol = tol;
+    d.max_iter = 5000;
+    if (entries > 0) d.cluster_entries = entries;
+    dr_lag_set_desc(s, &d);
+    return s;
+}
+
+/* A bundle of 8 × 8 objects joined by stiff springs at every DOF (h²k = 100 against masses near 1: bridges far
+   stiffer than the strands): the block preconditioner is blind to the neighbours and needs many iterations; the
+   cluster preconditioner makes the whole bundle one cluster, whose factor is A's, and needs at most 1 — at least 3
+   times fewer — for the same solution at the same tolerance (against the dense assembly as in
+   test_preconditioners_agree). */
+static void test_cluster_bundle(void **state)
+{
+    (void)state;
+    TestSystem t;
+    sys_bundle(&t, 8, 24, 4, 1e6, 31);
+    double *x[2];
+    DrLagStats st[2];
     for (int p = 0; p < 2; p++) {
-        omp_set_num_threads(p + 1);
         x[p] = calloc((size_t)t.n, sizeof(double));
-        DrLag *s = sys_solver(&t, DR_LAG_PRECOND_BLOCK, 1e-12);
-        assert_int_equal(sys_step(&t, s, x[p], NULL), DR_OK);
-        lam[p] = malloc((size_t)t.ngroups * DR_LAG_MAX_ROWS * sizeof(double));
-        memcpy(lam[p], t.lambda, (size_t)t.ngroups * DR_LAG_MAX_ROWS * sizeof(double));
+        DrLag *s = p ? cluster_solver(&t, 1e-12, 0) : sys_solver(&t, DR_LAG_PRECOND_BLOCK, 1e-12);
+        assert_int_equal(sys_step(&t, s, x[p], &st[p]), DR_OK);
+        assert_true(dense_residual(&t, x[p]) < 1e-10);
+        dr_lag_destroy(&s);
+    }
+    print_message("bundle of 64 objects, %d springs: block %d iterations, cluster %d (%d cluster of %d DOFs, %.0f "
+                  "entries in its factor)\n",
+                  st[1].groups_global, st[0].iterations, st[1].iterations, st[1].clusters, st[1].cluster_dofs_max,
+                  st[1].cluster_entries);
+    assert_int_equal(st[1].clusters, 1);
+    assert_int_equal(st[1].cluster_dofs_max, t.n);
+    assert_int_equal(st[1].clusters_failed, 0);
+    assert_true(st[1].iterations <= 1);
+    assert_true(3 * st[1].iterations <= st[0].iterations && st[0].iterations >= 3);
+    for (int i = 0; i < t.n; i++) assert_near(x[1][i], x[0][i], 1e-9 * (1 + fabs(x[0][i])));
+    free(x[0]);
+    free(x[1]);
+    sys_free(&t);
+}
+
+/* A cluster whose factorisation fails falls back to its objects' blocks, and the rest is solved as usual. Objects 0
+   and 1 (one DOF each, mass 1) are joined by a group whose geometric stiffness (−h²G = −3 on DOF 0) makes their part
+   of A indefinite, [[−1, −1], [−1, 2]]; they carry no load, so CG never moves them. Objects 2 and 3 are joined by a
+   spring (k = 100, φ = 0.01): [[101, −100], [−100, 101]] v = (0.3 − 1, −0.2 + 1), by hand v = (9.3, 10.8) / 201. */
+static void test_cluster_fallback(void **state)
+{
+    (void)state;
+    DrLagPrecond pcs[2] = {DR_LAG_PRECOND_CLUSTER, DR_LAG_PRECOND_BLOCK};
+    for (int p = 0; p < 2; p++) {
+        DrLagDesc d;
+        dr_lag_desc_default(&d);
+        d.precond = pcs[p];
+        d.tol = 1e-13;
+        DrLag *s = NULL;
+        DrError err;
+        assert_int_equal(dr_lag_create(&d, &s, &err), DR_OK);
+        for (int o = 0; o < 4; o++) {
+            int id, d0;
+            assert_int_equal(dr_lag_add_object(s, 1, 0, &id, &d0, &err), DR_OK);
+        }
+        double m[4] = {1, 1, 1, 1}, v[4] = {0, 0, 0.3, -0.2}, G[4] = {3, 0, 0, 0};
+        assert_int_equal(dr_lag_begin(s, 1.0, m, v, NULL, NULL, NULL, &err), DR_OK);
+        DrLagGroup bad = {.kind = DR_LAG_POSITIONAL, .nrows = 1, .ndof = 2, .dof = {0, 1}, .phi = {0}, .cinv = {1},
+                          .J = {1, -1}, .G = G};
+        DrLagGroup spring = {.kind = DR_LAG_POSITIONAL, .nrows = 1, .ndof = 2, .dof = {2, 3}, .phi = {0.01},
+                             .cinv = {100}, .J = {1, -1}};
+        assert_int_equal(dr_lag_add_global(s, &bad, &err), DR_OK);
+        assert_int_equal(dr_lag_add_global(s, &spring, &err), DR_OK);
+        double x[4];
+        DrLagStats st;
+        assert_int_equal(dr_lag_solve(s, x, &st, &err), DR_OK);
+        assert_true(x[0] == 0 && x[1] == 0);
+        assert_near(x[2], 9.3 / 201, 1e-12);
+        assert_near(x[3], 10.8 / 201, 1e-12);
+        assert_int_equal(st.contact_blocks_dropped, 1); /* object 0's block with its K_G terms is −1 */
+        if (pcs[p] == DR_LAG_PRECOND_CLUSTER) {
+            assert_int_equal(st.clusters, 2);
+            assert_int_equal(st.clusters_failed, 1);
+            assert_true(st.iterations <= 1); /* the good cluster is solved exactly */
+        }
+        dr_lag_destroy(&s);
+    }
+}
+
+/* Steps after the first allocate nothing: the clusters, their matrices, analyses and factors are kept, and CHOLMOD's
+   own blocks come back from its pool. Six steps of a bundle, each with two solves (with a load, without) and the
+   multipliers; the first step allocates (the count works), and no step after it analyses again. */
+static void test_cluster_no_allocation(void **state)
+{
+    (void)state;
+    TestSystem t;
+    sys_bundle(&t, 4, 16, 4, 1e4, 41);
+    TestLoad L;
+    load_make(&t, &L, 3);
+    DrLagLoad load = {L.force, L.nblocks, L.block_dof, L.D};
+    for (int threads = 1; threads <= 2; threads++) {
+        omp_set_num_threads(threads);
+        DrLag *s = cluster_solver(&t, 1e-10, 0);
+        double *x = calloc((size_t)t.n, sizeof(double));
+        DrError err;
+        for (int step = 0; step < 6; step++) {
+            uint64_t before = dr_alloc_count();
+            assert_int_equal(dr_lag_begin(s, t.h, t.mass, t.v, t.f, NULL, NULL, &err), DR_OK);
+            for (int k = 0; k < t.ngroups; k++)
+                assert_int_equal(t.global[k] ? dr_lag_add_global(s, &t.groups[k], &err)
+                                             : dr_lag_add(s, &t.groups[k], &err),
+                                 DR_OK);
+            DrLagStats st[2];
+            assert_int_equal(dr_lag_solve_load(s, &load, x, &st[0], &err), DR_OK);
+            assert_int_equal(dr_lag_solve_load(s, NULL, x, &st[1], &err), DR_OK);
+            dr_lag_update_multipliers(s, x);
+            uint64_t made = dr_alloc_count() - before;
+            assert_int_equal(st[0].clusters, 1);
+            if (step == 0) {
+                assert_true(made > 0);
+                assert_int_equal(st[0].cluster_analyses + st[1].cluster_analyses, 0); /* made with the clusters */
+            } else if (made != 0 || st[0].cluster_analyses + st[1].cluster_analyses != 0) {
+                fail_msg("step %d on %d thread(s): %llu allocations, %d analyses", step + 1, threads,
+                         (unsigned long long)made, st[0].cluster_analyses + st[1].cluster_analyses);
+            }
+        }
+        free(x);
         dr_lag_destroy(&s);
     }
     omp_set_num_threads(2);
-    assert_memory_equal(x[0], x[1], (size_t)t.n * sizeof(double));
-    assert_memory_equal(lam[0], lam[1], (size_t)t.ngroups * DR_LAG_MAX_ROWS * sizeof(double));
-    for (int p = 0; p < 2; p++) {
-        free(x[p]);
-        free(lam[p]);
+    load_free(&L);
+    sys_free(&t);
+}
+
+/* A factor budget too small for the whole bundle cuts it into clusters that fit; the answer is the same (to the
+   tolerance) and costs more iterations than one cluster. The clusters depend on the step alone: a system that has
+   solved other steps before (another pattern, which leaves other analyses and probes behind; the same step
+   twice) gives the bits of a fresh one. */
+static void test_cluster_budget(void **state)
+{
+    (void)state;
+    TestSystem t;
+    sys_bundle(&t, 6, 16, 4, 1e6, 43);
+    double *whole = calloc((size_t)t.n, sizeof(double)), *x[3];
+    DrLagStats sw, st;
+    DrLag *s = cluster_solver(&t, 1e-12, 0);
+    assert_int_equal(sys_step(&t, s, whole, &sw), DR_OK);
+    dr_lag_destroy(&s);
+    double budget = sw.cluster_entries / 3;
+    /* fresh */
+    x[0] = calloc((size_t)t.n, sizeof(double));
+    s = cluster_solver(&t, 1e-12, budget);
+    assert_int_equal(sys_step(&t, s, x[0], &st), DR_OK);
+    dr_lag_destroy(&s);
+    print_message("budget %.0f entries (whole bundle: %.0f): %d clusters, the largest %d of %d DOFs, %.0f entries; %d "
+                  "iterations against %d\n",
+                  budget, sw.cluster_entries, st.clusters, st.cluster_dofs_max, t.n, st.cluster_entries, st.iterations,
+                  sw.iterations);
+    assert_true(st.clusters >= 3 && st.cluster_dofs_max < t.n && st.clusters_failed == 0);
+    assert_true(st.cluster_entries <= st.clusters * budget);
+    assert_true(st.iterations > sw.iterations);
+    assert_true(dense_residual(&t, x[0]) < 1e-10);
+    for (int i = 0; i < t.n; i++) assert_near(x[0][i], whole[i], 1e-9 * (1 + fabs(whole[i])));
+    /* after a step with half the springs, and after the same step */
+    int all = t.ngroups;
+    for (int k = 1; k < 3; k++) {
+        x[k] = calloc((size_t)t.n, sizeof(double));
+        s = cluster_solver(&t, 1e-12, budget);
+        t.ngroups = k == 1 ? all - (all - t.nobj * t.per) / 2 : all;
+        assert_int_equal(sys_step(&t, s, x[k], NULL), DR_OK);
+        t.ngroups = all;
+        assert_int_equal(sys_step(&t, s, x[k], NULL), DR_OK);
+        dr_lag_destroy(&s);
+        assert_memory_equal(x[k], x[0], (size_t)t.n * sizeof(double));
     }
+    for (int k = 0; k < 3; k++) free(x[k]);
+    free(whole);
     sys_free(&t);
 }
 
@@ -711,6 +952,8 @@ int main(void)
         cmocka_unit_test(test_threads_bit_identical), cmocka_unit_test(test_contact_hides_indefinite_block),
         cmocka_unit_test(test_load_by_hand),         cmocka_unit_test(test_load_dense),
         cmocka_unit_test(test_load_resolve),         cmocka_unit_test(test_contact_terms_beyond_band),
+        cmocka_unit_test(test_cluster_bundle),       cmocka_unit_test(test_cluster_fallback),
+        cmocka_unit_test(test_cluster_no_allocation), cmocka_unit_test(test_cluster_budget),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

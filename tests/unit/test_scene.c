@@ -779,7 +779,7 @@ static void test_hair_bad_input(void **state)
          {"fur.CollisionResponse.stiffness = 0 is out of range (0, 1000000000] N/m"}},
         {"\"Groom\":{\"scalp\":\"meshes/tri.obj\"},\"HairSolver\":{\"preconditioner\":\"jacoby\"}", NULL,
          {"fur.HairSolver.preconditioner: 'jacoby' is not a valid choice; did you mean 'jacobi'? Choose one of "
-          "block, jacobi, none"}},
+          "block, cluster, jacobi, none"}},
         {"\"Groom\":{\"scalp\":\"meshes/tri.obj\"},\"HairSolver\":{\"substeps\":0}", NULL,
          {"fur.HairSolver.substeps = 0 is out of range [1, 100000]"}},
         {"\"Groom\":{\"scalp\":\"meshes/tri.obj\"},\"Domain\":{}", NULL,
@@ -1433,7 +1433,7 @@ static void test_reference_lists_everything(void **state)
     assert_contains(md, "out/&lt;name&gt;/"); /* no raw HTML in the Markdown */
     assert_contains(text, "components: Groom (required), RodMaterial, Collider, Transform, Motion, CollisionGroup,\n"
                           "    CollisionResponse, HairSolver\n");
-    assert_contains(md, "| `preconditioner` | one of block, jacobi, none | - | `\"block\"` | - |");
+    assert_contains(md, "| `preconditioner` | one of block, cluster, jacobi, none | - | `\"block\"` | - |");
     assert_contains(md, "| `collides_with` | integer | - | `2147483647` | [0, 2147483647] |");
     assert_contains(text, "components: Mesh (required), LinearElastic, Compression, BemSolver");
     assert_contains(md, "### Element type `bem_solid`");
