@@ -876,6 +876,7 @@ DrRodSamples dr_rod_set_samples(DrRodSet *r)
 }
 
 int dr_rod_set_load_blocks(const DrRodSet *r) { return r->V; }
+const int *dr_rod_set_vertex_dofs(const DrRodSet *r) { return r->vdof; }
 
 void dr_rod_set_fill_load(const DrRodSet *r, const double *force, const double *dforce_dv, double *gforce,
                           int *block_dof, double *block)

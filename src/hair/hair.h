@@ -267,6 +267,8 @@ DR_NODISCARD DrStatus dr_rod_set_predict_groups(DrRodSet *rods, const DrRodColli
 int dr_rod_set_load_blocks(const DrRodSet *rods);
 void dr_rod_set_fill_load(const DrRodSet *rods, const double *force, const double *dforce_dv, double *gforce,
                           int *block_dof, double *block);
+/* The first of each vertex's 3 DOFs in the system (nverts entries; fixed from create on). */
+const int *dr_rod_set_vertex_dofs(const DrRodSet *rods);
 /* The owner solved the system into dr_lag_dofs's qdot_out: the set takes its range as its solve (for samples and
  * commit). */
 void dr_rod_set_take(DrRodSet *rods);

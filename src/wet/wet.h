@@ -9,6 +9,8 @@
 
 #include "core/core.h"
 #include "io/io.h"
+#include "hair/hair.h"
+#include "lagrangian/lagrangian.h"
 
 /* ---- cohesion tables (fei2017 §S1, §S3) -----------------------------------------------------------------------
  * A liquid bridge between two parallel cylinders of radius r whose axes are d apart (or between a cylinder whose axis
@@ -168,5 +170,96 @@ void dr_film_measure(const DrFilm *f, const double *x, const double *v, DrFilmSt
  * vertices' volume with its momentum carried at the velocities v (exact, as a film flux); a vertex may not go negative
  * (asserted: the caller limits the flow). */
 void dr_film_exchange(DrFilm *f, const double *x, const double *dV, double *v, const double *hair_mass);
+
+/* ---- bridges between strands and against solids (fei2017 §S1, eq. S28; §S5) ------------------------------------
+ * A bridge joins a vertex p of one strand to the nearest point c of another strand (on its edge q0 q1, c = q0 + t (q1 −
+ * q0)): per vertex and per other strand at most one. It forms when the two films touch within the Lian rupture
+ * distance, d ≤ d_new = min(H_p + H_c, d_L), and an existing bridge holds while d ≤ d_keep = max(H_p + H_c, d_L),
+ * d_L = (1 + θ/2) √(A_p + A_c) + r_p + r_c (PHYSICS §5): hysteresis, so a pulled bridge breaks at d_keep and reforms
+ * only below d_new. A_p is the film's cross-section area at p (V_p / l_p), A_c the film's at c (interpolated); H the
+ * film's outer radius, r the strand's. The set of bridges is the state kept across steps (and in the checkpoint).
+ *
+ * Force. The bridge's liquid is the film shared among the bridges at each end: A_L = A_p/n_p + A_c/n_c (n the number
+ * of bridges leaving each vertex). The table gives the force per unit length F(d, A_L) (attracting); each bridge
+ * stands for half of p's Voronoi length l_p (a pair of strands has bridges both ways), so its force is ½ l_p F. It is
+ * one positional row of the Lagrangian system (eq. S28) over the 9 DOFs of p, q0, q1: φ = d − d*, J = n (p) and
+ * −(1 − t) n, −t n (q0, q1), C⁻¹ = ½ l_p F(d) / (d − d*), the spring whose force is the table's at d. d* =
+ * radius_multiplier · d_c is the rest distance of a wet pair (d_c = r_p + r_c plus the contact thicknesses, where the
+ * strands touch): the spring's stiffness is held at its value at d̂ = (2 radius_multiplier − 1) d_c below d̂, so the
+ * force falls linearly to zero at d* and pushes the strands apart below it (the table's force grows without bound as
+ * the gap closes; a spring with C⁻¹ = F/(d − d*) would be infinitely stiff at d*). Below d_c the strands' dry contact
+ * (hair.h) acts as well. Cohesion between a wet vertex and a collider uses the cylinder–plane table the same way, over
+ * the vertex's 3 DOFs along the collider's normal, at d = the distance of the vertex's axis from the surface, with d_c
+ * = r + thicknesses and its own radius multiplier.
+ *
+ * Cross-hair flow (S5). Film flows along the bridges: every bridge links p to q0 and q1 (weights 1 − t and t), and
+ * over a step of δt the areas relax implicitly, (L + δt K) A⁺ = L A, L = diag(l), K the graph Laplacian with
+ * conductance rate · ½ l_p · weight on each link. The volume moved across each link is δt times its conductance times
+ * the difference of A⁺ at its ends, applied as equal and opposite film fluxes (dr_film_exchange): the total is exact
+ * whatever the linear solve's accuracy, the areas equalise monotonically, and nothing moves between strands without
+ * a bridge. */
+
+typedef struct DrBridgeDesc {
+    double contact_angle;     /* θ, rad (the tables' own) */
+    double surface_tension;   /* σ, N/m */
+    double scale;             /* multiplies every strand–strand bridge force, ≥ 0; default 1 */
+    double solid_scale;       /* multiplies every strand–collider bridge force, ≥ 0; default 1 */
+    double radius_multiplier; /* d* / d_c between strands, > 1; default 1.6 */
+    double solid_radius_multiplier; /* d* / d_c against a collider, > 1; default 1.1 */
+    bool cross_flow;          /* film flows along bridges; default true */
+    double cross_flow_rate;   /* 1/s, > 0; default 1 */
+} DrBridgeDesc;
+void dr_bridge_desc_default(DrBridgeDesc *d);
+
+/* The strands as the bridges see them (borrowed for one call). */
+typedef struct DrBridgeStrands {
+    int nstrands, nverts;
+    const int *offsets;       /* nstrands + 1 */
+    const double *x;          /* nverts × 3, m */
+    const double *radius;     /* nverts, m */
+    const double *volume;     /* nverts, film volume, m³ (dr_film_state) */
+    const int *vertex_dof;    /* nverts: the first of the vertex's 3 DOFs in the Lagrangian system */
+    const unsigned char *held; /* nverts or NULL: vertices whose motion is prescribed */
+    const double *thickness;  /* nstrands or NULL: contact thickness added to each strand's radius */
+    /* which strands may bridge, as hair.h's contact rule: strands of one batch when its self flag is set, of batches a
+       and b when (group_a & mask_b) && (group_b & mask_a). batch NULL: every pair of strands may. */
+    const int *batch;         /* nstrands: each strand's batch */
+    const unsigned *group, *mask; /* per batch */
+    const unsigned char *self;    /* per batch */
+} DrBridgeStrands;
+
+typedef struct DrBridges DrBridges;
+/* pair: the cylinders table (required); plane: the cylinder–plane table (NULL: no cohesion with colliders). Both
+ * borrowed for the object's life. DR_ERR_INPUT for a desc out of range or tables of different contact angles. */
+DR_NODISCARD DrStatus dr_bridges_create(const DrBridgeDesc *desc, const DrCohesionTable *pair,
+                                        const DrCohesionTable *plane, DrBridges **out, DrError *err);
+void dr_bridges_destroy(DrBridges **b);
+
+/* Finds this step's bridges from the strands at the start of a step (hysteresis against the bridges kept), and the
+ * bridges to colliders (hair.h's DrRodCollider: signed distance, normal, surface velocity, thickness; its friction is
+ * not used). After the first call with its largest sizes it allocates nothing. */
+DR_NODISCARD DrStatus dr_bridges_update(DrBridges *b, const DrBridgeStrands *s, const DrRodCollider *colliders,
+                                        int ncolliders, DrError *err);
+/* Adds the bridges' rows to a Lagrangian system that has begun a step of h seconds (strand–strand rows with
+ * dr_lag_add_global, collider rows too); the collider rows are relative to the collider's motion over the step. */
+DR_NODISCARD DrStatus dr_bridges_add_groups(const DrBridges *b, const DrBridgeStrands *s, DrLag *lag, double h,
+                                            DrError *err);
+/* Cross-hair flow over the bridges for δt seconds: dV (nverts) receives the volume each vertex gains (Σ dV = 0 to
+ * round-off, no vertex below zero), for dr_film_exchange. No bridge, or cross_flow off: dV all zero, bit for bit. */
+DR_NODISCARD DrStatus dr_bridges_cross_flow(DrBridges *b, const DrBridgeStrands *s, double dt, double *dV,
+                                            DrError *err);
+
+typedef struct DrBridgeStats {
+    int bridges;        /* strand–strand bridges */
+    int solid_bridges;  /* strand–collider bridges */
+    int formed, broken; /* since the previous update */
+    double cross_flow;  /* m³ moved across bridges by the last cross-flow call */
+} DrBridgeStats;
+void dr_bridges_stats(const DrBridges *b, DrBridgeStats *stats);
+
+/* The bridge set (the checkpoint's part): n pairs (vertex, other strand) in increasing order. */
+int dr_bridges_count(const DrBridges *b);
+void dr_bridges_get(const DrBridges *b, int *vertex, int *strand);
+DR_NODISCARD DrStatus dr_bridges_set(DrBridges *b, int n, const int *vertex, const int *strand, DrError *err);
 
 #endif

@@ -107,7 +107,7 @@ static DrStatus build(DrWorld *w, const DrWorldDesc *desc, DrError *err)
         w->solvers[w->nsolvers] = s;
         w->mpm = &w->solvers[w->nsolvers++];
     }
-    DR_TRY(world_lagrangian_adapter(&c, &s, err));
+    DR_TRY(world_lagrangian_adapter(&c, desc->cache_root, &s, err));
     if (s.self) {
         w->solvers[w->nsolvers] = s;
         w->hair = &w->solvers[w->nsolvers++];

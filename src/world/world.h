@@ -52,6 +52,15 @@ typedef struct DrHairFrameStats {
     int collider_contacts, contacts; /* of the last substep */
     double kinetic_energy, elastic_energy, gravity_energy; /* J */
     double seconds;
+    /* wet hair (all zero without a Wetting component): at the frame's end */
+    bool wet;
+    double film_volume, pool_volume;   /* m³ on the strands and gathered at their ends */
+    double film_max_ratio;             /* the largest H/r */
+    int bridges, solid_bridges;        /* of the last substep */
+    int film_substeps;                 /* summed over the frame */
+    double cross_flow;                 /* m³ moved across bridges in the frame */
+    double film_kinetic_energy;        /* J */
+    double seconds_film, seconds_bridges;
 } DrHairFrameStats;
 
 typedef struct DrBemFrameStats {
