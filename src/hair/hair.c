@@ -63,8 +63,11 @@ struct DrRodSet {
     double *lv;                /* I, Voronoi lengths */
     double *vmass;             /* V */
     double *tinertia;          /* E, ρ (πr⁴/2) l̄ */
-    double *radius;            /* S */
-    DrRodStiffness *stiff;     /* S */
+    double *radius;            /* S: the root radius */
+    double *vradius;           /* V: the radius at each vertex (tapered from root to tip) */
+    double *eks;               /* E: stretching stiffness E π r_e² of each edge (r_e its ends' mean radius) */
+    double *ibend, *itwist;    /* I: bending E π r⁴/4 and twisting G π r⁴/2 at each interior vertex */
+    bool tapered;              /* some strand's radius varies */
     double *root_rest;         /* S × 2 × 3: rest positions of the first two vertices */
     double *m1_rest;           /* S × 3: rest material director of edge 0 */
     double *tip_rest;          /* S × 2 × 3: starting positions of the last two vertices (desc.tips) */
@@ -106,6 +109,10 @@ struct DrRodSet {
 };
 
 static inline int edge_index(const DrRodSet *r, int s, int local) { return r->offsets[s] - s + local; }
+static inline double dist3(const double *a, const double *b)
+{
+    return sqrt((b[0] - a[0]) * (b[0] - a[0]) + (b[1] - a[1]) * (b[1] - a[1]) + (b[2] - a[2]) * (b[2] - a[2]));
+}
 static inline int interior_index(const DrRodSet *r, int s, int i) { return r->offsets[s] - 2 * s + (i - 1); }
 
 /* ---- creation ------------------------------------------------------------------------------------------ */
@@ -113,7 +120,7 @@ static inline int interior_index(const DrRodSet *r, int s, int i) { return r->of
 static DrStatus check_material(const DrRodMaterial *m, int batch, DrError *err)
 {
     if (!(m->radius > 0) || !(m->density > 0) || !(m->youngs > 0) || !(m->shear > 0) || !(m->damping >= 0) ||
-        !isfinite(m->radius + m->density + m->youngs + m->shear + m->damping))
+        !(m->tip_radius >= 0) || !isfinite(m->radius + m->density + m->youngs + m->shear + m->damping + m->tip_radius))
         return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
                             "rod material of groom %d: radius %g m, density %g kg/m³, Young's modulus %g Pa, shear "
                             "modulus %g Pa must be positive and damping %g s non-negative",
@@ -126,7 +133,8 @@ void dr_rod_set_destroy(DrRodSet **rp)
     if (!rp || !*rp) return;
     DrRodSet *r = *rp;
     void *arrays[] = {r->offsets, r->batch_offsets, r->batch_group, r->batch_mask, r->strand_batch, r->materials, r->batch,
-                      r->lbar, r->kbar, r->tbar, r->lv, r->vmass, r->tinertia, r->radius, r->stiff, r->root_rest,
+                      r->lbar, r->kbar, r->tbar, r->lv, r->vmass, r->tinertia, r->radius, r->vradius, r->eks,
+                      r->ibend, r->itwist, r->root_rest,
                       r->m1_rest, r->tip_rest, r->t_old, r->edge_strand, r->edge_local, r->x, r->v, r->theta, r->theta_dot, r->a1, r->m, r->t, r->len, r->lambda,
                       r->dof0, r->cflag, r->cnormal,
                       r->cvel, r->clambda, r->cfric, r->hc, r->save, r->vdof, r->s_v, r->s_radius, r->s_length, r->s_tangent, r->s_held};
@@ -195,7 +203,10 @@ DrStatus dr_rod_set_create(const DrRodSetDesc *desc, const DrRodBatch *batches, 
     ALLOC(r->vmass, V);
     ALLOC(r->tinertia, r->E);
     ALLOC(r->radius, S);
-    ALLOC(r->stiff, S);
+    ALLOC(r->vradius, V);
+    ALLOC(r->eks, r->E);
+    ALLOC(r->ibend, r->I);
+    ALLOC(r->itwist, r->I);
     ALLOC(r->root_rest, 6 * S);
     ALLOC(r->m1_rest, 3 * S);
     ALLOC(r->tip_rest, 6 * S);
@@ -245,15 +256,21 @@ DrStatus dr_rod_set_create(const DrRodSetDesc *desc, const DrRodBatch *batches, 
         r->batch[b] = batches[b];
         r->batch[b].groom = NULL;
         const DrRodMaterial *mt = &batches[b].material;
-        double rad = mt->radius, A = M_PI * rad * rad;
+        double rad = mt->radius;
         for (int k = 0; k < g->nstrands; k++, si++) {
             int nv = g->offsets[k + 1] - g->offsets[k];
             r->offsets[si] = vi;
             r->strand_batch[si] = b;
             r->radius[si] = rad;
-            r->stiff[si] = (DrRodStiffness){mt->youngs * A, mt->youngs * M_PI * pow(rad, 4) / 4.0,
-                                            mt->shear * M_PI * pow(rad, 4) / 2.0};
             memcpy(r->x + 3 * vi, g->x + 3 * g->offsets[k], (size_t)nv * 3 * sizeof(double));
+            /* the radius at each vertex: linear in arc length from the root's to the tip's (tip_radius 0: none) */
+            double rt = mt->tip_radius > 0 ? mt->tip_radius : rad, total = 0, along = 0;
+            for (int j = 0; j + 1 < nv; j++) total += dist3(r->x + 3 * (vi + j), r->x + 3 * (vi + j + 1));
+            for (int j = 0; j < nv; j++) {
+                if (j > 0) along += dist3(r->x + 3 * (vi + j - 1), r->x + 3 * (vi + j));
+                r->vradius[vi + j] = rt == rad ? rad : rad + (rt - rad) * (along / total);
+            }
+            if (rt != rad) r->tapered = true;
             vi += nv;
         }
     }
@@ -265,12 +282,11 @@ DrStatus dr_rod_set_create(const DrRodSetDesc *desc, const DrRodBatch *batches, 
             r->edge_local[edge_index(r, k, j)] = j;
         }
 
-    /* rest state: tangents, space-parallel frames from each root normal, curvatures, masses */
+    /* rest state: tangents, space-parallel frames from each root normal, curvatures, masses, stiffnesses */
     si = 0;
     for (int b = 0; b < nbatches; b++) {
         const DrGroom *g = batches[b].groom;
         const DrRodMaterial *mt = &batches[b].material;
-        double A = M_PI * mt->radius * mt->radius, J = M_PI * pow(mt->radius, 4) / 2.0;
         for (int k = 0; k < g->nstrands; k++, si++) {
             int o = r->offsets[si], nv = r->offsets[si + 1] - o, e0 = edge_index(r, si, 0);
             double *t = r->t + 3 * e0, *len = r->len + e0, *a1 = r->a1 + 3 * e0;
@@ -278,10 +294,18 @@ DrStatus dr_rod_set_create(const DrRodSetDesc *desc, const DrRodBatch *batches, 
             const double *rn = g->root_normal ? g->root_normal + 3 * k : NULL;
             dr_rod_space_frames(nv - 1, t, rn, a1);
             for (int j = 0; j < nv - 1; j++) {
+                double re = 0.5 * (r->vradius[o + j] + r->vradius[o + j + 1]);
+                double A = M_PI * re * re, J = M_PI * pow(re, 4) / 2.0;
                 r->lbar[e0 + j] = len[j];
+                r->eks[e0 + j] = mt->youngs * A;
                 r->tinertia[e0 + j] = mt->density * J * len[j];
                 r->vmass[o + j] += 0.5 * mt->density * A * len[j];
                 r->vmass[o + j + 1] += 0.5 * mt->density * A * len[j];
+            }
+            for (int i = 1; i + 1 < nv; i++) {
+                double rv = r->vradius[o + i];
+                r->ibend[interior_index(r, si, i)] = mt->youngs * M_PI * pow(rv, 4) / 4.0;
+                r->itwist[interior_index(r, si, i)] = mt->shear * M_PI * pow(rv, 4) / 2.0;
             }
             if (nv > 2) {
                 int i0 = interior_index(r, si, 1);
@@ -319,7 +343,7 @@ DrStatus dr_rod_set_create(const DrRodSetDesc *desc, const DrRodBatch *batches, 
     for (int k = 0; k < r->S; k++)
         for (int j = r->offsets[k]; j < r->offsets[k + 1]; j++) {
             r->vdof[j] = r->dof0[k] + 4 * (j - r->offsets[k]);
-            r->s_radius[j] = r->radius[k];
+            r->s_radius[j] = r->vradius[j];
         }
     *out = r;
     return DR_OK;
@@ -331,7 +355,7 @@ fail:
 DrRodState dr_rod_set_state(DrRodSet *r)
 {
     DrRodState st = {r->S, r->V, r->E, r->offsets, r->x, r->v, r->theta, r->theta_dot, r->a1, r->m, r->lambda,
-                     r->nlambda, r->vmass, r->radius, r->batch_offsets, r->nbatches};
+                     r->nlambda, r->vmass, r->radius, r->batch_offsets, r->nbatches, r->vradius, r->tapered};
     return st;
 }
 
@@ -370,8 +394,9 @@ void dr_rod_set_measure(const DrRodSet *r, DrRodStats *st)
         for (int e = e0; e < e0 + nv - 1; e++) ke += 0.5 * r->tinertia[e] * r->theta_dot[e] * r->theta_dot[e];
         int i0 = nv > 2 ? interior_index(r, k, 1) : 0;
         DrRodRef ref = {r->t + 3 * e0, r->a1 + 3 * e0, r->m + i0};
-        el += dr_rod_energy(nv, r->x + 3 * o, r->theta + e0, &ref, r->lbar + e0, nv > 2 ? r->kbar + 4 * i0 : NULL,
-                            nv > 2 ? r->tbar + i0 : NULL, r->stiff[k]);
+        el += dr_rod_energy_varying(nv, r->x + 3 * o, r->theta + e0, &ref, r->lbar + e0,
+                                    nv > 2 ? r->kbar + 4 * i0 : NULL, nv > 2 ? r->tbar + i0 : NULL, r->eks + e0,
+                                    nv > 2 ? r->ibend + i0 : NULL, nv > 2 ? r->itwist + i0 : NULL);
     }
     st->kinetic = ke;
     st->elastic = el;
@@ -493,18 +518,18 @@ static DrStatus build_strand(DrRodSet *r, int k, double h, const DrRodCollider *
     double G[DR_LAG_MAX_DOFS * DR_LAG_MAX_DOFS];
     for (int j = 0; j < nv - 1; j++) {
         double *lam = r->lambda + e0 + j;
-        dr_rod_stretch_group(x, j, r->lbar[e0 + j], r->stiff[k].ks, d0, geo ? lam : NULL, geo ? G : NULL, &g);
+        dr_rod_stretch_group(x, j, r->lbar[e0 + j], r->eks[e0 + j], d0, geo ? lam : NULL, geo ? G : NULL, &g);
         g.lambda = lam;
         DR_TRY(add_with_damping(r->lag, &g, mt->damping, err));
     }
     for (int i = 1; i < nv - 1; i++) {
         int ii = i0 + i - 1;
         double *lb = r->lambda + r->E + 4 * ii, *lt = r->lambda + r->E + 4 * r->I + ii;
-        dr_rod_bend_group(x, th, &ref, i, r->kbar + 4 * ii, r->lv[ii], r->stiff[k].bend, d0, geo ? lb : NULL,
+        dr_rod_bend_group(x, th, &ref, i, r->kbar + 4 * ii, r->lv[ii], r->ibend[ii], d0, geo ? lb : NULL,
                           geo ? G : NULL, &g);
         g.lambda = lb;
         DR_TRY(add_with_damping(r->lag, &g, mt->damping, err));
-        dr_rod_twist_group(x, th, &ref, i, r->tbar[ii], r->lv[ii], r->stiff[k].twist, d0, geo ? lt : NULL,
+        dr_rod_twist_group(x, th, &ref, i, r->tbar[ii], r->lv[ii], r->itwist[ii], d0, geo ? lt : NULL,
                            geo ? G : NULL, &g);
         g.lambda = lt;
         DR_TRY(add_with_damping(r->lag, &g, mt->damping, err));
@@ -524,7 +549,7 @@ static DrStatus build_strand(DrRodSet *r, int k, double h, const DrRodCollider *
         for (int c = 0; c < ncol; c++) {
             DrVec3 n;
             const DrRodBatch *bt = &r->batch[r->strand_batch[k]];
-            double d = col[c].sdf(p, &n, col[c].ctx) - (r->radius[k] + col[c].thickness + bt->collider_thickness);
+            double d = col[c].sdf(p, &n, col[c].ctx) - (r->vradius[vid] + col[c].thickness + bt->collider_thickness);
             DrVec3 vc = col[c].velocity_at ? col[c].velocity_at(p, col[c].ctx) : dr_v3(0, 0, 0);
             double approach = h * dr_v3_dot(dr_v3_sub(v, vc), n);
             if (d + fmin(approach, 0) >= 0 || d >= best) continue;
@@ -625,7 +650,11 @@ static DrStatus find_hair_contacts(DrRodSet *r, DrError *err)
     if (!r->desc.hair_contact || r->E == 0) return DR_OK;
     double maxlen = 0, maxr = 0;
     for (int e = 0; e < r->E; e++) maxlen = fmax(maxlen, r->len[e]);
-    for (int k = 0; k < r->S; k++) maxr = fmax(maxr, r->radius[k] + r->batch[r->strand_batch[k]].contact_thickness);
+    for (int k = 0; k < r->S; k++) {
+        double rk = r->radius[k];
+        for (int j = r->offsets[k]; r->tapered && j < r->offsets[k + 1]; j++) rk = fmax(rk, r->vradius[j]);
+        maxr = fmax(maxr, rk + r->batch[r->strand_batch[k]].contact_thickness);
+    }
     double reach = 2 * maxr;
     double cell = maxlen + reach;
     const int *edge_strand = r->edge_strand, *edge_local = r->edge_local;
@@ -650,7 +679,13 @@ static DrStatus find_hair_contacts(DrRodSet *r, DrError *err)
         const double *q0 = r->x + 3 * (r->offsets[sb] + edge_local[eb]), *q1 = q0 + 3;
         double s, t, nv[3];
         double d = segment_closest(p0, p1, q0, q1, &s, &t, nv);
-        double rr = r->radius[sa] + r->radius[sb] + r->batch[r->strand_batch[sa]].contact_thickness +
+        double ra = r->radius[sa], rb = r->radius[sb];
+        if (r->tapered) { /* the radii at the closest points */
+            const double *va = r->vradius + r->offsets[sa] + edge_local[ea], *vb = r->vradius + r->offsets[sb] + edge_local[eb];
+            ra = va[0] + s * (va[1] - va[0]);
+            rb = vb[0] + t * (vb[1] - vb[0]);
+        }
+        double rr = ra + rb + r->batch[r->strand_batch[sa]].contact_thickness +
                     r->batch[r->strand_batch[sb]].contact_thickness;
         if (d >= rr || d < 1e-12 * rr) continue;
         if (r->nhc == r->cap_hc) { /* doubled and kept */

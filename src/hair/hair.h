@@ -71,6 +71,9 @@ typedef struct DrRodMaterial {
     double shear;       /* G, Pa */
     double damping;     /* internal viscosity as a Kelvin–Voigt time, s (viscous groups with C_v⁻¹ = damping·C⁻¹);
                            0 = none */
+    double tip_radius;  /* m; 0 (default) = `radius` all along. Else the radius falls linearly in arc length from
+                           `radius` at the root to this at the tip (a tapered strand): masses, stiffnesses (each edge at
+                           its ends' mean radius, bending and twisting at each vertex's) and contact follow it */
 } DrRodMaterial;
 void dr_rod_material_default(DrRodMaterial *m); /* human hair: r = 50 µm, ρ = 1300, E = 3.9 GPa, G = 1.3 GPa */
 
@@ -150,6 +153,8 @@ typedef struct DrRodState {
     const double *radius;   /* per strand, m */
     const int *batch_offsets; /* nbatches + 1: the strands of batch b are batch_offsets[b] .. [b+1] − 1 */
     int nbatches;
+    const double *vertex_radius; /* per vertex, m (equal to the strand's radius unless tapered) */
+    bool tapered;               /* some strand's radius varies along it */
 } DrRodState;
 DrRodState dr_rod_set_state(DrRodSet *rods);
 /* Recomputes the tangents and reference twists after the caller changed x or a1 (a resumed checkpoint). */

@@ -308,6 +308,9 @@ static const DrFieldSpec rod_material_fields[] = {
     {.name = "damping", .kind = DR_FIELD_NUMBER, .unit = "s", .def = {0}, RANGE(0, 10),
      .doc = "internal viscosity as a Kelvin-Voigt time constant: viscous force = damping * stiffness * strain "
             "rate on stretching, bending and twisting; 0 = none"},
+    {.name = "tip_radius", .kind = DR_FIELD_NUMBER, .unit = "m", .def = {0}, RANGE(0, 0.1),
+     .doc = "radius at the tip of a tapered strand: the radius falls linearly along the strand from radius at the "
+            "root to this (masses, stiffnesses and contact follow); 0 = radius all along"},
 };
 
 /* Box2D's collision filter (category and mask bits), with the category written as a group index. */

@@ -161,7 +161,7 @@ static DrStatus build_hair(const WorldCtx *c, WorldHair *h, int n, DrError *err)
         bt->groom = &grooms[b];
         bt->material = (DrRodMaterial){dr_component_num(rm, "radius"), dr_component_num(rm, "density"),
                                        dr_component_num(rm, "youngs_modulus"), dr_component_num(rm, "shear_modulus"),
-                                       dr_component_num(rm, "damping")};
+                                       dr_component_num(rm, "damping"), dr_component_num(rm, "tip_radius")};
         bt->group = 1u << dr_component_int(cg, "group");
         bt->mask = (unsigned)dr_component_int(cg, "collides_with");
         bt->self_contact = dr_component_bool(cg, "self_collision");
@@ -265,7 +265,7 @@ static DrStatus build_wet(const WorldCtx *c, WorldHair *h, const char *cache_roo
             w->batch[k] = b;
             w->thickness[k] = tk;
             ratio[k] = r0;
-            for (int i = rs.offsets[k]; i < rs.offsets[k + 1]; i++) w->radius[i] = rs.radius[k];
+            for (int i = rs.offsets[k]; i < rs.offsets[k + 1]; i++) w->radius[i] = rs.vertex_radius[i];
         }
     }
     DrStatus st = dr_film_create(&w->set.film, S, rs.offsets, w->radius, rs.x, ratio, &w->film, err);
