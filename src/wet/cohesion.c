@@ -379,7 +379,7 @@ static void build_columns(long begin, long end, void *ctx_)
 
 static void self_check(DrCohesionTable *t)
 {
-    const int res = t->desc.resolution, stride = (res - 1) / CHECK_CELLS_PER_AXIS;
+    const int res = t->desc.resolution, stride = res - 1 > CHECK_CELLS_PER_AXIS ? (res - 1) / CHECK_CELLS_PER_AXIS : 1;
     const DrCohesionShape shape = t->desc.shape;
     const double theta = t->desc.contact_angle;
     t->check_error = 0.0;

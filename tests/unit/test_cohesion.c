@@ -14,6 +14,8 @@
 
 #include "wet/wet.h"
 
+#include <hdf5.h>
+
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
@@ -876,6 +878,107 @@ static void test_missing_table(void **state)
     assert_non_null(strstr(err.message, "precompute"));
 }
 
+/* A 16² table written to path with one root-group attribute of /cohesion replaced (name NULL: none). */
+static void write_edited(const char *path, const char *name, const char *text, double number, int64_t integer)
+{
+    DrCohesionDesc desc;
+    dr_cohesion_desc_default(&desc);
+    desc.resolution = 16;
+    DrCohesionTable *t;
+    DrError err;
+    assert_int_equal(dr_cohesion_build(&desc, &t, &err), DR_OK);
+    DrH5 *h;
+    assert_int_equal(dr_h5_create(path, &h, &err), DR_OK);
+    assert_int_equal(dr_cohesion_write(t, h, &err), DR_OK);
+    if (name && text) assert_int_equal(dr_h5_attr_str(h, "/cohesion", name, text, &err), DR_OK);
+    if (name && !text && integer) assert_int_equal(dr_h5_attr_i64(h, "/cohesion", name, integer, &err), DR_OK);
+    if (name && !text && !integer) assert_int_equal(dr_h5_attr_f64(h, "/cohesion", name, number, &err), DR_OK);
+    assert_int_equal(dr_h5_commit(&h, &err), DR_OK);
+    dr_cohesion_destroy(&t);
+}
+
+/* Overwrites element k of a dataset of the file (through HDF5 itself: a file damaged or edited by hand). */
+static void poke(const char *path, const char *dataset, size_t k, double value)
+{
+    hid_t f = H5Fopen(path, H5F_ACC_RDWR, H5P_DEFAULT);
+    assert_true(f >= 0);
+    hid_t d = H5Dopen2(f, dataset, H5P_DEFAULT);
+    assert_true(d >= 0);
+    hid_t type = H5Dget_type(d);
+    bool is_float = H5Tget_class(type) == H5T_FLOAT;
+    H5Tclose(type);
+    double buf[256];
+    int32_t ibuf[256];
+    if (is_float) {
+        assert_true(H5Dread(d, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, buf) >= 0);
+        buf[k] = value;
+        assert_true(H5Dwrite(d, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, buf) >= 0);
+    } else {
+        assert_true(H5Dread(d, H5T_NATIVE_INT32, H5S_ALL, H5S_ALL, H5P_DEFAULT, ibuf) >= 0);
+        ibuf[k] = (int32_t)value;
+        assert_true(H5Dwrite(d, H5T_NATIVE_INT32, H5S_ALL, H5S_ALL, H5P_DEFAULT, ibuf) >= 0);
+    }
+    H5Dclose(d);
+    H5Fclose(f);
+}
+
+static void expect_refused(const char *path, const char *words)
+{
+    DrH5 *h;
+    DrError err;
+    assert_int_equal(dr_h5_open(path, &h, &err), DR_OK);
+    DrCohesionTable *t = (DrCohesionTable *)(uintptr_t)1;
+    dr_error_clear(&err);
+    assert_int_equal(dr_cohesion_read(h, path, &t, &err), DR_ERR_INPUT);
+    assert_null(t);
+    assert_string_equal(err.file, path);
+    if (!strstr(err.message, words)) fprintf(stderr, "expected '%s' in: %s\n", words, err.message);
+    assert_non_null(strstr(err.message, words));
+    dr_h5_close(&h);
+}
+
+/* A file that does not hold what it says is refused, naming the file: another code version, a shape or resolution or
+ * angle out of range, datasets of other sizes than the resolution, a force that is not finite, a flag other than
+ * 0 or 1, a force where no bridge is. An unedited file reads. */
+static void test_read_refuses_bad_files(void **state)
+{
+    (void)state;
+    char path[512];
+    snprintf(path, sizeof path, "%s/edited.h5", g_dir);
+    write_edited(path, NULL, NULL, 0, 0);
+    DrH5 *h;
+    DrError err;
+    DrCohesionTable *t;
+    assert_int_equal(dr_h5_open(path, &h, &err), DR_OK);
+    assert_int_equal(dr_cohesion_read(h, path, &t, &err), DR_OK);
+    dr_cohesion_destroy(&t);
+    dr_h5_close(&h);
+
+    write_edited(path, "cohesion_version", "cohesion-0", 0, 0);
+    expect_refused(path, "version");
+    write_edited(path, "shape", "sphere", 0, 0);
+    expect_refused(path, "shape");
+    write_edited(path, "resolution", NULL, 0, 17);
+    expect_refused(path, "17 x 17");
+    write_edited(path, "resolution", NULL, 0, 8);
+    expect_refused(path, "resolution");
+    write_edited(path, "contact_angle_rad", NULL, 2.0, 0);
+    expect_refused(path, "contact_angle");
+    write_edited(path, "max_area", NULL, -1.0, 0);
+    expect_refused(path, "max_area");
+
+    /* node (15, 0): no bridge (no area) */
+    write_edited(path, NULL, NULL, 0, 0);
+    poke(path, "/cohesion/valid", 15 * 16, 2);
+    expect_refused(path, "flag");
+    write_edited(path, NULL, NULL, 0, 0);
+    poke(path, "/cohesion/force", 15 * 16, 0.5);
+    expect_refused(path, "no bridge");
+    write_edited(path, NULL, NULL, 0, 0);
+    poke(path, "/cohesion/force", 8 * 16 + 8, NAN);
+    expect_refused(path, "non-finite");
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -896,6 +999,7 @@ int main(void)
         cmocka_unit_test(test_key),
         cmocka_unit_test(test_round_trip),
         cmocka_unit_test(test_missing_table),
+        cmocka_unit_test(test_read_refuses_bad_files),
     };
     return cmocka_run_group_tests(tests, group_setup, group_teardown);
 }
