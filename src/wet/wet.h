@@ -19,12 +19,22 @@
  * between the line to the other solid and the contact line). Its cross-section area A(α, d) and surface energy per
  * unit length E(α, d) = σ (l_A + l_S cos θ) (eq. S4: l_A the menisci's arc length, l_S the dry solid perimeter) are
  * closed forms. The table holds F = ∂E/∂d at constant A over a grid of (d, A): the force per unit length pulling the
- * two together (N/m; > 0 attracts), ∂E/∂d|_A = ∂E/∂d + ∂E/∂α · dα/dd|_A, dα/dd|_A = −(∂A/∂d)/(∂A/∂α).
+ * two together (N/m; > 0 attracts), ∂E/∂d|_A = ∂E/∂d + ∂E/∂α · dα/dd|_A, dα/dd|_A = −(∂A/∂d)/(∂A/∂α). F is not
+ * clamped: a bridge that nearly engulfs two touching solids (convex menisci) pushes them apart (F < 0).
  *
  * Scaling: with d = r d̃, A = r² Ã, E = σ r Ẽ, the geometry depends on (θ, d̃, Ã) only and F = σ F̃(d̃, Ã): one table per
- * contact angle serves every radius and every surface tension. What does not scale: two cylinders of different radii
- * (their bridge is not symmetric); drench evaluates such a pair on the table at the mean radius, which is exact for
- * equal radii and first-order accurate in the radius difference. The table is stored nondimensional. */
+ * contact angle serves every radius and every surface tension. What does not scale: the contact angle (one table
+ * each); two cylinders of different radii (their bridge is not symmetric): drench evaluates such a pair on the table
+ * at the mean radius, exact for equal radii and, the force being symmetric in the two radii, second-order accurate in
+ * their difference; and gravity, which circular menisci leave out: a bridge must be small against the capillary length
+ * √(σ/(ρ g)) (2.7 mm for water; Ã_max below at r = 50 µm is a bridge about 0.75 mm across). The table is stored
+ * nondimensional.
+ *
+ * The grid: resolution columns d̃_i = d̃_min + (d̃_max − d̃_min) s_i² and rows Ã_j = Ã_max s_j², s_k = k/(resolution − 1):
+ * quadratic axes, finest at small gaps and small bridges, where F̃ changes fastest (and diverges at the corner of
+ * touching solids and a vanishing bridge). */
+
+#define DR_COHESION_VERSION "cohesion-1" /* changes whenever a table's numbers would change */
 
 typedef enum DrCohesionShape {
     DR_COHESION_CYLINDERS, /* two parallel cylinders of one radius, axes d apart: d̃ ≥ 2 */
@@ -33,27 +43,37 @@ typedef enum DrCohesionShape {
 
 typedef struct DrCohesionDesc {
     DrCohesionShape shape;
-    double contact_angle; /* θ, rad, in [0, π/2) */
+    double contact_angle; /* θ, rad, in [0, π/2); default 40° */
     int resolution;       /* samples per axis of the (d̃, Ã) grid, in [16, 4096]; default 256 */
     double max_area;      /* Ã_max, the largest bridge area in units of r²; > 0; default 2π(6² − 1) (two films at
                              H/r = 6) */
-    double max_gap;       /* d̃_max − d̃_min, the range of gaps in units of r; > 0; default: the rupture gap at
-                             Ã_max, (1 + θ/2)√Ã_max */
+    double max_gap;       /* d̃_max − d̃_min, the range of gaps in units of r; > 0, or 0 (the default) for the rupture
+                             gap at Ã_max and this desc's θ, (1 + θ/2)√Ã_max (0 rather than a number, so that setting θ
+                             after dr_cohesion_desc_default leaves no stale range) */
 } DrCohesionDesc;
 void dr_cohesion_desc_default(DrCohesionDesc *d);
 
 typedef struct DrCohesionTable DrCohesionTable;
 
 /* Builds the table: per d̃ column, A(α) on [α_0, π − θ] where α_0 is the smallest angle at which the bridge closes
- * (its neck has positive height), inverted at each Ã by bisection; F̃ from the derivatives of the closed forms. A
- * column keeps only the part of [α_0, π − θ] where A increases with α, so A(α) is monotone in every column; (d̃, Ã)
- * outside what a bridge can have (too little area to span the gap, or more than it can hold) get F̃ = 0 and are
- * marked invalid. DR_ERR_INPUT for a desc out of range (naming the field). Takes well under a second at 256². */
+ * (its neck has positive height), inverted at each Ã by Newton within a bisection bracket; F̃ from the derivatives of
+ * the closed forms (complex step). A column keeps only the part of [α_0, π − θ] where A increases with α, so A(α) is
+ * monotone in every column; (d̃, Ã) outside what a bridge can have (too little area to span the gap, or more than it
+ * can hold) get F̃ = 0 and are marked invalid. The table records a self-check (the interpolation error at cell
+ * centres, in the file). Bit-identical for any thread count. DR_ERR_INPUT for a desc out of range (naming the field).
+ * Takes well under a second at 256². */
 DR_NODISCARD DrStatus dr_cohesion_build(const DrCohesionDesc *desc, DrCohesionTable **out, DrError *err);
 void dr_cohesion_destroy(DrCohesionTable **t);
+/* The table's desc, max_gap resolved (> 0). */
 const DrCohesionDesc *dr_cohesion_desc(const DrCohesionTable *t);
 
-/* F̃(d̃, Ã), bilinear in the table; 0 outside the table's range or where no bridge exists. */
+/* F̃(d̃, Ã), bilinear in the table (in the fractional column and row indices); 0 outside the table's range. Invalid
+ * nodes hold 0, so over the last cell at the edge of the bridge region F̃ falls linearly to 0 (rupture smoothed over
+ * one cell; under 1 % of the region at 256²) and is 0 beyond it. Within cells whose four nodes hold bridges a 256²
+ * table (θ from 20° to 60°, default ranges) is within 1 % of F̃ (of max(|F̃|, 1), as F̃ changes sign) and 4× closer at
+ * 512², except in the corner of nearly touching solids and a vanishing bridge, Ã < 0.2 with d̃ < d̃_min + 0.5 (films
+ * thinner than H ≈ 1.03 r), where F̃ grows without bound (≈ 4 cos θ / α) and the first cells err by up to 13 %
+ * (tests/unit/test_cohesion.c). */
 double dr_cohesion_eval(const DrCohesionTable *t, double d_nd, double area_nd);
 /* The force per unit length (N/m) of a bridge of area A (m²) between solids of radius r (m) at distance d (m), surface
  * tension σ (N/m): σ F̃(d/r, A/r²). */
@@ -61,22 +81,30 @@ double dr_cohesion_force(const DrCohesionTable *t, double r, double sigma, doubl
 
 /* The closed forms, nondimensional (r = 1, σ = 1), for tests and for building: the bridge area Ã and energy Ẽ at
  * wetting half-angle α and gap d̃ (Ẽ up to a constant that does not depend on α or d̃). Returns false where the
- * geometry has no bridge (the menisci cross, or α out of [0, π − θ]). */
+ * geometry has no bridge (the menisci cross, the solids overlap, or α out of [0, π − θ]). */
 bool dr_cohesion_geometry(DrCohesionShape shape, double theta, double alpha, double d_nd, double *area_nd,
                           double *energy_nd);
 
-/* The cache key (DESIGN §5): a hash of shape, θ, resolution, Ã_max, gap range and the table code's version, as 32 hex
- * digits (+ NUL), and the canonical JSON of those inputs the file records. */
+/* The cache key (DESIGN §5): a hash of shape, θ, resolution, Ã_max, gap range (max_gap resolved) and the table code's
+ * version (DR_COHESION_VERSION), as 32 hex digits (+ NUL): the XXH3-128 of dr_cohesion_inputs_json, the canonical
+ * JSON of those inputs (keys sorted, numbers %.17g, no spaces) that the file records as its "inputs" attribute. Any
+ * desc gives a key (a desc out of range is refused by dr_cohesion_build, not here). */
+#define DR_COHESION_JSON_MAX 256
 void dr_cohesion_key(const DrCohesionDesc *desc, char key_hex[33]);
-/* Writes the table into a precompute cache file (io.h dr_io_precache_create, kind "cohesion"): datasets
- * /cohesion/force (resolution² F̃, row-major d̃ slowest), /cohesion/valid, and self-describing attributes (shape,
- * contact angle in degrees and radians, ranges, resolution, units "1": nondimensional, how to scale). */
+void dr_cohesion_inputs_json(const DrCohesionDesc *desc, char json[DR_COHESION_JSON_MAX]);
+/* Writes the table into a precompute cache file (io.h dr_io_precache_create, kind "cohesion", the key and inputs
+ * above, no asset hash): group /cohesion with datasets force (resolution² F̃, row-major d̃ slowest), valid (int32,
+ * 1 where a bridge exists), gap and area (the axes: d̃ of each column, Ã of each row), and self-describing attributes
+ * (cohesion_version, shape, contact angle in degrees and radians, ranges, resolution, units "1": nondimensional, how
+ * to scale, the grid's formula, the self-check). The caller commits the file. */
 DR_NODISCARD DrStatus dr_cohesion_write(const DrCohesionTable *t, DrH5 *h, DrError *err);
-/* Reads a table written by dr_cohesion_write; DR_ERR_INPUT naming the file for a file of another shape, resolution
- * or version. */
+/* Reads a table written by dr_cohesion_write (bit-identical); DR_ERR_INPUT naming the file (path) for a file of
+ * another version, a shape, resolution or range out of range, datasets of other sizes than the resolution, or values
+ * that cannot be (non-finite, a force where no bridge is). */
 DR_NODISCARD DrStatus dr_cohesion_read(DrH5 *h, const char *path, DrCohesionTable **out, DrError *err);
 /* The table of desc from cache_root/cohesion/<key>.h5; DR_ERR_INPUT "run precompute" naming the file when it is
- * missing. */
+ * missing (or unreadable, or of another key), DR_ERR_INPUT naming the file when it records other parameters than
+ * desc; a bad desc as dr_cohesion_build. */
 DR_NODISCARD DrStatus dr_cohesion_load(const char *cache_root, const DrCohesionDesc *desc, DrCohesionTable **out,
                                        DrError *err);
 
