@@ -357,6 +357,7 @@ static void load_range(long begin, long end, void *vctx)
 void dr_film_hair_load(const DrFilm *f, const double *x, const double *v, double h, double *force, double *dforce_dv)
 {
     assert(h > 0);
+    assert(f->V == 0 || (x && v && force && dforce_dv));
     LoadCtx c = {f, x, v, h, force, dforce_dv};
     dr_parallel_for(f->S, 16, load_range, &c);
 }
@@ -749,6 +750,7 @@ DrStatus dr_film_step(DrFilm *f, const double *x_old, const double *x, double *v
                       const unsigned char *held, double h, DrFilmStats *stats, DrError *err)
 {
     assert(h > 0 && isfinite(h));
+    assert(f->V == 0 || (x_old && x && v && hair_mass));
     save_state(f, v, false, v);
     StepCtx c = {f, x_old, x, hair_mass, v, held, h};
     dr_parallel_for(f->S, 8, step_range, &c);
@@ -896,6 +898,7 @@ static void exchange_arrive(long begin, long end, void *vctx)
 
 void dr_film_exchange(DrFilm *f, const double *x, const double *dV, double *v, const double *hair_mass)
 {
+    assert(f->V == 0 || (x && dV && v && hair_mass));
     ExchangeCtx c = {f, x, dV, hair_mass, v, dr_v3(0, 0, 0)};
     dr_parallel_for(f->S, 16, exchange_leave, &c);
     DrVec3 P = dr_v3(0, 0, 0);

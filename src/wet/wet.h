@@ -161,12 +161,15 @@ typedef struct DrFilmStats {
  * continuity and momentum transport, pools, the max_ratio limit), each exchange moving the strands' velocities in v
  * (mass: hair_mass per vertex, kg, plus the film's own inertia). held (nverts, or NULL) marks vertices whose motion is
  * prescribed: their velocity is not changed (the exchange with them is external, like the scalp's push). stats (may be
- * NULL) accumulates. DR_ERR_RUNTIME on a non-finite result (the film is then left as it was). */
+ * NULL) accumulates substeps and to_pools and takes the rest after the step. DR_ERR_RUNTIME on a non-finite result
+ * (the film and v are then left as they were). */
 DR_NODISCARD DrStatus dr_film_step(DrFilm *f, const double *x_old, const double *x, double *v,
                                    const double *hair_mass, const unsigned char *held, double h, DrFilmStats *stats,
                                    DrError *err);
 
-/* The film's outer radius H per vertex (m) into H (nverts), and its momentum and volume into stats (measure only). */
+/* The film's outer radius H per vertex (m) into H (nverts), on the strands' shape of the film's last step or exchange
+ * (at create: rest_x); and its volume, pools, max_ratio, momentum and kinetic energy at x, v into stats (measure
+ * only: substeps and to_pools are left as they are). */
 void dr_film_heights(const DrFilm *f, double *H);
 void dr_film_measure(const DrFilm *f, const double *x, const double *v, DrFilmStats *stats);
 
