@@ -160,6 +160,11 @@ typedef struct DrFilmState {
     double *volume;   /* nverts, m³ */
     double *u;        /* nedges, m/s */
     double *pool;     /* 2 nstrands: root pool, tip pool of each strand, m³ */
+    double *strand_speed; /* nedges, m/s: the strands' speed along each edge, v̄_e·t_e, when the film last saw them (the
+                             end of its last step or exchange; 0 at create: strands start at rest). The strands' solve
+                             changes v̄_e·t_e without the film, so a step needs the value before it to keep the film's
+                             own speed along the strand, u_e + v̄_e·t_e, and turn the change into the fictitious force.
+                             Part of the state a checkpoint keeps. */
 } DrFilmState;
 DrFilmState dr_film_state(DrFilm *f);
 
@@ -170,7 +175,8 @@ DrFilmState dr_film_state(DrFilm *f);
 void dr_film_hair_load(const DrFilm *f, const double *x, const double *v, double h, double *force, double *dforce_dv);
 
 typedef struct DrFilmStats {
-    int substeps;          /* film substeps taken, summed */
+    int substeps;          /* film substeps taken, summed over steps (strands substep independently: per step the
+                              largest count of any strand) */
     double volume;         /* Σ V_i, m³ */
     double pools;          /* Σ pools, m³ */
     double to_pools;       /* m³ sent to the pools by ends and by the max_ratio limit, summed */
@@ -185,18 +191,25 @@ typedef struct DrFilmStats {
  * continuity and momentum transport, pools, the max_ratio limit), each exchange moving the strands' velocities in v
  * (mass: hair_mass per vertex, kg, plus the film's own inertia). held (nverts, or NULL) marks vertices whose motion is
  * prescribed: their velocity is not changed (the exchange with them is external, like the scalp's push). stats (may be
- * NULL) accumulates. DR_ERR_RUNTIME on a non-finite result (the film is then left as it was). */
+ * NULL) accumulates substeps and to_pools and takes the rest after the step. DR_ERR_RUNTIME on a non-finite result
+ * (the film and v are then left as they were). */
 DR_NODISCARD DrStatus dr_film_step(DrFilm *f, const double *x_old, const double *x, double *v,
                                    const double *hair_mass, const unsigned char *held, double h, DrFilmStats *stats,
                                    DrError *err);
 
-/* The film's outer radius H per vertex (m) into H (nverts), and its momentum and volume into stats (measure only). */
+/* The film's outer radius H per vertex (m) into H (nverts), on the strands' shape of the film's last step or exchange
+ * (at create: rest_x); and its volume, pools, max_ratio, momentum and kinetic energy at x, v into stats (measure
+ * only: substeps and to_pools are left as they are). */
 void dr_film_heights(const DrFilm *f, double *H);
 void dr_film_measure(const DrFilm *f, const double *x, const double *v, DrFilmStats *stats);
 
 /* Moves volume between vertices (cross-hair flow, bridges): dV (nverts, Σ dV = 0 up to round-off) added to the
  * vertices' volume with its momentum carried at the velocities v (exact, as a film flux); a vertex may not go negative
- * (asserted: the caller limits the flow). */
+ * (asserted: the caller limits the flow). dV says how much each vertex gains or loses, not from whom: what leaves
+ * carries the film velocity of the edges it leaves, and what arrives the mean velocity of all that left (for one
+ * donor, its velocity); a caller that moves liquid between separate groups of strands in one go and wants each
+ * group's momentum kept apart calls this once per group. Every vertex's velocity in v may change (held vertices
+ * too: the strands' next step prescribes them again). x: positions (nverts × 3) of the film's last step. */
 void dr_film_exchange(DrFilm *f, const double *x, const double *dV, double *v, const double *hair_mass);
 
 /* ---- bridges between strands and against solids (fei2017 §S1, eq. S28; §S5) ------------------------------------
