@@ -104,6 +104,8 @@ struct DrRodSet {
     double seconds_build, seconds_contact; /* of the prediction */
     /* the external load of a solve and the samples (hair.h) */
     int *vdof;                 /* V: first DOF of each vertex */
+    double *dload;             /* 9V: the last solve's ∂f/∂v per vertex (its load), for the inertia friction sees */
+    bool has_dload;
     double *s_v, *s_radius, *s_length, *s_tangent;
     unsigned char *s_held;
 };
@@ -137,7 +139,7 @@ void dr_rod_set_destroy(DrRodSet **rp)
                       r->ibend, r->itwist, r->root_rest,
                       r->m1_rest, r->tip_rest, r->t_old, r->edge_strand, r->edge_local, r->x, r->v, r->theta, r->theta_dot, r->a1, r->m, r->t, r->len, r->lambda,
                       r->dof0, r->cflag, r->cnormal,
-                      r->cvel, r->clambda, r->cfric, r->hc, r->save, r->vdof, r->s_v, r->s_radius, r->s_length, r->s_tangent, r->s_held};
+                      r->cvel, r->clambda, r->cfric, r->hc, r->save, r->vdof, r->dload, r->s_v, r->s_radius, r->s_length, r->s_tangent, r->s_held};
     for (size_t k = 0; k < sizeof arrays / sizeof arrays[0]; k++) free(arrays[k]);
     if (r->own_system) dr_lag_destroy(&r->lag);
     dr_broad_phase_destroy(&r->bp);
@@ -231,6 +233,7 @@ DrStatus dr_rod_set_create(const DrRodSetDesc *desc, const DrRodBatch *batches, 
     ALLOC(r->edge_strand, r->E);
     ALLOC(r->edge_local, r->E);
     ALLOC(r->vdof, V);
+    ALLOC(r->dload, 9 * V);
     ALLOC(r->s_v, 3 * V);
     ALLOC(r->s_radius, V);
     ALLOC(r->s_length, V);
@@ -790,6 +793,7 @@ DrStatus dr_rod_set_predict_dofs(DrRodSet *r, double h, const DrXform *scalp_end
     assert(h > 0);
     r->phase = PHASE_NONE;
     r->h_step = h;
+    r->has_dload = false;
     dr_arena_reset(r->arena);
     r->seconds_build = -dr_time_now();
     DrLagDofs d;
@@ -913,7 +917,7 @@ DrRodSamples dr_rod_set_samples(DrRodSet *r)
 int dr_rod_set_load_blocks(const DrRodSet *r) { return r->V; }
 const int *dr_rod_set_vertex_dofs(const DrRodSet *r) { return r->vdof; }
 
-void dr_rod_set_fill_load(const DrRodSet *r, const double *force, const double *dforce_dv, double *gforce,
+void dr_rod_set_fill_load(DrRodSet *r, const double *force, const double *dforce_dv, double *gforce,
                           int *block_dof, double *block)
 {
     /* vertex forces as generalised forces (the twists get none) */
@@ -929,6 +933,9 @@ void dr_rod_set_fill_load(const DrRodSet *r, const double *force, const double *
         memcpy(block_dof, r->vdof, (size_t)r->V * sizeof(int));
         memcpy(block, dforce_dv, 9 * (size_t)r->V * sizeof(double));
     }
+    /* the load's inertia, which commit's collider friction must see */
+    r->has_dload = dforce_dv != NULL;
+    if (dforce_dv) memcpy(r->dload, dforce_dv, 9 * (size_t)r->V * sizeof(double));
 }
 
 void dr_rod_set_take(DrRodSet *r)
@@ -949,6 +956,8 @@ DrStatus dr_rod_set_solve(DrRodSet *r, const double *force, const double *dforce
         dr_rod_set_fill_load(r, force, NULL, r->fload, NULL, NULL);
         load.force = r->fload;
     }
+    r->has_dload = dforce_dv != NULL;
+    if (dforce_dv) memcpy(r->dload, dforce_dv, 9 * (size_t)r->V * sizeof(double));
     if (dforce_dv) {
         load.nblocks = r->V;
         load.block_dof = r->vdof;
@@ -1003,7 +1012,16 @@ DrStatus dr_rod_set_commit(DrRodSet *r, DrRodStats *stats, DrError *err)
                 double vn = rel[0] * n[0] + rel[1] * n[1] + rel[2] * n[2];
                 double vt[3] = {rel[0] - vn * n[0], rel[1] - vn * n[1], rel[2] - vn * n[2]};
                 double vtn = sqrt(vt[0] * vt[0] + vt[1] * vt[1] + vt[2] * vt[2]);
-                double dvn = fmax(r->clambda[vid], 0) * h / r->vmass[vid];
+                /* the vertex's inertia along n in the solve: its mass, and what the load added (−h nᵀ D n) */
+                double mn = r->vmass[vid];
+                if (r->has_dload) {
+                    const double *D = r->dload + 9 * vid;
+                    double Dn = 0;
+                    for (int a = 0; a < 3; a++)
+                        for (int b = 0; b < 3; b++) Dn += n[a] * D[3 * a + b] * n[b];
+                    mn -= h * Dn;
+                }
+                double dvn = fmax(r->clambda[vid], 0) * h / mn;
                 double keep = vtn > 0 ? fmax(0, 1 - r->cfric[vid] * dvn / vtn) : 0;
                 for (int a = 0; a < 3; a++) v[a] = vc[a] + vn * n[a] + keep * vt[a];
             }

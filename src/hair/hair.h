@@ -268,9 +268,11 @@ DR_NODISCARD DrStatus dr_rod_set_predict_groups(DrRodSet *rods, const DrRodColli
                                                 DrError *err);
 /* The number of 3×3 load blocks the set needs in a DrLagLoad (one per vertex), and the load of a solve (as
  * dr_rod_set_solve takes it) written into the owner's arrays: the set's DOFs of gforce (system DOFs), and, when
- * dforce_dv is given, dr_rod_set_load_blocks entries of block_dof and 9 times as many of block. */
+ * dforce_dv is given, dr_rod_set_load_blocks entries of block_dof and 9 times as many of block. The set keeps the
+ * blocks for commit: a vertex's Coulomb friction against a collider is limited by the impulse its contact gave over
+ * its inertia in the solve, its mass plus what the load's −h ∂f/∂v added along the contact normal (a film's weight). */
 int dr_rod_set_load_blocks(const DrRodSet *rods);
-void dr_rod_set_fill_load(const DrRodSet *rods, const double *force, const double *dforce_dv, double *gforce,
+void dr_rod_set_fill_load(DrRodSet *rods, const double *force, const double *dforce_dv, double *gforce,
                           int *block_dof, double *block);
 /* The first of each vertex's 3 DOFs in the system (nverts entries; fixed from create on). */
 const int *dr_rod_set_vertex_dofs(const DrRodSet *rods);

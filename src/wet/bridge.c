@@ -374,7 +374,10 @@ static double bridge_cinv(const DrCohesionTable *t, double sigma, double scale, 
 {
     double dstar = mult * dc, dhat = (2 * mult - 1) * dc;
     double de = fmax(d, dhat);
-    double F = dr_cohesion_force(t, r, sigma, de, area);
+    /* more film than the table covers (two films above Film.max_ratio, which the film keeps from lasting): the table's
+       largest, where the force has saturated anyway */
+    double amax = dr_cohesion_desc(t)->max_area * r * r;
+    double F = dr_cohesion_force(t, r, sigma, de, fmin(area, amax));
     if (!(F > 0)) return 0.0;
     return scale * w * F / (de - dstar);
 }

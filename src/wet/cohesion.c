@@ -358,9 +358,16 @@ static void build_columns(long begin, long end, void *ctx_)
         const Column c = column_range(shape, theta, d);
         ctx->truncated[i] = c.truncated;
         double guess = c.a0;
+        /* more liquid than the largest bridge holds: the force of that bridge (saturated) */
+        const double saturated = c.a1 > c.a0 ? force_at(shape, theta, c.a1, d) : 0.0;
         for (int j = 0; j < res; j++) {
             const double area = row_area(t, j);
             const size_t k = (size_t)i * (size_t)res + (size_t)j;
+            if (c.a1 > c.a0 && area > c.A1) {
+                t->force[k] = saturated;
+                t->valid[k] = 2;
+                continue;
+            }
             if (!column_holds(&c, area)) {
                 t->force[k] = 0.0;
                 t->valid[k] = 0;
@@ -387,7 +394,8 @@ static void self_check(DrCohesionTable *t)
     for (int i = stride / 2; i < res - 1; i += stride)
         for (int j = stride / 2; j < res - 1; j += stride) {
             const size_t k = (size_t)i * (size_t)res + (size_t)j;
-            if (!(t->valid[k] && t->valid[k + 1] && t->valid[k + res] && t->valid[k + res + 1])) continue;
+            if (!(t->valid[k] == 1 && t->valid[k + 1] == 1 && t->valid[k + res] == 1 && t->valid[k + res + 1] == 1))
+                continue;
             double s = (i + 0.5) / (res - 1), q = (j + 0.5) / (res - 1);
             double d = t->d0 + t->desc.max_gap * (s * s), area = t->desc.max_area * (q * q);
             Column c = column_range(shape, theta, d);
@@ -615,9 +623,9 @@ DrStatus dr_cohesion_read(DrH5 *h, const char *path, DrCohesionTable **out, DrEr
     if (s == DR_OK) s = dr_h5_read_attr_f64(h, GROUP, "check_max_error", &t->check_error, err);
     if (s == DR_OK) s = dr_h5_read_attr_i64(h, GROUP, "check_points", &points, err);
     for (size_t k = 0; s == DR_OK && k < (size_t)res * (size_t)res; k++)
-        if (!(t->valid[k] == 0 || t->valid[k] == 1) || !isfinite(t->force[k]) ||
+        if (!(t->valid[k] == 0 || t->valid[k] == 1 || t->valid[k] == 2) || !isfinite(t->force[k]) ||
             (t->valid[k] == 0 && t->force[k] != 0.0))
-            s = bad_file(path, err, "holds a non-finite force, a valid flag other than 0 or 1, or a force where it "
+            s = bad_file(path, err, "holds a non-finite force, a valid flag other than 0, 1 or 2, or a force where it "
                                     "marks no bridge");
     if (s != DR_OK) {
         dr_cohesion_destroy(&t);

@@ -34,7 +34,7 @@
  * quadratic axes, finest at small gaps and small bridges, where F̃ changes fastest (and diverges at the corner of
  * touching solids and a vanishing bridge). */
 
-#define DR_COHESION_VERSION "cohesion-1" /* changes whenever a table's numbers would change */
+#define DR_COHESION_VERSION "cohesion-2" /* changes whenever a table's numbers would change */
 
 typedef enum DrCohesionShape {
     DR_COHESION_CYLINDERS, /* two parallel cylinders of one radius, axes d apart: d̃ ≥ 2 */
@@ -58,8 +58,10 @@ typedef struct DrCohesionTable DrCohesionTable;
 /* Builds the table: per d̃ column, A(α) on [α_0, π − θ] where α_0 is the smallest angle at which the bridge closes
  * (its neck has positive height), inverted at each Ã by Newton within a bisection bracket; F̃ from the derivatives of
  * the closed forms (complex step). A column keeps only the part of [α_0, π − θ] where A increases with α, so A(α) is
- * monotone in every column; (d̃, Ã) outside what a bridge can have (too little area to span the gap, or more than it
- * can hold) get F̃ = 0 and are marked invalid. The table records a self-check (the interpolation error at cell
+ * monotone in every column; (d̃, Ã) with too little area to span the gap get F̃ = 0 and are marked invalid (0), and
+ * those with more liquid than the largest bridge at that gap holds (Ã above A(α_1)) get that bridge's force, marked
+ * saturated (2): the liquid beyond it wets the pair no further (it stays in the films), and the force stays smooth
+ * across the edge instead of falling to zero where a thick film meets a close neighbour. The table records a self-check (the interpolation error at cell
  * centres, in the file). Bit-identical for any thread count. DR_ERR_INPUT for a desc out of range (naming the field).
  * Takes well under a second at 256². */
 DR_NODISCARD DrStatus dr_cohesion_build(const DrCohesionDesc *desc, DrCohesionTable **out, DrError *err);

@@ -51,6 +51,7 @@ typedef struct DrHairFrameStats {
     int not_converged;       /* substeps whose solve stopped at its cap (a warning) */
     int collider_contacts, contacts; /* of the last substep */
     double kinetic_energy, elastic_energy, gravity_energy; /* J */
+    double scalp_work;       /* J: done on the strands through their held roots (and tips) over the frame */
     double seconds;
     /* wet hair (all zero without a Wetting component): at the frame's end */
     bool wet;
@@ -60,6 +61,7 @@ typedef struct DrHairFrameStats {
     int film_substeps;                 /* summed over the frame */
     double cross_flow;                 /* m³ moved across bridges in the frame */
     double film_kinetic_energy;        /* J */
+    double film_gravity_energy;        /* J: −Σ ρ V g·x of the film and the pools */
     double seconds_film, seconds_bridges;
 } DrHairFrameStats;
 

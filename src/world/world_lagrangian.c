@@ -56,6 +56,9 @@ typedef struct WorldHair {
     int not_converged_steps;
     double seconds;          /* wall time of the frame's steps */
     DrRodStats frame;        /* the frame being advanced, summed over its steps */
+    double *fint;            /* per DOF: the constraints' forces over a step (the scalp's work) */
+    double scalp_work;       /* J, done on the strands through their held DOFs in the frame */
+    double last_scalp_work;  /* the last frame's */
     DrRodStats last;         /* the last frame's */
     DrHairFrameStats last_wet; /* the last frame's wet figures */
     int not_converged;
@@ -82,6 +85,7 @@ static void hair_destroy(void *self)
     wet_destroy(&h->wet);
     dr_rod_set_destroy(&h->rods);
     dr_lag_destroy(&h->system);
+    free(h->fint);
     for (int i = 0; h->keys && i < h->nelements; i++) free(h->keys[i]);
     free(h->keys);
     free(h->nkeys);
@@ -305,6 +309,7 @@ static void hair_begin_frame(void *self, const WorldCtx *c)
     h->steps = 0;
     h->not_converged_steps = 0;
     h->seconds = 0.0;
+    h->scalp_work = 0.0;
     memset(&h->frame, 0, sizeof h->frame);
     if (h->wet) {
         memset(&h->wet->film_frame, 0, sizeof h->wet->film_frame);
@@ -366,6 +371,14 @@ static DrStatus step_system(WorldHair *h, double dt, DrError *err)
     h->frame.indefinite_blocks += ls.indefinite_blocks;
     h->frame.seconds_solve += dr_time_now() - ts;
     dr_lag_update_multipliers(h->system, d.qdot_out);
+    /* the work the scalp (and any held tip) does on the strands over the step: the force that gives each held DOF its
+       prescribed velocity against gravity and the constraints, times its displacement h q̇₊ */
+    int n = dr_lag_dof_count(h->system);
+    memset(h->fint, 0, (size_t)n * sizeof(double));
+    dr_lag_constraint_forces(h->system, d.qdot_out, h->fint);
+    for (int k = 0; k < n; k++)
+        if (d.prescribed[k])
+            h->scalp_work += (d.mass[k] * (d.qdot_out[k] - d.qdot[k]) - dt * (d.fext[k] + h->fint[k])) * d.qdot_out[k];
     DR_TRY(dr_rod_set_commit(h->rods, &h->frame, err));
     if (w) {
         /* the film follows the strands' step and flows; then across the bridges */
@@ -408,6 +421,7 @@ static DrStatus hair_end_frame(void *self, const WorldCtx *c, DrFrameStats *stat
                     "max_iterations or substeps",
                     h->not_converged_steps, h->steps, st->residual);
     h->last = *st;
+    h->last_scalp_work = h->scalp_work;
     h->not_converged = h->not_converged_steps;
     DrRodState rs = dr_rod_set_state(h->rods);
     DrHairFrameStats *b = &stats->hair;
@@ -422,6 +436,7 @@ static DrStatus hair_end_frame(void *self, const WorldCtx *c, DrFrameStats *stat
     b->kinetic_energy = st->kinetic;
     b->elastic_energy = st->elastic;
     b->gravity_energy = st->gravity_potential;
+    b->scalp_work = h->scalp_work;
     b->seconds = h->seconds;
     if (h->wet) {
         WorldWet *w = h->wet;
@@ -434,6 +449,17 @@ static DrStatus hair_end_frame(void *self, const WorldCtx *c, DrFrameStats *stat
         b->pool_volume = fs.pools;
         b->film_max_ratio = fs.max_ratio;
         b->film_kinetic_energy = fs.kinetic;
+        /* the film's and pools' weight: −Σ ρ V g·x at their vertices */
+        DrFilmState st = dr_film_state(w->film);
+        double pe = 0;
+        for (int k = 0; k < st.nstrands; k++) {
+            int o = rs.offsets[k], e = rs.offsets[k + 1] - 1;
+            for (int i = o; i <= e; i++) {
+                double vol = st.volume[i] + (i == o ? st.pool[2 * k] : 0.0) + (i == e ? st.pool[2 * k + 1] : 0.0);
+                pe -= w->set.film.density * vol * dr_v3_dot(c->gravity, dr_v3(rs.x[3 * i], rs.x[3 * i + 1], rs.x[3 * i + 2]));
+            }
+        }
+        b->film_gravity_energy = pe;
         b->bridges = bst.bridges;
         b->solid_bridges = bst.solid_bridges;
         b->film_substeps = w->film_frame.substeps;
@@ -595,12 +621,14 @@ static DrStatus hair_write(const void *self, const WorldCtx *c, DrH5 *hf, bool f
     DR_TRY(dr_h5_write_scalar(hf, g, "hair_elastic_energy", h->last.elastic, "J", err));
     DR_TRY(dr_h5_write_scalar(hf, g, "hair_gravity_energy", h->last.gravity_potential, "J", err));
     DR_TRY(dr_h5_write_vec3(hf, g, "hair_linear_momentum", h->last.momentum, "kg*m/s", err));
+    DR_TRY(dr_h5_write_scalar(hf, g, "hair_scalp_work", h->last_scalp_work, "J", err));
     if (h->wet) {
         const DrHairFrameStats *b = &h->last_wet;
         DR_TRY(dr_h5_write_scalar(hf, g, "hair_film_volume", b->film_volume, "m^3", err));
         DR_TRY(dr_h5_write_scalar(hf, g, "hair_pool_volume", b->pool_volume, "m^3", err));
         DR_TRY(dr_h5_write_scalar(hf, g, "hair_film_max_ratio", b->film_max_ratio, "1", err));
         DR_TRY(dr_h5_write_scalar(hf, g, "hair_film_kinetic_energy", b->film_kinetic_energy, "J", err));
+        DR_TRY(dr_h5_write_scalar(hf, g, "hair_film_gravity_energy", b->film_gravity_energy, "J", err));
         DR_TRY(dr_h5_write_scalar(hf, g, "hair_bridges", b->bridges, "1", err));
         DR_TRY(dr_h5_write_scalar(hf, g, "hair_solid_bridges", b->solid_bridges, "1", err));
         DR_TRY(dr_h5_write_scalar(hf, g, "hair_cross_flow", b->cross_flow, "m^3", err));
@@ -690,6 +718,7 @@ DrStatus world_lagrangian_adapter(const WorldCtx *c, const char *cache_root, Wor
     WorldHair *h = NULL;
     DR_TRY(dr_calloc(1, sizeof *h, &h, err));
     DrStatus s = build_hair(c, h, n, err);
+    if (s == DR_OK) s = dr_calloc((size_t)dr_lag_dof_count(h->system), sizeof(double), &h->fint, err);
     if (s == DR_OK) s = build_wet(c, h, cache_root, err);
     if (s < 0) {
         hair_destroy(h);

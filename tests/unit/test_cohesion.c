@@ -577,8 +577,11 @@ static void test_eval_outside(void **state)
     /* a gap of 20 r with 1 r² of liquid: far beyond pinch-off, and a cell away from any bridge */
     assert_false(direct_exists(DR_COHESION_CYLINDERS, deg(40), 20.0, 3.0));
     assert_true(dr_cohesion_eval(t, 20.0, 1.0) == 0.0);
-    /* touching cylinders hold at most A(π − θ): far above it, no bridge */
-    assert_true(dr_cohesion_eval(t, 2.0, 100.0) == 0.0);
+    /* touching cylinders hold at most A(π − θ): far above it, the force of that largest bridge (saturated) */
+    double amax = 0, e = 0;
+    assert_true(dr_cohesion_geometry(DR_COHESION_CYLINDERS, deg(40), DR_PI - deg(40) - 1e-9, 2.0, &amax, &e));
+    assert_true(amax < 100.0);
+    assert_true(dr_cohesion_eval(t, 2.0, 100.0) == dr_cohesion_eval(t, 2.0, 99.0));
     dr_cohesion_destroy(&t);
 }
 
@@ -969,7 +972,7 @@ static void test_read_refuses_bad_files(void **state)
 
     /* node (15, 0): no bridge (no area) */
     write_edited(path, NULL, NULL, 0, 0);
-    poke(path, "/cohesion/valid", 15 * 16, 2);
+    poke(path, "/cohesion/valid", 15 * 16, 3);
     expect_refused(path, "flag");
     write_edited(path, NULL, NULL, 0, 0);
     poke(path, "/cohesion/force", 15 * 16, 0.5);
