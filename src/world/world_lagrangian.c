@@ -488,6 +488,8 @@ static DrStatus wet_write_checkpoint(const WorldWet *w, DrH5 *hf, DrError *err)
                            false, err));
     DR_TRY(dr_h5_write_f64(hf, "/hair_solver/film_pools", 2, (uint64_t[]){(uint64_t)fs.nstrands, 2}, fs.pool, "m^3",
                            false, err));
+    DR_TRY(dr_h5_write_f64(hf, "/hair_solver/film_strand_speed", 1, (uint64_t[]){(uint64_t)fs.nedges},
+                           fs.strand_speed, "m/s", false, err));
     int n = dr_bridges_count(w->bridges);
     int *vs = NULL;
     int64_t *pairs = NULL;
@@ -514,6 +516,7 @@ static DrStatus wet_read_checkpoint(WorldWet *w, DrH5 *hf, const char *file, DrE
     DR_TRY(read_exact(hf, file, "/hair_solver/film_volume", (uint64_t)fs.nverts, fs.volume, err));
     DR_TRY(read_exact(hf, file, "/hair_solver/film_velocity", (uint64_t)fs.nedges, fs.u, err));
     DR_TRY(read_exact(hf, file, "/hair_solver/film_pools", 2 * (uint64_t)fs.nstrands, fs.pool, err));
+    DR_TRY(read_exact(hf, file, "/hair_solver/film_strand_speed", (uint64_t)fs.nedges, fs.strand_speed, err));
     int rank;
     uint64_t dims[4];
     int64_t *pairs = NULL;
@@ -705,6 +708,7 @@ static void hair_hash(const void *self, DrHasher *hs)
         dr_hasher_update(hs, fs.volume, sizeof(double) * (size_t)fs.nverts);
         dr_hasher_update(hs, fs.u, sizeof(double) * (size_t)fs.nedges);
         dr_hasher_update(hs, fs.pool, 2 * sizeof(double) * (size_t)fs.nstrands);
+        dr_hasher_update(hs, fs.strand_speed, sizeof(double) * (size_t)fs.nedges);
         int n = dr_bridges_count(h->wet->bridges);
         dr_hasher_update(hs, &n, sizeof n);
     }
