@@ -173,7 +173,8 @@ static void append_progress(const char *path, const DrFrameStats *fs, const Fram
                 fs->hair.collider_contacts, fs->hair.contacts, fs->hair.kinetic_energy, fs->hair.elastic_energy,
                 fs->hair.gravity_energy, fs->hair.kinetic_energy + fs->hair.elastic_energy + fs->hair.gravity_energy);
     if (fs->hair.present)
-        fprintf(f, "\"hair_scalp_work\":%.9g,", fs->hair.scalp_work);
+        fprintf(f, "\"hair_scalp_work\":%.9g,\"hair_max_speed\":%.9g,\"hair_max_speed_growth\":%.6g,", fs->hair.scalp_work,
+                fs->hair.max_speed, fs->hair.max_speed_growth);
     if (fs->hair.wet) /* the film and the bridges; the volumes in m^3 */
         fprintf(f,
                 "\"film_volume\":%.9g,\"film_pool_volume\":%.9g,\"film_max_ratio\":%.6g,\"film_kinetic_energy\":%.9g,"

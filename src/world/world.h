@@ -52,6 +52,9 @@ typedef struct DrHairFrameStats {
     int collider_contacts, contacts; /* of the last substep */
     double kinetic_energy, elastic_energy, gravity_energy; /* J */
     double scalp_work;       /* J: done on the strands through their held roots (and tips) over the frame */
+    double max_speed;        /* m/s: the largest |v| of a vertex at the frame's end */
+    double max_speed_growth; /* the largest ratio of a step's max |v| to the step before's over the frame (the first
+                                from the frame's start; steps from rest, max |v| = 0, are not counted; 0 if none) */
     double seconds;
     /* wet hair (all zero without a Wetting component): at the frame's end */
     bool wet;

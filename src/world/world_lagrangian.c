@@ -59,6 +59,9 @@ typedef struct WorldHair {
     double *fint;            /* per DOF: the constraints' forces over a step (the scalp's work) */
     double scalp_work;       /* J, done on the strands through their held DOFs in the frame */
     double last_scalp_work;  /* the last frame's */
+    double speed_prev;       /* max |v| after the last step (at the frame's start: of the state then) */
+    double speed_growth;     /* the frame's largest step-to-step ratio of max |v| (DrHairFrameStats) */
+    double last_speed, last_speed_growth; /* the last frame's */
     DrRodStats last;         /* the last frame's */
     DrHairFrameStats last_wet; /* the last frame's wet figures */
     int not_converged;
@@ -292,6 +295,17 @@ static DrBridgeStrands wet_strands(const WorldHair *h)
                              .group = w->group, .mask = w->mask, .self = w->self};
 }
 
+/* The largest |v| of any vertex (m/s). */
+static double max_speed(const DrRodState *rs)
+{
+    double m = 0;
+    for (int i = 0; i < rs->nverts; i++) {
+        const double *v = rs->v + 3 * i;
+        m = fmax(m, sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]));
+    }
+    return m;
+}
+
 /* ---- the clock --------------------------------------------------------------------------------------------------
  * The hair takes HairSolver.substeps equal steps per frame; a step of the world's clock that ends first (a faster
  * solver, a BEM step end) cuts the hair's step there, and the hair goes on to the same next substep end. */
@@ -310,6 +324,9 @@ static void hair_begin_frame(void *self, const WorldCtx *c)
     h->not_converged_steps = 0;
     h->seconds = 0.0;
     h->scalp_work = 0.0;
+    DrRodState rs = dr_rod_set_state(h->rods);
+    h->speed_prev = max_speed(&rs); /* from the state, so that a resumed bake reports what an uninterrupted one does */
+    h->speed_growth = 0.0;
     memset(&h->frame, 0, sizeof h->frame);
     if (h->wet) {
         memset(&h->wet->film_frame, 0, sizeof h->wet->film_frame);
@@ -405,6 +422,11 @@ static DrStatus hair_step(void *self, const WorldCtx *c, double t, double t_next
     h->seconds += dr_time_now() - t_start;
     if (s == DR_WARN_NOT_CONVERGED) h->not_converged_steps++;
     else if (s != DR_OK) return s;
+    /* the step-to-step growth of the largest speed: an instability shows as a jump of 10×–100× in one step */
+    DrRodState rs = dr_rod_set_state(h->rods);
+    double speed = max_speed(&rs);
+    if (h->speed_prev > 0) h->speed_growth = fmax(h->speed_growth, speed / h->speed_prev);
+    h->speed_prev = speed;
     /* reached when the clock ends on it, or (snapped to a BEM step end a rounding error away) a few ulps past it */
     if (h->reached < h->substeps && t_next >= substep_end(h, c, h->reached + 1) - 1e-9 * (c->t1 - c->t0)) h->reached++;
     return DR_OK;
@@ -422,6 +444,8 @@ static DrStatus hair_end_frame(void *self, const WorldCtx *c, DrFrameStats *stat
                     h->not_converged_steps, h->steps, st->residual);
     h->last = *st;
     h->last_scalp_work = h->scalp_work;
+    h->last_speed = h->speed_prev;
+    h->last_speed_growth = h->speed_growth;
     h->not_converged = h->not_converged_steps;
     DrRodState rs = dr_rod_set_state(h->rods);
     DrHairFrameStats *b = &stats->hair;
@@ -437,6 +461,8 @@ static DrStatus hair_end_frame(void *self, const WorldCtx *c, DrFrameStats *stat
     b->elastic_energy = st->elastic;
     b->gravity_energy = st->gravity_potential;
     b->scalp_work = h->scalp_work;
+    b->max_speed = h->last_speed;
+    b->max_speed_growth = h->last_speed_growth;
     b->seconds = h->seconds;
     if (h->wet) {
         WorldWet *w = h->wet;
@@ -625,6 +651,8 @@ static DrStatus hair_write(const void *self, const WorldCtx *c, DrH5 *hf, bool f
     DR_TRY(dr_h5_write_scalar(hf, g, "hair_gravity_energy", h->last.gravity_potential, "J", err));
     DR_TRY(dr_h5_write_vec3(hf, g, "hair_linear_momentum", h->last.momentum, "kg*m/s", err));
     DR_TRY(dr_h5_write_scalar(hf, g, "hair_scalp_work", h->last_scalp_work, "J", err));
+    DR_TRY(dr_h5_write_scalar(hf, g, "hair_max_speed", h->last_speed, "m/s", err));
+    DR_TRY(dr_h5_write_scalar(hf, g, "hair_max_speed_growth", h->last_speed_growth, "1", err));
     if (h->wet) {
         const DrHairFrameStats *b = &h->last_wet;
         DR_TRY(dr_h5_write_scalar(hf, g, "hair_film_volume", b->film_volume, "m^3", err));
