@@ -174,12 +174,24 @@ static void append_progress(const char *path, const DrFrameStats *fs, const Fram
                 fs->hair.vertices, fs->hair.substeps, fs->hair.cg_iterations, fs->hair.residual, fs->hair.not_converged,
                 fs->hair.collider_contacts, fs->hair.contacts, fs->hair.kinetic_energy, fs->hair.elastic_energy,
                 fs->hair.gravity_energy, fs->hair.kinetic_energy + fs->hair.elastic_energy + fs->hair.gravity_energy);
+    if (fs->hair.present)
+        fprintf(f, "\"hair_scalp_work\":%.9g,\"hair_max_speed\":%.9g,\"hair_max_speed_growth\":%.6g,", fs->hair.scalp_work,
+                fs->hair.max_speed, fs->hair.max_speed_growth);
+    if (fs->hair.wet) /* the film and the bridges; the volumes in m^3 */
+        fprintf(f,
+                "\"film_volume\":%.9g,\"film_pool_volume\":%.9g,\"film_max_ratio\":%.6g,\"film_kinetic_energy\":%.9g,"
+                "\"film_gravity_energy\":%.9g,\"film_substeps\":%d,\"hair_bridges\":%d,\"hair_solid_bridges\":%d,"
+                "\"film_cross_flow\":%.9g,",
+                fs->hair.film_volume, fs->hair.pool_volume, fs->hair.film_max_ratio, fs->hair.film_kinetic_energy,
+                fs->hair.film_gravity_energy, fs->hair.film_substeps, fs->hair.bridges, fs->hair.solid_bridges,
+                fs->hair.cross_flow);
     fprintf(f,
             "\"seconds\":{\"p2g\":%.6f,\"pressure\":%.6f,\"g2p\":%.6f,\"advect\":%.6f,\"other\":%.6f,",
             fs->liquid.seconds_p2g, fs->liquid.seconds_pressure, fs->liquid.seconds_g2p, fs->liquid.seconds_advect, fs->liquid.seconds_other);
     if (fs->mpm.present)
         fprintf(f, "\"mpm_transfer\":%.6f,\"mpm_solve\":%.6f,", fs->mpm.seconds_transfer, fs->mpm.seconds_solve);
     if (fs->hair.present) fprintf(f, "\"hair\":%.6f,", fs->hair.seconds);
+    if (fs->hair.wet) fprintf(f, "\"film\":%.6f,\"bridges\":%.6f,", fs->hair.seconds_film, fs->hair.seconds_bridges);
     if (fs->bem.present)
         fprintf(f,
                 "\"bem_history\":%.6f,\"bem_solve\":%.6f,\"bem_correction\":%.6f,\"bem_trial\":%.6f,"

@@ -10,6 +10,7 @@
 #include "io/io.h"
 #include "scene/scene.h"
 #include "stage/stage.h"
+#include "wet/wet.h"
 
 static int fail(const DrError *err)
 {
@@ -116,6 +117,41 @@ static DrStatus ensure_cached(const Body *body, const char *cache_root, bool *hi
     return s;
 }
 
+/* Makes sure cache/cohesion/<key>.h5 holds table k of the wet hair (stage.h dr_stage_wet_settings). */
+static DrStatus ensure_table(const DrCohesionDesc *d, const char *cache_root, char key[33], bool *hit, DrError *err)
+{
+    dr_cohesion_key(d, key);
+    const char *what = d->shape == DR_COHESION_CYLINDERS ? "strand-strand" : "strand-solid";
+    DrCohesionTable *t = NULL;
+    DrError lerr;
+    *hit = dr_cohesion_load(cache_root, d, &t, &lerr) == DR_OK;
+    if (*hit) {
+        dr_log_info("cohesion: %s table cache hit %s", what, key);
+        dr_cohesion_destroy(&t);
+        return DR_OK;
+    }
+    double t0 = dr_time_now();
+    DR_TRY(dr_cohesion_build(d, &t, err));
+    double t_build = dr_time_now() - t0;
+    char inputs[512];
+    snprintf(inputs, sizeof inputs, "{\"contact_angle\":%.17g,\"max_area\":%.17g,\"max_gap\":%.17g,\"resolution\":%d,"
+             "\"shape\":\"%s\"}", d->contact_angle, d->max_area, d->max_gap, d->resolution,
+             d->shape == DR_COHESION_CYLINDERS ? "cylinders" : "plane");
+    DrH5 *h = NULL;
+    DrStatus s = dr_io_precache_create(cache_root, "cohesion", key, inputs, NULL, &h, err);
+    if (s == DR_OK) s = dr_cohesion_write(t, h, err);
+    if (s == DR_OK) s = dr_h5_commit(&h, err);
+    else dr_h5_close(&h);
+    dr_cohesion_destroy(&t);
+    if (s == DR_OK) {
+        char path[DR_IO_PATH_MAX];
+        dr_io_precache_path(cache_root, "cohesion", key, path, sizeof path);
+        dr_log_info("cohesion: %s table %d x %d built in %.2f s, wrote %s", what, d->resolution, d->resolution,
+                    t_build, path);
+    }
+    return s;
+}
+
 static void free_bodies(Body *bodies, int n)
 {
     for (int i = 0; i < n; i++) dr_bem_asset_free(&bodies[i].a);
@@ -153,9 +189,11 @@ int main(int argc, char **argv)
                 break;
             }
     }
-    if (s == DR_OK && nbodies == 0)
+    DrStageWet wet;
+    if (s == DR_OK) s = dr_stage_wet_settings(scene, &wet, &err);
+    if (s == DR_OK && nbodies == 0 && !wet.wet)
         fprintf(stderr, "precompute: nothing to do: no element in '%s' needs precomputed data (%d elements: "
-                        "liquid, mpm_solid, hair and collider elements use none)\n",
+                        "liquid, mpm_solid, dry hair and collider elements use none)\n",
                 dr_scene_path(scene), dr_scene_element_count(scene));
 
     /* 2. the stage is stale until it finishes; temporary files of killed runs go */
@@ -188,14 +226,34 @@ int main(int argc, char **argv)
     if (s == DR_OK && nbodies > 0)
         fprintf(stderr, "precompute: %d bem bod%s, %d hit%s, %d computed, %.1f s, peak RSS %s\n", nbodies,
                 nbodies == 1 ? "y" : "ies", hits, hits == 1 ? "" : "s", computed, dr_time_now() - t0, rss);
+    /* the wet hair's two cohesion tables */
+    char table_key[2][33] = {"", ""};
+    if (s == DR_OK && wet.wet) {
+        char coh_dir[DR_IO_PATH_MAX];
+        snprintf(coh_dir, sizeof coh_dir, "%s/cohesion", args.cache_root);
+        dr_io_remove_stale_tmp(coh_dir);
+        int thits = 0;
+        double tt = dr_time_now();
+        for (int k = 0; s == DR_OK && k < 2; k++) {
+            bool hit = false;
+            s = ensure_table(&wet.tables[k], args.cache_root, table_key[k], &hit, &err);
+            if (s == DR_OK && hit) thits++;
+            else if (s != DR_OK) s = dr_error_prefix(s, &err, "%s.Cohesion", wet.element->name);
+        }
+        if (s == DR_OK)
+            fprintf(stderr, "precompute: %d wet hair element%s, 2 cohesion tables, %d hit%s, %d computed, %.1f s\n",
+                    wet.elements, wet.elements == 1 ? "" : "s", thits, thits == 1 ? "" : "s", 2 - thits,
+                    dr_time_now() - tt);
+    }
 
     /* 4. the MANIFEST last: one input line per body with its key */
     if (s == DR_OK) {
         const char **inputs = NULL;
         char *lines = NULL;
         const size_t line_max = DR_SCENE_NAME_MAX + 64;
-        s = dr_calloc((size_t)nb + 1, sizeof *inputs, &inputs, &err);
-        if (s == DR_OK) s = dr_calloc((size_t)nb + 1, line_max, &lines, &err);
+        int nt = wet.wet ? 2 : 0;
+        s = dr_calloc((size_t)nb + nt + 1, sizeof *inputs, &inputs, &err);
+        if (s == DR_OK) s = dr_calloc((size_t)nb + nt + 1, line_max, &lines, &err);
         if (s == DR_OK) {
             snprintf(lines, line_max, "cache entries %d", distinct);
             inputs[0] = lines;
@@ -204,7 +262,13 @@ int main(int argc, char **argv)
                 snprintf(line, line_max, "bem %s %s", bodies[i].e->name, bodies[i].a.key);
                 inputs[i + 1] = line;
             }
-            s = dr_io_manifest_write(dir, "precompute", keys.precompute, dr_scene_path(scene), inputs, nb + 1, &err);
+            for (int k = 0; k < nt; k++) { /* "cohesion <table> <key>": pipeline.sh checks the file is there */
+                char *line = lines + (size_t)(nb + 1 + k) * line_max;
+                snprintf(line, line_max, "cohesion %s %s", k == 0 ? "cylinders" : "plane", table_key[k]);
+                inputs[nb + 1 + k] = line;
+            }
+            s = dr_io_manifest_write(dir, "precompute", keys.precompute, dr_scene_path(scene), inputs, nb + nt + 1,
+                                     &err);
         }
         free(lines);
         free(inputs);

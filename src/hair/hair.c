@@ -7,7 +7,7 @@
  *              last step's λ for the geometric stiffness, their viscous copies for internal damping, and vertex–
  *              collider contacts; then hair–hair contacts (inter-object, K_G) from a spatial hash;
  *   solve   4. the solve (block-preconditioned PCG) with the external load, re-callable;
- *   commit  5. multipliers, then Coulomb friction at collider contacts;
+ *   commit  5. multipliers, and each collider contact's normal force (for the next step's friction);
  *           6. positions and twists advance, directors are transported in time, reference twists follow.
  * The DOF vector of a strand interleaves x_j and θ^j (src/hair/rod.h), so its block has half-bandwidth 10. */
 #include "hair/hair.h"
@@ -63,8 +63,11 @@ struct DrRodSet {
     double *lv;                /* I, Voronoi lengths */
     double *vmass;             /* V */
     double *tinertia;          /* E, ρ (πr⁴/2) l̄ */
-    double *radius;            /* S */
-    DrRodStiffness *stiff;     /* S */
+    double *radius;            /* S: the root radius */
+    double *vradius;           /* V: the radius at each vertex (tapered from root to tip) */
+    double *eks;               /* E: stretching stiffness E π r_e² of each edge (r_e its ends' mean radius) */
+    double *ibend, *itwist;    /* I: bending E π r⁴/4 and twisting G π r⁴/2 at each interior vertex */
+    bool tapered;              /* some strand's radius varies */
     double *root_rest;         /* S × 2 × 3: rest positions of the first two vertices */
     double *m1_rest;           /* S × 3: rest material director of edge 0 */
     double *tip_rest;          /* S × 2 × 3: starting positions of the last two vertices (desc.tips) */
@@ -85,6 +88,8 @@ struct DrRodSet {
     /* collider contacts (per vertex) */
     unsigned char *cflag;
     double *cnormal, *cvel, *clambda, *cfric;
+    double *cforce;            /* V: the normal force of each vertex's collider contact at the end of the last step (N,
+                                  0 off contact): state, it bounds the next step's Coulomb friction */
     /* hair contacts */
     HairContact *hc;
     size_t nhc, cap_hc;
@@ -106,14 +111,31 @@ struct DrRodSet {
 };
 
 static inline int edge_index(const DrRodSet *r, int s, int local) { return r->offsets[s] - s + local; }
+static inline double dist3(const double *a, const double *b)
+{
+    return sqrt((b[0] - a[0]) * (b[0] - a[0]) + (b[1] - a[1]) * (b[1] - a[1]) + (b[2] - a[2]) * (b[2] - a[2]));
+}
 static inline int interior_index(const DrRodSet *r, int s, int i) { return r->offsets[s] - 2 * s + (i - 1); }
+
+/* A unit tangent basis t1, t2 of the plane normal to the unit vector n. */
+static void tangent_basis(const double n[3], double t1[3], double t2[3])
+{
+    double ax[3] = {fabs(n[0]) < 0.6 ? 1 : 0, fabs(n[0]) < 0.6 ? 0 : 1, 0};
+    double d = ax[0] * n[0] + ax[1] * n[1];
+    for (int a = 0; a < 3; a++) t1[a] = ax[a] - d * n[a];
+    double l = sqrt(t1[0] * t1[0] + t1[1] * t1[1] + t1[2] * t1[2]);
+    for (int a = 0; a < 3; a++) t1[a] /= l;
+    t2[0] = n[1] * t1[2] - n[2] * t1[1];
+    t2[1] = n[2] * t1[0] - n[0] * t1[2];
+    t2[2] = n[0] * t1[1] - n[1] * t1[0];
+}
 
 /* ---- creation ------------------------------------------------------------------------------------------ */
 
 static DrStatus check_material(const DrRodMaterial *m, int batch, DrError *err)
 {
     if (!(m->radius > 0) || !(m->density > 0) || !(m->youngs > 0) || !(m->shear > 0) || !(m->damping >= 0) ||
-        !isfinite(m->radius + m->density + m->youngs + m->shear + m->damping))
+        !(m->tip_radius >= 0) || !isfinite(m->radius + m->density + m->youngs + m->shear + m->damping + m->tip_radius))
         return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
                             "rod material of groom %d: radius %g m, density %g kg/m³, Young's modulus %g Pa, shear "
                             "modulus %g Pa must be positive and damping %g s non-negative",
@@ -126,10 +148,11 @@ void dr_rod_set_destroy(DrRodSet **rp)
     if (!rp || !*rp) return;
     DrRodSet *r = *rp;
     void *arrays[] = {r->offsets, r->batch_offsets, r->batch_group, r->batch_mask, r->strand_batch, r->materials, r->batch,
-                      r->lbar, r->kbar, r->tbar, r->lv, r->vmass, r->tinertia, r->radius, r->stiff, r->root_rest,
+                      r->lbar, r->kbar, r->tbar, r->lv, r->vmass, r->tinertia, r->radius, r->vradius, r->eks,
+                      r->ibend, r->itwist, r->root_rest,
                       r->m1_rest, r->tip_rest, r->t_old, r->edge_strand, r->edge_local, r->x, r->v, r->theta, r->theta_dot, r->a1, r->m, r->t, r->len, r->lambda,
                       r->dof0, r->cflag, r->cnormal,
-                      r->cvel, r->clambda, r->cfric, r->hc, r->save, r->vdof, r->s_v, r->s_radius, r->s_length, r->s_tangent, r->s_held};
+                      r->cvel, r->clambda, r->cfric, r->cforce, r->hc, r->save, r->vdof, r->s_v, r->s_radius, r->s_length, r->s_tangent, r->s_held};
     for (size_t k = 0; k < sizeof arrays / sizeof arrays[0]; k++) free(arrays[k]);
     if (r->own_system) dr_lag_destroy(&r->lag);
     dr_broad_phase_destroy(&r->bp);
@@ -195,7 +218,10 @@ DrStatus dr_rod_set_create(const DrRodSetDesc *desc, const DrRodBatch *batches, 
     ALLOC(r->vmass, V);
     ALLOC(r->tinertia, r->E);
     ALLOC(r->radius, S);
-    ALLOC(r->stiff, S);
+    ALLOC(r->vradius, V);
+    ALLOC(r->eks, r->E);
+    ALLOC(r->ibend, r->I);
+    ALLOC(r->itwist, r->I);
     ALLOC(r->root_rest, 6 * S);
     ALLOC(r->m1_rest, 3 * S);
     ALLOC(r->tip_rest, 6 * S);
@@ -215,6 +241,7 @@ DrStatus dr_rod_set_create(const DrRodSetDesc *desc, const DrRodBatch *batches, 
     ALLOC(r->cvel, 3 * V);
     ALLOC(r->clambda, V);
     ALLOC(r->cfric, V);
+    ALLOC(r->cforce, V);
     ALLOC(r->save, 6 * V + 2 * r->E + 3 * r->E + r->I + r->nlambda);
     ALLOC(r->t_old, 3 * r->E);
     ALLOC(r->edge_strand, r->E);
@@ -245,15 +272,21 @@ DrStatus dr_rod_set_create(const DrRodSetDesc *desc, const DrRodBatch *batches, 
         r->batch[b] = batches[b];
         r->batch[b].groom = NULL;
         const DrRodMaterial *mt = &batches[b].material;
-        double rad = mt->radius, A = M_PI * rad * rad;
+        double rad = mt->radius;
         for (int k = 0; k < g->nstrands; k++, si++) {
             int nv = g->offsets[k + 1] - g->offsets[k];
             r->offsets[si] = vi;
             r->strand_batch[si] = b;
             r->radius[si] = rad;
-            r->stiff[si] = (DrRodStiffness){mt->youngs * A, mt->youngs * M_PI * pow(rad, 4) / 4.0,
-                                            mt->shear * M_PI * pow(rad, 4) / 2.0};
             memcpy(r->x + 3 * vi, g->x + 3 * g->offsets[k], (size_t)nv * 3 * sizeof(double));
+            /* the radius at each vertex: linear in arc length from the root's to the tip's (tip_radius 0: none) */
+            double rt = mt->tip_radius > 0 ? mt->tip_radius : rad, total = 0, along = 0;
+            for (int j = 0; j + 1 < nv; j++) total += dist3(r->x + 3 * (vi + j), r->x + 3 * (vi + j + 1));
+            for (int j = 0; j < nv; j++) {
+                if (j > 0) along += dist3(r->x + 3 * (vi + j - 1), r->x + 3 * (vi + j));
+                r->vradius[vi + j] = rt == rad ? rad : rad + (rt - rad) * (along / total);
+            }
+            if (rt != rad) r->tapered = true;
             vi += nv;
         }
     }
@@ -265,12 +298,11 @@ DrStatus dr_rod_set_create(const DrRodSetDesc *desc, const DrRodBatch *batches, 
             r->edge_local[edge_index(r, k, j)] = j;
         }
 
-    /* rest state: tangents, space-parallel frames from each root normal, curvatures, masses */
+    /* rest state: tangents, space-parallel frames from each root normal, curvatures, masses, stiffnesses */
     si = 0;
     for (int b = 0; b < nbatches; b++) {
         const DrGroom *g = batches[b].groom;
         const DrRodMaterial *mt = &batches[b].material;
-        double A = M_PI * mt->radius * mt->radius, J = M_PI * pow(mt->radius, 4) / 2.0;
         for (int k = 0; k < g->nstrands; k++, si++) {
             int o = r->offsets[si], nv = r->offsets[si + 1] - o, e0 = edge_index(r, si, 0);
             double *t = r->t + 3 * e0, *len = r->len + e0, *a1 = r->a1 + 3 * e0;
@@ -278,10 +310,18 @@ DrStatus dr_rod_set_create(const DrRodSetDesc *desc, const DrRodBatch *batches, 
             const double *rn = g->root_normal ? g->root_normal + 3 * k : NULL;
             dr_rod_space_frames(nv - 1, t, rn, a1);
             for (int j = 0; j < nv - 1; j++) {
+                double re = 0.5 * (r->vradius[o + j] + r->vradius[o + j + 1]);
+                double A = M_PI * re * re, J = M_PI * pow(re, 4) / 2.0;
                 r->lbar[e0 + j] = len[j];
+                r->eks[e0 + j] = mt->youngs * A;
                 r->tinertia[e0 + j] = mt->density * J * len[j];
                 r->vmass[o + j] += 0.5 * mt->density * A * len[j];
                 r->vmass[o + j + 1] += 0.5 * mt->density * A * len[j];
+            }
+            for (int i = 1; i + 1 < nv; i++) {
+                double rv = r->vradius[o + i];
+                r->ibend[interior_index(r, si, i)] = mt->youngs * M_PI * pow(rv, 4) / 4.0;
+                r->itwist[interior_index(r, si, i)] = mt->shear * M_PI * pow(rv, 4) / 2.0;
             }
             if (nv > 2) {
                 int i0 = interior_index(r, si, 1);
@@ -319,7 +359,7 @@ DrStatus dr_rod_set_create(const DrRodSetDesc *desc, const DrRodBatch *batches, 
     for (int k = 0; k < r->S; k++)
         for (int j = r->offsets[k]; j < r->offsets[k + 1]; j++) {
             r->vdof[j] = r->dof0[k] + 4 * (j - r->offsets[k]);
-            r->s_radius[j] = r->radius[k];
+            r->s_radius[j] = r->vradius[j];
         }
     *out = r;
     return DR_OK;
@@ -331,7 +371,8 @@ fail:
 DrRodState dr_rod_set_state(DrRodSet *r)
 {
     DrRodState st = {r->S, r->V, r->E, r->offsets, r->x, r->v, r->theta, r->theta_dot, r->a1, r->m, r->lambda,
-                     r->nlambda, r->vmass, r->radius, r->batch_offsets, r->nbatches};
+                     r->nlambda, r->vmass, r->radius, r->batch_offsets, r->nbatches, r->vradius, r->tapered,
+                     r->cforce};
     return st;
 }
 
@@ -370,8 +411,9 @@ void dr_rod_set_measure(const DrRodSet *r, DrRodStats *st)
         for (int e = e0; e < e0 + nv - 1; e++) ke += 0.5 * r->tinertia[e] * r->theta_dot[e] * r->theta_dot[e];
         int i0 = nv > 2 ? interior_index(r, k, 1) : 0;
         DrRodRef ref = {r->t + 3 * e0, r->a1 + 3 * e0, r->m + i0};
-        el += dr_rod_energy(nv, r->x + 3 * o, r->theta + e0, &ref, r->lbar + e0, nv > 2 ? r->kbar + 4 * i0 : NULL,
-                            nv > 2 ? r->tbar + i0 : NULL, r->stiff[k]);
+        el += dr_rod_energy_varying(nv, r->x + 3 * o, r->theta + e0, &ref, r->lbar + e0,
+                                    nv > 2 ? r->kbar + 4 * i0 : NULL, nv > 2 ? r->tbar + i0 : NULL, r->eks + e0,
+                                    nv > 2 ? r->ibend + i0 : NULL, nv > 2 ? r->itwist + i0 : NULL);
     }
     st->kinetic = ke;
     st->elastic = el;
@@ -493,25 +535,34 @@ static DrStatus build_strand(DrRodSet *r, int k, double h, const DrRodCollider *
     double G[DR_LAG_MAX_DOFS * DR_LAG_MAX_DOFS];
     for (int j = 0; j < nv - 1; j++) {
         double *lam = r->lambda + e0 + j;
-        dr_rod_stretch_group(x, j, r->lbar[e0 + j], r->stiff[k].ks, d0, geo ? lam : NULL, geo ? G : NULL, &g);
+        dr_rod_stretch_group(x, j, r->lbar[e0 + j], r->eks[e0 + j], d0, geo ? lam : NULL, geo ? G : NULL, &g);
         g.lambda = lam;
         DR_TRY(add_with_damping(r->lag, &g, mt->damping, err));
     }
     for (int i = 1; i < nv - 1; i++) {
         int ii = i0 + i - 1;
         double *lb = r->lambda + r->E + 4 * ii, *lt = r->lambda + r->E + 4 * r->I + ii;
-        dr_rod_bend_group(x, th, &ref, i, r->kbar + 4 * ii, r->lv[ii], r->stiff[k].bend, d0, geo ? lb : NULL,
+        dr_rod_bend_group(x, th, &ref, i, r->kbar + 4 * ii, r->lv[ii], r->ibend[ii], d0, geo ? lb : NULL,
                           geo ? G : NULL, &g);
         g.lambda = lb;
         DR_TRY(add_with_damping(r->lag, &g, mt->damping, err));
-        dr_rod_twist_group(x, th, &ref, i, r->tbar[ii], r->lv[ii], r->stiff[k].twist, d0, geo ? lt : NULL,
+        dr_rod_twist_group(x, th, &ref, i, r->tbar[ii], r->lv[ii], r->itwist[ii], d0, geo ? lt : NULL,
                            geo ? G : NULL, &g);
         g.lambda = lt;
         DR_TRY(add_with_damping(r->lag, &g, mt->damping, err));
     }
     /* vertex–collider contacts: a vertex that is inside, or would be within this step at its current velocity,
        gets the constraint φ = d − (r + thickness) ≥ 0 linearised along the collider's normal, relative to the
-       collider's own motion: φ₊ = φ + h n·(v₊ − v_c), so c = φ − h n·v_c. */
+       collider's own motion: φ₊ = φ + h n·(v₊ − v_c), so c = φ − h n·v_c.
+       Its Coulomb friction is part of the same solve (the hair–hair contacts' law): two viscous rows t·(v₊ − v_c)
+       on a tangent basis, damping C_v⁻¹ = μ F / max(|s|, μ F / (k h)) with F the contact's normal force at the end of
+       the last step (cforce), s the slip at the start of this one and k the contact's stiffness: μ F against the slip
+       while it slides, a damper of k h that holds it when slow. Why not after the solve, on the vertex alone: that
+       moved a pressed vertex against the strand the solve had just made consistent, a position error its stretch
+       rows answered next step, on heavy or wet hair (a film's inertia across the strand follows its vertex), with
+       multipliers tens of times their size before, compressive ones among them; their geometric stiffness made the
+       strand's block indefinite, the solver dropped it, and the strand's tension acted explicitly: unstable at hair
+       steps (tests/validation/test_hair.c, tests/pipeline/test_wet_shake.sh). */
     int nc = 0;
     for (int j = 0; j < nv; j++) {
         int vid = o + j;
@@ -524,7 +575,7 @@ static DrStatus build_strand(DrRodSet *r, int k, double h, const DrRodCollider *
         for (int c = 0; c < ncol; c++) {
             DrVec3 n;
             const DrRodBatch *bt = &r->batch[r->strand_batch[k]];
-            double d = col[c].sdf(p, &n, col[c].ctx) - (r->radius[k] + col[c].thickness + bt->collider_thickness);
+            double d = col[c].sdf(p, &n, col[c].ctx) - (r->vradius[vid] + col[c].thickness + bt->collider_thickness);
             DrVec3 vc = col[c].velocity_at ? col[c].velocity_at(p, col[c].ctx) : dr_v3(0, 0, 0);
             double approach = h * dr_v3_dot(dr_v3_sub(v, vc), n);
             if (d + fmin(approach, 0) >= 0 || d >= best) continue;
@@ -557,6 +608,28 @@ static DrStatus build_strand(DrRodSet *r, int k, double h, const DrRodCollider *
         g.lambda = &r->clambda[vid];
         DR_TRY(dr_lag_add(r->lag, &g, err));
         nc++;
+        double mu = r->cfric[vid], fn = r->cforce[vid];
+        if (!(mu > 0 && fn > 0)) continue;
+        const double *n = r->cnormal + 3 * vid, *vc = r->cvel + 3 * vid;
+        double rel[3] = {v.x - vc[0], v.y - vc[1], v.z - vc[2]};
+        double rn = rel[0] * n[0] + rel[1] * n[1] + rel[2] * n[2];
+        double st[3] = {rel[0] - rn * n[0], rel[1] - rn * n[1], rel[2] - rn * n[2]};
+        double slip = sqrt(st[0] * st[0] + st[1] * st[1] + st[2] * st[2]);
+        double stiff = r->desc.collider_stiffness, t1[3], t2[3];
+        tangent_basis(n, t1, t2);
+        memset(&g, 0, sizeof g);
+        g.kind = DR_LAG_VISCOUS;
+        g.nrows = 2;
+        g.ndof = 3;
+        for (int a = 0; a < 3; a++) {
+            g.dof[a] = dof + a;
+            g.J[a] = t1[a];
+            g.J[3 + a] = t2[a];
+        }
+        g.phi[0] = -(t1[0] * vc[0] + t1[1] * vc[1] + t1[2] * vc[2]);
+        g.phi[1] = -(t2[0] * vc[0] + t2[1] * vc[1] + t2[2] * vc[2]);
+        g.cinv[0] = g.cinv[1] = mu * fn / fmax(slip, mu * fn / (stiff * h));
+        DR_TRY(dr_lag_add(r->lag, &g, err));
     }
     *ncontacts = nc;
     return DR_OK;
@@ -625,7 +698,11 @@ static DrStatus find_hair_contacts(DrRodSet *r, DrError *err)
     if (!r->desc.hair_contact || r->E == 0) return DR_OK;
     double maxlen = 0, maxr = 0;
     for (int e = 0; e < r->E; e++) maxlen = fmax(maxlen, r->len[e]);
-    for (int k = 0; k < r->S; k++) maxr = fmax(maxr, r->radius[k] + r->batch[r->strand_batch[k]].contact_thickness);
+    for (int k = 0; k < r->S; k++) {
+        double rk = r->radius[k];
+        for (int j = r->offsets[k]; r->tapered && j < r->offsets[k + 1]; j++) rk = fmax(rk, r->vradius[j]);
+        maxr = fmax(maxr, rk + r->batch[r->strand_batch[k]].contact_thickness);
+    }
     double reach = 2 * maxr;
     double cell = maxlen + reach;
     const int *edge_strand = r->edge_strand, *edge_local = r->edge_local;
@@ -650,7 +727,13 @@ static DrStatus find_hair_contacts(DrRodSet *r, DrError *err)
         const double *q0 = r->x + 3 * (r->offsets[sb] + edge_local[eb]), *q1 = q0 + 3;
         double s, t, nv[3];
         double d = segment_closest(p0, p1, q0, q1, &s, &t, nv);
-        double rr = r->radius[sa] + r->radius[sb] + r->batch[r->strand_batch[sa]].contact_thickness +
+        double ra = r->radius[sa], rb = r->radius[sb];
+        if (r->tapered) { /* the radii at the closest points */
+            const double *va = r->vradius + r->offsets[sa] + edge_local[ea], *vb = r->vradius + r->offsets[sb] + edge_local[eb];
+            ra = va[0] + s * (va[1] - va[0]);
+            rb = vb[0] + t * (vb[1] - vb[0]);
+        }
+        double rr = ra + rb + r->batch[r->strand_batch[sa]].contact_thickness +
                     r->batch[r->strand_batch[sb]].contact_thickness;
         if (d >= rr || d < 1e-12 * rr) continue;
         if (r->nhc == r->cap_hc) { /* doubled and kept */
@@ -714,16 +797,7 @@ static DrStatus add_hair_contacts(DrRodSet *r, DrError *err)
         double vt[3] = {vr[0] - vn * n[0], vr[1] - vn * n[1], vr[2] - vn * n[2]};
         double vtn = sqrt(vt[0] * vt[0] + vt[1] * vt[1] + vt[2] * vt[2]);
         double t1[3], t2[3];
-        {
-            double ax[3] = {fabs(n[0]) < 0.6 ? 1 : 0, fabs(n[0]) < 0.6 ? 0 : 1, 0};
-            double d = ax[0] * n[0] + ax[1] * n[1];
-            for (int a = 0; a < 3; a++) t1[a] = ax[a] - d * n[a];
-            double l = sqrt(t1[0] * t1[0] + t1[1] * t1[1] + t1[2] * t1[2]);
-            for (int a = 0; a < 3; a++) t1[a] /= l;
-            t2[0] = n[1] * t1[2] - n[2] * t1[1];
-            t2[1] = n[2] * t1[0] - n[0] * t1[2];
-            t2[2] = n[0] * t1[1] - n[1] * t1[0];
-        }
+        tangent_basis(n, t1, t2);
         DrLagGroup f = g;
         f.kind = DR_LAG_VISCOUS;
         f.nrows = 2;
@@ -876,6 +950,7 @@ DrRodSamples dr_rod_set_samples(DrRodSet *r)
 }
 
 int dr_rod_set_load_blocks(const DrRodSet *r) { return r->V; }
+const int *dr_rod_set_vertex_dofs(const DrRodSet *r) { return r->vdof; }
 
 void dr_rod_set_fill_load(const DrRodSet *r, const double *force, const double *dforce_dv, double *gforce,
                           int *block_dof, double *block)
@@ -941,9 +1016,8 @@ DrStatus dr_rod_set_commit(DrRodSet *r, DrRodStats *stats, DrError *err)
     assert(r->phase == PHASE_SOLVED);
     r->phase = PHASE_NONE;
     double h = r->h_step;
-    /* 5. multipliers (eqs. S24, S25, kept for the next step's geometric stiffness, and the collider contacts'
-       force for friction), then Coulomb friction at the collider contacts: the tangential velocity relative to
-       the collider loses up to μ times the normal velocity change the contact force λ gave (h λ / m) */
+    /* 5. multipliers (eqs. S24, S25): kept for the next step's geometric stiffness, and the collider contacts' normal
+       force for the next step's friction (below, once the step is kept) */
     double *save = r->save;
     if (r->own_system) dr_lag_update_multipliers(r->lag, r->qdot_out); /* else the system's owner did */
 
@@ -959,21 +1033,10 @@ DrStatus dr_rod_set_commit(DrRodSet *r, DrRodStats *stats, DrError *err)
         int o = r->offsets[k], nv = r->offsets[k + 1] - o, e0 = edge_index(r, k, 0), d0 = r->dof0[k];
         for (int j = 0; j < nv; j++) {
             int vid = o + j;
-            double v[3];
-            for (int a = 0; a < 3; a++) v[a] = r->qdot_out[d0 + 4 * j + a];
-            if (r->cflag[vid]) {
-                const double *n = r->cnormal + 3 * vid, *vc = r->cvel + 3 * vid;
-                double rel[3] = {v[0] - vc[0], v[1] - vc[1], v[2] - vc[2]};
-                double vn = rel[0] * n[0] + rel[1] * n[1] + rel[2] * n[2];
-                double vt[3] = {rel[0] - vn * n[0], rel[1] - vn * n[1], rel[2] - vn * n[2]};
-                double vtn = sqrt(vt[0] * vt[0] + vt[1] * vt[1] + vt[2] * vt[2]);
-                double dvn = fmax(r->clambda[vid], 0) * h / r->vmass[vid];
-                double keep = vtn > 0 ? fmax(0, 1 - r->cfric[vid] * dvn / vtn) : 0;
-                for (int a = 0; a < 3; a++) v[a] = vc[a] + vn * n[a] + keep * vt[a];
-            }
             for (int a = 0; a < 3; a++) {
-                r->v[3 * vid + a] = v[a];
-                r->x[3 * vid + a] += h * v[a];
+                double v = r->qdot_out[d0 + 4 * j + a];
+                r->v[3 * vid + a] = v;
+                r->x[3 * vid + a] += h * v;
                 finite = finite && isfinite(r->x[3 * vid + a]);
             }
         }
@@ -1007,6 +1070,9 @@ DrStatus dr_rod_set_commit(DrRodSet *r, DrRodStats *stats, DrError *err)
                             "pushed a vertex through a strand); the state before the step is kept",
                             h);
     }
+    /* the contacts' normal force (λ > 0 presses; a contact that pulls carries none), which limits the next step's
+       friction */
+    for (int vid = 0; vid < r->V; vid++) r->cforce[vid] = r->cflag[vid] ? fmax(r->clambda[vid], 0.0) : 0.0;
     if (stats) {
         stats->steps++;
         stats->collider_contacts = r->ncollider_contacts;

@@ -71,6 +71,9 @@ typedef struct DrRodMaterial {
     double shear;       /* G, Pa */
     double damping;     /* internal viscosity as a Kelvin–Voigt time, s (viscous groups with C_v⁻¹ = damping·C⁻¹);
                            0 = none */
+    double tip_radius;  /* m; 0 (default) = `radius` all along. Else the radius falls linearly in arc length from
+                           `radius` at the root to this at the tip (a tapered strand): masses, stiffnesses (each edge at
+                           its ends' mean radius, bending and twisting at each vertex's) and contact follow it */
 } DrRodMaterial;
 void dr_rod_material_default(DrRodMaterial *m); /* human hair: r = 50 µm, ρ = 1300, E = 3.9 GPa, G = 1.3 GPa */
 
@@ -136,7 +139,7 @@ DR_NODISCARD DrStatus dr_rod_set_create(const DrRodSetDesc *desc, const DrRodBat
 void dr_rod_set_destroy(DrRodSet **rods);
 
 /* The hot arrays (the set owns them; valid until destroy). Tests and the world read and may overwrite
- * x, v, theta, theta_dot between steps (then call dr_rod_set_refresh). */
+ * x, v, theta, theta_dot between steps (then call dr_rod_set_refresh), and lambda and contact_force (a checkpoint). */
 typedef struct DrRodState {
     int nstrands, nverts, nedges;
     const int *offsets;     /* nstrands + 1 */
@@ -150,6 +153,10 @@ typedef struct DrRodState {
     const double *radius;   /* per strand, m */
     const int *batch_offsets; /* nbatches + 1: the strands of batch b are batch_offsets[b] .. [b+1] − 1 */
     int nbatches;
+    const double *vertex_radius; /* per vertex, m (equal to the strand's radius unless tapered) */
+    bool tapered;               /* some strand's radius varies along it */
+    double *contact_force;      /* per vertex, N: the normal force of its collider contact at the end of the last step
+                                   (0 off contact), which bounds the next step's Coulomb friction (checkpoint) */
 } DrRodState;
 DrRodState dr_rod_set_state(DrRodSet *rods);
 /* Recomputes the tangents and reference twists after the caller changed x or a1 (a resumed checkpoint). */
@@ -171,11 +178,12 @@ typedef struct DrRodStats {
 } DrRodStats;
 
 /* Advances by h: the roots of batch b move to scalp_end[b] (a rigid transform of the rest groom; NULL: they
- * stay), colliders act through constraints in the
- * solve and Coulomb friction after it, hair–hair contacts when desc.hair_contact. stats accumulates (zero
- * it first). DR_WARN_NOT_CONVERGED when the solve hit its cap (the step is kept); DR_ERR_RUNTIME when the
- * state becomes non-finite (the state is then left as it was before the step). The same, bit for bit, as
- * dr_rod_set_predict + dr_rod_set_solve(NULL, NULL) + dr_rod_set_commit below. */
+ * stay), colliders act through constraints in the solve, and so does their Coulomb friction (viscous rows against
+ * the slip, up to μ times the contact's normal force at the end of the last step: a contact's first step has none;
+ * a slow contact is held), hair–hair contacts when desc.hair_contact. stats accumulates (zero it first).
+ * DR_WARN_NOT_CONVERGED when the solve hit its cap (the step is kept); DR_ERR_RUNTIME when the state becomes
+ * non-finite (the state is then left as it was before the step). The same, bit for bit, as dr_rod_set_predict +
+ * dr_rod_set_solve(NULL, NULL) + dr_rod_set_commit below. */
 DR_NODISCARD DrStatus dr_rod_set_step(DrRodSet *rods, double h, const DrXform *scalp_end,
                                       const DrRodCollider *colliders, int ncolliders, DrRodStats *stats,
                                       DrError *err);
@@ -206,9 +214,9 @@ DR_NODISCARD DrStatus dr_rod_set_predict(DrRodSet *rods, double h, const DrXform
 typedef struct DrRodSamples {
     int n;
     const double *x;        /* n × 3, m: positions at the start of the step (at its end: x + h v) */
-    const double *v;        /* n × 3, m/s: velocities of the last solve since predict (before collider
-                               friction, which commit applies); before any solve, the velocities at the start
-                               of the step, held vertices at the velocity that lands them on the scalp */
+    const double *v;        /* n × 3, m/s: velocities of the last solve since predict (what commit keeps);
+                               before any solve, the velocities at the start of the step, held vertices at the
+                               velocity that lands them on the scalp */
     const double *mass;     /* n, kg */
     const double *radius;   /* n, m: the strand's radius */
     const double *length;   /* n, m: the length of strand a vertex stands for (half of each adjacent edge, at
@@ -235,8 +243,8 @@ DrRodSamples dr_rod_set_samples(DrRodSet *rods);
 DR_NODISCARD DrStatus dr_rod_set_solve(DrRodSet *rods, const double *force, const double *dforce_dv,
                                        DrRodStats *stats, DrError *err);
 
-/* Ends the step with the last solve: multipliers λ₊, Coulomb friction at the collider contacts, positions,
- * twists, time-transported directors and reference twists; stats (may be NULL) counts the step and takes its
+/* Ends the step with the last solve: multipliers λ₊ and the collider contacts' normal forces (contact_force),
+ * positions, twists, time-transported directors and reference twists; stats (may be NULL) counts the step and takes its
  * contacts, timings, energies and momenta. DR_ERR_RUNTIME when the state becomes non-finite (the state,
  * multipliers included, is then left as it was before the step). Needs a solve that did not fail since
  * predict. */
@@ -267,6 +275,8 @@ DR_NODISCARD DrStatus dr_rod_set_predict_groups(DrRodSet *rods, const DrRodColli
 int dr_rod_set_load_blocks(const DrRodSet *rods);
 void dr_rod_set_fill_load(const DrRodSet *rods, const double *force, const double *dforce_dv, double *gforce,
                           int *block_dof, double *block);
+/* The first of each vertex's 3 DOFs in the system (nverts entries; fixed from create on). */
+const int *dr_rod_set_vertex_dofs(const DrRodSet *rods);
 /* The owner solved the system into dr_lag_dofs's qdot_out: the set takes its range as its solve (for samples and
  * commit). */
 void dr_rod_set_take(DrRodSet *rods);

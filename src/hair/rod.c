@@ -416,13 +416,15 @@ void dr_rod_twist_group(const double *x, const double *theta, const DrRodRef *re
         G[ROD_T0 * ROD_NDOF + c] = G[c * ROD_NDOF + ROD_T0] = G[ROD_T1 * ROD_NDOF + c] = G[c * ROD_NDOF + ROD_T1] = 0.0;
 }
 
-double dr_rod_energy(int nv, const double *x, const double *theta, const DrRodRef *ref, const double *lbar,
-                     const double *kappa_bar, const double *tau_bar, DrRodStiffness k)
+/* The energy with the stiffnesses read at ks[j·sks], bend[(i − 1)·sb], twist[(i − 1)·st]: stride 0 for one value. */
+static double energy(int nv, const double *x, const double *theta, const DrRodRef *ref, const double *lbar,
+                     const double *kappa_bar, const double *tau_bar, const double *ks, int sks, const double *bend,
+                     int sb, const double *twist, int st)
 {
     double E = 0.0;
     for (int j = 0; j + 1 < nv; j++) {
         double d = dr_v3_norm(dr_v3_sub(ld3(x + 3 * (j + 1)), ld3(x + 3 * j))) - lbar[j];
-        E += 0.5 * k.ks * d * d / lbar[j];
+        E += 0.5 * ks[j * sks] * d * d / lbar[j];
     }
     for (int i = 1; i + 1 < nv; i++) {
         RodEdgeRef R[2];
@@ -438,7 +440,20 @@ double dr_rod_energy(int nv, const double *x, const double *theta, const DrRodRe
         }
         double m = reference_twist(V[0].t, V[1].t, V[0].a1, V[1].a1, V[1].a2, ref->m[i - 1]);
         double dt = theta[i] - theta[i - 1] + m - tau_bar[i - 1];
-        E += k.bend * sum / (4.0 * lv) + k.twist * dt * dt / (2.0 * lv);
+        E += bend[(i - 1) * sb] * sum / (4.0 * lv) + twist[(i - 1) * st] * dt * dt / (2.0 * lv);
     }
     return E;
+}
+
+double dr_rod_energy(int nv, const double *x, const double *theta, const DrRodRef *ref, const double *lbar,
+                     const double *kappa_bar, const double *tau_bar, DrRodStiffness k)
+{
+    return energy(nv, x, theta, ref, lbar, kappa_bar, tau_bar, &k.ks, 0, &k.bend, 0, &k.twist, 0);
+}
+
+double dr_rod_energy_varying(int nv, const double *x, const double *theta, const DrRodRef *ref, const double *lbar,
+                             const double *kappa_bar, const double *tau_bar, const double *ks, const double *bend,
+                             const double *twist)
+{
+    return energy(nv, x, theta, ref, lbar, kappa_bar, tau_bar, ks, 1, bend, 1, twist, 1);
 }

@@ -84,5 +84,10 @@ void dr_rod_twist_group(const double *x, const double *theta, const DrRodRef *re
  * frames transported from ref to the tangents of x. lbar (ne), kappa_bar (4(nv−2)), tau_bar (nv−2). */
 double dr_rod_energy(int nv, const double *x, const double *theta, const DrRodRef *ref, const double *lbar,
                      const double *kappa_bar, const double *tau_bar, DrRodStiffness k);
+/* The same with a stiffness per element (a tapered strand): ks per edge (nv − 1), bend and twist per interior vertex
+ * (nv − 2); with every entry equal to k's, the same bits as dr_rod_energy. */
+double dr_rod_energy_varying(int nv, const double *x, const double *theta, const DrRodRef *ref, const double *lbar,
+                             const double *kappa_bar, const double *tau_bar, const double *ks, const double *bend,
+                             const double *twist);
 
 #endif

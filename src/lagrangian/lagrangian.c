@@ -1078,6 +1078,34 @@ static void update_lambdas(const LagRecords *r, const double *v)
     }
 }
 
+/* f += Σ_g J_gᵀ λ_g(v) over the groups of r. */
+static void add_forces(const LagRecords *r, const double *v, double *f)
+{
+    size_t pi = 0, pd = 0;
+    for (size_t g = 0; g < r->ngroups; g++) {
+        int nrows = r->ints[pi], ndof = r->ints[pi + 1];
+        const int *dof = r->ints + pi + 2;
+        const double *d = r->reals + pd;
+        double sc = d[0];
+        const double *c = d + 1, *cinv = d + 1 + nrows, *J = d + 1 + 2 * nrows;
+        for (int k = 0; k < nrows; k++) {
+            double jv = 0;
+            for (int a = 0; a < ndof; a++) jv += J[k * ndof + a] * v[dof[a]];
+            double lam = -cinv[k] * (c[k] + sc * jv);
+            for (int a = 0; a < ndof; a++) f[dof[a]] += J[k * ndof + a] * lam;
+        }
+        pi += 2 + (size_t)ndof;
+        pd += 1 + 2 * (size_t)nrows + (size_t)(nrows * ndof);
+    }
+}
+
+void dr_lag_constraint_forces(const DrLag *s, const double *qdot, double *f)
+{
+    assert(s->begun);
+    for (int i = 0; i < s->nobj; i++) add_forces(&s->obj[i].rec, qdot, f);
+    add_forces(&s->grec, qdot, f);
+}
+
 typedef struct LambdaCtx {
     const DrLag *s;
     const double *v;

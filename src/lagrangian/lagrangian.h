@@ -201,6 +201,12 @@ DR_NODISCARD DrStatus dr_lag_solve_load(DrLag *s, const DrLagLoad *load, double 
  * for the velocity q̇₊ = qdot (normally the solve's result that is kept). Between begin and the next begin. */
 void dr_lag_update_multipliers(DrLag *s, const double *qdot);
 
+/* f += Σ_g J_gᵀ λ_g over every group added since dr_lag_begin, λ_g as dr_lag_update_multipliers computes it for the
+ * velocity qdot (whether or not the group keeps its λ): the generalised force the constraints exert over the step (N,
+ * or N·m on a twist). For diagnostics, such as the work done on the system through its prescribed DOFs. Between begin
+ * and the next begin; serial, in a fixed order. */
+void dr_lag_constraint_forces(const DrLag *s, const double *qdot, double *f);
+
 /* y = A x with the matrix the last dr_lag_solve used (prescribed DOFs eliminated, geometric stiffness as kept). */
 void dr_lag_apply(const DrLag *s, const double *x, double *y);
 

@@ -786,6 +786,73 @@ static DrStatus check_bem_joints(Parser *p)
     return DR_OK;
 }
 
+/* Wet hair: a hair element is wet when it has a Wetting component; Film, Cohesion and CrossFlow need it. Every wet
+   hair element's strands share one film model, one pair of cohesion tables and one bridge model (bridges join strands
+   of different elements), so their Wetting, Cohesion, CrossFlow and Film (but initial_ratio) must agree; and a
+   Wetting.liquid names a liquid element. */
+static DrStatus check_wet_hair(Parser *p)
+{
+    const DrScene *s = p->s;
+    static const char *const needs[] = {"Film", "Cohesion", "CrossFlow"};
+    const DrElement *first = NULL;
+    for (int i = 0; i < s->element_count; i++) {
+        const DrElement *e = &s->elements[i];
+        if (e->kind != DR_ELEMENT_HAIR) continue;
+        const DrComponent *w = dr_element_component(e, "Wetting");
+        for (int k = 0; k < 3; k++) {
+            if (w->present || !dr_element_component(e, needs[k])->present) continue;
+            push_index(p, e->index);
+            push_key(p, "components");
+            push_key(p, needs[k]);
+            return fail(p, "%s.%s needs a Wetting component (the liquid on the strands): add \"Wetting\": {} for "
+                           "water, or remove %s", e->name, needs[k], needs[k]);
+        }
+        if (!w->present) continue;
+        const DrValue *lq = value_at(w, "liquid");
+        if (lq->set) {
+            const DrElement *l = dr_scene_find(s, lq->str);
+            if (!l || l->kind != DR_ELEMENT_LIQUID) {
+                push_index(p, e->index);
+                push_key(p, "components");
+                push_key(p, "Wetting");
+                push_key(p, "liquid");
+                return fail(p, "%s.Wetting.liquid = '%s': %s; name a liquid element, or remove the field and set "
+                               "density and viscosity", e->name, lq->str,
+                            l ? "that element is not a liquid" : "no element has this name");
+            }
+        }
+        if (!first) {
+            first = e;
+            continue;
+        }
+        static const char *const shared[] = {"Wetting", "Cohesion", "CrossFlow", "Film"};
+        for (int k = 0; k < 4; k++) {
+            const DrComponent *a = dr_element_component(first, shared[k]);
+            const DrComponent *b = dr_element_component(e, shared[k]);
+            for (int f = 0; f < a->spec->field_count; f++) {
+                const DrFieldSpec *fs = &a->spec->fields[f];
+                if (strcmp(fs->name, "initial_ratio") == 0) continue;
+                const DrValue *va = &a->values[f], *vb = &b->values[f];
+                bool same = va->has == vb->has && memcmp(va->num, vb->num, sizeof va->num) == 0 &&
+                            ((!va->str && !vb->str) || (va->str && vb->str && strcmp(va->str, vb->str) == 0));
+                if (same) continue;
+                char xa[64], xb[64];
+                shared_value_text(fs, va, xa, sizeof xa);
+                shared_value_text(fs, vb, xb, sizeof xb);
+                push_index(p, e->index);
+                push_key(p, "components");
+                push_key(p, a->spec->name);
+                push_key(p, fs->name);
+                return fail(p, "%s.%s.%s = %s differs from %s.%s.%s = %s; the strands of every wet hair element share "
+                               "one film, cohesion and cross-flow model, so give both elements the same %s.%s",
+                            e->name, a->spec->name, fs->name, xb, first->name, a->spec->name, fs->name, xa,
+                            a->spec->name, fs->name);
+            }
+        }
+    }
+    return DR_OK;
+}
+
 /* Every mpm_solid of a scene lives on one grid advanced by one step, so what defines the grid and the step
    must agree between them: the cell size and wall condition (Domain) and every Transfer and Integrator
    field. The grid box itself is the union of the Domain boxes (world.c). Every hair element is one object
@@ -798,6 +865,7 @@ static DrStatus check_cross_element(Parser *p)
     DR_TRY(check_shared(p, "mpm_solid", mpm, (int)(sizeof mpm / sizeof mpm[0]),
                         "every mpm_solid of a scene shares one grid and one time step"));
     DR_TRY(check_bem_joints(p));
+    DR_TRY(check_wet_hair(p));
     return check_shared(p, "hair", hair, 1, "every hair element of a scene is solved in one system");
 }
 

@@ -71,6 +71,8 @@ typedef struct DrFieldSpec {
     int arity;            /* TABLE: numbers per row */
     const char *doc;      /* one line */
     const char *hint;     /* appended to an out-of-range message ("use ... such as ..."), NULL for a generic one */
+    bool precompute;      /* enters data that precompute builds for an element whose type does not need precompute
+                             otherwise (a wet hair's cohesion tables): its value is in the precompute key */
 } DrFieldSpec;
 
 typedef struct DrComponentSpec {

@@ -237,6 +237,30 @@ DrStatus dr_scene_keys(const DrScene *s, DrSceneKeys *out, DrError *err)
         for (int k = 0; st == DR_OK && k < s->asset_count; k++)
             if (s->assets[k].element == i) st = feed_asset(&h, s, &s->assets[k], err);
     }
+    /* the fields of other elements that enter precomputed data (a wet hair's cohesion tables), when their component is
+       written: a scene without such components keeps the key it had before they existed */
+    for (int i = 0; st == DR_OK && i < s->element_count; i++) {
+        const DrElement *e = &s->elements[i];
+        if (e->spec->needs_precompute) continue;
+        for (int c = 0; c < e->spec->component_count; c++) {
+            const DrComponent *comp = &e->components_[c];
+            if (!comp->present) continue;
+            for (int f = 0; f < comp->spec->field_count; f++) {
+                if (!comp->spec->fields[f].precompute || !comp->values[f].has) continue;
+                Buf b = {0};
+                put_str(&b, e->name);
+                puts_(&b, ".");
+                put_str(&b, comp->spec->name);
+                puts_(&b, ".");
+                put_str(&b, comp->spec->fields[f].name);
+                puts_(&b, "=");
+                put_value(&b, &comp->spec->fields[f], &comp->values[f]);
+                if (b.oom) st = dr_error_set(err, DR_ERR_NOMEM, s->path, 0, 0, "out of memory writing the scene key");
+                else feed(&h, "precompute-field", b.p);
+                free(b.p);
+            }
+        }
+    }
     DR_TRY(finish(&h, st, out->precompute));
 
     /* 2. bake: shot, solver, elements, asset bytes, precompute key, versions */

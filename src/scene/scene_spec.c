@@ -318,6 +318,9 @@ static const DrFieldSpec rod_material_fields[] = {
     {.name = "damping", .kind = DR_FIELD_NUMBER, .unit = "s", .def = {0}, RANGE(0, 10),
      .doc = "internal viscosity as a Kelvin-Voigt time constant: viscous force = damping * stiffness * strain "
             "rate on stretching, bending and twisting; 0 = none"},
+    {.name = "tip_radius", .kind = DR_FIELD_NUMBER, .unit = "m", .def = {0}, RANGE(0, 0.1),
+     .doc = "radius at the tip of a tapered strand: the radius falls linearly along the strand from radius at the "
+            "root to this (masses, stiffnesses and contact follow); 0 = radius all along"},
 };
 
 /* Box2D's collision filter (category and mask bits), with the category written as a group index. */
@@ -363,6 +366,57 @@ static const DrFieldSpec hair_solver_fields[] = {
     {.name = "geometric_stiffness", .kind = DR_FIELD_BOOL, .unit = "", .def = {1},
      .doc = "include the geometric stiffness (the previous multipliers times the constraint Hessians) in the "
             "system matrix"},
+};
+
+/* Wet hair (src/wet): water on human hair by default. Fields marked precompute enter the cohesion tables that
+   precompute builds (and so the precompute key). */
+static const DrFieldSpec wetting_fields[] = {
+    {.name = "contact_angle_deg", .kind = DR_FIELD_NUMBER, .unit = "deg", .def = {40}, RANGE(0, 80), .precompute = true,
+     .doc = "contact angle of the liquid on the strands (and on colliders, for hair-solid cohesion)",
+     .hint = "use an angle such as 40 (water on hair)"},
+    {.name = "surface_tension", .kind = DR_FIELD_NUMBER, .unit = "N/m", .def = {0.072}, RANGE(0, 10),
+     .doc = "surface tension of the liquid (water 0.072); 0 turns cohesion and the Laplace pressure off"},
+    {.name = "density", .kind = DR_FIELD_NUMBER, .unit = "kg/m^3", .def = {1000}, RANGE(1, 1e5),
+     .doc = "mass density of the liquid on the strands"},
+    {.name = "viscosity", .kind = DR_FIELD_NUMBER, .unit = "Pa*s", .def = {0.001}, RANGE_LO_OPEN(0, 1e4),
+     .doc = "dynamic viscosity of the liquid (the film's friction with its strand)",
+     .hint = "use a positive viscosity such as 0.001 (water)"},
+    {.name = "liquid", .kind = DR_FIELD_NAME, .unit = "", .no_default = true,
+     .doc = "name of a liquid element to take density and viscosity from (its LiquidMaterial)"},
+};
+
+static const DrFieldSpec film_fields[] = {
+    {.name = "initial_ratio", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {1}, RANGE(1, 100),
+     .doc = "outer radius of the film at t=0 over the strand radius, H/r (1 = dry)"},
+    {.name = "max_ratio", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {6}, RANGE_LO_OPEN(1, 100), .precompute = true,
+     .doc = "largest H/r a strand holds; film beyond it gathers at the strand's ends (the cohesion tables cover bridges "
+            "of two such films)", .hint = "use a ratio above 1 such as 6"},
+    {.name = "friction", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {1}, RANGE(0, 1e6),
+     .doc = "scale on the viscous friction between the film and its strand (1 = a thin viscous film's wall shear)"},
+    {.name = "substeps", .kind = DR_FIELD_INT, .unit = "", .def = {1}, RANGE(1, 10000),
+     .doc = "film steps per hair step at least (more when the film's CFL needs them)"},
+};
+
+static const DrFieldSpec cohesion_fields[] = {
+    {.name = "scale", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {1}, RANGE(0, 1e6),
+     .doc = "multiplies the force of every bridge between strands (0 = no cohesion)"},
+    {.name = "solid_scale", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {1}, RANGE(0, 1e6),
+     .doc = "multiplies the force of every bridge between a strand and a collider"},
+    {.name = "radius_multiplier", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {1.6}, RANGE_LO_OPEN(1, 10),
+     .doc = "rest distance of two bridged strands over their contact distance: the bridge pulls them to it and no "
+            "closer", .hint = "use a multiplier above 1 such as 1.6"},
+    {.name = "solid_radius_multiplier", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {1.1}, RANGE_LO_OPEN(1, 10),
+     .doc = "the same against a collider", .hint = "use a multiplier above 1 such as 1.1"},
+    {.name = "table_resolution", .kind = DR_FIELD_INT, .unit = "", .def = {256}, RANGE(16, 4096), .precompute = true,
+     .doc = "samples per axis of the cohesion tables (precompute)"},
+};
+
+static const DrFieldSpec cross_flow_fields[] = {
+    {.name = "enabled", .kind = DR_FIELD_BOOL, .unit = "", .def = {1},
+     .doc = "film flows between bridged strands"},
+    {.name = "rate", .kind = DR_FIELD_NUMBER, .unit = "1/s", .def = {1}, RANGE_LO_OPEN(0, 1e6),
+     .doc = "how fast the films of bridged strands even out: the fraction of their difference that flows per second",
+     .hint = "use a positive rate such as 1"},
 };
 
 static const DrFieldSpec motion_fields[] = {
@@ -452,6 +506,14 @@ const DrComponentSpec dr_scene_components_[] = {
      COUNT(collision_response_fields)},
     {"HairSolver", "the linear solve of a hair step (the same for every hair element: they are solved together)",
      hair_solver_fields, COUNT(hair_solver_fields)},
+    {"Wetting", "makes a hair element wet: the liquid its strands carry (the same on every wet hair element)",
+     wetting_fields, COUNT(wetting_fields)},
+    {"Film", "the film of liquid on each strand (the same on every wet hair element but initial_ratio); needs "
+             "Wetting", film_fields, COUNT(film_fields)},
+    {"Cohesion", "capillary bridges between wet strands and between wet strands and colliders (the same on every wet "
+                 "hair element); needs Wetting", cohesion_fields, COUNT(cohesion_fields)},
+    {"CrossFlow", "film flowing between bridged strands (the same on every wet hair element); needs Wetting",
+     cross_flow_fields, COUNT(cross_flow_fields)},
     {"LinearElastic", "isotropic linear elastic material of a boundary-element body", linear_elastic_fields,
      COUNT(linear_elastic_fields)},
     {"Compression", "wavelet compression of the boundary-element matrices (Haar transform, largest coefficients kept)",
@@ -472,8 +534,9 @@ static const char *const collider_required[] = {"Mesh"};
 static const char *const mpm_solid_components[] = {"Domain",     "MpmShape", "MpmMaterial", "InitialVelocity",
                                                    "Transform", "Transfer", "Integrator"};
 static const char *const mpm_solid_required[] = {"Domain", "MpmShape"};
-static const char *const hair_components[] = {"Groom",     "RodMaterial", "Collider",          "Transform",
-                                              "Motion",    "CollisionGroup", "CollisionResponse", "HairSolver"};
+static const char *const hair_components[] = {"Groom",          "RodMaterial",       "Collider",   "Transform",
+                                              "Motion",         "CollisionGroup",    "CollisionResponse", "HairSolver",
+                                              "Wetting",        "Film",              "Cohesion",   "CrossFlow"};
 static const char *const hair_required[] = {"Groom"};
 static const char *const bem_solid_components[] = {"Mesh",      "LinearElastic",   "Compression", "BemSolver",
                                                    "Transform", "InitialVelocity", "Collider",    "FixedVertices"};

@@ -138,4 +138,19 @@ DR_NODISCARD DrStatus dr_stage_check_checkpoint(const char *path, const char *ba
                                                 int *frame, DrError *err);
 DR_NODISCARD DrStatus dr_stage_load_bem_asset(const DrElement *e, DrBemAsset *out, DrError *err);
 
+/* The wet hair of a scene (src/wet): the settings every wet hair element shares (scene.c makes them agree), read from
+ * the first one, with density and viscosity from Wetting.liquid's LiquidMaterial when it names one; and the two cohesion
+ * tables (two cylinders, cylinder–plane) precompute builds for them, covering bridges of up to two films at
+ * Film.max_ratio. wet is false (and nothing else set) when no hair element has a Wetting component. */
+#include "wet/wet.h"
+typedef struct DrStageWet {
+    bool wet;
+    int elements;                 /* wet hair elements */
+    const DrElement *element;     /* the first (its settings are everyone's) */
+    DrFilmDesc film;              /* gravity left at its default: the world sets the shot's */
+    DrBridgeDesc bridges;
+    DrCohesionDesc tables[2];     /* [0] two cylinders, [1] cylinder–plane */
+} DrStageWet;
+DR_NODISCARD DrStatus dr_stage_wet_settings(const DrScene *scene, DrStageWet *out, DrError *err);
+
 #endif

@@ -175,7 +175,7 @@ static DrStatus build(DrWorld *w, const DrWorldDesc *desc, DrError *err)
         w->solvers[w->nsolvers] = s;
         w->mpm = &w->solvers[w->nsolvers++];
     }
-    BUILD_TRY(DR_ELEMENT_HAIR, NULL, world_lagrangian_adapter(&c, &s, err));
+    BUILD_TRY(DR_ELEMENT_HAIR, NULL, world_lagrangian_adapter(&c, desc->cache_root, &s, err));
     if (s.self) {
         w->solvers[w->nsolvers] = s;
         w->hair = &w->solvers[w->nsolvers++];

@@ -53,7 +53,21 @@ typedef struct DrHairFrameStats {
     int not_converged;       /* substeps whose solve stopped at its cap (a warning) */
     int collider_contacts, contacts; /* of the last substep */
     double kinetic_energy, elastic_energy, gravity_energy; /* J */
+    double scalp_work;       /* J: done on the strands through their held roots (and tips) over the frame */
+    double max_speed;        /* m/s: the largest |v| of a vertex at the frame's end */
+    double max_speed_growth; /* the largest ratio of a step's max |v| to the step before's over the frame (the first
+                                from the frame's start; steps from rest, max |v| = 0, are not counted; 0 if none) */
     double seconds;
+    /* wet hair (all zero without a Wetting component): at the frame's end */
+    bool wet;
+    double film_volume, pool_volume;   /* m³ on the strands and gathered at their ends */
+    double film_max_ratio;             /* the largest H/r */
+    int bridges, solid_bridges;        /* of the last substep */
+    int film_substeps;                 /* summed over the frame */
+    double cross_flow;                 /* m³ moved across bridges in the frame */
+    double film_kinetic_energy;        /* J */
+    double film_gravity_energy;        /* J: −Σ ρ V g·x of the film and the pools */
+    double seconds_film, seconds_bridges;
 } DrHairFrameStats;
 
 typedef struct DrBemFrameStats {

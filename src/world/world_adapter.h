@@ -170,7 +170,8 @@ const DrLiquid *world_liquid_solver(const WorldSolver *s);
 DR_NODISCARD DrStatus world_mpm_adapter(const WorldCtx *c, WorldSolver *out, DrError *err);
 long world_mpm_particles(const WorldSolver *s);
 int world_mpm_bodies(const WorldSolver *s);
-DR_NODISCARD DrStatus world_lagrangian_adapter(const WorldCtx *c, WorldSolver *out, DrError *err);
+DR_NODISCARD DrStatus world_lagrangian_adapter(const WorldCtx *c, const char *cache_root, WorldSolver *out,
+                                                DrError *err);
 void world_lagrangian_hair_counts(const WorldSolver *s, int *strands, int *vertices);
 void world_bem_counts(const WorldSolver *s, int *bodies, long *vertices, int *sets);
 

@@ -13,10 +13,37 @@
 
 #include "hair/hair.h"
 #include "stage/stage.h"
+#include "wet/wet.h"
+
+/* Wet hair (src/wet): the film on every strand of the rod set (dry elements' strands start with none), the bridges
+   between strands and to the colliders, and the cohesion tables precompute built. */
+typedef struct WorldWet {
+    DrStageWet set;
+    DrCohesionTable *tables[2];
+    DrFilm *film;
+    DrBridges *bridges;
+    double *radius;            /* per vertex, m */
+    double *thickness;         /* per strand: CollisionResponse.thickness */
+    int *batch;                /* per strand: its hair element */
+    unsigned *group, *mask;    /* per element: the contact filter (CollisionGroup) */
+    unsigned char *self;       /* per element: self_collision */
+    unsigned char *held;       /* per vertex, from the first step's samples */
+    bool held_known;
+    double *force, *dfdv;      /* the film's load on the strands, per vertex */
+    int *block_dof;
+    double *block;
+    double *x_old;             /* positions at the start of the step */
+    double *dV;                /* cross-hair flow */
+    double *heights;           /* per vertex: the film's outer radius, for the frame cache */
+    DrFilmStats film_frame;    /* summed over the frame */
+    double cross_flow;         /* m³ over the frame */
+    double seconds_film, seconds_bridges;
+} WorldWet;
 
 typedef struct WorldHair {
     DrLag *system;           /* the one system; the rod set's strands are objects in it */
     DrRodSet *rods;
+    WorldWet *wet;           /* NULL: no hair element is wet */
     const DrElement **elements;
     int nelements;
     double **keys;           /* per element: scalp motion keys (rows of 7: s, m, rad) */
@@ -31,7 +58,14 @@ typedef struct WorldHair {
     int not_converged_steps;
     double seconds;          /* wall time of the frame's steps */
     DrRodStats frame;        /* the frame being advanced, summed over its steps */
+    double *fint;            /* per DOF: the constraints' forces over a step (the scalp's work) */
+    double scalp_work;       /* J, done on the strands through their held DOFs in the frame */
+    double last_scalp_work;  /* the last frame's */
+    double speed_prev;       /* max |v| after the last step (at the frame's start: of the state then) */
+    double speed_growth;     /* the frame's largest step-to-step ratio of max |v| (DrHairFrameStats) */
+    double last_speed, last_speed_growth; /* the last frame's */
     DrRodStats last;         /* the last frame's */
+    DrHairFrameStats last_wet; /* the last frame's wet figures */
     int not_converged;
     /* the stability watch, where nothing outside works on the hair: no scalp motion, only static colliders */
     WorldWatch watch;
@@ -40,12 +74,28 @@ typedef struct WorldHair {
     double drop;             /* J: the weight of the hair lifted by its longest strand, what it can release */
 } WorldHair;
 
+static void wet_destroy(WorldWet **wp)
+{
+    WorldWet *w = *wp;
+    if (!w) return;
+    dr_bridges_destroy(&w->bridges);
+    dr_film_destroy(&w->film);
+    for (int k = 0; k < 2; k++) dr_cohesion_destroy(&w->tables[k]);
+    void *a[] = {w->radius, w->thickness, w->batch, w->group, w->mask, w->self, w->held, w->force, w->dfdv,
+                 w->block_dof, w->block, w->x_old, w->dV, w->heights};
+    for (size_t k = 0; k < sizeof a / sizeof a[0]; k++) free(a[k]);
+    free(w);
+    *wp = NULL;
+}
+
 static void hair_destroy(void *self)
 {
     WorldHair *h = self;
     if (!h) return;
+    wet_destroy(&h->wet);
     dr_rod_set_destroy(&h->rods);
     dr_lag_destroy(&h->system);
+    free(h->fint);
     for (int i = 0; h->keys && i < h->nelements; i++) free(h->keys[i]);
     free(h->keys);
     free(h->nkeys);
@@ -84,7 +134,7 @@ static DrStatus build_hair(const WorldCtx *c, WorldHair *h, int n, DrError *err)
         bt->groom = &grooms[b];
         bt->material = (DrRodMaterial){dr_component_num(rm, "radius"), dr_component_num(rm, "density"),
                                        dr_component_num(rm, "youngs_modulus"), dr_component_num(rm, "shear_modulus"),
-                                       dr_component_num(rm, "damping")};
+                                       dr_component_num(rm, "damping"), dr_component_num(rm, "tip_radius")};
         bt->group = 1u << dr_component_int(cg, "group");
         bt->mask = (unsigned)dr_component_int(cg, "collides_with");
         bt->self_contact = dr_component_bool(cg, "self_collision");
@@ -159,6 +209,86 @@ static DrStatus build_hair(const WorldCtx *c, WorldHair *h, int n, DrError *err)
     return DR_OK;
 }
 
+/* The wet hair: the cohesion tables from the cache (bake refuses to start without them: "run precompute"), the film
+   on every strand (Film.initial_ratio of its element; 1, dry, on a dry element's strands), the bridges. */
+static DrStatus build_wet(const WorldCtx *c, WorldHair *h, const char *cache_root, DrError *err)
+{
+    DrStageWet set;
+    DR_TRY(dr_stage_wet_settings(c->scene, &set, err));
+    if (!set.wet) return DR_OK;
+    WorldWet *w = NULL;
+    DR_TRY(dr_calloc(1, sizeof *w, &w, err));
+    h->wet = w;
+    w->set = set;
+    w->set.film.gravity = c->gravity;
+    for (int k = 0; k < 2; k++)
+        DR_TRY(dr_error_prefix(dr_cohesion_load(cache_root, &set.tables[k], &w->tables[k], err), err, "%s.Cohesion",
+                               set.element->name));
+    DrRodState rs = dr_rod_set_state(h->rods);
+    int S = rs.nstrands, V = rs.nverts, B = rs.nbatches;
+    DR_TRY(dr_calloc((size_t)V, sizeof(double), &w->radius, err));
+    DR_TRY(dr_calloc((size_t)S, sizeof(double), &w->thickness, err));
+    DR_TRY(dr_calloc((size_t)S, sizeof(int), &w->batch, err));
+    DR_TRY(dr_calloc((size_t)B, sizeof(unsigned), &w->group, err));
+    DR_TRY(dr_calloc((size_t)B, sizeof(unsigned), &w->mask, err));
+    DR_TRY(dr_calloc((size_t)B, 1, &w->self, err));
+    DR_TRY(dr_calloc((size_t)V, 1, &w->held, err));
+    DR_TRY(dr_calloc(3 * (size_t)V, sizeof(double), &w->force, err));
+    DR_TRY(dr_calloc(9 * (size_t)V, sizeof(double), &w->dfdv, err));
+    DR_TRY(dr_calloc((size_t)V, sizeof(int), &w->block_dof, err));
+    DR_TRY(dr_calloc(9 * (size_t)V, sizeof(double), &w->block, err));
+    DR_TRY(dr_calloc(3 * (size_t)V, sizeof(double), &w->x_old, err));
+    DR_TRY(dr_calloc((size_t)V, sizeof(double), &w->dV, err));
+    DR_TRY(dr_calloc((size_t)V, sizeof(double), &w->heights, err));
+    double *ratio = NULL;
+    DR_TRY(dr_calloc((size_t)S, sizeof(double), &ratio, err));
+    for (int b = 0; b < B; b++) {
+        const DrElement *e = h->elements[b];
+        const DrComponent *cg = dr_element_component(e, "CollisionGroup");
+        w->group[b] = 1u << dr_component_int(cg, "group");
+        w->mask[b] = (unsigned)dr_component_int(cg, "collides_with");
+        w->self[b] = dr_component_bool(cg, "self_collision");
+        bool wet = dr_component_present(dr_element_component(e, "Wetting"));
+        double r0 = wet ? dr_component_num(dr_element_component(e, "Film"), "initial_ratio") : 1.0;
+        double tk = dr_component_num(dr_element_component(e, "CollisionResponse"), "thickness");
+        for (int k = rs.batch_offsets[b]; k < rs.batch_offsets[b + 1]; k++) {
+            w->batch[k] = b;
+            w->thickness[k] = tk;
+            ratio[k] = r0;
+            for (int i = rs.offsets[k]; i < rs.offsets[k + 1]; i++) w->radius[i] = rs.vertex_radius[i];
+        }
+    }
+    DrStatus st = dr_film_create(&w->set.film, S, rs.offsets, w->radius, rs.x, ratio, &w->film, err);
+    free(ratio);
+    DR_TRY(dr_error_prefix(st, err, "%s.Film", set.element->name));
+    DR_TRY(dr_error_prefix(dr_bridges_create(&w->set.bridges, w->tables[0], w->tables[1], &w->bridges, err), err,
+                           "%s.Cohesion", set.element->name));
+    return DR_OK;
+}
+
+/* The strands as the bridges see them, now. */
+static DrBridgeStrands wet_strands(const WorldHair *h)
+{
+    const WorldWet *w = h->wet;
+    DrRodState rs = dr_rod_set_state(h->rods);
+    DrFilmState fs = dr_film_state(w->film);
+    return (DrBridgeStrands){.nstrands = rs.nstrands, .nverts = rs.nverts, .offsets = rs.offsets, .x = rs.x,
+                             .radius = w->radius, .volume = fs.volume, .vertex_dof = dr_rod_set_vertex_dofs(h->rods),
+                             .held = w->held_known ? w->held : NULL, .thickness = w->thickness, .batch = w->batch,
+                             .group = w->group, .mask = w->mask, .self = w->self};
+}
+
+/* The largest |v| of any vertex (m/s). */
+static double max_speed(const DrRodState *rs)
+{
+    double m = 0;
+    for (int i = 0; i < rs->nverts; i++) {
+        const double *v = rs->v + 3 * i;
+        m = fmax(m, sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]));
+    }
+    return m;
+}
+
 /* ---- the clock --------------------------------------------------------------------------------------------------
  * The hair takes HairSolver.substeps equal steps per frame; a step of the world's clock that ends first (a faster
  * solver, a BEM step end) cuts the hair's step there, and the hair goes on to the same next substep end. */
@@ -176,7 +306,16 @@ static void hair_begin_frame(void *self, const WorldCtx *c)
     h->steps = 0;
     h->not_converged_steps = 0;
     h->seconds = 0.0;
+    h->scalp_work = 0.0;
+    DrRodState rs = dr_rod_set_state(h->rods);
+    h->speed_prev = max_speed(&rs); /* from the state, so that a resumed bake reports what an uninterrupted one does */
+    h->speed_growth = 0.0;
     memset(&h->frame, 0, sizeof h->frame);
+    if (h->wet) {
+        memset(&h->wet->film_frame, 0, sizeof h->wet->film_frame);
+        h->wet->cross_flow = 0;
+        h->wet->seconds_film = h->wet->seconds_bridges = 0;
+    }
 }
 
 static DrStatus hair_next_time(void *self, const WorldCtx *c, double t, double *t_next, DrError *err)
@@ -192,14 +331,38 @@ static DrStatus hair_next_time(void *self, const WorldCtx *c, double t, double *
    the whole system (no load: nothing couples it to a fluid yet), the multipliers, every model commits. */
 static DrStatus step_system(WorldHair *h, double dt, DrError *err)
 {
+    WorldWet *w = h->wet;
+    DrRodState rs = dr_rod_set_state(h->rods);
     DR_TRY(dr_rod_set_predict_dofs(h->rods, dt, h->any_motion ? h->poses : NULL, err));
     DrLagDofs d;
     DR_TRY(dr_lag_dofs(h->system, &d, err));
     DR_TRY(dr_lag_begin(h->system, dt, d.mass, d.qdot, d.fext, d.prescribed, d.qdot_prescribed, err));
     DR_TRY(dr_rod_set_predict_groups(h->rods, h->colliders, h->ncolliders, err));
+    DrLagLoad load = {NULL, 0, NULL, NULL};
+    bool loaded = false;
+    if (w) {
+        /* wet hair: the bridges (at the start of the step) join the system, the film rides on the strands */
+        double tb = dr_time_now();
+        if (!w->held_known) {
+            DrRodSamples sm = dr_rod_set_samples(h->rods);
+            memcpy(w->held, sm.held, (size_t)rs.nverts);
+            w->held_known = true;
+        }
+        DrBridgeStrands bs = wet_strands(h);
+        DR_TRY(dr_bridges_update(w->bridges, &bs, h->colliders, h->ncolliders, err));
+        DR_TRY(dr_bridges_add_groups(w->bridges, &bs, h->system, dt, err));
+        memset(w->force, 0, 3 * (size_t)rs.nverts * sizeof(double));
+        memset(w->dfdv, 0, 9 * (size_t)rs.nverts * sizeof(double));
+        dr_film_hair_load(w->film, rs.x, rs.v, dt, w->force, w->dfdv);
+        dr_rod_set_fill_load(h->rods, w->force, w->dfdv, d.force, w->block_dof, w->block);
+        load = (DrLagLoad){d.force, dr_rod_set_load_blocks(h->rods), w->block_dof, w->block};
+        loaded = true;
+        memcpy(w->x_old, rs.x, 3 * (size_t)rs.nverts * sizeof(double));
+        w->seconds_bridges += dr_time_now() - tb;
+    }
     double ts = dr_time_now();
     DrLagStats ls;
-    DrStatus solved = dr_lag_solve_load(h->system, NULL, d.qdot_out, &ls, err);
+    DrStatus solved = dr_lag_solve_load(h->system, loaded ? &load : NULL, d.qdot_out, &ls, err);
     if (solved < 0) return solved;
     dr_rod_set_take(h->rods);
     h->frame.iterations += ls.iterations;
@@ -208,7 +371,27 @@ static DrStatus step_system(WorldHair *h, double dt, DrError *err)
     h->frame.indefinite_blocks += ls.indefinite_blocks;
     h->frame.seconds_solve += dr_time_now() - ts;
     dr_lag_update_multipliers(h->system, d.qdot_out);
+    /* the work the scalp (and any held tip) does on the strands over the step: the force that gives each held DOF its
+       prescribed velocity against gravity and the constraints, times its displacement h q̇₊ */
+    int n = dr_lag_dof_count(h->system);
+    memset(h->fint, 0, (size_t)n * sizeof(double));
+    dr_lag_constraint_forces(h->system, d.qdot_out, h->fint);
+    for (int k = 0; k < n; k++)
+        if (d.prescribed[k])
+            h->scalp_work += (d.mass[k] * (d.qdot_out[k] - d.qdot[k]) - dt * (d.fext[k] + h->fint[k])) * d.qdot_out[k];
     DR_TRY(dr_rod_set_commit(h->rods, &h->frame, err));
+    if (w) {
+        /* the film follows the strands' step and flows; then across the bridges */
+        double tf = dr_time_now();
+        DR_TRY(dr_film_step(w->film, w->x_old, rs.x, rs.v, rs.mass, w->held, dt, &w->film_frame, err));
+        DrBridgeStrands bs = wet_strands(h);
+        DR_TRY(dr_bridges_cross_flow(w->bridges, &bs, dt, w->dV, err));
+        DrBridgeStats bst;
+        dr_bridges_stats(w->bridges, &bst);
+        if (bst.cross_flow > 0) dr_film_exchange(w->film, rs.x, w->dV, rs.v, rs.mass);
+        w->cross_flow += bst.cross_flow;
+        w->seconds_film += dr_time_now() - tf;
+    }
     return solved;
 }
 
@@ -222,6 +405,11 @@ static DrStatus hair_step(void *self, const WorldCtx *c, double t, double t_next
     h->seconds += dr_time_now() - t_start;
     if (s == DR_WARN_NOT_CONVERGED) h->not_converged_steps++;
     else if (s != DR_OK) return s;
+    /* the step-to-step growth of the largest speed: an instability shows as a jump of 10×–100× in one step */
+    DrRodState rs = dr_rod_set_state(h->rods);
+    double speed = max_speed(&rs);
+    if (h->speed_prev > 0) h->speed_growth = fmax(h->speed_growth, speed / h->speed_prev);
+    h->speed_prev = speed;
     /* reached when the clock ends on it, or (snapped to a BEM step end a rounding error away) a few ulps past it */
     if (h->reached < h->substeps && t_next >= substep_end(h, c, h->reached + 1) - 1e-9 * (c->t1 - c->t0)) h->reached++;
     return DR_OK;
@@ -236,6 +424,9 @@ static DrStatus hair_end_frame(void *self, const WorldCtx *c, DrFrameStats *stat
                     "max_iterations or substeps",
                     h->not_converged_steps, h->steps, st->residual);
     h->last = *st;
+    h->last_scalp_work = h->scalp_work;
+    h->last_speed = h->speed_prev;
+    h->last_speed_growth = h->speed_growth;
     h->not_converged = h->not_converged_steps;
     DrRodState rs = dr_rod_set_state(h->rods);
     DrHairFrameStats *b = &stats->hair;
@@ -250,8 +441,48 @@ static DrStatus hair_end_frame(void *self, const WorldCtx *c, DrFrameStats *stat
     b->kinetic_energy = st->kinetic;
     b->elastic_energy = st->elastic;
     b->gravity_energy = st->gravity_potential;
+    b->scalp_work = h->scalp_work;
+    b->max_speed = h->last_speed;
+    b->max_speed_growth = h->last_speed_growth;
     b->seconds = h->seconds;
-    if (!h->watched) return DR_OK;
+    if (h->wet) {
+        WorldWet *w = h->wet;
+        DrFilmStats fs = {0};
+        dr_film_measure(w->film, rs.x, rs.v, &fs);
+        DrBridgeStats bst;
+        dr_bridges_stats(w->bridges, &bst);
+        b->wet = true;
+        b->film_volume = fs.volume;
+        b->pool_volume = fs.pools;
+        b->film_max_ratio = fs.max_ratio;
+        b->film_kinetic_energy = fs.kinetic;
+        /* the film's and pools' weight: −Σ ρ V g·x at their vertices */
+        DrFilmState st = dr_film_state(w->film);
+        double pe = 0;
+        for (int k = 0; k < st.nstrands; k++) {
+            int o = rs.offsets[k], e = rs.offsets[k + 1] - 1;
+            for (int i = o; i <= e; i++) {
+                double vol = st.volume[i] + (i == o ? st.pool[2 * k] : 0.0) + (i == e ? st.pool[2 * k + 1] : 0.0);
+                pe -= w->set.film.density * vol * dr_v3_dot(c->gravity, dr_v3(rs.x[3 * i], rs.x[3 * i + 1], rs.x[3 * i + 2]));
+            }
+        }
+        b->film_gravity_energy = pe;
+        b->bridges = bst.bridges;
+        b->solid_bridges = bst.solid_bridges;
+        b->film_substeps = w->film_frame.substeps;
+        b->cross_flow = w->cross_flow;
+        b->seconds_film = w->seconds_film;
+        b->seconds_bridges = w->seconds_bridges;
+        h->last_wet = *b;
+        if (!isfinite(fs.volume) || !isfinite(fs.kinetic))
+            return dr_error_set(err, DR_ERR_RUNTIME, NULL, 0, 0,
+                                "%s: the film on the strands became non-finite in frame %d (volume %g m^3); lower "
+                                "Film.substeps' step (raise Film.substeps) or HairSolver.substeps",
+                                w->set.element->name, c->frame, fs.volume);
+    }
+    /* Wet hair is not watched: its bridges release surface energy the ledger does not hold (a clump gains kinetic
+       energy from cohesion), and a film that fails is caught above. */
+    if (!h->watched || h->wet) return DR_OK;
     /* the energy after the frame's last step; the first frame after building or resuming gives the reference */
     WorldEnergy e = {0};
     e.energy = st->kinetic + st->elastic + st->gravity_potential;
@@ -270,6 +501,66 @@ static DrStatus hair_end_frame(void *self, const WorldCtx *c, DrFrameStats *stat
 }
 
 /* ---- files ------------------------------------------------------------------------------------------------- */
+
+/* The film and the bridge set: what a bit-identical continuation of wet hair needs. */
+static DrStatus wet_write_checkpoint(const WorldWet *w, DrH5 *hf, DrError *err)
+{
+    DrFilmState fs = dr_film_state(w->film);
+    DR_TRY(dr_h5_write_f64(hf, "/hair_solver/film_volume", 1, (uint64_t[]){(uint64_t)fs.nverts}, fs.volume, "m^3",
+                           false, err));
+    DR_TRY(dr_h5_write_f64(hf, "/hair_solver/film_velocity", 1, (uint64_t[]){(uint64_t)fs.nedges}, fs.u, "m/s",
+                           false, err));
+    DR_TRY(dr_h5_write_f64(hf, "/hair_solver/film_pools", 2, (uint64_t[]){(uint64_t)fs.nstrands, 2}, fs.pool, "m^3",
+                           false, err));
+    DR_TRY(dr_h5_write_f64(hf, "/hair_solver/film_strand_speed", 1, (uint64_t[]){(uint64_t)fs.nedges},
+                           fs.strand_speed, "m/s", false, err));
+    int n = dr_bridges_count(w->bridges);
+    int *vs = NULL;
+    int64_t *pairs = NULL;
+    DR_TRY(dr_calloc(2 * (size_t)n + 2, sizeof(int), &vs, err));
+    DrStatus s = dr_calloc(2 * (size_t)n + 2, sizeof(int64_t), &pairs, err);
+    if (s == DR_OK) {
+        dr_bridges_get(w->bridges, vs, vs + n);
+        for (int k = 0; k < n; k++) {
+            pairs[2 * k] = vs[k];
+            pairs[2 * k + 1] = vs[n + k];
+        }
+        s = dr_h5_write_i64(hf, "/hair_solver/bridges", 2, (uint64_t[]){(uint64_t)n, 2}, pairs, "1", false, err);
+    }
+    free(vs);
+    free(pairs);
+    return s;
+}
+
+static DrStatus read_exact(DrH5 *hf, const char *file, const char *path, uint64_t count, double *dst, DrError *err);
+
+static DrStatus wet_read_checkpoint(WorldWet *w, DrH5 *hf, const char *file, DrError *err)
+{
+    DrFilmState fs = dr_film_state(w->film);
+    DR_TRY(read_exact(hf, file, "/hair_solver/film_volume", (uint64_t)fs.nverts, fs.volume, err));
+    DR_TRY(read_exact(hf, file, "/hair_solver/film_velocity", (uint64_t)fs.nedges, fs.u, err));
+    DR_TRY(read_exact(hf, file, "/hair_solver/film_pools", 2 * (uint64_t)fs.nstrands, fs.pool, err));
+    DR_TRY(read_exact(hf, file, "/hair_solver/film_strand_speed", (uint64_t)fs.nedges, fs.strand_speed, err));
+    int rank;
+    uint64_t dims[4];
+    int64_t *pairs = NULL;
+    DR_TRY(dr_h5_read_i64(hf, "/hair_solver/bridges", &rank, dims, &pairs, err));
+    int n = rank == 2 && dims[1] == 2 ? (int)dims[0] : -1;
+    int *vs = NULL;
+    DrStatus s = n < 0 ? dr_error_set(err, DR_ERR_INPUT, file, 0, 0,
+                                      "checkpoint dataset /hair_solver/bridges is not a list of (vertex, strand) "
+                                      "pairs; delete the checkpoint and bake without --resume")
+                       : dr_calloc(2 * (size_t)n + 2, sizeof(int), &vs, err);
+    for (int k = 0; s == DR_OK && k < n; k++) {
+        vs[k] = (int)pairs[2 * k];
+        vs[n + k] = (int)pairs[2 * k + 1];
+    }
+    if (s == DR_OK) s = dr_bridges_set(w->bridges, n, vs, vs + n, err);
+    if (s != DR_OK && !err->file[0]) snprintf(err->file, sizeof err->file, "%s", file);
+    free(vs);
+    free(pairs);
+    return s;
+}
 
 /* Where hair element b's strands lie in the rod set's arrays: first strand, vertex and edge, and their counts. */
 typedef struct BatchSpan { int s0, v0, e0; uint64_t ns, nv, ne; } BatchSpan;
@@ -310,6 +601,24 @@ static DrStatus hair_write(const void *self, const WorldCtx *c, DrH5 *hf, bool f
         DR_TRY(dr_h5_write_f64(hf, path, 1, (uint64_t[]){ns}, rs.radius + s0, "m", frame_cache, err));
         PATHF(path, "/%s", name);
         DR_TRY(dr_h5_attr_str(hf, path, "type", "hair", err));
+        if (h->wet && frame_cache) {
+            /* the film: its cross-section area A = π (H² − r²) and its thickness H − r at every vertex */
+            double *a = NULL;
+            DR_TRY(dr_calloc(2 * nv + 1, sizeof(double), &a, err));
+            dr_film_heights(h->wet->film, h->wet->heights);
+            for (uint64_t k = 0; k < nv; k++) {
+                int i = v0 + (int)k;
+                double r = h->wet->radius[i], H = h->wet->heights[i];
+                a[k] = DR_PI * (H * H - r * r);
+                a[nv + k] = H - r;
+            }
+            PATHF(path, "/%s/liquid_area", name);
+            DrStatus s = dr_h5_write_f64(hf, path, 1, (uint64_t[]){nv}, a, "m^2", true, err);
+            PATHF(path, "/%s/film_thickness", name);
+            if (s == DR_OK) s = dr_h5_write_f64(hf, path, 1, (uint64_t[]){nv}, a + nv, "m", true, err);
+            free(a);
+            DR_TRY(s);
+        }
         if (!frame_cache) {
             /* the rest of the state a bit-identical continuation needs */
             PATHF(path, "/%s/twist_rate", name);
@@ -325,6 +634,9 @@ static DrStatus hair_write(const void *self, const WorldCtx *c, DrH5 *hf, bool f
                                rs.ref_twist, "rad", false, err));
         DR_TRY(dr_h5_write_f64(hf, "/hair_solver/lambda", 1, (uint64_t[]){(uint64_t)rs.nlambda}, rs.lambda, "1", false,
                                err));
+        DR_TRY(dr_h5_write_f64(hf, "/hair_solver/contact_force", 1, (uint64_t[]){(uint64_t)rs.nverts}, rs.contact_force,
+                               "N", false, err));
+        if (h->wet) DR_TRY(wet_write_checkpoint(h->wet, hf, err));
         return DR_OK;
     }
     const char *g = "/diagnostics";
@@ -338,6 +650,20 @@ static DrStatus hair_write(const void *self, const WorldCtx *c, DrH5 *hf, bool f
     DR_TRY(dr_h5_write_scalar(hf, g, "hair_elastic_energy", h->last.elastic, "J", err));
     DR_TRY(dr_h5_write_scalar(hf, g, "hair_gravity_energy", h->last.gravity_potential, "J", err));
     DR_TRY(dr_h5_write_vec3(hf, g, "hair_linear_momentum", h->last.momentum, "kg*m/s", err));
+    DR_TRY(dr_h5_write_scalar(hf, g, "hair_scalp_work", h->last_scalp_work, "J", err));
+    DR_TRY(dr_h5_write_scalar(hf, g, "hair_max_speed", h->last_speed, "m/s", err));
+    DR_TRY(dr_h5_write_scalar(hf, g, "hair_max_speed_growth", h->last_speed_growth, "1", err));
+    if (h->wet) {
+        const DrHairFrameStats *b = &h->last_wet;
+        DR_TRY(dr_h5_write_scalar(hf, g, "hair_film_volume", b->film_volume, "m^3", err));
+        DR_TRY(dr_h5_write_scalar(hf, g, "hair_pool_volume", b->pool_volume, "m^3", err));
+        DR_TRY(dr_h5_write_scalar(hf, g, "hair_film_max_ratio", b->film_max_ratio, "1", err));
+        DR_TRY(dr_h5_write_scalar(hf, g, "hair_film_kinetic_energy", b->film_kinetic_energy, "J", err));
+        DR_TRY(dr_h5_write_scalar(hf, g, "hair_film_gravity_energy", b->film_gravity_energy, "J", err));
+        DR_TRY(dr_h5_write_scalar(hf, g, "hair_bridges", b->bridges, "1", err));
+        DR_TRY(dr_h5_write_scalar(hf, g, "hair_solid_bridges", b->solid_bridges, "1", err));
+        DR_TRY(dr_h5_write_scalar(hf, g, "hair_cross_flow", b->cross_flow, "m^3", err));
+    }
     return DR_OK;
 }
 
@@ -389,7 +715,9 @@ static DrStatus hair_read(void *self, const WorldCtx *c, DrH5 *hf, const char *f
     long ni = rs.nverts - 2L * rs.nstrands;
     DR_TRY(read_exact(hf, file, "/hair_solver/reference_twist", (uint64_t)(ni > 0 ? ni : 0), rs.ref_twist, err));
     DR_TRY(read_exact(hf, file, "/hair_solver/lambda", (uint64_t)rs.nlambda, rs.lambda, err));
+    DR_TRY(read_exact(hf, file, "/hair_solver/contact_force", (uint64_t)rs.nverts, rs.contact_force, err));
     dr_rod_set_refresh(h->rods);
+    if (h->wet) DR_TRY(wet_read_checkpoint(h->wet, hf, file, err));
     return DR_OK;
 }
 
@@ -405,9 +733,19 @@ static void hair_hash(const void *self, DrHasher *hs)
     dr_hasher_update(hs, rs.a1, 3 * sizeof(double) * (size_t)rs.nedges);
     if (ni > 0) dr_hasher_update(hs, rs.ref_twist, sizeof(double) * (size_t)ni);
     dr_hasher_update(hs, rs.lambda, sizeof(double) * (size_t)rs.nlambda);
+    dr_hasher_update(hs, rs.contact_force, sizeof(double) * (size_t)rs.nverts);
+    if (h->wet) {
+        DrFilmState fs = dr_film_state(h->wet->film);
+        dr_hasher_update(hs, fs.volume, sizeof(double) * (size_t)fs.nverts);
+        dr_hasher_update(hs, fs.u, sizeof(double) * (size_t)fs.nedges);
+        dr_hasher_update(hs, fs.pool, 2 * sizeof(double) * (size_t)fs.nstrands);
+        dr_hasher_update(hs, fs.strand_speed, sizeof(double) * (size_t)fs.nedges);
+        int n = dr_bridges_count(h->wet->bridges);
+        dr_hasher_update(hs, &n, sizeof n);
+    }
 }
 
-DrStatus world_lagrangian_adapter(const WorldCtx *c, WorldSolver *out, DrError *err)
+DrStatus world_lagrangian_adapter(const WorldCtx *c, const char *cache_root, WorldSolver *out, DrError *err)
 {
     memset(out, 0, sizeof *out);
     int n = dr_scene_count_kind(c->scene, DR_ELEMENT_HAIR);
@@ -415,6 +753,8 @@ DrStatus world_lagrangian_adapter(const WorldCtx *c, WorldSolver *out, DrError *
     WorldHair *h = NULL;
     DR_TRY(dr_calloc(1, sizeof *h, &h, err));
     DrStatus s = build_hair(c, h, n, err);
+    if (s == DR_OK) s = dr_calloc((size_t)dr_lag_dof_count(h->system), sizeof(double), &h->fint, err);
+    if (s == DR_OK) s = build_wet(c, h, cache_root, err);
     if (s < 0) {
         hair_destroy(h);
         return s;

@@ -48,6 +48,19 @@ check "a hair bake on 1 and on 2 threads is bit-identical" same_hair_frames "$h1
 "$BIN/bake" "$hair" -j 2 --out "$h3" --resume >"$WORK/hair_resume.log" 2>&1
 check "the hair bake resumes after frame 3" grep -q "resuming after frame 3" "$WORK/hair_resume.log"
 check "a resumed hair bake is bit-identical to an uninterrupted one" same_hair_frames "$h2" "$h3"
+# Heavy hair pressing on the shaken head: the checkpoint also carries each collider contact's normal force, which
+# bounds the next step's friction (stopped after frame 7, when 7-8 vertices press on the head).
+heavy="$ROOT/tests/data/hair_heavy_shake.json"
+k1="$WORK/k1"; k2="$WORK/k2"
+"$BIN/bake" "$heavy" -j 2 --out "$k1" -q >/dev/null 2>&1
+"$BIN/bake" "$heavy" -j 2 --frames 1-7 --out "$k2" -q >/dev/null 2>&1
+"$BIN/bake" "$heavy" -j 2 --out "$k2" --resume >"$WORK/heavy_resume.log" 2>&1
+same_heavy_frames() { local f ok=0; for f in "$1"/hair_heavy_shake/bake/frame.*.h5; do cmp -s "$f" "$2/hair_heavy_shake/bake/$(basename "$f")" || { echo "differs: $f"; ok=1; }; done
+                      [ "$(ls "$1"/hair_heavy_shake/bake/frame.*.h5 | wc -l)" -eq 10 ] && return $ok; }
+check "the heavy hair bake resumes after frame 7 with vertices pressing on the head" bash -c "
+  grep -q 'resuming after frame 7' '$WORK/heavy_resume.log' &&
+  h5dump -d /diagnostics/hair_collider_contacts '$k2/hair_heavy_shake/bake/frame.0007.h5' | grep -Eq '\(0\): [1-9]'"
+check "a resumed bake of hair pressing on a collider with friction is bit-identical" same_heavy_frames "$k1" "$k2"
 
 # Boundary-element bodies: a spinning body in a moving frame and one in a fixed frame (whose displacement carries
 # its fall through the history sums), sharing one matrix set; a bake on 1 and on 2 threads, and one stopped after

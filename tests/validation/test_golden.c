@@ -87,9 +87,9 @@ typedef struct Golden {
 static const Golden GOLDEN[] = {
     {DATA "moving_collider.json", 2, "975f9b2fbf4b151a8560a46fe1c12760"},
     {DATA "mpm_drop.json", 4, "f82e4206818696d3b77be6c0e58924ff"},
-    {DATA "hair_small.json", 3, "2db5a6eaab7124ac6829684fd971f290"},
+    {DATA "hair_small.json", 3, "3b6ae6463d3aab0e96ebdf505a79f1e8"},
     {DATA "bem_pair.json", 2, "c1e076eea5909a3afe407387da37cfa1"},
-    {DATA "golden_mix.json", 3, "7b706e7ceab38ae64c72852551e500f3"},
+    {DATA "golden_mix.json", 3, "07a44bb105876241c6c40f5a9e36e323"},
     {DATA "bem_floor.json", 12, "5c8756117acc72e3a8ae2d5e18c054cb"},
 };
 
