@@ -130,6 +130,9 @@ static DrStatus ensure_table(const DrCohesionDesc *d, const char *cache_root, ch
         dr_cohesion_destroy(&t);
         return DR_OK;
     }
+    char existing[DR_IO_PATH_MAX];
+    dr_io_precache_path(cache_root, "cohesion", key, existing, sizeof existing);
+    if (dr_io_exists(existing)) dr_log_warn("%s; building it again", lerr.message);
     double t0 = dr_time_now();
     DR_TRY(dr_cohesion_build(d, &t, err));
     double t_build = dr_time_now() - t0;

@@ -645,15 +645,18 @@ DrStatus dr_cohesion_load(const char *cache_root, const DrCohesionDesc *desc, Dr
     dr_cohesion_key(&want, key);
     DrH5 *h;
     bool found;
-    DR_TRY(dr_io_precache_open(cache_root, COHESION_KIND, key, &h, &found, err));
+    DrError rejected;
+    dr_error_clear(&rejected);
+    DR_TRY(dr_io_precache_open(cache_root, COHESION_KIND, key, &h, &found, &rejected, err));
     dr_io_precache_path(cache_root, COHESION_KIND, key, path, sizeof path);
     if (!found)
         return dr_error_set(err, DR_ERR_INPUT, path, 0, 0,
-                            "the cohesion table of %s at contact angle %g deg (resolution %d) is %s; run precompute "
-                            "on the scene first",
+                            "the cohesion table of %s at contact angle %g deg (resolution %d) is %s%s; run "
+                            "precompute on the scene first",
                             want.shape == DR_COHESION_CYLINDERS ? "hair against hair" : "hair against a solid",
                             want.contact_angle * 180.0 / DR_PI, want.resolution,
-                            dr_io_exists(path) ? "unreadable or of another key" : "missing");
+                            dr_io_exists(path) ? "not to be trusted: " : "missing",
+                            dr_io_exists(path) ? rejected.message : "");
     DrCohesionTable *t;
     DrStatus s = dr_cohesion_read(h, path, &t, err);
     dr_h5_close(&h);
