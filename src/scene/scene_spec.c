@@ -362,7 +362,12 @@ static const DrFieldSpec hair_solver_fields[] = {
     {.name = "max_iterations", .kind = DR_FIELD_INT, .unit = "", .def = {500}, RANGE(1, 1000000),
      .doc = "iteration limit of the solve (reaching it is a warning; the step is kept)"},
     {.name = "substeps", .kind = DR_FIELD_INT, .unit = "", .def = {1}, RANGE(1, 100000),
-     .doc = "hair steps per frame at least (the world may take more)"},
+     .doc = "hair steps per frame at least (more when the strands move fast: cfl)"},
+    {.name = "cfl", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {1}, RANGE(0, 100),
+     .doc = "a hair step moves no vertex, and no film along its strand, by more than this many shortest segments of "
+            "the groom: the hair takes more steps where it moves fast (0 = exactly `substeps`)"},
+    {.name = "max_substeps", .kind = DR_FIELD_INT, .unit = "", .def = {1000}, RANGE(1, 1000000),
+     .doc = "hair steps per frame at most that `cfl` may ask for (reaching it is a warning)"},
     {.name = "geometric_stiffness", .kind = DR_FIELD_BOOL, .unit = "", .def = {1},
      .doc = "include the geometric stiffness (the previous multipliers times the constraint Hessians) in the "
             "system matrix"},

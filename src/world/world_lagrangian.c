@@ -53,6 +53,13 @@ typedef struct WorldHair {
     DrRodCollider *colliders;
     int ncolliders;
     int substeps;            /* HairSolver.substeps: the hair's steps per frame when nothing else is faster */
+    double cfl;              /* HairSolver.cfl: a step moves no vertex (nor film) by more than cfl shortest segments;
+                                0: the substeps alone */
+    int max_steps;           /* HairSolver.max_substeps: the cfl's steps per frame at most */
+    double min_segment;      /* m: the shortest segment of the rest groom */
+    int cfl_steps;           /* steps of the frame the cfl cut short */
+    int capped_steps;        /* of them, steps max_substeps kept longer than the cfl asked */
+    int last_steps, last_cfl_steps; /* the last frame's steps taken and cfl-cut steps */
     int reached;             /* of the frame's substep ends t0 + k (t1 − t0)/substeps, the last the clock reached */
     int steps;               /* steps taken in the frame (more than substeps when another solver cut them) */
     int not_converged_steps;
@@ -162,6 +169,8 @@ static DrStatus build_hair(const WorldCtx *c, WorldHair *h, int n, DrError *err)
         d.solver.tol = dr_component_num(solver, "tolerance");
         d.solver.max_iter = dr_component_int(solver, "max_iterations");
         h->substeps = dr_component_int(solver, "substeps");
+        h->cfl = dr_component_num(solver, "cfl");
+        h->max_steps = dr_component_int(solver, "max_substeps");
         s = dr_lag_create(&d.solver, &h->system, err);
         d.system = h->system;
         if (s == DR_OK) s = dr_rod_set_create(&d, batches, h->nelements, &h->rods, err);
@@ -195,13 +204,16 @@ static DrStatus build_hair(const WorldCtx *c, WorldHair *h, int n, DrError *err)
     for (int k = 0; k < nlive; k++) h->watched = h->watched && dr_collider_static(live[k]);
     DrRodState rs = dr_rod_set_state(h->rods);
     double mass = 0.0, longest = 0.0;
+    h->min_segment = INFINITY;
     for (int v = 0; v < rs.nverts; v++) mass += rs.mass[v];
     for (int k = 0; k < rs.nstrands; k++) {
         double len = 0.0;
         for (int v = rs.offsets[k]; v + 1 < rs.offsets[k + 1]; v++) {
             DrVec3 a = dr_v3(rs.x[3 * v], rs.x[3 * v + 1], rs.x[3 * v + 2]);
             DrVec3 b = dr_v3(rs.x[3 * v + 3], rs.x[3 * v + 4], rs.x[3 * v + 5]);
-            len += dr_v3_norm(dr_v3_sub(b, a));
+            double l = dr_v3_norm(dr_v3_sub(b, a));
+            len += l;
+            if (l > 0) h->min_segment = fmin(h->min_segment, l);
         }
         longest = fmax(longest, len);
     }
@@ -291,7 +303,12 @@ static double max_speed(const DrRodState *rs)
 
 /* ---- the clock --------------------------------------------------------------------------------------------------
  * The hair takes HairSolver.substeps equal steps per frame; a step of the world's clock that ends first (a faster
- * solver, a BEM step end) cuts the hair's step there, and the hair goes on to the same next substep end. */
+ * solver, a BEM step end) cuts the hair's step there, and the hair goes on to the same next substep end. Within a
+ * substep the hair takes more, equal steps when its fastest vertex plus the fastest film on a strand would move more
+ * than HairSolver.cfl shortest segments in one: contacts and bridges are found at a step's start and the film's load
+ * is linearised there, so a step that carries a strand past its neighbours (or its film far along it) acts on stale
+ * geometry. The speeds are those of the state at the step's start, so the steps are a function of the state alone (a
+ * resumed bake takes the ones an uninterrupted one does). */
 
 static double substep_end(const WorldHair *h, const WorldCtx *c, int k)
 {
@@ -304,6 +321,8 @@ static void hair_begin_frame(void *self, const WorldCtx *c)
     WorldHair *h = self;
     h->reached = 0;
     h->steps = 0;
+    h->cfl_steps = 0;
+    h->capped_steps = 0;
     h->not_converged_steps = 0;
     h->seconds = 0.0;
     h->scalp_work = 0.0;
@@ -318,12 +337,44 @@ static void hair_begin_frame(void *self, const WorldCtx *c)
     }
 }
 
+/* m/s: the fastest vertex, plus the fastest film along its strand (wet hair) */
+static double cfl_speed(WorldHair *h)
+{
+    DrRodState rs = dr_rod_set_state(h->rods);
+    double v = max_speed(&rs);
+    if (h->wet) {
+        DrFilmState fs = dr_film_state(h->wet->film);
+        double u = 0.0;
+        for (int e = 0; e < fs.nedges; e++) u = fmax(u, fabs(fs.u[e]));
+        v += u;
+    }
+    return v;
+}
+
 static DrStatus hair_next_time(void *self, const WorldCtx *c, double t, double *t_next, DrError *err)
 {
-    (void)t;
     (void)err;
-    const WorldHair *h = self;
-    *t_next = substep_end(h, c, h->reached < h->substeps ? h->reached + 1 : h->substeps);
+    WorldHair *h = self;
+    double end = substep_end(h, c, h->reached < h->substeps ? h->reached + 1 : h->substeps);
+    *t_next = end;
+    double room = end - t;
+    if (!(h->cfl > 0) || !(room > 0) || !isfinite(h->min_segment)) return DR_OK;
+    double reach = h->cfl * h->min_segment; /* m a step may carry a vertex */
+    double v = cfl_speed(h);
+    if (!(v * room > reach)) return DR_OK;
+    /* equal steps to the substep end, none shorter than a max_substeps-th of the frame (a non-finite speed gives
+       that shortest step: the solve that follows reports the failure) */
+    double floor_dt = (c->t1 - c->t0) / h->max_steps;
+    double n = isfinite(v) ? ceil(v * room / reach) : INFINITY;
+    double dt = room / n;
+    if (dt < floor_dt) {
+        dt = floor_dt;
+        h->capped_steps++;
+    }
+    /* a remainder under a thousandth of the step is taken with it */
+    if (dt >= room * (1.0 - 1e-3) || room - dt < 1e-3 * dt) return DR_OK;
+    *t_next = t + dt;
+    h->cfl_steps++;
     return DR_OK;
 }
 
@@ -428,6 +479,13 @@ static DrStatus hair_end_frame(void *self, const WorldCtx *c, DrFrameStats *stat
     h->last_speed = h->speed_prev;
     h->last_speed_growth = h->speed_growth;
     h->not_converged = h->not_converged_steps;
+    h->last_steps = h->steps;
+    h->last_cfl_steps = h->cfl_steps;
+    if (h->capped_steps)
+        dr_log_warn("hair: frame %d: %d hair steps were kept at HairSolver.max_substeps = %d a frame although the "
+                    "strands (and their film) moved faster than HairSolver.cfl = %g shortest segments (%g m) per "
+                    "step allows; raise max_substeps, or look for what drives the hair that fast",
+                    c->frame, h->capped_steps, h->max_steps, h->cfl, h->min_segment);
     DrRodState rs = dr_rod_set_state(h->rods);
     DrHairFrameStats *b = &stats->hair;
     b->present = true;
@@ -641,6 +699,8 @@ static DrStatus hair_write(const void *self, const WorldCtx *c, DrH5 *hf, bool f
     }
     const char *g = "/diagnostics";
     DR_TRY(dr_h5_write_scalar(hf, g, "hair_substeps", h->substeps, "1", err));
+    DR_TRY(dr_h5_write_scalar(hf, g, "hair_steps", h->last_steps, "1", err));
+    DR_TRY(dr_h5_write_scalar(hf, g, "hair_cfl_steps", h->last_cfl_steps, "1", err));
     DR_TRY(dr_h5_write_scalar(hf, g, "hair_cg_iterations", h->last.iterations, "1", err));
     DR_TRY(dr_h5_write_scalar(hf, g, "hair_residual", h->last.residual, "1", err));
     DR_TRY(dr_h5_write_scalar(hf, g, "hair_not_converged", h->not_converged, "1", err));

@@ -16,6 +16,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "core/core.h"
 #include "hair/hair.h"
@@ -613,6 +614,72 @@ static void test_heavy_hair_on_moving_head(void **state)
     dr_scene_destroy(&scene);
 }
 
+/* ---- 8. steps cut by the strands' speed (HairSolver.cfl) -------------------------------------------------------- */
+
+/* hair_small's groom on a scalp swung at 20 rad/s about the vertical (tips at most 0.15 m from the axis: 3 m/s when
+   carried rigidly), one substep per frame: HairSolver.cfl 0 takes exactly the substeps, a frame-long step each,
+   and the strands fly off (max |v| 40 m/s); cfl 1 takes more steps and the strands stay below 1.5 times the rigid
+   speed; cfl 0.5 about twice as many (a step's length is inverse to the speed); never more than max_substeps, and a
+   cap below what the speed asks keeps max_substeps steps (the frame's stats count them). Run from the repository
+   root. */
+static int cfl_steps(double cfl, int max_substeps, int frames, double *speed)
+{
+    char cwd[1024], path[1200], text[4096];
+    assert_non_null(getcwd(cwd, sizeof cwd));
+    snprintf(text, sizeof text,
+             "{ \"shot\": { \"name\": \"cfl\", \"fps\": 24, \"frames\": [1, %d], \"gravity\": [0, -9.81, 0] },\n"
+             "  \"elements\": [ { \"name\": \"fur\", \"type\": \"hair\", \"components\": {\n"
+             "    \"Groom\": { \"scalp\": \"%s/assets/meshes/sphere.obj\", \"count\": 60, \"length\": 0.05,\n"
+             "               \"segments\": 8, \"curl_radius\": 0.002, \"curl_pitch\": 0.02, \"seed\": 3 },\n"
+             "    \"Transform\": { \"translate\": [0, 0.2, 0], \"scale\": 0.1 },\n"
+             "    \"Motion\": { \"keys\": [[0, 0, 0, 0, 0, 0, 0], [24, 0, 0, 0, 0, 1146, 0]] },\n"
+             "    \"RodMaterial\": { \"radius\": 1e-4, \"youngs_modulus\": 1e8, \"damping\": 0.002 },\n"
+             "    \"HairSolver\": { \"substeps\": 1, \"cfl\": %.17g, \"max_substeps\": %d } } } ] }\n",
+             frames, cwd, cfl, max_substeps);
+    snprintf(path, sizeof path, "%s/drench_test_cfl.%d.json", dr_temp_dir(), (int)getpid());
+    FILE *f = fopen(path, "w");
+    assert_non_null(f);
+    fputs(text, f);
+    fclose(f);
+    DrScene *scene = NULL;
+    DrError err;
+    if (dr_scene_load(path, &scene, &err) < 0) fail_msg("%s", err.message);
+    unlink(path);
+    DrWorld *w = NULL;
+    if (dr_world_create(scene, &w, &err) < 0) fail_msg("%s", err.message);
+    int steps = 0;
+    *speed = 0;
+    for (int k = 1; k <= frames; k++) {
+        DrFrameStats fs;
+        if (dr_world_step_frame(w, &fs, &err) < 0) fail_msg("frame %d: %s", k, err.message);
+        assert_true(isfinite(fs.hair.max_speed));
+        if (cfl == 0) assert_int_equal(fs.hair.substeps, 1);
+        assert_true(fs.hair.substeps >= 1 && fs.hair.substeps <= (max_substeps > 1 ? max_substeps : 1));
+        steps += fs.hair.substeps;
+        *speed = fmax(*speed, fs.hair.max_speed);
+    }
+    dr_world_destroy(&w);
+    dr_scene_destroy(&scene);
+    return steps;
+}
+
+static void test_cfl_steps(void **state)
+{
+    (void)state;
+    double v0, v1, vh, vc;
+    int n0 = cfl_steps(0.0, 1000, 6, &v0);
+    int n1 = cfl_steps(1.0, 1000, 6, &v1);
+    int nh = cfl_steps(0.5, 1000, 6, &vh);
+    int nc = cfl_steps(0.5, 3, 6, &vc);
+    print_message("steps over 6 frames: cfl 0: %d (max |v| %.2f m/s), cfl 1: %d (%.2f m/s), cfl 0.5: %d (%.2f m/s), "
+                  "cfl 0.5 capped at 3 a frame: %d\n", n0, v0, n1, v1, nh, vh, nc);
+    assert_int_equal(n0, 6);
+    assert_true(n1 > 2 * n0);
+    assert_true(v1 < 4.5 && vh < 4.5);
+    assert_true(nh > 1.6 * n1 && nh < 2.4 * n1);
+    assert_true(nc <= 18 && nc >= 15); /* the frames after the first, from rest, at the cap */
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -621,6 +688,7 @@ int main(void)
         cmocka_unit_test(test_block_preconditioner), cmocka_unit_test(test_stiff_frame_rate),
         cmocka_unit_test(test_shaking_scalp),     cmocka_unit_test(test_floor_contact), cmocka_unit_test(test_friction_on_slope),
         cmocka_unit_test(test_world_frames_allocate_nothing), cmocka_unit_test(test_heavy_hair_on_moving_head),
+        cmocka_unit_test(test_cfl_steps),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
