@@ -669,6 +669,13 @@ typedef struct Shared {
     const char *component, *field; /* field NULL: every field of the component */
 } Shared;
 
+/* Two values of one field are the same setting (set or defaulted alike, equal numbers, equal strings). */
+static bool same_value(const DrValue *a, const DrValue *b)
+{
+    return a->has == b->has && memcmp(a->num, b->num, sizeof a->num) == 0 &&
+           ((!a->str && !b->str) || (a->str && b->str && strcmp(a->str, b->str) == 0));
+}
+
 static void shared_value_text(const DrFieldSpec *fs, const DrValue *v, char *buf, size_t size)
 {
     if (fs->kind == DR_FIELD_ENUM) snprintf(buf, size, "'%s'", v->str);
@@ -696,9 +703,7 @@ static DrStatus check_shared(Parser *p, const char *type, const Shared *shared, 
                 const DrFieldSpec *fs = &a->spec->fields[f];
                 if (shared[k].field && strcmp(fs->name, shared[k].field) != 0) continue;
                 const DrValue *va = &a->values[f], *vb = &b->values[f];
-                bool same = va->has == vb->has && memcmp(va->num, vb->num, sizeof va->num) == 0 &&
-                            ((!va->str && !vb->str) || (va->str && vb->str && strcmp(va->str, vb->str) == 0));
-                if (same) continue;
+                if (same_value(va, vb)) continue;
                 char xa[64], xb[64];
                 shared_value_text(fs, va, xa, sizeof xa);
                 shared_value_text(fs, vb, xb, sizeof xb);
@@ -833,9 +838,7 @@ static DrStatus check_wet_hair(Parser *p)
                 const DrFieldSpec *fs = &a->spec->fields[f];
                 if (strcmp(fs->name, "initial_ratio") == 0) continue;
                 const DrValue *va = &a->values[f], *vb = &b->values[f];
-                bool same = va->has == vb->has && memcmp(va->num, vb->num, sizeof va->num) == 0 &&
-                            ((!va->str && !vb->str) || (va->str && vb->str && strcmp(va->str, vb->str) == 0));
-                if (same) continue;
+                if (same_value(va, vb)) continue;
                 char xa[64], xb[64];
                 shared_value_text(fs, va, xa, sizeof xa);
                 shared_value_text(fs, vb, xb, sizeof xb);
