@@ -136,10 +136,8 @@ static DrStatus ensure_table(const DrCohesionDesc *d, const char *cache_root, ch
     double t0 = dr_time_now();
     DR_TRY(dr_cohesion_build(d, &t, err));
     double t_build = dr_time_now() - t0;
-    char inputs[512];
-    snprintf(inputs, sizeof inputs, "{\"contact_angle\":%.17g,\"max_area\":%.17g,\"max_gap\":%.17g,\"resolution\":%d,"
-             "\"shape\":\"%s\"}", d->contact_angle, d->max_area, d->max_gap, d->resolution,
-             d->shape == DR_COHESION_CYLINDERS ? "cylinders" : "plane");
+    char inputs[DR_COHESION_JSON_MAX];
+    dr_cohesion_inputs_json(d, inputs);
     DrH5 *h = NULL;
     DrStatus s = dr_io_precache_create(cache_root, "cohesion", key, inputs, NULL, &h, err);
     if (s == DR_OK) s = dr_cohesion_write(t, h, err);
