@@ -7,7 +7,7 @@
  *              last step's λ for the geometric stiffness, their viscous copies for internal damping, and vertex–
  *              collider contacts; then hair–hair contacts (inter-object, K_G) from a spatial hash;
  *   solve   4. the solve (block-preconditioned PCG) with the external load, re-callable;
- *   commit  5. multipliers, and each collider contact's normal force (for the next step's friction);
+ *   commit  5. multipliers, then Coulomb friction at collider contacts;
  *           6. positions and twists advance, directors are transported in time, reference twists follow.
  * The DOF vector of a strand interleaves x_j and θ^j (src/hair/rod.h), so its block has half-bandwidth 10. */
 #include "hair/hair.h"
@@ -88,8 +88,6 @@ struct DrRodSet {
     /* collider contacts (per vertex) */
     unsigned char *cflag;
     double *cnormal, *cvel, *clambda, *cfric;
-    double *cforce;            /* V: the normal force of each vertex's collider contact at the end of the last step (N,
-                                  0 off contact): state, it bounds the next step's Coulomb friction */
     /* hair contacts */
     HairContact *hc;
     size_t nhc, cap_hc;
@@ -106,6 +104,8 @@ struct DrRodSet {
     double seconds_build, seconds_contact; /* of the prediction */
     /* the external load of a solve and the samples (hair.h) */
     int *vdof;                 /* V: first DOF of each vertex */
+    double *dload;             /* 9V: the last solve's ∂f/∂v per vertex (its load), for the inertia friction sees */
+    bool has_dload;
     double *s_v, *s_radius, *s_length, *s_tangent;
     unsigned char *s_held;
 };
@@ -116,19 +116,6 @@ static inline double dist3(const double *a, const double *b)
     return sqrt((b[0] - a[0]) * (b[0] - a[0]) + (b[1] - a[1]) * (b[1] - a[1]) + (b[2] - a[2]) * (b[2] - a[2]));
 }
 static inline int interior_index(const DrRodSet *r, int s, int i) { return r->offsets[s] - 2 * s + (i - 1); }
-
-/* A unit tangent basis t1, t2 of the plane normal to the unit vector n. */
-static void tangent_basis(const double n[3], double t1[3], double t2[3])
-{
-    double ax[3] = {fabs(n[0]) < 0.6 ? 1 : 0, fabs(n[0]) < 0.6 ? 0 : 1, 0};
-    double d = ax[0] * n[0] + ax[1] * n[1];
-    for (int a = 0; a < 3; a++) t1[a] = ax[a] - d * n[a];
-    double l = sqrt(t1[0] * t1[0] + t1[1] * t1[1] + t1[2] * t1[2]);
-    for (int a = 0; a < 3; a++) t1[a] /= l;
-    t2[0] = n[1] * t1[2] - n[2] * t1[1];
-    t2[1] = n[2] * t1[0] - n[0] * t1[2];
-    t2[2] = n[0] * t1[1] - n[1] * t1[0];
-}
 
 /* ---- creation ------------------------------------------------------------------------------------------ */
 
@@ -152,7 +139,7 @@ void dr_rod_set_destroy(DrRodSet **rp)
                       r->ibend, r->itwist, r->root_rest,
                       r->m1_rest, r->tip_rest, r->t_old, r->edge_strand, r->edge_local, r->x, r->v, r->theta, r->theta_dot, r->a1, r->m, r->t, r->len, r->lambda,
                       r->dof0, r->cflag, r->cnormal,
-                      r->cvel, r->clambda, r->cfric, r->cforce, r->hc, r->save, r->vdof, r->s_v, r->s_radius, r->s_length, r->s_tangent, r->s_held};
+                      r->cvel, r->clambda, r->cfric, r->hc, r->save, r->vdof, r->dload, r->s_v, r->s_radius, r->s_length, r->s_tangent, r->s_held};
     for (size_t k = 0; k < sizeof arrays / sizeof arrays[0]; k++) free(arrays[k]);
     if (r->own_system) dr_lag_destroy(&r->lag);
     dr_broad_phase_destroy(&r->bp);
@@ -241,12 +228,12 @@ DrStatus dr_rod_set_create(const DrRodSetDesc *desc, const DrRodBatch *batches, 
     ALLOC(r->cvel, 3 * V);
     ALLOC(r->clambda, V);
     ALLOC(r->cfric, V);
-    ALLOC(r->cforce, V);
     ALLOC(r->save, 6 * V + 2 * r->E + 3 * r->E + r->I + r->nlambda);
     ALLOC(r->t_old, 3 * r->E);
     ALLOC(r->edge_strand, r->E);
     ALLOC(r->edge_local, r->E);
     ALLOC(r->vdof, V);
+    ALLOC(r->dload, 9 * V);
     ALLOC(r->s_v, 3 * V);
     ALLOC(r->s_radius, V);
     ALLOC(r->s_length, V);
@@ -371,8 +358,7 @@ fail:
 DrRodState dr_rod_set_state(DrRodSet *r)
 {
     DrRodState st = {r->S, r->V, r->E, r->offsets, r->x, r->v, r->theta, r->theta_dot, r->a1, r->m, r->lambda,
-                     r->nlambda, r->vmass, r->radius, r->batch_offsets, r->nbatches, r->vradius, r->tapered,
-                     r->cforce};
+                     r->nlambda, r->vmass, r->radius, r->batch_offsets, r->nbatches, r->vradius, r->tapered};
     return st;
 }
 
@@ -553,16 +539,7 @@ static DrStatus build_strand(DrRodSet *r, int k, double h, const DrRodCollider *
     }
     /* vertex–collider contacts: a vertex that is inside, or would be within this step at its current velocity,
        gets the constraint φ = d − (r + thickness) ≥ 0 linearised along the collider's normal, relative to the
-       collider's own motion: φ₊ = φ + h n·(v₊ − v_c), so c = φ − h n·v_c.
-       Its Coulomb friction is part of the same solve (the hair–hair contacts' law): two viscous rows t·(v₊ − v_c)
-       on a tangent basis, damping C_v⁻¹ = μ F / max(|s|, μ F / (k h)) with F the contact's normal force at the end of
-       the last step (cforce), s the slip at the start of this one and k the contact's stiffness: μ F against the slip
-       while it slides, a damper of k h that holds it when slow. Why not after the solve, on the vertex alone: that
-       moved a pressed vertex against the strand the solve had just made consistent, a position error its stretch
-       rows answered next step, on heavy or wet hair (a film's inertia across the strand follows its vertex), with
-       multipliers tens of times their size before, compressive ones among them; their geometric stiffness made the
-       strand's block indefinite, the solver dropped it, and the strand's tension acted explicitly: unstable at hair
-       steps (tests/validation/test_hair.c, tests/pipeline/test_wet_shake.sh). */
+       collider's own motion: φ₊ = φ + h n·(v₊ − v_c), so c = φ − h n·v_c. */
     int nc = 0;
     for (int j = 0; j < nv; j++) {
         int vid = o + j;
@@ -608,28 +585,6 @@ static DrStatus build_strand(DrRodSet *r, int k, double h, const DrRodCollider *
         g.lambda = &r->clambda[vid];
         DR_TRY(dr_lag_add(r->lag, &g, err));
         nc++;
-        double mu = r->cfric[vid], fn = r->cforce[vid];
-        if (!(mu > 0 && fn > 0)) continue;
-        const double *n = r->cnormal + 3 * vid, *vc = r->cvel + 3 * vid;
-        double rel[3] = {v.x - vc[0], v.y - vc[1], v.z - vc[2]};
-        double rn = rel[0] * n[0] + rel[1] * n[1] + rel[2] * n[2];
-        double st[3] = {rel[0] - rn * n[0], rel[1] - rn * n[1], rel[2] - rn * n[2]};
-        double slip = sqrt(st[0] * st[0] + st[1] * st[1] + st[2] * st[2]);
-        double stiff = r->desc.collider_stiffness, t1[3], t2[3];
-        tangent_basis(n, t1, t2);
-        memset(&g, 0, sizeof g);
-        g.kind = DR_LAG_VISCOUS;
-        g.nrows = 2;
-        g.ndof = 3;
-        for (int a = 0; a < 3; a++) {
-            g.dof[a] = dof + a;
-            g.J[a] = t1[a];
-            g.J[3 + a] = t2[a];
-        }
-        g.phi[0] = -(t1[0] * vc[0] + t1[1] * vc[1] + t1[2] * vc[2]);
-        g.phi[1] = -(t2[0] * vc[0] + t2[1] * vc[1] + t2[2] * vc[2]);
-        g.cinv[0] = g.cinv[1] = mu * fn / fmax(slip, mu * fn / (stiff * h));
-        DR_TRY(dr_lag_add(r->lag, &g, err));
     }
     *ncontacts = nc;
     return DR_OK;
@@ -797,7 +752,16 @@ static DrStatus add_hair_contacts(DrRodSet *r, DrError *err)
         double vt[3] = {vr[0] - vn * n[0], vr[1] - vn * n[1], vr[2] - vn * n[2]};
         double vtn = sqrt(vt[0] * vt[0] + vt[1] * vt[1] + vt[2] * vt[2]);
         double t1[3], t2[3];
-        tangent_basis(n, t1, t2);
+        {
+            double ax[3] = {fabs(n[0]) < 0.6 ? 1 : 0, fabs(n[0]) < 0.6 ? 0 : 1, 0};
+            double d = ax[0] * n[0] + ax[1] * n[1];
+            for (int a = 0; a < 3; a++) t1[a] = ax[a] - d * n[a];
+            double l = sqrt(t1[0] * t1[0] + t1[1] * t1[1] + t1[2] * t1[2]);
+            for (int a = 0; a < 3; a++) t1[a] /= l;
+            t2[0] = n[1] * t1[2] - n[2] * t1[1];
+            t2[1] = n[2] * t1[0] - n[0] * t1[2];
+            t2[2] = n[0] * t1[1] - n[1] * t1[0];
+        }
         DrLagGroup f = g;
         f.kind = DR_LAG_VISCOUS;
         f.nrows = 2;
@@ -829,6 +793,7 @@ DrStatus dr_rod_set_predict_dofs(DrRodSet *r, double h, const DrXform *scalp_end
     assert(h > 0);
     r->phase = PHASE_NONE;
     r->h_step = h;
+    r->has_dload = false;
     dr_arena_reset(r->arena);
     r->seconds_build = -dr_time_now();
     DrLagDofs d;
@@ -952,7 +917,7 @@ DrRodSamples dr_rod_set_samples(DrRodSet *r)
 int dr_rod_set_load_blocks(const DrRodSet *r) { return r->V; }
 const int *dr_rod_set_vertex_dofs(const DrRodSet *r) { return r->vdof; }
 
-void dr_rod_set_fill_load(const DrRodSet *r, const double *force, const double *dforce_dv, double *gforce,
+void dr_rod_set_fill_load(DrRodSet *r, const double *force, const double *dforce_dv, double *gforce,
                           int *block_dof, double *block)
 {
     /* vertex forces as generalised forces (the twists get none) */
@@ -968,6 +933,9 @@ void dr_rod_set_fill_load(const DrRodSet *r, const double *force, const double *
         memcpy(block_dof, r->vdof, (size_t)r->V * sizeof(int));
         memcpy(block, dforce_dv, 9 * (size_t)r->V * sizeof(double));
     }
+    /* the load's inertia, which commit's collider friction must see */
+    r->has_dload = dforce_dv != NULL;
+    if (dforce_dv) memcpy(r->dload, dforce_dv, 9 * (size_t)r->V * sizeof(double));
 }
 
 void dr_rod_set_take(DrRodSet *r)
@@ -988,6 +956,8 @@ DrStatus dr_rod_set_solve(DrRodSet *r, const double *force, const double *dforce
         dr_rod_set_fill_load(r, force, NULL, r->fload, NULL, NULL);
         load.force = r->fload;
     }
+    r->has_dload = dforce_dv != NULL;
+    if (dforce_dv) memcpy(r->dload, dforce_dv, 9 * (size_t)r->V * sizeof(double));
     if (dforce_dv) {
         load.nblocks = r->V;
         load.block_dof = r->vdof;
@@ -1016,8 +986,9 @@ DrStatus dr_rod_set_commit(DrRodSet *r, DrRodStats *stats, DrError *err)
     assert(r->phase == PHASE_SOLVED);
     r->phase = PHASE_NONE;
     double h = r->h_step;
-    /* 5. multipliers (eqs. S24, S25): kept for the next step's geometric stiffness, and the collider contacts' normal
-       force for the next step's friction (below, once the step is kept) */
+    /* 5. multipliers (eqs. S24, S25, kept for the next step's geometric stiffness, and the collider contacts'
+       force for friction), then Coulomb friction at the collider contacts: the tangential velocity relative to
+       the collider loses up to μ times the normal velocity change the contact force λ gave (h λ / m) */
     double *save = r->save;
     if (r->own_system) dr_lag_update_multipliers(r->lag, r->qdot_out); /* else the system's owner did */
 
@@ -1033,10 +1004,30 @@ DrStatus dr_rod_set_commit(DrRodSet *r, DrRodStats *stats, DrError *err)
         int o = r->offsets[k], nv = r->offsets[k + 1] - o, e0 = edge_index(r, k, 0), d0 = r->dof0[k];
         for (int j = 0; j < nv; j++) {
             int vid = o + j;
+            double v[3];
+            for (int a = 0; a < 3; a++) v[a] = r->qdot_out[d0 + 4 * j + a];
+            if (r->cflag[vid]) {
+                const double *n = r->cnormal + 3 * vid, *vc = r->cvel + 3 * vid;
+                double rel[3] = {v[0] - vc[0], v[1] - vc[1], v[2] - vc[2]};
+                double vn = rel[0] * n[0] + rel[1] * n[1] + rel[2] * n[2];
+                double vt[3] = {rel[0] - vn * n[0], rel[1] - vn * n[1], rel[2] - vn * n[2]};
+                double vtn = sqrt(vt[0] * vt[0] + vt[1] * vt[1] + vt[2] * vt[2]);
+                /* the vertex's inertia along n in the solve: its mass, and what the load added (−h nᵀ D n) */
+                double mn = r->vmass[vid];
+                if (r->has_dload) {
+                    const double *D = r->dload + 9 * vid;
+                    double Dn = 0;
+                    for (int a = 0; a < 3; a++)
+                        for (int b = 0; b < 3; b++) Dn += n[a] * D[3 * a + b] * n[b];
+                    mn -= h * Dn;
+                }
+                double dvn = fmax(r->clambda[vid], 0) * h / mn;
+                double keep = vtn > 0 ? fmax(0, 1 - r->cfric[vid] * dvn / vtn) : 0;
+                for (int a = 0; a < 3; a++) v[a] = vc[a] + vn * n[a] + keep * vt[a];
+            }
             for (int a = 0; a < 3; a++) {
-                double v = r->qdot_out[d0 + 4 * j + a];
-                r->v[3 * vid + a] = v;
-                r->x[3 * vid + a] += h * v;
+                r->v[3 * vid + a] = v[a];
+                r->x[3 * vid + a] += h * v[a];
                 finite = finite && isfinite(r->x[3 * vid + a]);
             }
         }
@@ -1070,9 +1061,6 @@ DrStatus dr_rod_set_commit(DrRodSet *r, DrRodStats *stats, DrError *err)
                             "pushed a vertex through a strand); the state before the step is kept",
                             h);
     }
-    /* the contacts' normal force (λ > 0 presses; a contact that pulls carries none), which limits the next step's
-       friction */
-    for (int vid = 0; vid < r->V; vid++) r->cforce[vid] = r->cflag[vid] ? fmax(r->clambda[vid], 0.0) : 0.0;
     if (stats) {
         stats->steps++;
         stats->collider_contacts = r->ncollider_contacts;

@@ -139,7 +139,7 @@ DR_NODISCARD DrStatus dr_rod_set_create(const DrRodSetDesc *desc, const DrRodBat
 void dr_rod_set_destroy(DrRodSet **rods);
 
 /* The hot arrays (the set owns them; valid until destroy). Tests and the world read and may overwrite
- * x, v, theta, theta_dot between steps (then call dr_rod_set_refresh), and lambda and contact_force (a checkpoint). */
+ * x, v, theta, theta_dot between steps (then call dr_rod_set_refresh). */
 typedef struct DrRodState {
     int nstrands, nverts, nedges;
     const int *offsets;     /* nstrands + 1 */
@@ -155,8 +155,6 @@ typedef struct DrRodState {
     int nbatches;
     const double *vertex_radius; /* per vertex, m (equal to the strand's radius unless tapered) */
     bool tapered;               /* some strand's radius varies along it */
-    double *contact_force;      /* per vertex, N: the normal force of its collider contact at the end of the last step
-                                   (0 off contact), which bounds the next step's Coulomb friction (checkpoint) */
 } DrRodState;
 DrRodState dr_rod_set_state(DrRodSet *rods);
 /* Recomputes the tangents and reference twists after the caller changed x or a1 (a resumed checkpoint). */
@@ -178,12 +176,11 @@ typedef struct DrRodStats {
 } DrRodStats;
 
 /* Advances by h: the roots of batch b move to scalp_end[b] (a rigid transform of the rest groom; NULL: they
- * stay), colliders act through constraints in the solve, and so does their Coulomb friction (viscous rows against
- * the slip, up to μ times the contact's normal force at the end of the last step: a contact's first step has none;
- * a slow contact is held), hair–hair contacts when desc.hair_contact. stats accumulates (zero it first).
- * DR_WARN_NOT_CONVERGED when the solve hit its cap (the step is kept); DR_ERR_RUNTIME when the state becomes
- * non-finite (the state is then left as it was before the step). The same, bit for bit, as dr_rod_set_predict +
- * dr_rod_set_solve(NULL, NULL) + dr_rod_set_commit below. */
+ * stay), colliders act through constraints in the
+ * solve and Coulomb friction after it, hair–hair contacts when desc.hair_contact. stats accumulates (zero
+ * it first). DR_WARN_NOT_CONVERGED when the solve hit its cap (the step is kept); DR_ERR_RUNTIME when the
+ * state becomes non-finite (the state is then left as it was before the step). The same, bit for bit, as
+ * dr_rod_set_predict + dr_rod_set_solve(NULL, NULL) + dr_rod_set_commit below. */
 DR_NODISCARD DrStatus dr_rod_set_step(DrRodSet *rods, double h, const DrXform *scalp_end,
                                       const DrRodCollider *colliders, int ncolliders, DrRodStats *stats,
                                       DrError *err);
@@ -214,9 +211,9 @@ DR_NODISCARD DrStatus dr_rod_set_predict(DrRodSet *rods, double h, const DrXform
 typedef struct DrRodSamples {
     int n;
     const double *x;        /* n × 3, m: positions at the start of the step (at its end: x + h v) */
-    const double *v;        /* n × 3, m/s: velocities of the last solve since predict (what commit keeps);
-                               before any solve, the velocities at the start of the step, held vertices at the
-                               velocity that lands them on the scalp */
+    const double *v;        /* n × 3, m/s: velocities of the last solve since predict (before collider
+                               friction, which commit applies); before any solve, the velocities at the start
+                               of the step, held vertices at the velocity that lands them on the scalp */
     const double *mass;     /* n, kg */
     const double *radius;   /* n, m: the strand's radius */
     const double *length;   /* n, m: the length of strand a vertex stands for (half of each adjacent edge, at
@@ -243,8 +240,8 @@ DrRodSamples dr_rod_set_samples(DrRodSet *rods);
 DR_NODISCARD DrStatus dr_rod_set_solve(DrRodSet *rods, const double *force, const double *dforce_dv,
                                        DrRodStats *stats, DrError *err);
 
-/* Ends the step with the last solve: multipliers λ₊ and the collider contacts' normal forces (contact_force),
- * positions, twists, time-transported directors and reference twists; stats (may be NULL) counts the step and takes its
+/* Ends the step with the last solve: multipliers λ₊, Coulomb friction at the collider contacts, positions,
+ * twists, time-transported directors and reference twists; stats (may be NULL) counts the step and takes its
  * contacts, timings, energies and momenta. DR_ERR_RUNTIME when the state becomes non-finite (the state,
  * multipliers included, is then left as it was before the step). Needs a solve that did not fail since
  * predict. */
@@ -271,9 +268,11 @@ DR_NODISCARD DrStatus dr_rod_set_predict_groups(DrRodSet *rods, const DrRodColli
                                                 DrError *err);
 /* The number of 3×3 load blocks the set needs in a DrLagLoad (one per vertex), and the load of a solve (as
  * dr_rod_set_solve takes it) written into the owner's arrays: the set's DOFs of gforce (system DOFs), and, when
- * dforce_dv is given, dr_rod_set_load_blocks entries of block_dof and 9 times as many of block. */
+ * dforce_dv is given, dr_rod_set_load_blocks entries of block_dof and 9 times as many of block. The set keeps the
+ * blocks for commit: a vertex's Coulomb friction against a collider is limited by the impulse its contact gave over
+ * its inertia in the solve, its mass plus what the load's −h ∂f/∂v added along the contact normal (a film's weight). */
 int dr_rod_set_load_blocks(const DrRodSet *rods);
-void dr_rod_set_fill_load(const DrRodSet *rods, const double *force, const double *dforce_dv, double *gforce,
+void dr_rod_set_fill_load(DrRodSet *rods, const double *force, const double *dforce_dv, double *gforce,
                           int *block_dof, double *block);
 /* The first of each vertex's 3 DOFs in the system (nverts entries; fixed from create on). */
 const int *dr_rod_set_vertex_dofs(const DrRodSet *rods);

@@ -692,8 +692,6 @@ static DrStatus hair_write(const void *self, const WorldCtx *c, DrH5 *hf, bool f
                                rs.ref_twist, "rad", false, err));
         DR_TRY(dr_h5_write_f64(hf, "/hair_solver/lambda", 1, (uint64_t[]){(uint64_t)rs.nlambda}, rs.lambda, "1", false,
                                err));
-        DR_TRY(dr_h5_write_f64(hf, "/hair_solver/contact_force", 1, (uint64_t[]){(uint64_t)rs.nverts}, rs.contact_force,
-                               "N", false, err));
         if (h->wet) DR_TRY(wet_write_checkpoint(h->wet, hf, err));
         return DR_OK;
     }
@@ -775,7 +773,6 @@ static DrStatus hair_read(void *self, const WorldCtx *c, DrH5 *hf, const char *f
     long ni = rs.nverts - 2L * rs.nstrands;
     DR_TRY(read_exact(hf, file, "/hair_solver/reference_twist", (uint64_t)(ni > 0 ? ni : 0), rs.ref_twist, err));
     DR_TRY(read_exact(hf, file, "/hair_solver/lambda", (uint64_t)rs.nlambda, rs.lambda, err));
-    DR_TRY(read_exact(hf, file, "/hair_solver/contact_force", (uint64_t)rs.nverts, rs.contact_force, err));
     dr_rod_set_refresh(h->rods);
     if (h->wet) DR_TRY(wet_read_checkpoint(h->wet, hf, file, err));
     return DR_OK;
@@ -793,7 +790,6 @@ static void hair_hash(const void *self, DrHasher *hs)
     dr_hasher_update(hs, rs.a1, 3 * sizeof(double) * (size_t)rs.nedges);
     if (ni > 0) dr_hasher_update(hs, rs.ref_twist, sizeof(double) * (size_t)ni);
     dr_hasher_update(hs, rs.lambda, sizeof(double) * (size_t)rs.nlambda);
-    dr_hasher_update(hs, rs.contact_force, sizeof(double) * (size_t)rs.nverts);
     if (h->wet) {
         DrFilmState fs = dr_film_state(h->wet->film);
         dr_hasher_update(hs, fs.volume, sizeof(double) * (size_t)fs.nverts);

@@ -48,8 +48,8 @@ check "a hair bake on 1 and on 2 threads is bit-identical" same_hair_frames "$h1
 "$BIN/bake" "$hair" -j 2 --out "$h3" --resume >"$WORK/hair_resume.log" 2>&1
 check "the hair bake resumes after frame 3" grep -q "resuming after frame 3" "$WORK/hair_resume.log"
 check "a resumed hair bake is bit-identical to an uninterrupted one" same_hair_frames "$h2" "$h3"
-# Heavy hair pressing on the shaken head: the checkpoint also carries each collider contact's normal force, which
-# bounds the next step's friction (stopped after frame 7, when 7-8 vertices press on the head).
+# Heavy hair pressing on the shaken head, with frames whose hair steps the strands' speed cuts (HairSolver.cfl):
+# stopped after frame 7, when 7-8 vertices press on the head, and resumed.
 heavy="$ROOT/tests/data/hair_heavy_shake.json"
 k1="$WORK/k1"; k2="$WORK/k2"
 "$BIN/bake" "$heavy" -j 2 --out "$k1" -q >/dev/null 2>&1

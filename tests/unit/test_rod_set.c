@@ -4,8 +4,7 @@
  * prediction and then the last solve; a load's momentum ledger (Σ m Δv = h Σ (f + D v₊)) on a free strand;
  * a drag D = −c I damps a uniform velocity to v/(1 + h c/m); no heap allocation after the first substep; the
  * documented stable_dt; a set in a shared system (alone: the same bits as in its own; two sets: what each solves
- * alone); Coulomb friction against colliders is part of the solve (commit keeps the solve's velocities), bounded by
- * the contacts' normal forces, which the state carries. */
+ * alone). */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -159,7 +158,6 @@ static void assert_same_state(DrRodSet *a, DrRodSet *b)
     assert_memory_equal(s.a1, t.a1, 3 * sizeof(double) * (size_t)s.nedges);
     assert_memory_equal(s.ref_twist, t.ref_twist, sizeof(double) * (size_t)(s.nverts - 2 * s.nstrands));
     assert_memory_equal(s.lambda, t.lambda, sizeof(double) * (size_t)s.nlambda);
-    assert_memory_equal(s.contact_force, t.contact_force, sizeof(double) * (size_t)s.nverts);
 }
 
 static const double H = 1.0 / 96; /* hair_small: 24 fps, 4 substeps */
@@ -334,51 +332,6 @@ static void test_samples(void **state)
     assert_memory_equal(dr_rod_set_state(f.r).v, v, 3 * sizeof(double) * (size_t)sm.n);
     free(v);
     furry_free(&f);
-}
-
-/* Friction against colliders is part of the solve: on the shaken ball with its turning head (μ 0.3) and the sliding
-   floor (μ 0.5) the velocities commit keeps are the solve's, byte for byte, at every vertex (friction applied after
-   the solve moved a pressed vertex against the strand the solve had just made consistent). Friction acts: the same
-   steps against frictionless colliders end elsewhere. contact_force is the pressing contacts' normal force (> 0 on
-   some, 0 off contact, never negative), what bounds the next step's friction. */
-static void test_friction_in_the_solve(void **state)
-{
-    (void)state;
-    DrRodSetDesc d;
-    furry_desc(&d);
-    Furry f, g;
-    furry_make(&f, &d);
-    furry_make(&g, &d);
-    DrRodCollider slick[2] = {g_colliders[0], g_colliders[1]};
-    slick[0].friction = slick[1].friction = 0;
-    int n = dr_rod_set_state(f.r).nverts, pressed = 0, contacts = 0;
-    double *v = malloc(3 * sizeof(double) * (size_t)n);
-    for (int k = 0; k < 8; k++) {
-        DrXform pose[2] = {shake((k + 1) * H), shake((k + 1) * H)};
-        DrRodStats st = {0};
-        CHECK(dr_rod_set_predict(f.r, H, pose, g_colliders, 2, ERR));
-        CHECK(dr_rod_set_solve(f.r, NULL, NULL, NULL, ERR));
-        memcpy(v, dr_rod_set_samples(f.r).v, 3 * sizeof(double) * (size_t)n);
-        CHECK(dr_rod_set_commit(f.r, &st, ERR));
-        assert_memory_equal(dr_rod_set_state(f.r).v, v, 3 * sizeof(double) * (size_t)n);
-        CHECK(dr_rod_set_step(g.r, H, pose, slick, 2, NULL, ERR));
-        contacts += st.collider_contacts;
-    }
-    DrRodState a = dr_rod_set_state(f.r), b = dr_rod_set_state(g.r);
-    double gap = 0;
-    for (int i = 0; i < 3 * n; i++) gap = fmax(gap, fabs(a.v[i] - b.v[i]));
-    for (int i = 0; i < n; i++) {
-        assert_true(a.contact_force[i] >= 0);
-        pressed += a.contact_force[i] > 0;
-    }
-    print_message("%d collider contacts over 8 substeps, %d pressing at the end; with friction the velocities differ "
-                  "from the frictionless ones by up to %.3e m/s\n",
-                  contacts, pressed, gap);
-    assert_true(pressed > 0);
-    assert_true(gap > 1e-3);
-    free(v);
-    furry_free(&f);
-    furry_free(&g);
 }
 
 /* A free strand: bent at rest, no held vertex, no gravity, tumbling after a kick. */
@@ -759,7 +712,6 @@ int main(void)
         cmocka_unit_test(test_phases_equal_step),
         cmocka_unit_test(test_resolve_from_one_prediction),
         cmocka_unit_test(test_samples),
-        cmocka_unit_test(test_friction_in_the_solve),
         cmocka_unit_test(test_load_momentum_ledger),
         cmocka_unit_test(test_drag_damps_uniform_velocity),
         cmocka_unit_test(test_commit_restores_on_failure),

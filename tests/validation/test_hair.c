@@ -571,14 +571,15 @@ static void test_world_frames_allocate_nothing(void **state)
 
 /* tests/data/hair_heavy_shake.json: hair_shake.json's groom (60 of its strands, r = 100 µm, E = 3e8 Pa) made as heavy
    as a strand carrying a film at H/r = 6 (ρ = 1300 + 1000 (6² − 1) = 36,300 kg/m³), so that it lies on the shaken head
-   collider (friction 0.3) instead of standing up. With Coulomb friction applied after the solve it exploded from frame 7
-   (a hair step multiplied the fastest vertex's speed by 45; elastic energy 1.9e3 J at frame 9, 5.5e6 J at frame 10):
-   friction stuck a vertex to the moving head against its neighbours, the stretch multipliers answered at tens of
-   times their size (some compressive), the compressive ones turned the strand's block indefinite, and without its geometric
-   stiffness the strand's tension acted explicitly. With the friction in the solve no hair step multiplies it by more
-   than 1.3 (checked below 10; the acceptance of wet hair allows 100), and the energy of the hair never exceeds its
-   frame-1 value plus the scalp's work since (checked to 1 mJ: the head collider's work is left out of the balance;
-   the hair's kinetic energy peaks near 0.3 mJ). Run from the repository root. */
+   collider (friction 0.3) instead of standing up. At its 10 fixed substeps a frame (HairSolver.cfl 0) it explodes from
+   frame 7 (a hair step multiplied the fastest vertex's speed by 45; elastic energy 1.9e3 J at frame 9, 5.5e6 J at
+   frame 10): Coulomb friction, applied after the solve, moved vertices pressed on the head against their neighbours,
+   the stretch multipliers answered at tens of times their size (some compressive), the compressive ones turned the
+   strand's block indefinite, and without its geometric stiffness the strand's tension acted explicitly; the strands
+   then moved more than their shortest segment in a step. With the steps cut by the strands' speed (cfl 1, the default: 10–16 steps a frame here) no hair
+   step multiplies it by more than 6 (checked below 10; the acceptance of wet hair allows 100), and the energy of the
+   hair never exceeds its frame-1 value plus the scalp's work since (checked to 1 mJ: the head collider's work is left
+   out of the balance; the hair's kinetic energy peaks near 0.3 mJ). Run from the repository root. */
 static void test_heavy_hair_on_moving_head(void **state)
 {
     (void)state;
