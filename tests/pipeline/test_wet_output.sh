@@ -14,8 +14,10 @@ mk() {
 mk wet
 mk tubes 's#"render":#"mesh": { "wet_tubes": true },\n  "render":#'
 mk dry 's#"HairSolver": { "substeps": 40 },#"HairSolver": { "substeps": 40 } } }#; /"Wetting"/d; /"Film"/d; /"Cohesion"/d'
+mk dry_tubes 's#"HairSolver": { "substeps": 40 },#"HairSolver": { "substeps": 40 } } }#; /"Wetting"/d; /"Film"/d; /"Cohesion"/d; s#"render":#"mesh": { "wet_tubes": true },\n  "render":#'
 check "the test scenes are edited as meant" bash -c "grep -q '\"frames\": \[1, 2\]' '$WORK/scenes/wet.json' &&
-  grep -q wet_tubes '$WORK/scenes/tubes.json' && ! grep -q Wetting '$WORK/scenes/dry.json' && grep -q Wetting '$base'"
+  grep -q wet_tubes '$WORK/scenes/tubes.json' && ! grep -q Wetting '$WORK/scenes/dry.json' && grep -q Wetting '$base' &&
+  grep -q wet_tubes '$WORK/scenes/dry_tubes.json' && ! grep -q Wetting '$WORK/scenes/dry_tubes.json'"
 
 "$BIN/precompute" "$WORK/scenes/wet.json" >/dev/null 2>&1
 for s in wet tubes; do "$BIN/bake" "$WORK/scenes/$s.json" -j 2 >/dev/null 2>&1 && "$BIN/mesh" "$WORK/scenes/$s.json" -j 2 >/dev/null 2>&1 ||
@@ -74,6 +76,14 @@ check "ring points lie H from the strand at vertices 0, 5, 20, 41, 42, 63, 83 (f
 check "the hair's points carry wet_width with the film" bash -c "grep -aq wet_width '$td/strands.0002.points.vdb' &&
   grep -aq wet_width '$wd/strands.0002.points.vdb'"
 check "mesh summarises the tubes' triangles" bash -c "'$BIN/mesh' '$WORK/scenes/tubes.json' 2>&1 | grep -q '2688 triangles and 4 strands'"
+
+# a scene without wet hair: the option says it does nothing, and the strands' OBJ has no film
+"$BIN/bake" "$WORK/scenes/dry_tubes.json" -j 2 >/dev/null 2>&1
+out=$("$BIN/mesh" "$WORK/scenes/dry_tubes.json" -j 2 2>&1); rc=$?
+check "without wet hair mesh.wet_tubes warns and writes no tube, and no film" bash -c "[ $rc -eq 0 ] &&
+  grep -q 'warning: .*mesh.wet_tubes is set but no hair element is wet' <<<'$out' &&
+  [ -s '$DRENCH_OUT/dry_tubes/mesh/strands.0002.obj' ] && ! ls '$DRENCH_OUT'/dry_tubes/mesh/*_wet* >/dev/null 2>&1 &&
+  ! grep -q outer_radius '$DRENCH_OUT/dry_tubes/mesh/strands.0002.obj'"
 
 # mesh --finish: every frame's tube must be there
 rm "$td/strands_wet.0002.obj"
