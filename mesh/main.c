@@ -1,7 +1,8 @@
 /* mesh: turns each baked frame's liquid particles and MPM solid particles into an OpenVDB level set (.vdb) and
  * a surface (.obj) per element, writes them and hair vertices as OpenVDB point data (.points.vdb, with
- * mesh.write_points), hair strands as OBJ polylines (and, with mesh.hair_ribbons, as triangle-strip ribbons)
- * and boundary-element bodies as their deformed surfaces, and exports colliders as OBJ, into out/<shot>/mesh/.
+ * mesh.write_points), hair strands as OBJ polylines (and, with mesh.hair_ribbons, as triangle-strip ribbons;
+ * wet hair's film in the polylines and, with mesh.wet_tubes, as closed tubes) and boundary-element bodies as
+ * their deformed surfaces, and exports colliders as OBJ, into out/<shot>/mesh/.
  *
  * Frames are independent, so -j N meshes up to N frames at once, each on a thread of its own with OpenVDB
  * limited to N / (frames in flight) threads inside it (dr_vdb_run_with_threads), and honours -j, which OpenVDB's
@@ -253,15 +254,55 @@ static DrVec3 transport(DrVec3 d, DrVec3 a, DrVec3 b)
     return dr_v3_normalize(dr_v3_sub(r, dr_v3_scale(b, dr_v3_dot(r, b))));
 }
 
+/* The frame the ribbons and the wet tubes share along one strand of n vertices x (3 per vertex): at vertex i the
+ * unit tangent T[i] (the first edge's direction at the root, the last edge's at the tip, the normalised sum of
+ * the two adjacent edge directions between) and a unit director d[i] perpendicular to it. d starts at the root as
+ * ŷ×T_0 normalised, horizontal so that hanging and horizontal strands alike show their width to a level camera
+ * (x̂×T_0 where the first edge is within about 0.06 degrees of vertical), and is parallel-transported from each
+ * vertex tangent to the next, so it does not twist about the strand: it depends on the strand's shape only, not
+ * on any camera. Edges of no length take the previous edge's direction. */
+static void strand_frames(const double *x, int n, DrVec3 *T, DrVec3 *d)
+{
+    /* the first edge with a length sets the direction of any before it; a strand of coincident vertices points up */
+    DrVec3 first = dr_v3(0, 1, 0);
+    for (int e = n - 2; e >= 0; e--) first = edge_tangent(x, e, first);
+    DrVec3 prev_edge = first, T_prev = first, di = dr_v3(0, 0, 0);
+    for (int i = 0; i < n; i++) {
+        DrVec3 in = prev_edge, outd = i + 1 < n ? edge_tangent(x, i, prev_edge) : prev_edge;
+        DrVec3 Ti = i == 0 ? outd : (i + 1 == n ? in : dr_v3_normalize(dr_v3_add(in, outd)));
+        if (dr_v3_dot(Ti, Ti) == 0.0) Ti = outd; /* a hairpin: the two edges cancel */
+        if (i == 0) {
+            di = dr_v3_cross(dr_v3(0, 1, 0), Ti);
+            if (dr_v3_norm(di) < 1e-3) di = dr_v3_cross(dr_v3(1, 0, 0), Ti);
+            di = dr_v3_normalize(di);
+        } else {
+            di = transport(di, T_prev, Ti);
+        }
+        T[i] = Ti;
+        d[i] = di;
+        prev_edge = outd;
+        T_prev = Ti;
+    }
+}
+
+/* Scratch for strand_frames over the longest of p's strands. */
+static DrStatus frames_alloc(const DrPolylines *p, DrVec3 **T, DrVec3 **d, DrError *err)
+{
+    int longest = 1;
+    for (int k = 0; k < p->count; k++)
+        if (p->offsets[k + 1] - p->offsets[k] > longest) longest = p->offsets[k + 1] - p->offsets[k];
+    DR_TRY(dr_calloc((size_t)longest, sizeof **T, T, err));
+    DrStatus s = dr_calloc((size_t)longest, sizeof **d, d, err);
+    if (s != DR_OK) {
+        free(*T);
+        *T = NULL;
+    }
+    return s;
+}
+
 /* mesh.hair_ribbons: each strand as a triangle strip 2·radius wide, for tools that do not draw OBJ polylines.
- * The strip's width direction at vertex i is a unit director d_i perpendicular to the vertex tangent T_i (the
- * first edge's direction at the root, the last edge's at the tip, the normalised sum of the two adjacent edge
- * directions between). It starts at the root as ŷ×T_0 normalised, horizontal so that hanging and
- * horizontal strands alike show their width to a level camera (x̂×T_0 where the first edge is within about
- * 0.06 degrees of vertical), and is parallel-transported from each vertex tangent to the next, so the strip
- * does not twist about the strand: it depends on the strand's shape only, not on any camera. Vertex i gives
- * the strip's corners x_i ∓ radius·d_i with normal T_i × d_i; the triangles wind counter-clockwise about it.
- * Edges of no length take the previous edge's direction. */
+ * The strip's width direction at vertex i is strand_frames' director d_i: vertex i gives the strip's corners
+ * x_i ∓ radius·d_i with normal T_i × d_i; the triangles wind counter-clockwise about it. */
 static DrStatus build_ribbons(const DrPolylines *p, DrTriMesh *out, DrError *err)
 {
     *out = (DrTriMesh){0};
@@ -269,9 +310,11 @@ static DrStatus build_ribbons(const DrPolylines *p, DrTriMesh *out, DrError *err
     if (V > INT_MAX / 6)
         return dr_error_set(err, DR_ERR_NOMEM, NULL, 0, 0, "%d strand vertices are too many for one ribbon mesh", V);
     DrTriMesh m = {.nv = 2 * V, .nt = 2 * (V - p->count)};
+    DrVec3 *T = NULL, *d = NULL;
     DrStatus s = dr_calloc(3 * (size_t)m.nv, sizeof *m.v, &m.v, err);
     if (s == DR_OK) s = dr_calloc(3 * (size_t)m.nv, sizeof *m.n, &m.n, err);
     if (s == DR_OK) s = dr_calloc(3 * (size_t)m.nt + 1, sizeof *m.tri, &m.tri, err);
+    if (s == DR_OK) s = frames_alloc(p, &T, &d, err);
     if (s != DR_OK) {
         dr_trimesh_free(&m);
         return s;
@@ -280,25 +323,11 @@ static DrStatus build_ribbons(const DrPolylines *p, DrTriMesh *out, DrError *err
     for (int k = 0; k < p->count; k++) {
         int o = p->offsets[k], n = p->offsets[k + 1] - o;
         const double *x = p->x + 3 * (size_t)o;
-        /* the first edge with a length sets the direction of any before it; a strand of coincident vertices
-           points up */
-        DrVec3 first = dr_v3(0, 1, 0);
-        for (int e = n - 2; e >= 0; e--) first = edge_tangent(x, e, first);
-        DrVec3 prev_edge = first, T_prev = first, d = dr_v3(0, 0, 0);
+        strand_frames(x, n, T, d);
         for (int i = 0; i < n; i++) {
-            DrVec3 in = prev_edge, outd = i + 1 < n ? edge_tangent(x, i, prev_edge) : prev_edge;
-            DrVec3 T = i == 0 ? outd : (i + 1 == n ? in : dr_v3_normalize(dr_v3_add(in, outd)));
-            if (dr_v3_dot(T, T) == 0.0) T = outd; /* a hairpin: the two edges cancel */
-            if (i == 0) {
-                d = dr_v3_cross(dr_v3(0, 1, 0), T);
-                if (dr_v3_norm(d) < 1e-3) d = dr_v3_cross(dr_v3(1, 0, 0), T);
-                d = dr_v3_normalize(d);
-            } else {
-                d = transport(d, T_prev, T);
-            }
-            DrVec3 nrm = dr_v3_normalize(dr_v3_cross(T, d));
+            DrVec3 nrm = dr_v3_normalize(dr_v3_cross(T[i], d[i]));
             DrVec3 c = dr_v3(x[3 * i], x[3 * i + 1], x[3 * i + 2]);
-            DrVec3 w = dr_v3_scale(d, p->radius[k]);
+            DrVec3 w = dr_v3_scale(d[i], p->radius[k]);
             DrVec3 corner[2] = {dr_v3_sub(c, w), dr_v3_add(c, w)};
             for (int side = 0; side < 2; side++) {
                 double *v = m.v + 3 * (2 * (size_t)(o + i) + side), *nn = m.n + 3 * (2 * (size_t)(o + i) + side);
@@ -313,18 +342,152 @@ static DrStatus build_ribbons(const DrPolylines *p, DrTriMesh *out, DrError *err
                 memcpy(m.tri + 3 * t, q, sizeof q);
                 t += 2;
             }
-            prev_edge = outd;
-            T_prev = T;
         }
     }
     assert(t == m.nt);
+    free(T);
+    free(d);
+    *out = m;
+    return DR_OK;
+}
+
+/* ---- wet hair --------------------------------------------------------------------------------------------- */
+
+/* A scene with wet hair: some hair element has a Wetting component. Its bake then writes the film of every hair
+ * element (dry ones start without any, and may catch some). */
+static bool wet_scene(const DrScene *scene)
+{
+    for (int i = 0; i < dr_scene_element_count(scene); i++) {
+        const DrElement *e = dr_scene_element(scene, i);
+        if (is_hair(e) && dr_component_present(dr_element_component(e, "Wetting"))) return true;
+    }
+    return false;
+}
+
+/* The film around hair element e's strands p in this frame (DESIGN §4): /<e>/liquid_area, the film's cross-section
+ * A = π(H² − r²) per vertex (m²), into p->outer = H = sqrt(r² + A/π) per vertex, with r the vertex's radius
+ * (dr_stage_vertex_radii: the strand's, tapered by RodMaterial.tip_radius); H = r where A = 0 (dry). DR_ERR_INPUT
+ * naming the file and the dataset when it is missing, of another shape, or holds a non-finite or negative area. */
+static DrStatus read_film(const DrElement *e, DrH5 *h, DrPolylines *p, DrError *err)
+{
+    int V = p->offsets[p->count];
+    char path[1024];
+    snprintf(path, sizeof path, "/%s/liquid_area", e->name);
+    if (!dr_h5_has(h, path))
+        return dr_error_set(err, DR_ERR_INPUT, dr_h5_path(h), 0, 0,
+                            "the frame cache holds no film %s, which a scene with wet hair has for every hair element "
+                            "(baked by an older drench); rerun bake (or pipeline.sh)",
+                            path);
+    double *A = NULL, *H = NULL;
+    int rank;
+    uint64_t dims[4], want[1] = {(uint64_t)V};
+    DR_TRY(dr_h5_read_f64(h, path, &rank, dims, &A, err));
+    DrStatus s = check_shape(h, path, rank, dims, 1, want, err);
+    if (s == DR_OK) s = dr_calloc((size_t)V + 1, sizeof *H, &H, err);
+    if (s == DR_OK)
+        dr_stage_vertex_radii(p->x, p->offsets, p->count, p->radius,
+                              dr_component_num(dr_element_component(e, "RodMaterial"), "tip_radius"), H);
+    for (int i = 0; s == DR_OK && i < V; i++) {
+        double r = H[i];
+        /* the bake writes A = π(H·H − r·r) from H = sqrt(r² + V/(πL)) ≥ r, where rounding may leave −1e-16 π r²
+           for no film: anything above −1e-9 π r² is no film, anything below it is not a cross-section */
+        if (!isfinite(A[i]) || A[i] < -1e-9 * DR_PI * r * r)
+            s = dr_error_set(err, DR_ERR_INPUT, dr_h5_path(h), 0, 0,
+                             "dataset %s holds %g m^2 at vertex %d; a film's cross-section is a finite area >= 0; "
+                             "rerun bake (or pipeline.sh)",
+                             path, A[i], i);
+        else
+            H[i] = sqrt(r * r + fmax(A[i], 0.0) / DR_PI);
+    }
+    free(A);
+    if (s == DR_OK) p->outer = H;
+    else free(H);
+    return s;
+}
+
+/* mesh.wet_tubes: each strand as a closed tube of the film's outer radius p->outer[v] at its vertex v, in the
+ * frame of the ribbons (strand_frames: d_v the parallel-transported director, b_v = T_v × d_v). Vertex v of the
+ * strands gets a ring of `sides` points v·sides + j at x_v + H_v (cos φ_j d_v + sin φ_j b_v), φ_j = 2πj/sides,
+ * with that unit vector as normal; after all rings come strand s's root and tip centres, V·sides + 2s and
+ * V·sides + 2s + 1 (the strand's end vertices, normals −T and +T), which close its ends as flat fans. Rings of
+ * consecutive vertices are joined by 2·sides triangles. Every triangle winds counter-clockwise seen from outside
+ * (φ turns counter-clockwise about T), so each tube is closed (every edge is shared by two triangles that run it
+ * in opposite directions) with its normals outward. Per strand of n vertices: n·sides + 2 vertices and 2·sides·n
+ * triangles. */
+static DrStatus build_tubes(const DrPolylines *p, int sides, DrTriMesh *out, DrError *err)
+{
+    *out = (DrTriMesh){0};
+    int V = p->offsets[p->count], S = p->count;
+    if ((long long)V * sides + 2LL * S > INT_MAX / 3 || 2LL * sides * V > INT_MAX / 3)
+        return dr_error_set(err, DR_ERR_NOMEM, NULL, 0, 0,
+                            "%d strand vertices with %d sides are too many for one tube mesh; lower mesh.wet_tube_sides",
+                            V, sides);
+    DrTriMesh m = {.nv = V * sides + 2 * S, .nt = 2 * sides * V};
+    DrVec3 *T = NULL, *d = NULL;
+    double *cs = NULL;
+    DrStatus s = dr_calloc(3 * (size_t)m.nv, sizeof *m.v, &m.v, err);
+    if (s == DR_OK) s = dr_calloc(3 * (size_t)m.nv, sizeof *m.n, &m.n, err);
+    if (s == DR_OK) s = dr_calloc(3 * (size_t)m.nt + 1, sizeof *m.tri, &m.tri, err);
+    if (s == DR_OK) s = dr_calloc(2 * (size_t)sides, sizeof *cs, &cs, err);
+    if (s == DR_OK) s = frames_alloc(p, &T, &d, err);
+    if (s != DR_OK) {
+        dr_trimesh_free(&m);
+        free(cs);
+        return s;
+    }
+    for (int j = 0; j < sides; j++) cs[2 * j] = cos(2.0 * DR_PI * j / sides), cs[2 * j + 1] = sin(2.0 * DR_PI * j / sides);
+    int t = 0;
+    for (int k = 0; k < S; k++) {
+        int o = p->offsets[k], n = p->offsets[k + 1] - o;
+        const double *x = p->x + 3 * (size_t)o;
+        strand_frames(x, n, T, d);
+        for (int i = 0; i < n; i++) {
+            DrVec3 b = dr_v3_cross(T[i], d[i]), c = dr_v3(x[3 * i], x[3 * i + 1], x[3 * i + 2]);
+            for (int j = 0; j < sides; j++) {
+                DrVec3 u = dr_v3_add(dr_v3_scale(d[i], cs[2 * j]), dr_v3_scale(b, cs[2 * j + 1]));
+                DrVec3 q = dr_v3_add(c, dr_v3_scale(u, p->outer[o + i]));
+                size_t a = 3 * ((size_t)(o + i) * sides + j);
+                m.v[a] = q.x, m.v[a + 1] = q.y, m.v[a + 2] = q.z;
+                m.n[a] = u.x, m.n[a + 1] = u.y, m.n[a + 2] = u.z;
+            }
+            if (i + 1 < n) {
+                /* ring i to ring i+1: (i,j) → (i,j+1) → (i+1,j) and (i,j+1) → (i+1,j+1) → (i+1,j) turn
+                   counter-clockwise about the outward normal (b × T = d at φ = 0) */
+                for (int j = 0; j < sides; j++) {
+                    int j1 = (j + 1) % sides, r0 = (o + i) * sides, r1 = r0 + sides;
+                    int q[6] = {r0 + j, r0 + j1, r1 + j, r0 + j1, r1 + j1, r1 + j};
+                    memcpy(m.tri + 3 * t, q, sizeof q);
+                    t += 2;
+                }
+            }
+        }
+        /* the ends: a fan about the end vertex, facing −T at the root and +T at the tip */
+        for (int end = 0; end < 2; end++) {
+            int i = end ? n - 1 : 0, centre = V * sides + 2 * k + end, r0 = (o + i) * sides;
+            DrVec3 nrm = dr_v3_scale(T[i], end ? 1.0 : -1.0);
+            size_t a = 3 * (size_t)centre;
+            m.v[a] = x[3 * i], m.v[a + 1] = x[3 * i + 1], m.v[a + 2] = x[3 * i + 2];
+            m.n[a] = nrm.x, m.n[a + 1] = nrm.y, m.n[a + 2] = nrm.z;
+            for (int j = 0; j < sides; j++) {
+                int j1 = (j + 1) % sides;
+                int q[3] = {centre, end ? r0 + j : r0 + j1, end ? r0 + j1 : r0 + j};
+                memcpy(m.tri + 3 * t, q, sizeof q);
+                t++;
+            }
+        }
+    }
+    assert(t == m.nt);
+    free(T);
+    free(d);
+    free(cs);
     *out = m;
     return DR_OK;
 }
 
 /* <e>.NNNN.points.vdb of hair element e (mesh.write_points): its V vertices as OpenVDB points with P, v (from
- * /<e>/velocity), id (the vertex index: strands keep their vertices), strand (the strand's index) and width (its
- * diameter, m), the voxel chosen by OpenVDB for about 8 vertices per voxel. */
+ * /<e>/velocity), id (the vertex index: strands keep their vertices), strand (the strand's index), width (its
+ * diameter, m) and, with the film (p->outer), wet_width (the film's outer diameter 2H, m), the voxel chosen by
+ * OpenVDB for about 8 vertices per voxel. */
 static DrStatus write_hair_points(const DrElement *e, DrH5 *h, const char *dir, const DrVdbMeta *meta,
                                   const DrPolylines *p, DrError *err)
 {
@@ -332,7 +495,7 @@ static DrStatus write_hair_points(const DrElement *e, DrH5 *h, const char *dir, 
     char path[1024];
     int rank;
     uint64_t dims[4], want[2] = {(uint64_t)V, 3};
-    double *v = NULL, *width = NULL;
+    double *v = NULL, *width = NULL, *wet_width = NULL;
     int64_t *id = NULL, *strand = NULL;
     snprintf(path, sizeof path, "/%s/velocity", e->name);
     DrStatus s = dr_h5_read_f64(h, path, &rank, dims, &v, err);
@@ -340,44 +503,69 @@ static DrStatus write_hair_points(const DrElement *e, DrH5 *h, const char *dir, 
     if (s == DR_OK) s = dr_calloc((size_t)V + 1, sizeof *width, &width, err);
     if (s == DR_OK) s = dr_calloc((size_t)V + 1, sizeof *id, &id, err);
     if (s == DR_OK) s = dr_calloc((size_t)V + 1, sizeof *strand, &strand, err);
+    if (s == DR_OK && p->outer) s = dr_calloc((size_t)V + 1, sizeof *wet_width, &wet_width, err);
     for (int k = 0; s == DR_OK && k < p->count; k++)
         for (int i = p->offsets[k]; i < p->offsets[k + 1]; i++) {
             id[i] = i;
             strand[i] = k;
             width[i] = 2.0 * p->radius[k];
+            if (wet_width) wet_width[i] = 2.0 * p->outer[i];
         }
     DrVdbPointAttr attrs[] = {{"v", DR_VDB_ATTR_VEC3, v, NULL},
                               {"id", DR_VDB_ATTR_INT64, NULL, id},
                               {"strand", DR_VDB_ATTR_INT64, NULL, strand},
-                              {"width", DR_VDB_ATTR_FLOAT, width, NULL}};
+                              {"width", DR_VDB_ATTR_FLOAT, width, NULL},
+                              {"wet_width", DR_VDB_ATTR_FLOAT, wet_width, NULL}};
     dr_stage_frame_path(dir, e->name, meta->frame, "points.vdb", path, sizeof path);
     if (s == DR_OK)
-        s = dr_error_prefix(dr_vdb_points_write(path, V, p->x, attrs, 4, 0.0, meta, err), err,
+        s = dr_error_prefix(dr_vdb_points_write(path, V, p->x, attrs, wet_width ? 5 : 4, 0.0, meta, err), err,
                             "%s: points of frame %d", e->name, meta->frame);
     free(v);
     free(width);
+    free(wet_width);
     free(id);
     free(strand);
     return s;
 }
 
-/* Hair element e of this frame: <e>.NNNN.obj polylines, <e>_ribbons.NNNN.obj with mesh.hair_ribbons and
+/* What the mesh stage writes of a hair element, from the scene's mesh section. */
+typedef struct HairOutputs {
+    bool ribbons, points; /* mesh.hair_ribbons, mesh.write_points */
+    bool wet;             /* the scene has wet hair: the frame caches hold every hair element's film */
+    bool tubes;           /* mesh.wet_tubes, in a scene with wet hair */
+    int sides;            /* mesh.wet_tube_sides */
+} HairOutputs;
+
+static HairOutputs hair_outputs(const DrScene *scene)
+{
+    const DrComponent *ms = dr_scene_section(scene, "mesh");
+    bool wet = wet_scene(scene);
+    return (HairOutputs){dr_component_bool(ms, "hair_ribbons"), dr_component_bool(ms, "write_points"), wet,
+                         wet && dr_component_bool(ms, "wet_tubes"), dr_component_int(ms, "wet_tube_sides")};
+}
+
+/* Hair element e of this frame: <e>.NNNN.obj polylines (in a scene with wet hair with the film's outer radius per
+ * vertex), <e>_ribbons.NNNN.obj with mesh.hair_ribbons, <e>_wet.NNNN.obj with mesh.wet_tubes and
  * <e>.NNNN.points.vdb with mesh.write_points (meta: that file's metadata). */
-static DrStatus mesh_hair(const DrElement *e, DrH5 *h, const char *dir, const DrVdbMeta *meta, bool ribbons,
-                          bool points, long *strands, long *triangles, DrError *err)
+static DrStatus mesh_hair(const DrElement *e, DrH5 *h, const char *dir, const DrVdbMeta *meta, const HairOutputs *o,
+                          long *strands, long *triangles, DrError *err)
 {
     int frame = meta->frame;
     DrPolylines p;
     DR_TRY(read_strands(h, e->name, &p, err));
     char comment[512], out[4096];
+    DrStatus s = o->wet ? read_film(e, h, &p, err) : DR_OK;
     snprintf(comment, sizeof comment,
              "drench %s hair '%s' frame %d (m, y up): one polyline per strand, root first; each \"# radius\" line\n"
-             "sets the strand radius in metres of the polylines after it",
-             DR_VERSION, e->name, frame);
+             "sets the strand radius in metres of the polylines after it%s",
+             DR_VERSION, e->name, frame,
+             p.outer ? "; each \"# outer_radius\" line gives\nthe liquid film's outer radius in metres at each vertex "
+                       "of the polyline after it"
+                     : "");
     dr_stage_frame_path(dir, e->name, frame, "obj", out, sizeof out);
-    DrStatus s = dr_io_write_polylines_obj(out, &p, comment, err);
+    if (s == DR_OK) s = dr_io_write_polylines_obj(out, &p, comment, err);
     if (s == DR_OK) *strands += p.count;
-    if (s == DR_OK && ribbons) {
+    if (s == DR_OK && o->ribbons) {
         DrTriMesh m;
         s = build_ribbons(&p, &m, err);
         if (s == DR_OK) {
@@ -393,7 +581,24 @@ static DrStatus mesh_hair(const DrElement *e, DrH5 *h, const char *dir, const Dr
         }
         dr_trimesh_free(&m);
     }
-    if (s == DR_OK && points) s = write_hair_points(e, h, dir, meta, &p, err);
+    if (s == DR_OK && o->tubes) {
+        DrTriMesh m;
+        s = build_tubes(&p, o->sides, &m, err);
+        if (s == DR_OK) {
+            char prefix[1024];
+            snprintf(prefix, sizeof prefix, "%s_wet", e->name);
+            snprintf(comment, sizeof comment,
+                     "drench %s hair '%s' frame %d (m, y up): each strand as a closed tube of the liquid film's outer\n"
+                     "radius (the strand's radius where dry), %d sides: vertex v of the strands has ring points\n"
+                     "v*%d+1 .. v*%d+%d (OBJ indices), then each strand's root and tip centres close its ends",
+                     DR_VERSION, e->name, frame, o->sides, o->sides, o->sides, o->sides);
+            dr_stage_frame_path(dir, prefix, frame, "obj", out, sizeof out);
+            s = dr_io_write_obj(out, &m, comment, err);
+            if (s == DR_OK) *triangles += m.nt;
+        }
+        dr_trimesh_free(&m);
+    }
+    if (s == DR_OK && o->points) s = write_hair_points(e, h, dir, meta, &p, err);
     dr_io_polylines_free(&p);
     return s;
 }
@@ -528,23 +733,29 @@ static DrStatus mesh_bem(const DrElement *e, DrH5 *h, const char *dir, int frame
     return s;
 }
 
-/* With mesh.hair_ribbons, hair element H writes H_ribbons.NNNN.obj: an element named H_ribbons would share
- * those files. Checked before anything is written. */
-static DrStatus check_ribbon_names(const DrScene *scene, DrError *err)
+/* With mesh.hair_ribbons, hair element H writes H_ribbons.NNNN.obj, and with mesh.wet_tubes (in a scene with wet
+ * hair) H_wet.NNNN.obj: an element named H_ribbons or H_wet would share those files. Checked before anything is
+ * written. */
+static DrStatus check_hair_names(const DrScene *scene, DrError *err)
 {
-    if (!dr_component_bool(dr_scene_section(scene, "mesh"), "hair_ribbons")) return DR_OK;
+    HairOutputs o = hair_outputs(scene);
+    static const char *const suffix[2] = {"_ribbons", "_wet"}, *const field[2] = {"hair_ribbons", "wet_tubes"},
+                             *const what[2] = {"ribbons", "wet tubes"};
     int n = dr_scene_element_count(scene);
-    for (int i = 0; i < n; i++) {
-        const DrElement *e = dr_scene_element(scene, i);
-        if (!is_hair(e)) continue;
-        size_t len = strlen(e->name);
-        for (int j = 0; j < n; j++) {
-            const char *other = dr_scene_element(scene, j)->name;
-            if (strncmp(other, e->name, len) == 0 && strcmp(other + len, "_ribbons") == 0)
-                return dr_error_set(err, DR_ERR_INPUT, dr_scene_path(scene), 0, 0,
-                                    "mesh.hair_ribbons writes the ribbons of hair '%s' as %s.NNNN.obj, the files of "
-                                    "element '%s'; rename one of the two elements or set mesh.hair_ribbons to false",
-                                    e->name, other, other);
+    for (int k = 0; k < 2; k++) {
+        if (!(k == 0 ? o.ribbons : o.tubes)) continue;
+        for (int i = 0; i < n; i++) {
+            const DrElement *e = dr_scene_element(scene, i);
+            if (!is_hair(e)) continue;
+            size_t len = strlen(e->name);
+            for (int j = 0; j < n; j++) {
+                const char *other = dr_scene_element(scene, j)->name;
+                if (strncmp(other, e->name, len) == 0 && strcmp(other + len, suffix[k]) == 0)
+                    return dr_error_set(err, DR_ERR_INPUT, dr_scene_path(scene), 0, 0,
+                                        "mesh.%s writes the %s of hair '%s' as %s.NNNN.obj, the files of element "
+                                        "'%s'; rename one of the two elements or set mesh.%s to false",
+                                        field[k], what[k], e->name, other, other, field[k]);
+            }
         }
     }
     return DR_OK;
@@ -607,6 +818,7 @@ static DrStatus mesh_frame(const DrScene *scene, const DrTriMesh *rest, const ch
                          frame);
     free(key);
     const DrComponent *ms = dr_scene_section(scene, "mesh");
+    HairOutputs hair_out = hair_outputs(scene);
     for (int i = 0; s == DR_OK && i < dr_scene_element_count(scene); i++) {
         const DrElement *e = dr_scene_element(scene, i);
         if (e->kind == DR_ELEMENT_COLLIDER && dr_component_present(dr_element_component(e, "Motion"))) {
@@ -634,8 +846,7 @@ static DrStatus mesh_frame(const DrScene *scene, const DrTriMesh *rest, const ch
         }
         if (is_hair(e)) {
             DrVdbMeta meta = {frame, fps, bake_key};
-            s = mesh_hair(e, h, dir, &meta, dr_component_bool(ms, "hair_ribbons"),
-                          dr_component_bool(ms, "write_points"), strands, triangles, err);
+            s = mesh_hair(e, h, dir, &meta, &hair_out, strands, triangles, err);
             continue;
         }
         if (is_bem(e)) {
@@ -824,6 +1035,7 @@ static DrStatus mesh_frame_range(const DrScene *scene, const DrTriMesh *rest, co
 static DrStatus check_outputs(const DrScene *scene, const char *dir, int first, int last, DrError *err)
 {
     const DrComponent *ms = dr_scene_section(scene, "mesh");
+    HairOutputs hair = hair_outputs(scene);
     char path[4096];
     for (int i = 0; i < dr_scene_element_count(scene); i++) {
         const DrElement *e = dr_scene_element(scene, i);
@@ -835,18 +1047,20 @@ static DrStatus check_outputs(const DrScene *scene, const char *dir, int first, 
             snprintf(path, sizeof path, "%s/%s.obj", dir, e->name);
             if (!dr_io_exists(path)) goto missing;
         }
-        char ribbons[1024];
+        char ribbons[1024], tubes[1024];
         snprintf(ribbons, sizeof ribbons, "%s_ribbons", e->name);
+        snprintf(tubes, sizeof tubes, "%s_wet", e->name);
         for (int f = first; f <= last; f++) {
             /* (prefix, extension) of each file this element writes per frame */
-            const char *file[4][2] = {{NULL, NULL}, {NULL, NULL}, {NULL, NULL}, {NULL, NULL}};
+            const char *file[5][2] = {{NULL, NULL}, {NULL, NULL}, {NULL, NULL}, {NULL, NULL}, {NULL, NULL}};
             if (liquid && dr_component_bool(ms, "write_obj")) file[0][0] = e->name, file[0][1] = "obj";
             if (liquid && dr_component_bool(ms, "write_vdb")) file[1][0] = e->name, file[1][1] = "vdb";
             if (moving || is_hair(e) || is_bem(e)) file[0][0] = e->name, file[0][1] = "obj";
             if (is_hair(e) && dr_component_bool(ms, "hair_ribbons")) file[2][0] = ribbons, file[2][1] = "obj";
             if ((liquid || is_hair(e)) && dr_component_bool(ms, "write_points"))
                 file[3][0] = e->name, file[3][1] = "points.vdb";
-            for (int k = 0; k < 4; k++) {
+            if (is_hair(e) && hair.tubes) file[4][0] = tubes, file[4][1] = "obj";
+            for (int k = 0; k < 5; k++) {
                 if (!file[k][0]) continue;
                 dr_stage_frame_path(dir, file[k][0], f, file[k][1], path, sizeof path);
                 if (!dr_io_exists(path))
@@ -892,7 +1106,11 @@ int main(int argc, char **argv)
         return 0;
     }
     /* The output names, and every collider asset (loaded once), are checked before anything is written. */
-    if (s == DR_OK) s = check_ribbon_names(scene, &err);
+    if (s == DR_OK) s = check_hair_names(scene, &err);
+    if (s == DR_OK && dr_component_bool(dr_scene_section(scene, "mesh"), "wet_tubes") && !wet_scene(scene))
+        dr_log_warn("%s: mesh.wet_tubes is set but no hair element is wet (none has a Wetting component): no wet tubes "
+                    "are written",
+                    dr_scene_path(scene));
     int nel = dr_scene_element_count(scene);
     DrTriMesh *rest = NULL;
     if (s == DR_OK) s = dr_calloc((size_t)nel + 1, sizeof(DrTriMesh), &rest, &err);

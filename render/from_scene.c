@@ -234,17 +234,63 @@ static DrStatus add_liquid(const DrElement *e, DrRenderScene *rs, DrError *err)
     return s;
 }
 
-/* A hair element's grown strands, each as wide as RodMaterial.radius. */
-static DrStatus add_groom(const DrElement *e, DrRenderScene *rs, DrError *err)
+/* ---- hair ------------------------------------------------------------------------------------------------ */
+
+DrStatus scene_add_strands(const DrScene *scene, const DrElement *e, const DrPolylines *p, DrRenderScene *rs,
+                           DrError *err)
+{
+    if (!p->outer)
+        return dr_error_prefix(dr_render_scene_add_polylines(rs, p->x, p->offsets, p->count, p->radius,
+                                                             DR_MATERIAL_HAIR, err),
+                               err, "%s", e->name);
+    DrStageWet wet;
+    DR_TRY(dr_stage_wet_settings(scene, &wet, err));
+    /* a film without wet hair in the scene (an edited OBJ): no ratio to measure it by, so the darkest */
+    double max_ratio = wet.wet ? wet.film.max_ratio : 1.0;
+    int V = p->count > 0 ? p->offsets[p->count] : 0;
+    double *r = NULL, *w = NULL;
+    DrStatus s = dr_calloc((size_t)V + 1, sizeof *r, &r, err);
+    if (s == DR_OK) s = dr_calloc((size_t)V + 1, sizeof *w, &w, err);
+    if (s == DR_OK) {
+        dr_stage_vertex_radii(p->x, p->offsets, p->count, p->radius,
+                              dr_component_num(dr_element_component(e, "RodMaterial"), "tip_radius"), r);
+        for (int v = 0; v < V; v++) {
+            double film = r[v] > 0.0 ? p->outer[v] / r[v] - 1.0 : (p->outer[v] > 0.0 ? INFINITY : 0.0);
+            w[v] = max_ratio > 1.0 ? film / (max_ratio - 1.0) : (film > 0.0 ? 1.0 : 0.0);
+            w[v] = w[v] > 1.0 ? 1.0 : (w[v] > 0.0 ? w[v] : 0.0); /* clamp; NaN (an outer radius of NaN) to 0 */
+        }
+        s = dr_error_prefix(dr_render_scene_add_wet_polylines(rs, p->x, p->offsets, p->count, p->outer, w,
+                                                              DR_MATERIAL_HAIR, err),
+                            err, "%s", e->name);
+    }
+    free(r);
+    free(w);
+    return s;
+}
+
+/* A hair element's grown strands, each as wide as RodMaterial.radius; in a scene with wet hair with the film the
+   bake starts from (Film.initial_ratio on a wet element, none on a dry one: dr_film_create's H = ratio · r). */
+static DrStatus add_groom(const DrScene *scene, const DrElement *e, DrRenderScene *rs, DrError *err)
 {
     DrGroom g = {0};
     DR_TRY(dr_stage_load_groom(e, &g, err));
-    double *radius = NULL;
-    DrStatus s = dr_calloc((size_t)g.nstrands + 1, sizeof *radius, &radius, err);
-    double r = dr_component_num(dr_element_component(e, "RodMaterial"), "radius");
-    for (int k = 0; s == DR_OK && k < g.nstrands; k++) radius[k] = r;
-    if (s == DR_OK) s = dr_render_scene_add_polylines(rs, g.x, g.offsets, g.nstrands, radius, DR_MATERIAL_HAIR, err);
-    free(radius);
+    DrStageWet wet;
+    DrStatus s = dr_stage_wet_settings(scene, &wet, err);
+    DrPolylines p = {.count = g.nstrands, .offsets = g.offsets, .x = g.x};
+    int V = g.nstrands > 0 ? g.offsets[g.nstrands] : 0;
+    if (s == DR_OK) s = dr_calloc((size_t)g.nstrands + 1, sizeof *p.radius, &p.radius, err);
+    if (s == DR_OK && wet.wet) s = dr_calloc((size_t)V + 1, sizeof *p.outer, &p.outer, err);
+    const DrComponent *rm = dr_element_component(e, "RodMaterial");
+    for (int k = 0; s == DR_OK && k < g.nstrands; k++) p.radius[k] = dr_component_num(rm, "radius");
+    if (s == DR_OK && p.outer) {
+        bool wet_element = dr_component_present(dr_element_component(e, "Wetting"));
+        double ratio = wet_element ? dr_component_num(dr_element_component(e, "Film"), "initial_ratio") : 1.0;
+        dr_stage_vertex_radii(p.x, p.offsets, p.count, p.radius, dr_component_num(rm, "tip_radius"), p.outer);
+        for (int v = 0; v < V; v++) p.outer[v] *= ratio;
+    }
+    if (s == DR_OK) s = scene_add_strands(scene, e, &p, rs, err);
+    free(p.radius);
+    free(p.outer);
     dr_groom_free(&g);
     return s;
 }
@@ -281,7 +327,7 @@ DrStatus scene_preview(const DrScene *scene, const DrStageArgs *args, char *path
                                          err);
             if (s == DR_OK) s = dr_render_scene_add_mesh(rs, &m, DR_MATERIAL_SOLID, err);
             break;
-        case DR_ELEMENT_HAIR: s = add_groom(e, rs, err); break;
+        case DR_ELEMENT_HAIR: s = add_groom(scene, e, rs, err); break;
         case DR_ELEMENT_BEM_JOINT: break; /* no surface of its own */
         }
         dr_trimesh_free(&m);

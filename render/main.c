@@ -61,10 +61,11 @@ static DrStatus render_frame(const Job *job, int frame, int threads, DrError *er
                              "frame %d of element '%s' has not been meshed; run mesh (or pipeline.sh) first", frame,
                              d->element->name);
         if (s == DR_OK && d->strands) {
-            /* hair: the mesh stage's polylines, each strand as wide as its radius says */
+            /* hair: the mesh stage's polylines, each strand as wide as its radius says, wet hair as wide as its film
+               and darker (scene_add_strands) */
             DrPolylines p;
             s = dr_io_read_polylines_obj(path, NULL, &p, err); /* the mesh stage's format: radius required */
-            if (s == DR_OK) s = dr_render_scene_add_polylines(rs, p.x, p.offsets, p.count, p.radius, d->material, err);
+            if (s == DR_OK) s = scene_add_strands(job->scene, d->element, &p, rs, err);
             dr_io_polylines_free(&p);
             continue;
         }

@@ -302,21 +302,26 @@ void dr_io_time_iso8601(char buf[32]);
  * A strand set as OBJ: "v x y z" records, then one "l a b c ..." record per strand (1-based indices,
  * root first). OBJ has no record for a radius, so it travels in comment lines "# radius R" (metres):
  * each sets the radius of the "l" records after it, as "usemtl" sets a material, so a set of one radius
- * holds one such line. Tools that skip comments read plain polylines. */
+ * holds one such line. Wet hair adds, right before each "l" record, a line "# outer_radius H1 H2 ..."
+ * with one number per vertex of that record: the outer radius of the liquid film around the strand at
+ * the vertex (metres; the strand's own radius where it is dry), which the render stage draws. Every
+ * strand of a file has such a line, or none does. Tools that skip comments read plain polylines. */
 typedef struct DrPolylines {
     int count;      /* strands */
     int *offsets;   /* count + 1: strand s is vertices offsets[s] .. offsets[s+1]-1, root first */
     double *x;      /* 3*offsets[count] coordinates, metres */
     double *radius; /* count radii, metres */
+    double *outer;  /* NULL, or offsets[count] outer radii of the film per vertex ("# outer_radius"), metres */
 } DrPolylines;
 void dr_io_polylines_free(DrPolylines *p); /* frees the arrays and zeroes the struct */
 
 /* Writes `p` atomically as above: optional header comment lines (as dr_io_write_obj), the "v" lines,
  * then per strand a "# radius R" line where the radius differs from the previous strand's (always
- * before the first) and its "l" line. Numbers are printed with %.9g. An empty set (count 0) gives a
- * file with only the comment. Every strand has at least 2 vertices, offsets[0] is 0 and offsets do not
- * decrease (asserted: the caller validates what it read). A non-finite coordinate or a non-finite or
- * negative radius is DR_ERR_RUNTIME and nothing is written; a write failure is DR_ERR_IO naming the
+ * before the first), its "# outer_radius" line when p->outer is set, and its "l" line. Numbers are
+ * printed with %.9g. An empty set (count 0) gives a file with only the comment. Every strand has at
+ * least 2 vertices, offsets[0] is 0 and offsets do not decrease (asserted: the caller validates what it
+ * read). A non-finite coordinate or a non-finite or negative radius or outer radius is DR_ERR_RUNTIME
+ * and nothing is written; a write failure is DR_ERR_IO naming the
  * file, and neither path is left behind. */
 DR_NODISCARD DrStatus dr_io_write_polylines_obj(const char *path, const DrPolylines *p, const char *comment,
                                                 DrError *err);
@@ -337,11 +342,16 @@ void dr_io_polylines_read_desc_default(DrPolylinesReadDesc *d);
  * before it. Indices are 1-based, negative ones count back from the last "v" record before the line,
  * positive ones may point forward; "a/b" takes the vertex a. Numbers after x y z of a "v" record (a
  * weight, a colour) are checked and ignored. Faces, normals, groups, other comments and text after a '#'
- * are skipped; CRLF line ends are accepted. The whole file is checked before anything is returned.
+ * are skipped; CRLF line ends are accepted. "# outer_radius" lines fill out->outer (per vertex of each
+ * "l" record, as its vertices are copied); out->outer stays NULL in a file without them. The whole file
+ * is checked before anything is returned.
  * Errors, *out left zeroed:
  *   DR_ERR_INPUT at file:line:col for: a NUL or other control byte (not a text file); a "v" record
  *   without three numbers, a token in it that is not a number, a non-finite coordinate; a "# radius"
- *   line without one finite number >= 0 (whatever require_radius says); an "l" token that is not an
+ *   line without one finite number >= 0 (whatever require_radius says); an "# outer_radius" line whose
+ *   numbers are not finite and >= 0, or whose count differs from the vertices of the "l" record after
+ *   it, or that no "l" record follows, or an "l" record without one where the records before it had one
+ *   (or the reverse); an "l" token that is not an
  *   index, index 0, an index of no vertex, an "l" record of fewer than 2 vertices; a "v" or "l" record
  *   continued with '\'; with require_radius an "l" record before any "# radius" line; with
  *   reject_zero_edges a zero-length edge (at its second vertex).

@@ -1,6 +1,6 @@
 /* OBJ polylines: strand sets (hair) written by the mesh stage and read back by the render stage, and grooms
- * drawn in other tools (dr_groom_read_obj). The radius rides in "# radius R" comments (io.h), so the file
- * stays a plain OBJ for every other tool. Parsed here rather than through assimp, as dr_io_load_mesh keeps
+ * drawn in other tools (dr_groom_read_obj). The radius rides in "# radius R" comments and a wet strand's film
+ * in "# outer_radius" comments (io.h), so the file stays a plain OBJ for every other tool. Parsed here rather than through assimp, as dr_io_load_mesh keeps
  * triangles only. The whole file is checked before anything is returned, and every problem is reported at
  * its line and column. */
 #include <errno.h>
@@ -17,6 +17,7 @@ void dr_io_polylines_free(DrPolylines *p)
     free(p->offsets);
     free(p->x);
     free(p->radius);
+    free(p->outer);
     *p = (DrPolylines){0};
 }
 
@@ -34,6 +35,11 @@ DrStatus dr_io_write_polylines_obj(const char *path, const DrPolylines *p, const
                                 "strand %d has radius %g, not a finite number >= 0; nothing was written", s,
                                 p->radius[s]);
     }
+    for (int i = 0; p->outer && i < nv; i++)
+        if (!isfinite(p->outer[i]) || p->outer[i] < 0.0)
+            return dr_error_set(err, DR_ERR_RUNTIME, path, 0, 0,
+                                "vertex %d has film outer radius %g, not a finite number >= 0; nothing was written", i,
+                                p->outer[i]);
     for (int i = 0; i < 3 * nv; i++)
         if (!isfinite(p->x[i]))
             return dr_error_set(err, DR_ERR_RUNTIME, path, 0, 0,
@@ -63,6 +69,11 @@ DrStatus dr_io_write_polylines_obj(const char *path, const DrPolylines *p, const
         /* a new radius line only where the stored value changes (exact comparison on purpose: it asks
            whether the state the reader keeps must change, not whether two radii are close) */
         if (s == 0 || p->radius[s] != p->radius[s - 1]) fprintf(f, "# radius %.9g\n", p->radius[s]);
+        if (p->outer) {
+            fputs("# outer_radius", f);
+            for (int v = p->offsets[s]; v < p->offsets[s + 1]; v++) fprintf(f, " %.9g", p->outer[v]);
+            fputc('\n', f);
+        }
         fputc('l', f);
         for (int v = p->offsets[s]; v < p->offsets[s + 1]; v++) fprintf(f, " %d", v + 1);
         fputc('\n', f);
@@ -102,10 +113,16 @@ typedef struct Parse {
     const char *ln; /* its text: columns count from here */
     double radius;  /* the last "# radius" line's; NAN before any */
     bool have_radius;
+    double *pend;   /* the numbers of an "# outer_radius" line waiting for its "l" record */
+    int npend, pend_line;
+    size_t cap_pend;
+    bool have_pend;
+    int outer_strands; /* strands that had an "# outer_radius" line */
     double *v;
     int nv;
     size_t cap_v;
     int *idx;
+    double *outer; /* per index the film's outer radius (allocated with the first "# outer_radius" line) */
     int *col; /* per index its column (reject_zero_edges only) */
     size_t nidx, cap_idx;
     int *start; /* nstrands + 1 into idx */
@@ -121,6 +138,8 @@ static void parse_free(Parse *p)
 {
     free(p->v);
     free(p->idx);
+    free(p->outer);
+    free(p->pend);
     free(p->col);
     free(p->start);
     free(p->sradius);
@@ -202,6 +221,7 @@ static DrStatus push_index(Parse *p, int i, int col)
     if (p->nidx == p->cap_idx) {
         size_t cap = p->cap_idx ? 2 * p->cap_idx : 4096;
         DR_TRY(dr_realloc(cap, sizeof *p->idx, &p->idx, p->err));
+        if (p->outer) DR_TRY(dr_realloc(cap, sizeof *p->outer, &p->outer, p->err));
         if (p->desc.reject_zero_edges) DR_TRY(dr_realloc(cap, sizeof *p->col, &p->col, p->err));
         p->cap_idx = cap;
     }
@@ -263,6 +283,24 @@ static DrStatus parse_polyline(Parse *p, const char *key, char *cursor)
     if (n < 2)
         return fail_at(p, key, "'l' record with %zu vert%s; a strand needs at least 2 (root first)", n,
                        n == 1 ? "ex" : "ices");
+    /* the film's outer radii: every strand has its "# outer_radius" line, or none has */
+    if (p->have_pend && p->outer_strands < p->nstrands)
+        return fail_at(p, key, "this strand has an \"# outer_radius\" line (line %d) but the %d before it have none; "
+                               "give every strand one or none (the mesh stage writes one per strand of wet hair)",
+                       p->pend_line, p->nstrands - p->outer_strands);
+    if (!p->have_pend && p->outer_strands > 0)
+        return fail_at(p, key, "this strand has no \"# outer_radius\" line but the strands before it have one; give "
+                               "every strand one or none (the mesh stage writes one per strand of wet hair)");
+    if (p->have_pend) {
+        if ((size_t)p->npend != n)
+            return fail_at(p, key, "the \"# outer_radius\" line before this record (line %d) gives %d radii for its %zu "
+                                   "vertices; give one per vertex",
+                           p->pend_line, p->npend, n);
+        if (!p->outer) DR_TRY(dr_calloc(p->cap_idx, sizeof *p->outer, &p->outer, p->err));
+        memcpy(p->outer + first, p->pend, n * sizeof *p->outer);
+        p->have_pend = false;
+        p->outer_strands++;
+    }
     if (p->nstrands == 0) p->start[0] = 0;
     p->sradius[p->nstrands] = p->radius;
     if (p->desc.reject_zero_edges) p->sline[p->nstrands] = p->line;
@@ -284,6 +322,33 @@ static DrStatus parse_radius(Parse *p, char *s)
     return DR_OK;
 }
 
+/* "# outer_radius H1 H2 ...": the film's outer radius at each vertex of the next "l" record. */
+static DrStatus parse_outer(Parse *p, char *cursor)
+{
+    if (p->have_pend)
+        return fail_at(p, NULL, "a second \"# outer_radius\" line before the 'l' record the one on line %d belongs "
+                                "to; write one such line right before each 'l' record", p->pend_line);
+    p->npend = 0;
+    for (char *tok; (tok = next_token(&cursor));) {
+        char *end;
+        double h = strtod(tok, &end);
+        if (end == tok || *end)
+            return fail_at(p, tok, "'%s' is not a number; an outer radius line is \"# outer_radius H1 H2 ...\" in "
+                                   "metres, one per vertex of the 'l' record after it", tok);
+        if (!isfinite(h) || h < 0.0) return fail_at(p, tok, "film outer radius %g is not a finite number >= 0", h);
+        if (p->npend >= INT_MAX / 3) return fail_at(p, tok, "more than %d outer radii on one line", INT_MAX / 3);
+        if ((size_t)p->npend == p->cap_pend) {
+            size_t cap = p->cap_pend ? 2 * p->cap_pend : 64;
+            DR_TRY(dr_realloc(cap, sizeof *p->pend, &p->pend, p->err));
+            p->cap_pend = cap;
+        }
+        p->pend[p->npend++] = h;
+    }
+    p->have_pend = true;
+    p->pend_line = p->line;
+    return DR_OK;
+}
+
 /* One line as getline returned it (`len` bytes with its '\n'): text checks, then a radius comment or a
  * "v" or "l" record; anything else is skipped. */
 static DrStatus parse_line(Parse *p, char *ln, size_t len)
@@ -301,6 +366,7 @@ static DrStatus parse_line(Parse *p, char *ln, size_t len)
     char *t = skip_blanks(ln);
     if (*t == '#') {
         t = skip_blanks(t + 1);
+        if (keyword(t, "outer_radius")) return parse_outer(p, t + 12);
         return keyword(t, "radius") ? parse_radius(p, t + 6) : DR_OK;
     }
     char *hash = strchr(t, '#'); /* a comment after a record */
@@ -321,6 +387,10 @@ static DrStatus parse_line(Parse *p, char *ln, size_t len)
 /* Checks that need the whole file: forward indices, then (when asked) edge lengths. */
 static DrStatus check_file(Parse *p)
 {
+    if (p->have_pend)
+        return dr_error_set(p->err, DR_ERR_INPUT, p->path, p->pend_line, 1,
+                            "\"# outer_radius\" line without an 'l' record after it; write it right before the "
+                            "strand's 'l' record");
     if (p->desc.require_strands && p->nstrands == 0)
         return dr_error_set(p->err, DR_ERR_INPUT, p->path, 0, 0,
                             "no 'l' records (polylines) among %d lines: each strand is an 'l' record listing its 'v' "
@@ -380,7 +450,9 @@ DrStatus dr_io_read_polylines_obj(const char *path, const DrPolylinesReadDesc *d
     if (s == DR_OK) s = dr_calloc((size_t)r.count + 1, sizeof *r.offsets, &r.offsets, err);
     if (s == DR_OK) s = dr_calloc(3 * p.nidx + 1, sizeof *r.x, &r.x, err);
     if (s == DR_OK) s = dr_calloc((size_t)r.count + 1, sizeof *r.radius, &r.radius, err);
+    if (s == DR_OK && p.outer) s = dr_calloc(p.nidx + 1, sizeof *r.outer, &r.outer, err);
     if (s == DR_OK) {
+        if (p.outer) memcpy(r.outer, p.outer, p.nidx * sizeof *r.outer);
         for (int k = 0; k < r.count; k++) {
             r.offsets[k + 1] = p.start[k + 1];
             r.radius[k] = p.sradius[k];

@@ -136,8 +136,8 @@ static DrStatus emit_polygon(DrTriList *list, const DrShadowMap *sm, const doubl
     return DR_OK;
 }
 
-/* Emits a strand segment as a quad facing the light, at least one texel wide. */
-static DrStatus emit_segment(DrTriList *list, const DrShadowMap *sm, DrVec3 p0, DrVec3 p1, double radius,
+/* Emits a strand segment as a quad facing the light, at least one texel wide, of radius r0 at p0 and r1 at p1. */
+static DrStatus emit_segment(DrTriList *list, const DrShadowMap *sm, DrVec3 p0, DrVec3 p1, double r0, double r1,
                              DrError *err)
 {
     double u[2], v[2], d[2];
@@ -145,10 +145,14 @@ static DrStatus emit_segment(DrTriList *list, const DrShadowMap *sm, DrVec3 p0, 
     light_coords(sm, p1, &u[1], &v[1], &d[1]);
     double du = u[1] - u[0], dv = v[1] - v[0], len = sqrt(du * du + dv * dv);
     if (len < 1e-9) du = 1.0, dv = 0.0, len = 1.0;
-    double hw = fmin(fmax(0.5, radius / sm->texel), (double)(sm->w > sm->h ? sm->w : sm->h));
-    double tx = du / len * hw, ty = dv / len * hw, nx = -ty, ny = tx;
-    double qx[4] = {u[0] - tx + nx, u[0] - tx - nx, u[1] + tx - nx, u[1] + tx + nx};
-    double qy[4] = {v[0] - ty + ny, v[0] - ty - ny, v[1] + ty - ny, v[1] + ty + ny};
+    double tx[2], ty[2];
+    for (int e = 0; e < 2; e++) {
+        double hw = fmin(fmax(0.5, (e ? r1 : r0) / sm->texel), (double)(sm->w > sm->h ? sm->w : sm->h));
+        tx[e] = du / len * hw, ty[e] = dv / len * hw;
+    }
+    /* each end's corners: along the segment by its half width (the cap) and across it (normal (-ty, tx)) */
+    double qx[4] = {u[0] - tx[0] - ty[0], u[0] - tx[0] + ty[0], u[1] + tx[1] + ty[1], u[1] + tx[1] - ty[1]};
+    double qy[4] = {v[0] - ty[0] + tx[0], v[0] - ty[0] - tx[0], v[1] + ty[1] - tx[1], v[1] + ty[1] + tx[1]};
     double qd[4] = {d[0], d[0], d[1], d[1]};
     return emit_polygon(list, sm, qx, qy, qd, 4, err);
 }
@@ -178,7 +182,8 @@ static DrStatus emit_casters(const DrRenderScene *scene, const DrShadowMap *sm, 
         for (int s = 0; s < st->count; s++)
             for (int v = st->offsets[s]; v + 1 < st->offsets[s + 1]; v++) {
                 const double *a = st->points + 3 * v, *b = a + 3;
-                DR_TRY(emit_segment(list, sm, dr_v3(a[0], a[1], a[2]), dr_v3(b[0], b[1], b[2]), st->radius[s], err));
+                DR_TRY(emit_segment(list, sm, dr_v3(a[0], a[1], a[2]), dr_v3(b[0], b[1], b[2]), st->radius[v],
+                                    st->radius[v + 1], err));
             }
     }
     return DR_OK;

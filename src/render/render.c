@@ -199,9 +199,11 @@ static DrStatus emit_mesh(const View *v, const DrRenderMesh *m, double *cam, uin
 }
 
 /* A strand segment as a quad across the screen, at least one pixel (samples samples) wide, capped by half
- * its width at each end so consecutive segments join without gaps. */
-static DrStatus emit_segment(const View *v, const double *w0, const double *w1, double radius, int samples,
-                             uint8_t shade, DrTriList *list, DrError *err)
+ * its width at each end so consecutive segments join without gaps. The radius and the wetness go linearly from
+ * (r0, wet0) at w0 to (r1, wet1) at w1; the wetness rides in the length of the tangent attribute, 1 + wet (the
+ * shading normalises the tangent and reads the wetness from its length, shade.c). */
+static DrStatus emit_segment(const View *v, const double *w0, const double *w1, double r0, double r1, double wet0,
+                             double wet1, int samples, uint8_t shade, DrTriList *list, DrError *err)
 {
     double c[2][3];
     to_camera(&v->cf, w0, c[0]);
@@ -215,7 +217,7 @@ static DrStatus emit_segment(const View *v, const double *w0, const double *w1, 
     }
     if (t0 > t1) return DR_OK;
     DrVec3 tan = dr_v3_normalize(dr_v3(w1[0] - w0[0], w1[1] - w0[1], w1[2] - w0[2]));
-    double x[2], y[2], hw[2];
+    double x[2], y[2], hw[2], mag[2];
     float iz[2];
     for (int e = 0; e < 2; e++) {
         double t = e ? t1 : t0, p[3];
@@ -223,7 +225,9 @@ static DrStatus emit_segment(const View *v, const double *w0, const double *w1, 
         x[e] = v->cxs + v->fs * p[0] / p[2];
         y[e] = v->cys - v->fs * p[1] / p[2];
         iz[e] = (float)(1.0 / p[2]);
+        double radius = r0 + t * (r1 - r0); /* r0 itself on a strand of one radius */
         hw[e] = fmin(fmax(0.5 * samples, v->fs * radius / p[2]), 0.25 * v->guard);
+        mag[e] = 1.0 + (wet0 + t * (wet1 - wet0));
     }
     double dx = x[1] - x[0], dy = y[1] - y[0], len = sqrt(dx * dx + dy * dy);
     if (len < 1e-9) dx = 1.0, dy = 0.0, len = 1.0; /* end-on: a square dot */
@@ -234,6 +238,7 @@ static DrStatus emit_segment(const View *v, const double *w0, const double *w1, 
     double qy[4] = {y[0] - (dy - dx) * hw[0], y[0] - (dy + dx) * hw[0], y[1] + (dy - dx) * hw[1],
                     y[1] + (dy + dx) * hw[1]};
     float qiz[4] = {iz[0], iz[0], iz[1], iz[1]};
+    double qmag[4] = {mag[0], mag[0], mag[1], mag[1]};
     static const int tri[2][3] = {{0, 1, 2}, {0, 2, 3}};
     for (int t = 0; t < 2; t++) {
         double tx[3], ty[3];
@@ -241,7 +246,8 @@ static DrStatus emit_segment(const View *v, const double *w0, const double *w1, 
         for (int k = 0; k < 3; k++) {
             int q = tri[t][k];
             tx[k] = qx[q], ty[k] = qy[q], tiz[k] = qiz[q];
-            ta[k][0] = (float)(tan.x * qiz[q]), ta[k][1] = (float)(tan.y * qiz[q]), ta[k][2] = (float)(tan.z * qiz[q]);
+            DrVec3 a = dr_v3_scale(tan, qmag[q]); /* the tangent itself where dry (1.0 exactly) */
+            ta[k][0] = (float)(a.x * qiz[q]), ta[k][1] = (float)(a.y * qiz[q]), ta[k][2] = (float)(a.z * qiz[q]);
         }
         DR_TRY(dr_render_emit_(list, tx, ty, tiz, (const float(*)[3])ta, shade, v->ws, v->hs, err));
     }
@@ -267,8 +273,9 @@ static DrStatus emit_scene(const View *v, const DrRenderScene *scene, int sample
         uint8_t shade = (uint8_t)(DR_SHADE_STRAND | st->mat);
         for (int k = 0; s == DR_OK && k < st->count; k++)
             for (int p = st->offsets[k]; s == DR_OK && p + 1 < st->offsets[k + 1]; p++)
-                s = emit_segment(v, st->points + 3 * p, st->points + 3 * p + 3, st->radius[k], samples, shade,
-                                 opaque, err);
+                s = emit_segment(v, st->points + 3 * p, st->points + 3 * p + 3, st->radius[p], st->radius[p + 1],
+                                 st->wet ? st->wet[p] : 0.0, st->wet ? st->wet[p + 1] : 0.0, samples, shade, opaque,
+                                 err);
     }
     free(cam);
     free(oc);

@@ -163,6 +163,17 @@ DR_NODISCARD DrStatus dr_render_scene_add_mesh(DrRenderScene *scene, const DrTri
 DR_NODISCARD DrStatus dr_render_scene_add_polylines(DrRenderScene *scene, const double *points,
                                                     const int *offsets, int count, const double *radius,
                                                     DrRenderMaterial mat, DrError *err);
+/* Wet strands: as dr_render_scene_add_polylines, with a radius per vertex (radius[v] for vertex v of `points`,
+ * metres: the liquid film's outer radius, which the strand is drawn as wide as) and a wetness per vertex
+ * (wetness[v] in [0, 1], or wetness NULL for none), both linear along each segment. Wetness darkens the strand's
+ * albedo towards that of a fibre under a film of water (Lekner and Dorf's model: dark hair keeps about half its
+ * albedo at wetness 1); at wetness 0 and one radius per strand a strand is drawn exactly as
+ * dr_render_scene_add_polylines draws it. Shadows follow the per-vertex width. DR_ERR_INPUT as
+ * dr_render_scene_add_polylines, and for a negative or non-finite radius or a wetness outside [0, 1] (naming the
+ * strand and its vertex). */
+DR_NODISCARD DrStatus dr_render_scene_add_wet_polylines(DrRenderScene *scene, const double *points,
+                                                        const int *offsets, int count, const double *radius,
+                                                        const double *wetness, DrRenderMaterial mat, DrError *err);
 /* Axis-aligned bounds of everything added (false when the scene is empty). */
 bool dr_render_scene_bounds(const DrRenderScene *scene, DrVec3 *lo, DrVec3 *hi);
 

@@ -19,7 +19,8 @@ typedef struct DrRenderStrands {
     int count;
     int *offsets;   /* count + 1 */
     double *points; /* 3*offsets[count] */
-    double *radius; /* count, metres */
+    double *radius; /* offsets[count]: per vertex, metres */
+    double *wet;    /* offsets[count] wetness in [0, 1] per vertex, or NULL (dry) */
     DrRenderMaterial mat;
 } DrRenderStrands;
 
@@ -165,7 +166,7 @@ enum DrShadeCode {
     DR_SHADE_NONE = 0,
     DR_SHADE_GROUND = 1,
     DR_SHADE_MESH = 2,     /* + DrRenderMaterial: a surface with a normal */
-    DR_SHADE_STRAND = 0x40 /* | DrRenderMaterial: a strand with a tangent */
+    DR_SHADE_STRAND = 0x40 /* | DrRenderMaterial: a strand with a tangent, scaled by 1 + its wetness (shade.c) */
 };
 
 /* ---- shading (shade.c) ---------------------------------------------------------------------------- */

@@ -27,6 +27,7 @@ void dr_render_scene_destroy(DrRenderScene **scene)
         free(s->strands[i].offsets);
         free(s->strands[i].points);
         free(s->strands[i].radius);
+        free(s->strands[i].wet);
     }
     free(s->meshes);
     free(s->strands);
@@ -117,20 +118,16 @@ DrStatus dr_render_scene_add_mesh(DrRenderScene *scene, const DrTriMesh *mesh, D
     return DR_OK;
 }
 
-DrStatus dr_render_scene_add_polylines(DrRenderScene *scene, const double *points, const int *offsets, int count,
-                                       const double *radius, DrRenderMaterial mat, DrError *err)
+/* The checks both polyline calls share: the material, the count, the offsets and the points. */
+static DrStatus check_polylines(const double *points, const int *offsets, int count, const void *radius,
+                                DrRenderMaterial mat, DrError *err)
 {
-    assert(scene && material_valid(mat));
     if (mat == DR_MATERIAL_LIQUID || mat == DR_MATERIAL_WALL)
         return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
                             "polylines cannot be drawn as liquid or wall panels; use a hair, solid or collider material");
     if (count < 0 || (count > 0 && (!offsets || !radius)))
         return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "polyline count %d is invalid", count);
     if (count == 0) return DR_OK;
-    for (int s = 0; s < count; s++)
-        if (!(radius[s] >= 0.0) || !isfinite(radius[s]))
-            return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
-                                "polyline %d has radius %g; it must be a finite number >= 0", s, radius[s]);
     if (offsets[0] != 0)
         return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "polyline offsets[0] is %d; it must be 0", offsets[0]);
     for (int s = 0; s < count; s++)
@@ -143,6 +140,17 @@ DrStatus dr_render_scene_add_polylines(DrRenderScene *scene, const double *point
     for (int i = 0; i < 3 * nvert; i++)
         if (!isfinite(points[i]))
             return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "polyline vertex %d is not finite", i / 3);
+    return DR_OK;
+}
+
+/* Copies checked polylines in: a radius per strand (strand_radius) or per vertex (vertex_radius), the wetness per
+ * vertex or NULL. */
+static DrStatus add_strands(DrRenderScene *scene, const double *points, const int *offsets, int count,
+                            const double *strand_radius, const double *vertex_radius, const double *wetness,
+                            DrRenderMaterial mat, DrError *err)
+{
+    if (count == 0) return DR_OK;
+    int nvert = offsets[count];
     if (scene->nstrands == scene->cap_strands) {
         int cap = scene->cap_strands ? 2 * scene->cap_strands : 4;
         DR_TRY(dr_realloc((size_t)cap, sizeof *scene->strands, &scene->strands, err));
@@ -151,18 +159,55 @@ DrStatus dr_render_scene_add_polylines(DrRenderScene *scene, const double *point
     DrRenderStrands st = {.count = count, .mat = mat};
     DrStatus s = dr_calloc((size_t)count + 1, sizeof *st.offsets, &st.offsets, err);
     if (s == DR_OK) s = dr_calloc(3 * (size_t)nvert + 1, sizeof *st.points, &st.points, err);
-    if (s == DR_OK) s = dr_calloc((size_t)count, sizeof *st.radius, &st.radius, err);
+    if (s == DR_OK) s = dr_calloc((size_t)nvert + 1, sizeof *st.radius, &st.radius, err);
+    if (s == DR_OK && wetness) s = dr_calloc((size_t)nvert + 1, sizeof *st.wet, &st.wet, err);
     if (s != DR_OK) {
         free(st.offsets);
         free(st.points);
         free(st.radius);
+        free(st.wet);
         return s;
     }
     memcpy(st.offsets, offsets, ((size_t)count + 1) * sizeof *offsets);
-    memcpy(st.radius, radius, (size_t)count * sizeof *radius);
+    if (vertex_radius && nvert > 0) memcpy(st.radius, vertex_radius, (size_t)nvert * sizeof *st.radius);
+    for (int k = 0; !vertex_radius && k < count; k++)
+        for (int v = offsets[k]; v < offsets[k + 1]; v++) st.radius[v] = strand_radius[k];
+    if (wetness && nvert > 0) memcpy(st.wet, wetness, (size_t)nvert * sizeof *st.wet);
     if (nvert > 0) memcpy(st.points, points, 3 * (size_t)nvert * sizeof *points);
     scene->strands[scene->nstrands++] = st;
     return DR_OK;
+}
+
+DrStatus dr_render_scene_add_polylines(DrRenderScene *scene, const double *points, const int *offsets, int count,
+                                       const double *radius, DrRenderMaterial mat, DrError *err)
+{
+    assert(scene && material_valid(mat));
+    DR_TRY(check_polylines(points, offsets, count, radius, mat, err));
+    for (int s = 0; s < count; s++)
+        if (!(radius[s] >= 0.0) || !isfinite(radius[s]))
+            return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                                "polyline %d has radius %g; it must be a finite number >= 0", s, radius[s]);
+    return add_strands(scene, points, offsets, count, radius, NULL, NULL, mat, err);
+}
+
+DrStatus dr_render_scene_add_wet_polylines(DrRenderScene *scene, const double *points, const int *offsets, int count,
+                                           const double *radius, const double *wetness, DrRenderMaterial mat,
+                                           DrError *err)
+{
+    assert(scene && material_valid(mat));
+    DR_TRY(check_polylines(points, offsets, count, radius, mat, err));
+    for (int s = 0; s < count; s++)
+        for (int v = offsets[s]; v < offsets[s + 1]; v++) {
+            if (!(radius[v] >= 0.0) || !isfinite(radius[v]))
+                return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                                    "polyline %d has radius %g at its vertex %d; it must be a finite number >= 0", s,
+                                    radius[v], v - offsets[s]);
+            if (wetness && !(wetness[v] >= 0.0 && wetness[v] <= 1.0))
+                return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                                    "polyline %d has wetness %g at its vertex %d; it must be in [0, 1]", s, wetness[v],
+                                    v - offsets[s]);
+        }
+    return add_strands(scene, points, offsets, count, NULL, radius, wetness, mat, err);
 }
 
 static void grow(DrVec3 v, bool *any, DrVec3 *lo, DrVec3 *hi)

@@ -16,6 +16,22 @@ static DrVec3 albedo_of(int mat)
     }
 }
 
+/* Hair under a film of water is darker (Lekner & Dorf 1988, "Why some things are darker when wet", Appl. Opt. 27,
+ * 1278): light that enters the film (a fraction 1 − R_e) and is scattered back by the fibre (albedo a) meets the
+ * water-air interface from below, which sends p = 1 − (1 − R_e)/n² of it back down (total internal reflection
+ * beyond the critical angle), where the fibre absorbs another share; summing the bounces,
+ *     a_wet = a (1 − R_e)² / (n² (1 − p a)),
+ * per channel, with n = 1.333 and R_e = 0.066 (water's mean reflectance for diffuse light). Dark hair keeps about
+ * half its albedo (a = 0.1 → 0.052), so a wet strand reads darker whatever its colour. The film's own glint off
+ * its surface is left to the strands' highlight. `wet` in [0, 1] blends the dry albedo (0) into a_wet (1). */
+static DrVec3 wet_albedo(DrVec3 a, double wet)
+{
+    const double n2 = 1.333 * 1.333, Re = 0.066, p = 1.0 - (1.0 - Re) / n2;
+    double c[3] = {a.x, a.y, a.z};
+    for (int k = 0; k < 3; k++) c[k] *= 1.0 - wet + wet * (1.0 - Re) * (1.0 - Re) / (n2 * (1.0 - p * c[k]));
+    return dr_v3(c[0], c[1], c[2]);
+}
+
 static DrVec3 hemi(const DrShadeCtx *sc, double ny)
 {
     double t = 0.5 + 0.5 * ny;
@@ -86,6 +102,10 @@ DrVec3 dr_render_shade_opaque_(const DrShadeCtx *sc, DrVec3 dir, uint8_t code, f
         /* Kajiya–Kay: a strand of tangent T scatters diffusely by sin(T, L) and has its highlight on the
            cone around T, strongest where sin(T, H) is 1 */
         DrVec3 albedo = albedo_of(code & ~DR_SHADE_STRAND);
+        /* the wetness: the tangent's length over 1/depth is 1 + wet (render.c); below 1e-4 it is the floats'
+           rounding (a few 1e-7) of a dry strand, which stays exactly as it was drawn before */
+        double wet = dr_v3_norm(dr_v3(nrm[0], nrm[1], nrm[2])) / iz - 1.0;
+        if (wet > 1e-4) albedo = wet_albedo(albedo, dr_mind_(wet, 1.0));
         double tl = dr_v3_dot(a, sc->to_light);
         double diff = sqrt(dr_maxd_(0.0, 1.0 - tl * tl));
         DrVec3 h = dr_v3_normalize(dr_v3_add(sc->to_light, v));

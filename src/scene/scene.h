@@ -203,8 +203,8 @@ const char *dr_scene_asset(const DrScene *s, int i);
 #define DR_STAGE_VERSION_BAKE "bake-4" /* bake-2: liquid collider boundary and CFL rework, checkpoint layout;
                                           bake-3: frames and checkpoints carry checksums; bake-4: the liquid's
                                           particle ids in frame caches and checkpoints */
-#define DR_STAGE_VERSION_MESH "mesh-2" /* mesh-2: points files, whole-liquid velocity option */
-#define DR_STAGE_VERSION_RENDER "render-1"
+#define DR_STAGE_VERSION_MESH "mesh-3" /* mesh-2: points files, whole-liquid velocity option; mesh-3: wet hair's film */
+#define DR_STAGE_VERSION_RENDER "render-2" /* render-2: wet hair wider and darker */
 typedef struct DrSceneKeys { char precompute[33], bake[33], mesh[33], render[33]; } DrSceneKeys;
 
 /* 32 lowercase hex digits each (XXH3-128); every input is fed with a label and a terminator so that

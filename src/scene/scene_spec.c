@@ -65,9 +65,16 @@ static const DrFieldSpec mesh_fields[] = {
     {.name = "hair_ribbons", .kind = DR_FIELD_BOOL, .unit = "", .def = {0},
      .doc = "also write each hair element's strands as triangle strips 2 radii wide, <element>_ribbons.NNNN.obj "
             "(for tools that do not draw OBJ polylines); its <element>.NNNN.obj polylines are always written"},
+    {.name = "wet_tubes", .kind = DR_FIELD_BOOL, .unit = "", .def = {0},
+     .doc = "in a scene with wet hair (a Wetting component), also write each hair element's strands as closed "
+            "triangle tubes of the liquid film's outer radius H = sqrt(r^2 + A/pi) (r where dry), "
+            "<element>_wet.NNNN.obj"},
+    {.name = "wet_tube_sides", .kind = DR_FIELD_INT, .unit = "", .def = {8}, RANGE(3, 64),
+     .doc = "sides of each ring of the wet tubes (mesh.wet_tubes): 2 x sides triangles per strand vertex"},
     {.name = "write_points", .kind = DR_FIELD_BOOL, .unit = "", .def = {1},
      .doc = "write <element>.NNNN.points.vdb: the particles of liquid and MPM solids and the vertices of hair as "
-            "OpenVDB point data (P, v, id and per kind volume, J, strain, strand, width)"},
+            "OpenVDB point data (P, v, id and per kind volume, J, strain, strand, width, and wet_width in a scene "
+            "with wet hair)"},
     {.name = "velocity_interior", .kind = DR_FIELD_BOOL, .unit = "", .def = {0},
      .doc = "the \"vel\" grid of <element>.NNNN.vdb covers the whole liquid or solid (every voxel inside the "
             "surface); false: the narrow band of the surface only"},

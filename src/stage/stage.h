@@ -69,6 +69,13 @@ DR_NODISCARD DrStatus dr_stage_motion_keys(const DrElement *e, int first_frame, 
  * start with "<element>.Groom.scalp: " or "<element>.Groom.curves: "; *g is empty then. Free with dr_groom_free. */
 typedef struct DrGroom DrGroom;
 DR_NODISCARD DrStatus dr_stage_load_groom(const DrElement *e, DrGroom *g, DrError *err);
+/* The radius at every vertex of `count` strands x (3 per vertex, strand s = vertices offsets[s] .. offsets[s+1]-1,
+ * root first) into out (offsets[count] values, metres), as the rod set tapers them (hair.h, RodMaterial.tip_radius):
+ * strand_radius[s] at the root, falling linearly in arc length to tip_radius at the tip; tip_radius 0 (untapered)
+ * gives strand_radius[s] at every vertex exactly. The rods measure the arc length on their rest shape, these on x:
+ * on a baked frame's strands the two differ by the strands' stretch (inextensible rods: a small fraction of it). */
+void dr_stage_vertex_radii(const double *x, const int *offsets, int count, const double *strand_radius,
+                           double tip_radius, double *out);
 
 /* A bem_solid element as the boundary element method takes it (DrBemAsset, bem/bem.h): its Mesh.file through
  * dr_bem_asset_load, in the file's own coordinates (Transform does not apply: it poses the body in a shot), and its

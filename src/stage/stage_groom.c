@@ -1,5 +1,6 @@
-/* A hair element's strands in its scene pose (stage.h), for the world's rods and the render stage's preview. In a
- * file of its own, as stage_bem.c, so that what loads a groom is one function. */
+/* A hair element's strands in its scene pose (stage.h), for the world's rods and the render stage's preview, and the
+ * radius along a tapered strand, for the mesh and render stages. In a file of its own, as stage_bem.c, so that what
+ * loads a groom is one function. */
 #include "stage/stage.h"
 
 #include "hair/hair.h"
@@ -41,4 +42,25 @@ DrStatus dr_stage_load_groom(const DrElement *e, DrGroom *g, DrError *err)
         g->root_normal[3 * k + 2] = n.z;
     }
     return DR_OK;
+}
+
+static double dist(const double *x, int a, int b)
+{
+    return dr_v3_norm(dr_v3(x[3 * b] - x[3 * a], x[3 * b + 1] - x[3 * a + 1], x[3 * b + 2] - x[3 * a + 2]));
+}
+
+void dr_stage_vertex_radii(const double *x, const int *offsets, int count, const double *strand_radius,
+                           double tip_radius, double *out)
+{
+    for (int k = 0; k < count; k++) {
+        int o = offsets[k], n = offsets[k + 1] - o;
+        double rad = strand_radius[k], rt = tip_radius > 0 ? tip_radius : rad, total = 0, along = 0;
+        for (int j = 0; j + 1 < n; j++) total += dist(x, o + j, o + j + 1);
+        /* the rod set's rule (hair.c): linear in arc length, the root's radius exactly where nothing tapers; a
+           strand of no length (every vertex at one point) keeps the root's */
+        for (int j = 0; j < n; j++) {
+            if (j > 0) along += dist(x, o + j - 1, o + j);
+            out[o + j] = rt == rad || !(total > 0) ? rad : rad + (rt - rad) * (along / total);
+        }
+    }
 }

@@ -574,7 +574,7 @@ static void test_read_obj(void **state)
     double wx[] = {0, 0, 0, 0, 1, 0, 0, 3, 0, 1, 0, 0, 2, 0, 0};
     int woff[] = {0, 3, 5};
     double wr[] = {5e-5, 1e-4};
-    DrPolylines p = {2, woff, wx, wr};
+    DrPolylines p = {2, woff, wx, wr, NULL};
     snprintf(path, sizeof path, "%s/written.obj", g_dir);
     if (dr_io_write_polylines_obj(path, &p, "strands", &err) != DR_OK) fail_msg("%s", err.message);
     if (dr_groom_read_obj(path, &g, &err) != DR_OK) fail_msg("%s", err.message);

@@ -319,7 +319,7 @@ static void test_polylines_round_trip(void **state)
     double x[3 * 7] = {0, 0, 0, 0, 0.01, 0, 0.001, 0.02, 0, 1, 0, 0, 1, 0.1, 0.003, 0.5, 0.25, 0.125, 0.5, -0.25, 1e-7};
     int off[4] = {0, 3, 5, 7};
     double r[3] = {5e-5, 5e-5, 2.5e-4};
-    DrPolylines a = {3, off, x, r}, b;
+    DrPolylines a = {3, off, x, r, NULL}, b;
     scratch_path("strands.obj", path, sizeof path);
     assert_int_equal(dr_io_write_polylines_obj(path, &a, "written by test_io\nsecond line", &err), DR_OK);
     assert_int_equal(count_tmp_files(g_dir), 0);
@@ -512,6 +512,91 @@ static void test_polylines_bad_files(void **state)
     assert_int_equal(dr_io_read_polylines_obj(path, NULL, &p, &err), DR_ERR_INPUT);
     assert_string_equal(err.file, path);
     assert_non_null(strstr(err.message, "cannot open the polyline file: No such file or directory"));
+}
+
+/* The film of wet hair: "# outer_radius" lines, one number per vertex right before each "l" record, written
+ * when outer is set and read back per vertex (also through shared and forward vertices); files mixing strands
+ * with and without them, counts that differ, a line without its record, bad numbers refused at line:col. */
+static void test_polylines_outer_radius(void **state)
+{
+    (void)state;
+    DrError err;
+    char path[512];
+    double x[3 * 5] = {0, 0, 0, 0, 0.01, 0, 0.001, 0.02, 0, 1, 0, 0, 1, 0.1, 0.003};
+    int off[3] = {0, 3, 5};
+    double r[2] = {5e-5, 5e-5}, H[5] = {5.5e-4, 3e-4, 5e-5, 1.25e-4, 5e-5};
+    DrPolylines a = {2, off, x, r, H}, b;
+    scratch_path("wet_strands.obj", path, sizeof path);
+    assert_int_equal(dr_io_write_polylines_obj(path, &a, "wet", &err), DR_OK);
+    char *text = slurp(path);
+    assert_non_null(strstr(text, "\n# radius 5e-05\n# outer_radius 0.00055 0.0003 5e-05\nl 1 2 3\n"
+                                 "# outer_radius 0.000125 5e-05\nl 4 5\n"));
+    free(text);
+    assert_int_equal(dr_io_read_polylines_obj(path, NULL, &b, &err), DR_OK);
+    assert_non_null(b.outer);
+    for (int i = 0; i < 5; i++) assert_true(fabs(b.outer[i] - H[i]) <= 1e-9 * H[i]); /* %.9g */
+    dr_io_polylines_free(&b);
+    /* a dry set has none and reads back without */
+    a.outer = NULL;
+    assert_int_equal(dr_io_write_polylines_obj(path, &a, NULL, &err), DR_OK);
+    text = slurp(path);
+    assert_null(strstr(text, "outer_radius"));
+    free(text);
+    assert_int_equal(dr_io_read_polylines_obj(path, NULL, &b, &err), DR_OK);
+    assert_null(b.outer);
+    dr_io_polylines_free(&b);
+    /* a non-finite or negative outer radius: nothing written */
+    a.outer = H;
+    H[3] = NAN;
+    scratch_path("wet_nan.obj", path, sizeof path);
+    assert_int_equal(dr_io_write_polylines_obj(path, &a, NULL, &err), DR_ERR_RUNTIME);
+    assert_non_null(strstr(err.message, "vertex 3 has film outer radius nan"));
+    H[3] = -1e-4;
+    assert_int_equal(dr_io_write_polylines_obj(path, &a, NULL, &err), DR_ERR_RUNTIME);
+    assert_false(dr_io_exists(path));
+
+    /* per vertex of each record, as its vertices are copied: a shared vertex and a forward reference */
+    write_scratch("wet_other.obj",
+                  "# radius 0.1\nv 0 0 0\nv 0 1 0\n# outer_radius 0.5 0.25\nl 1 2\n# outer_radius 0.3 0.2 0.1\n"
+                  "l 2 1 3\nv 0 2 0\n",
+                  path, sizeof path);
+    assert_int_equal(dr_io_read_polylines_obj(path, NULL, &b, &err), DR_OK);
+    assert_int_equal(b.count, 2);
+    double want[5] = {0.5, 0.25, 0.3, 0.2, 0.1};
+    assert_memory_equal(b.outer, want, sizeof want); /* exact: strtod of the same text */
+    dr_io_polylines_free(&b);
+
+    static const struct {
+        const char *text;
+        int line, col;
+        const char *message;
+    } bad[] = {
+        {"# radius 0.1\nv 0 0 0\nv 0 1 0\n# outer_radius 0.2\nl 1 2\n", 5, 1, "gives 1 radii for its 2 vertices"},
+        {"# radius 0.1\nv 0 0 0\nv 0 1 0\n# outer_radius 0.2 0.2\nl 1 2\nl 2 1\n", 6, 1,
+         "has no \"# outer_radius\" line but the strands before it have one"},
+        {"# radius 0.1\nv 0 0 0\nv 0 1 0\nl 1 2\n# outer_radius 0.2 0.2\nl 2 1\n", 6, 1,
+         "but the 1 before it have none"},
+        {"# radius 0.1\nv 0 0 0\nv 0 1 0\n# outer_radius 0.2 0.2\n# outer_radius 0.2 0.2\nl 1 2\n", 5, 1,
+         "a second \"# outer_radius\" line"},
+        {"# radius 0.1\nv 0 0 0\nv 0 1 0\nl 1 2\n# outer_radius 0.2 0.2\n", 5, 1, "without an 'l' record after it"},
+        {"# radius 0.1\n# outer_radius 0.2 -0.1\n", 2, 20, "film outer radius -0.1 is not a finite number >= 0"},
+        {"# radius 0.1\n# outer_radius 0.2 nan\n", 2, 20, "is not a finite number"},
+        {"# radius 0.1\n# outer_radius 0.2 2mm\n", 2, 20, "'2mm' is not a number"},
+    };
+    char name[64];
+    for (size_t k = 0; k < sizeof bad / sizeof bad[0]; k++) {
+        snprintf(name, sizeof name, "bad_outer_%zu.obj", k);
+        write_scratch(name, bad[k].text, path, sizeof path);
+        DrPolylines p = {.count = 7};
+        assert_int_equal(dr_io_read_polylines_obj(path, NULL, &p, &err), DR_ERR_INPUT);
+        assert_string_equal(err.file, path);
+        if (err.line != bad[k].line || err.col != bad[k].col)
+            fail_msg("case %zu: reported at %d:%d, expected %d:%d", k, err.line, err.col, bad[k].line, bad[k].col);
+        if (!strstr(err.message, bad[k].message))
+            fail_msg("case %zu: message \"%s\" lacks \"%s\"", k, err.message, bad[k].message);
+        assert_int_equal(p.count, 0);
+        assert_null(p.outer);
+    }
 }
 
 /* ---- files ---- */
@@ -1560,6 +1645,7 @@ int main(void)
         cmocka_unit_test(test_polylines_read_other_writers),
         cmocka_unit_test(test_polylines_read_desc),
         cmocka_unit_test(test_polylines_bad_files),
+        cmocka_unit_test(test_polylines_outer_radius),
         cmocka_unit_test(test_files),
         cmocka_unit_test(test_remove_stale_tmp),
         cmocka_unit_test(test_manifest),

@@ -1,5 +1,5 @@
 /* Unit tests of src/render: silhouettes against the exact projection, background, PNG files, camera checks,
- * liquid and shadows, strands, determinism across thread counts, contact sheets, resizing and text. */
+ * liquid and shadows, strands (wet ones too), determinism across thread counts, contact sheets, resizing and text. */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -968,6 +968,108 @@ static void test_strand_columns(void **state)
     dr_render_scene_destroy(&s);
 }
 
+/* Luminance (luma above) of pixel (i, j). */
+static double luma_at(const DrImage *img, int i, int j) { return luma(px(img, i, j)); }
+
+/* Pixels of rows j0..j1 that are not background, and the mean luminance over them. */
+static int covered(const DrImage *img, const DrCamera *cam, int j0, int j1, double *mean)
+{
+    int n = 0;
+    double sum = 0.0;
+    for (int j = j0; j <= j1; j++)
+        for (int i = 0; i < img->width; i++)
+            if (!is_background(img, cam, i, j)) n++, sum += luma_at(img, i, j);
+    *mean = n ? sum / n : 0.0;
+    return n;
+}
+
+/* Wet strands (dr_render_scene_add_wet_polylines): the same strand with a film (three times its radius, wetness 1)
+ * covers more pixels and is darker, over all its pixels and at each pixel the dry strand covers whole; the wetness
+ * alone darkens every pixel and changes no coverage; wetness 0 at one radius is byte for byte the dry call's
+ * drawing; radius and wetness vary along a strand; bad values are refused naming the strand and the vertex. */
+static void test_wet_strands(void **state)
+{
+    (void)state;
+    /* one vertical strand through the centre, 3 m from the eye: 68.7 px per metre (test_strand_columns), so the
+       dry strand (r = 2 cm) is 2.7 px wide and the wet one (H = 6 cm) 8.2 px */
+    double pts[3 * 3] = {0, -0.25, 0, 0, 0, 0, 0, 0.25, 0};
+    int off[2] = {0, 3};
+    double r = 0.02, r3[3] = {0.02, 0.02, 0.02}, H[3] = {0.06, 0.06, 0.06}, w1[3] = {1, 1, 1}, w0[3] = {0, 0, 0};
+    DrCamera cam = camera(dr_v3(0, 0, 3), dr_v3(0, 0, 0), dr_v3(0, 1, 0), 40, 200, 150);
+    DrRenderDesc desc = dr_render_desc_default();
+    desc.ground = false;
+    DrError err;
+    DrImage img[5];
+    for (int k = 0; k < 5; k++) {
+        DrRenderScene *s = new_scene();
+        DrStatus st = k == 0 ? dr_render_scene_add_polylines(s, pts, off, 1, &r, DR_MATERIAL_HAIR, &err)
+                      : k == 1 ? dr_render_scene_add_wet_polylines(s, pts, off, 1, H, w1, DR_MATERIAL_HAIR, &err)
+                      : k == 2 ? dr_render_scene_add_wet_polylines(s, pts, off, 1, H, w0, DR_MATERIAL_HAIR, &err)
+                      : k == 3 ? dr_render_scene_add_wet_polylines(s, pts, off, 1, r3, NULL, DR_MATERIAL_HAIR, &err)
+                               : dr_render_scene_add_wet_polylines(s, pts, off, 1, r3, w0, DR_MATERIAL_HAIR, &err);
+        assert_int_equal(st, DR_OK);
+        img[k] = render(s, &cam, &desc);
+        dr_render_scene_destroy(&s);
+    }
+    double x, y_top, y_bottom, depth;
+    assert_true(dr_camera_project(&cam, dr_v3(0, 0.25, 0), &x, &y_top, &depth));
+    assert_true(dr_camera_project(&cam, dr_v3(0, -0.25, 0), &x, &y_bottom, &depth));
+    int j0 = (int)y_top + 2, j1 = (int)y_bottom - 2; /* inside the ends' caps */
+    double dry_mean, wet_mean, film_mean;
+    int dry_n = covered(&img[0], &cam, j0, j1, &dry_mean), wet_n = covered(&img[1], &cam, j0, j1, &wet_mean);
+    int film_n = covered(&img[2], &cam, j0, j1, &film_mean);
+    /* wider: 8.2 px against 2.7; an interval w px wide covers between w − 1 and w + 1 columns (a column counts
+       when one of its 3 supersample columns is inside), so at least 3 more columns in every row */
+    assert_true(wet_n >= dry_n + 3 * (j1 - j0 + 1));
+    /* darker over its pixels, though the dry strand's include more antialiased edge (lighter) */
+    assert_true(wet_mean < dry_mean);
+    /* and at every pixel the dry strand covers whole (its centre column), where only the albedo differs */
+    int ic = (int)x;
+    for (int j = j0; j <= j1; j++) {
+        assert_false(is_background(&img[0], &cam, ic, j));
+        if (!(luma_at(&img[1], ic, j) < luma_at(&img[0], ic, j)))
+            fail_msg("row %d: wet %.1f not darker than dry %.1f", j, luma_at(&img[1], ic, j), luma_at(&img[0], ic, j));
+    }
+    /* the wetness alone: the same pixels covered, each darker or as dark, and darker on the whole */
+    assert_int_equal(film_n, wet_n);
+    for (int j = j0; j <= j1; j++)
+        for (int i = 0; i < cam.width; i++) {
+            assert_true(is_background(&img[1], &cam, i, j) == is_background(&img[2], &cam, i, j));
+            assert_true(luma_at(&img[1], i, j) <= luma_at(&img[2], i, j));
+        }
+    assert_true(wet_mean < film_mean);
+    /* dry through the wet call (no wetness, or wetness 0; one radius): the dry call's bytes */
+    for (int k = 3; k < 5; k++) assert_memory_equal(img[k].rgb, img[0].rgb, 3 * (size_t)cam.width * cam.height);
+    for (int k = 0; k < 5; k++) dr_image_free(&img[k]);
+
+    /* along the strand: dry and thin at the bottom, wet and wide at the top */
+    double Hs[3] = {0.02, 0.04, 0.06}, ws[3] = {0, 0.5, 1};
+    DrRenderScene *s = new_scene();
+    assert_int_equal(dr_render_scene_add_wet_polylines(s, pts, off, 1, Hs, ws, DR_MATERIAL_HAIR, &err), DR_OK);
+    DrImage g = render(s, &cam, &desc);
+    dr_render_scene_destroy(&s);
+    int jt = j0 + 3, jb = j1 - 3;
+    int nt = 0, nb = 0;
+    for (int i = 0; i < cam.width; i++) nt += !is_background(&g, &cam, i, jt), nb += !is_background(&g, &cam, i, jb);
+    assert_true(nt > nb);
+    assert_true(luma_at(&g, ic, jt) < luma_at(&g, ic, jb));
+    dr_image_free(&g);
+
+    /* bad values: DR_ERR_INPUT naming the strand and its vertex, nothing added */
+    s = new_scene();
+    double bad_w[3] = {0, 1.5, 0}, nan_w[3] = {0, 0, NAN}, bad_r[3] = {0.02, -1, 0.02};
+    assert_int_equal(dr_render_scene_add_wet_polylines(s, pts, off, 1, r3, bad_w, DR_MATERIAL_HAIR, &err), DR_ERR_INPUT);
+    assert_non_null(strstr(err.message, "polyline 0 has wetness 1.5 at its vertex 1"));
+    assert_int_equal(dr_render_scene_add_wet_polylines(s, pts, off, 1, r3, nan_w, DR_MATERIAL_HAIR, &err), DR_ERR_INPUT);
+    assert_int_equal(dr_render_scene_add_wet_polylines(s, pts, off, 1, bad_r, NULL, DR_MATERIAL_HAIR, &err),
+                     DR_ERR_INPUT);
+    assert_non_null(strstr(err.message, "polyline 0 has radius -1 at its vertex 1"));
+    assert_int_equal(dr_render_scene_add_wet_polylines(s, pts, off, 1, r3, w1, DR_MATERIAL_LIQUID, &err), DR_ERR_INPUT);
+    DrVec3 lo, hi;
+    assert_false(dr_render_scene_bounds(s, &lo, &hi));
+    dr_render_scene_destroy(&s);
+}
+
 /* No strands, or only strands of one vertex: nothing drawn, the image is the background's, and with the ground
  * on it is byte for byte an empty scene's. */
 static void test_strands_empty(void **state)
@@ -1284,6 +1386,7 @@ int main(void)
         cmocka_unit_test(test_shadow_under_cube),
         cmocka_unit_test(test_strands),
         cmocka_unit_test(test_strand_columns),
+        cmocka_unit_test(test_wet_strands),
         cmocka_unit_test(test_strands_empty),
         cmocka_unit_test(test_strand_depth),
         cmocka_unit_test(test_threads_identical),

@@ -1189,8 +1189,8 @@ static void test_canonical_json(void **state)
     free(c);
     c = dr_scene_canonical(s, "mesh");
     assert_string_equal(c, "{\"adaptivity\":0,\"hair_ribbons\":false,\"radius_scale\":0.80000000000000004,\"smoothing\":1,"
-                           "\"velocity_interior\":false,\"voxel_size\":0,\"write_obj\":true,\"write_points\":true,"
-                           "\"write_vdb\":true}");
+                           "\"velocity_interior\":false,\"voxel_size\":0,\"wet_tube_sides\":8,\"wet_tubes\":false,"
+                           "\"write_obj\":true,\"write_points\":true,\"write_vdb\":true}");
     free(c);
     dr_scene_destroy(&s);
 
@@ -1432,7 +1432,7 @@ static void test_reference_lists_everything(void **state)
     assert_contains(md, "| `scheme` | one of apic, flip, pic, rpic | - | `\"apic\"` | - |");
     assert_contains(md, "out/&lt;name&gt;/"); /* no raw HTML in the Markdown */
     assert_contains(text, "components: Groom (required), RodMaterial, Collider, Transform, Motion, CollisionGroup,\n"
-                          "    CollisionResponse, HairSolver\n");
+                          "    CollisionResponse, HairSolver, Wetting, Film, Cohesion, CrossFlow\n");
     assert_contains(md, "| `preconditioner` | one of block, cluster, jacobi, none | - | `\"block\"` | - |");
     assert_contains(md, "| `collides_with` | integer | - | `2147483647` | [0, 2147483647] |");
     assert_contains(text, "components: Mesh (required), LinearElastic, Compression, BemSolver");
@@ -1467,7 +1467,7 @@ static void test_spec_lookups(void **state)
     assert_null(dr_scene_element_spec("fur"));
     const DrElementSpec *hair = dr_scene_element_spec("hair");
     assert_non_null(hair);
-    assert_int_equal(hair->component_count, 8);
+    assert_int_equal(hair->component_count, 12); /* Groom … HairSolver, and the wet hair's Wetting … CrossFlow */
     assert_int_equal(hair->required_count, 1);
     assert_string_equal(hair->required_components[0], "Groom");
     assert_false(hair->needs_precompute);
