@@ -337,7 +337,7 @@ rows = list(csv.DictReader(open(sys.argv[1])))
 runs = {l.split()[0]: l.split()[1:] for l in open(sys.argv[2])}
 print("### 3. wet fur shot: hair_shake with a film (H/r = 3) against the dry hair_shake, 2 threads")
 print()
-print("precompute of the wet shot (two cohesion tables): %.2f s" % float(sys.argv[3]))
+print("precompute of the wet shot: %.2f s (its cohesion tables are cache hits when part 2 built them)" % float(sys.argv[3]))
 print()
 print("| shot | frames | s/frame | hair solve | bridges | film | cross-hair flow | CG it./frame | contacts | bridges | wall s | other CPUs | load |")
 print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
