@@ -191,7 +191,9 @@ static void append_progress(const char *path, const DrFrameStats *fs, const Fram
     if (fs->mpm.present)
         fprintf(f, "\"mpm_transfer\":%.6f,\"mpm_solve\":%.6f,", fs->mpm.seconds_transfer, fs->mpm.seconds_solve);
     if (fs->hair.present) fprintf(f, "\"hair\":%.6f,", fs->hair.seconds);
-    if (fs->hair.wet) fprintf(f, "\"film\":%.6f,\"bridges\":%.6f,", fs->hair.seconds_film, fs->hair.seconds_bridges);
+    if (fs->hair.wet) /* parts of "hair" */
+        fprintf(f, "\"film\":%.6f,\"cross_flow\":%.6f,\"bridges\":%.6f,", fs->hair.seconds_film,
+                fs->hair.seconds_cross_flow, fs->hair.seconds_bridges);
     if (fs->bem.present)
         fprintf(f,
                 "\"bem_history\":%.6f,\"bem_solve\":%.6f,\"bem_correction\":%.6f,\"bem_trial\":%.6f,"

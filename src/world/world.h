@@ -67,7 +67,9 @@ typedef struct DrHairFrameStats {
     double cross_flow;                 /* m³ moved across bridges in the frame */
     double film_kinetic_energy;        /* J */
     double film_gravity_energy;        /* J: −Σ ρ V g·x of the film and the pools */
-    double seconds_film, seconds_bridges;
+    double seconds_film;               /* the film's steps along the strands */
+    double seconds_bridges;            /* finding the bridges, their rows in the system, the film's load on it */
+    double seconds_cross_flow;         /* the film's flow across bridges and its exchange with the strands */
 } DrHairFrameStats;
 
 typedef struct DrBemFrameStats {

@@ -37,7 +37,7 @@ typedef struct WorldWet {
     double *heights;           /* per vertex: the film's outer radius, for the frame cache */
     DrFilmStats film_frame;    /* summed over the frame */
     double cross_flow;         /* m³ over the frame */
-    double seconds_film, seconds_bridges;
+    double seconds_film, seconds_bridges, seconds_cross_flow; /* the frame's, disjoint parts of the hair's seconds */
 } WorldWet;
 
 typedef struct WorldHair {
@@ -333,7 +333,7 @@ static void hair_begin_frame(void *self, const WorldCtx *c)
     if (h->wet) {
         memset(&h->wet->film_frame, 0, sizeof h->wet->film_frame);
         h->wet->cross_flow = 0;
-        h->wet->seconds_film = h->wet->seconds_bridges = 0;
+        h->wet->seconds_film = h->wet->seconds_bridges = h->wet->seconds_cross_flow = 0;
     }
 }
 
@@ -435,13 +435,15 @@ static DrStatus step_system(WorldHair *h, double dt, DrError *err)
         /* the film follows the strands' step and flows; then across the bridges */
         double tf = dr_time_now();
         DR_TRY(dr_film_step(w->film, w->x_old, rs.x, rs.v, rs.mass, w->held, dt, &w->film_frame, err));
+        double tc = dr_time_now();
+        w->seconds_film += tc - tf;
         DrBridgeStrands bs = wet_strands(h);
         DR_TRY(dr_bridges_cross_flow(w->bridges, &bs, dt, w->dV, err));
         DrBridgeStats bst;
         dr_bridges_stats(w->bridges, &bst);
         if (bst.cross_flow > 0) dr_film_exchange(w->film, rs.x, w->dV, rs.v, rs.mass);
         w->cross_flow += bst.cross_flow;
-        w->seconds_film += dr_time_now() - tf;
+        w->seconds_cross_flow += dr_time_now() - tc;
     }
     return solved;
 }
@@ -531,6 +533,7 @@ static DrStatus hair_end_frame(void *self, const WorldCtx *c, DrFrameStats *stat
         b->cross_flow = w->cross_flow;
         b->seconds_film = w->seconds_film;
         b->seconds_bridges = w->seconds_bridges;
+        b->seconds_cross_flow = w->seconds_cross_flow;
         h->last_wet = *b;
         if (!isfinite(fs.volume) || !isfinite(fs.kinetic))
             return dr_error_set(err, DR_ERR_RUNTIME, NULL, 0, 0,
