@@ -157,6 +157,24 @@ static void table_free(Table *t)
     *t = (Table){0};
 }
 
+/* Wet hair's phases (seconds.film, cross_flow, bridges) are parts of seconds.hair: the stack shows the hair's solve as
+   what is left of it, so that no second is counted twice. */
+static void split_hair_seconds(Table *t)
+{
+    int hair = -1;
+    for (int c = 0; c < t->ncols; c++)
+        if (!strcmp(t->cols[c].name, "seconds.hair")) hair = c;
+    if (hair < 0) return;
+    static const char *const parts[] = {"seconds.film", "seconds.cross_flow", "seconds.bridges"};
+    for (int c = 0; c < t->ncols; c++)
+        for (size_t k = 0; k < sizeof parts / sizeof parts[0]; k++) {
+            if (strcmp(t->cols[c].name, parts[k])) continue;
+            for (int r = 0; r < t->nrows; r++)
+                if (!isnan(t->cols[c].v[r]) && !isnan(t->cols[hair].v[r]))
+                    t->cols[hair].v[r] = fmax(0.0, t->cols[hair].v[r] - t->cols[c].v[r]);
+        }
+}
+
 /* ---- the .dat and the script ------------------------------------------------------------------ */
 
 static DrStatus write_dat(const char *path, const Table *t, DrError *err)
@@ -511,6 +529,7 @@ DrStatus plots_write(const char *progress_path, const char *out_dir, int *writte
         t.nrows = nrows;
         for (int r = 0; s == DR_OK && r < nrows; r++) s = table_set(&t, "frame", r, (double)rows[r].frame, err);
         for (int r = 0; s == DR_OK && r < nrows; r++) s = flatten(&t, r, "", rows[r].obj, err);
+        if (s == DR_OK) split_hair_seconds(&t);
     }
     if (s == DR_OK) s = dr_io_mkdirs(out_dir, err);
     if (s == DR_OK) {
