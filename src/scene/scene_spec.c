@@ -359,12 +359,11 @@ static const DrFieldSpec collision_response_fields[] = {
 };
 
 static const DrFieldSpec hair_solver_fields[] = {
-    {.name = "preconditioner", .kind = DR_FIELD_ENUM, .unit = "", .def_str = "auto",
-     .choices = "auto|block|cluster|jacobi|none",
-     .doc = "preconditioner of the conjugate-gradient solve: auto (cluster where a hair element is wet, block "
-            "otherwise), block (each strand's banded Cholesky factor), cluster (strands joined by contacts and "
-            "bridges factored together: far fewer iterations when they are stiff or many, at the cost of a sparse "
-            "factorisation per step), jacobi (the diagonal) or none"},
+    {.name = "preconditioner", .kind = DR_FIELD_ENUM, .unit = "", .def_str = "block",
+     .choices = "block|cluster|jacobi|none",
+     .doc = "preconditioner of the conjugate-gradient solve: block (each strand's banded Cholesky factor), cluster "
+            "(strands joined by contacts factored together: far fewer iterations when contacts are stiff or many, "
+            "at the cost of a sparse factorisation per step), jacobi (the diagonal) or none"},
     {.name = "tolerance", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {1e-6}, RANGE(1e-14, 0.1),
      .doc = "relative mass-weighted residual at which the solve stops"},
     {.name = "max_iterations", .kind = DR_FIELD_INT, .unit = "", .def = {500}, RANGE(1, 1000000),

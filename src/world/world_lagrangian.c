@@ -162,17 +162,6 @@ static DrStatus build_hair(const WorldCtx *c, WorldHair *h, int n, DrError *err)
         d.hair_contact = contact;
         d.geometric_stiffness = dr_component_bool(solver, "geometric_stiffness");
         const char *pc = dr_component_str(solver, "preconditioner");
-        /* auto: bridges couple wet strands by the thousand, which the cluster preconditioner sees and the strands'
-           own blocks do not (bench_wet: 340 times fewer CG iterations on a wet groom of 1,024 strands, 5-6 times
-           faster; on the wet hair_shake 38 times fewer and 3 % faster); dry hair keeps the blocks */
-        if (strcmp(pc, "auto") == 0) {
-            pc = "block";
-            for (int e = 0; e < dr_scene_element_count(scene); e++) {
-                const DrElement *el = dr_scene_element(scene, e);
-                if (el->kind == DR_ELEMENT_HAIR && dr_component_present(dr_element_component(el, "Wetting")))
-                    pc = "cluster";
-            }
-        }
         d.solver.precond = strcmp(pc, "jacobi") == 0    ? DR_LAG_PRECOND_JACOBI
                            : strcmp(pc, "none") == 0    ? DR_LAG_PRECOND_NONE
                            : strcmp(pc, "cluster") == 0 ? DR_LAG_PRECOND_CLUSTER

@@ -672,7 +672,7 @@ static void test_hair_defaults(void **state)
     assert_true(dr_component_num(resp, "friction") == 0.2);
     assert_true(dr_component_num(resp, "thickness") == 0.0);
     const DrComponent *sol = dr_element_component(fur, "HairSolver");
-    assert_string_equal(dr_component_str(sol, "preconditioner"), "auto");
+    assert_string_equal(dr_component_str(sol, "preconditioner"), "block");
     assert_true(dr_component_num(sol, "tolerance") == 1e-6);
     assert_int_equal(dr_component_int(sol, "max_iterations"), 500);
     assert_int_equal(dr_component_int(sol, "substeps"), 1);
@@ -779,7 +779,7 @@ static void test_hair_bad_input(void **state)
          {"fur.CollisionResponse.stiffness = 0 is out of range (0, 1000000000] N/m"}},
         {"\"Groom\":{\"scalp\":\"meshes/tri.obj\"},\"HairSolver\":{\"preconditioner\":\"jacoby\"}", NULL,
          {"fur.HairSolver.preconditioner: 'jacoby' is not a valid choice; did you mean 'jacobi'? Choose one of "
-          "auto, block, cluster, jacobi, none"}},
+          "block, cluster, jacobi, none"}},
         {"\"Groom\":{\"scalp\":\"meshes/tri.obj\"},\"HairSolver\":{\"substeps\":0}", NULL,
          {"fur.HairSolver.substeps = 0 is out of range [1, 100000]"}},
         {"\"Groom\":{\"scalp\":\"meshes/tri.obj\"},\"Domain\":{}", NULL,
@@ -837,7 +837,7 @@ static void test_hair_bad_input(void **state)
            "  { \"name\": \"a\", \"type\": \"hair\", \"components\": { \"Groom\": { \"scalp\": \"meshes/tri.obj\" } } },\n"
            "  { \"name\": \"b\", \"type\": \"hair\", \"components\": { \"Groom\": { \"scalp\": \"meshes/tri.obj\" },\n"
            "      \"HairSolver\": { \"preconditioner\": \"none\" } } } ]\n}\n";
-    assert_error_at(text, "\"none\"", "b.HairSolver.preconditioner = 'none' differs from a.HairSolver.preconditioner = 'auto'");
+    assert_error_at(text, "\"none\"", "b.HairSolver.preconditioner = 'none' differs from a.HairSolver.preconditioner = 'block'");
 }
 
 /* ---- bem_solid ------------------------------------------------------------------------------------------- */
@@ -1433,7 +1433,7 @@ static void test_reference_lists_everything(void **state)
     assert_contains(md, "out/&lt;name&gt;/"); /* no raw HTML in the Markdown */
     assert_contains(text, "components: Groom (required), RodMaterial, Collider, Transform, Motion, CollisionGroup,\n"
                           "    CollisionResponse, HairSolver, Wetting, Film, Cohesion, CrossFlow\n");
-    assert_contains(md, "| `preconditioner` | one of auto, block, cluster, jacobi, none | - | `\"auto\"` | - |");
+    assert_contains(md, "| `preconditioner` | one of block, cluster, jacobi, none | - | `\"block\"` | - |");
     assert_contains(md, "| `collides_with` | integer | - | `2147483647` | [0, 2147483647] |");
     assert_contains(text, "components: Mesh (required), LinearElastic, Compression, BemSolver");
     assert_contains(md, "### Element type `bem_solid`");
