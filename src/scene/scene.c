@@ -667,6 +667,7 @@ static DrStatus check_bem_time_steps(Parser *p)
 /* Fields that every element of one type must agree on, because those elements are advanced together. */
 typedef struct Shared {
     const char *component, *field; /* field NULL: every field of the component */
+    const char *except;            /* with field NULL: a field left out (NULL: none) */
 } Shared;
 
 /* Two values of one field are the same setting (set or defaulted alike, equal numbers, equal strings). */
@@ -683,6 +684,34 @@ static void shared_value_text(const DrFieldSpec *fs, const DrValue *v, char *buf
     else dr_scene_fmt_num_(v->num[0], buf, size);
 }
 
+/* Element e's shared fields against first's: the first that differs is an error naming both and ending with `why`. */
+static DrStatus check_pair(Parser *p, const DrElement *first, const DrElement *e, const Shared *shared, int nshared,
+                           const char *why)
+{
+    for (int k = 0; k < nshared; k++) {
+        const DrComponent *a = dr_element_component(first, shared[k].component);
+        const DrComponent *b = dr_element_component(e, shared[k].component);
+        for (int f = 0; f < a->spec->field_count; f++) {
+            const DrFieldSpec *fs = &a->spec->fields[f];
+            if (shared[k].field && strcmp(fs->name, shared[k].field) != 0) continue;
+            if (shared[k].except && strcmp(fs->name, shared[k].except) == 0) continue;
+            const DrValue *va = &a->values[f], *vb = &b->values[f];
+            if (same_value(va, vb)) continue;
+            char xa[64], xb[64];
+            shared_value_text(fs, va, xa, sizeof xa);
+            shared_value_text(fs, vb, xb, sizeof xb);
+            push_index(p, e->index);
+            push_key(p, "components");
+            push_key(p, a->spec->name);
+            push_key(p, fs->name);
+            return fail(p, "%s.%s.%s = %s differs from %s.%s.%s = %s; %s, so give both elements the same %s.%s",
+                        e->name, a->spec->name, fs->name, xb, first->name, a->spec->name, fs->name, xa, why,
+                        a->spec->name, fs->name);
+        }
+    }
+    return DR_OK;
+}
+
 /* The first element of `type` whose shared fields differ from the first one's is an error naming both and
    ending with `why`. */
 static DrStatus check_shared(Parser *p, const char *type, const Shared *shared, int nshared, const char *why)
@@ -692,30 +721,8 @@ static DrStatus check_shared(Parser *p, const char *type, const Shared *shared, 
     for (int i = 0; i < s->element_count; i++) {
         const DrElement *e = &s->elements[i];
         if (strcmp(e->type, type) != 0) continue;
-        if (!first) {
-            first = e;
-            continue;
-        }
-        for (int k = 0; k < nshared; k++) {
-            const DrComponent *a = dr_element_component(first, shared[k].component);
-            const DrComponent *b = dr_element_component(e, shared[k].component);
-            for (int f = 0; f < a->spec->field_count; f++) {
-                const DrFieldSpec *fs = &a->spec->fields[f];
-                if (shared[k].field && strcmp(fs->name, shared[k].field) != 0) continue;
-                const DrValue *va = &a->values[f], *vb = &b->values[f];
-                if (same_value(va, vb)) continue;
-                char xa[64], xb[64];
-                shared_value_text(fs, va, xa, sizeof xa);
-                shared_value_text(fs, vb, xb, sizeof xb);
-                push_index(p, e->index);
-                push_key(p, "components");
-                push_key(p, a->spec->name);
-                push_key(p, fs->name);
-                return fail(p, "%s.%s.%s = %s differs from %s.%s.%s = %s; %s, so give both elements the same %s.%s",
-                            e->name, a->spec->name, fs->name, xb, first->name, a->spec->name, fs->name, xa, why,
-                            a->spec->name, fs->name);
-            }
-        }
+        if (!first) first = e;
+        else DR_TRY(check_pair(p, first, e, shared, nshared, why));
     }
     return DR_OK;
 }
@@ -830,28 +837,10 @@ static DrStatus check_wet_hair(Parser *p)
             first = e;
             continue;
         }
-        static const char *const shared[] = {"Wetting", "Cohesion", "CrossFlow", "Film"};
-        for (int k = 0; k < 4; k++) {
-            const DrComponent *a = dr_element_component(first, shared[k]);
-            const DrComponent *b = dr_element_component(e, shared[k]);
-            for (int f = 0; f < a->spec->field_count; f++) {
-                const DrFieldSpec *fs = &a->spec->fields[f];
-                if (strcmp(fs->name, "initial_ratio") == 0) continue;
-                const DrValue *va = &a->values[f], *vb = &b->values[f];
-                if (same_value(va, vb)) continue;
-                char xa[64], xb[64];
-                shared_value_text(fs, va, xa, sizeof xa);
-                shared_value_text(fs, vb, xb, sizeof xb);
-                push_index(p, e->index);
-                push_key(p, "components");
-                push_key(p, a->spec->name);
-                push_key(p, fs->name);
-                return fail(p, "%s.%s.%s = %s differs from %s.%s.%s = %s; the strands of every wet hair element share "
-                               "one film, cohesion and cross-flow model, so give both elements the same %s.%s",
-                            e->name, a->spec->name, fs->name, xb, first->name, a->spec->name, fs->name, xa,
-                            a->spec->name, fs->name);
-            }
-        }
+        static const Shared shared[] = {
+            {"Wetting", NULL, NULL}, {"Cohesion", NULL, NULL}, {"CrossFlow", NULL, NULL}, {"Film", NULL, "initial_ratio"}};
+        DR_TRY(check_pair(p, first, e, shared, 4,
+                          "the strands of every wet hair element share one film, cohesion and cross-flow model"));
     }
     return DR_OK;
 }
@@ -863,8 +852,9 @@ static DrStatus check_wet_hair(Parser *p)
 static DrStatus check_cross_element(Parser *p)
 {
     static const Shared mpm[] = {
-        {"Domain", "voxel_size"}, {"Domain", "wall_boundary"}, {"Transfer", NULL}, {"Integrator", NULL}};
-    static const Shared hair[] = {{"HairSolver", NULL}};
+        {"Domain", "voxel_size", NULL}, {"Domain", "wall_boundary", NULL}, {"Transfer", NULL, NULL},
+        {"Integrator", NULL, NULL}};
+    static const Shared hair[] = {{"HairSolver", NULL, NULL}};
     DR_TRY(check_shared(p, "mpm_solid", mpm, (int)(sizeof mpm / sizeof mpm[0]),
                         "every mpm_solid of a scene shares one grid and one time step"));
     DR_TRY(check_bem_joints(p));
