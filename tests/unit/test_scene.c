@@ -838,6 +838,21 @@ static void test_hair_bad_input(void **state)
            "  { \"name\": \"b\", \"type\": \"hair\", \"components\": { \"Groom\": { \"scalp\": \"meshes/tri.obj\" },\n"
            "      \"HairSolver\": { \"preconditioner\": \"none\" } } } ]\n}\n";
     assert_error_at(text, "\"none\"", "b.HairSolver.preconditioner = 'none' differs from a.HairSolver.preconditioner = 'block'");
+    /* wet hair elements share one film model: Film.max_ratio must agree, Film.initial_ratio may differ */
+    text = "{\"elements\": [\n"
+           "  { \"name\": \"a\", \"type\": \"hair\", \"components\": { \"Groom\": { \"scalp\": \"meshes/tri.obj\" },\n"
+           "      \"Wetting\": {}, \"Film\": { \"initial_ratio\": 2 } } },\n"
+           "  { \"name\": \"b\", \"type\": \"hair\", \"components\": { \"Groom\": { \"scalp\": \"meshes/tri.obj\" },\n"
+           "      \"Wetting\": {}, \"Film\": { \"initial_ratio\": 3, \"max_ratio\": 4 } } } ]\n}\n";
+    assert_error_at(text, "4 } } }", "b.Film.max_ratio = 4 differs from a.Film.max_ratio = 6; the strands of every "
+                                           "wet hair element share one film, cohesion and cross-flow model");
+    text = "{\"elements\": [\n"
+           "  { \"name\": \"a\", \"type\": \"hair\", \"components\": { \"Groom\": { \"scalp\": \"meshes/tri.obj\" },\n"
+           "      \"Wetting\": {}, \"Film\": { \"initial_ratio\": 2 } } },\n"
+           "  { \"name\": \"b\", \"type\": \"hair\", \"components\": { \"Groom\": { \"scalp\": \"meshes/tri.obj\" },\n"
+           "      \"Wetting\": {}, \"Film\": { \"initial_ratio\": 3 } } } ]\n}\n";
+    DrScene *wet = load_text(text);
+    dr_scene_destroy(&wet);
 }
 
 /* ---- bem_solid ------------------------------------------------------------------------------------------- */
