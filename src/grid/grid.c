@@ -50,6 +50,7 @@ DrStatus dr_face_coupling_create(const DrMacGrid *g, DrFaceCoupling **out, DrErr
         DrStatus s = dr_calloc((size_t)g->nfaces[a], sizeof(double), &fc->open[a], err);
         if (s >= 0) s = dr_calloc((size_t)g->nfaces[a], sizeof(double), &fc->velocity[a], err);
         if (s >= 0) s = dr_calloc((size_t)g->nfaces[a], sizeof(double), &fc->impulse[a], err);
+        if (s >= 0) s = dr_calloc((size_t)g->nfaces[a], sizeof(double), &fc->drag[a], err);
         if (s < 0) { dr_face_coupling_destroy(&fc); return s; }
     }
     dr_face_coupling_clear(fc);
@@ -60,7 +61,7 @@ DrStatus dr_face_coupling_create(const DrMacGrid *g, DrFaceCoupling **out, DrErr
 void dr_face_coupling_destroy(DrFaceCoupling **fc)
 {
     if (!fc || !*fc) return;
-    for (int a = 0; a < 3; a++) { free((*fc)->open[a]); free((*fc)->velocity[a]); free((*fc)->impulse[a]); }
+    for (int a = 0; a < 3; a++) { free((*fc)->open[a]); free((*fc)->velocity[a]); free((*fc)->impulse[a]); free((*fc)->drag[a]); }
     free(*fc);
     *fc = NULL;
 }
@@ -72,6 +73,7 @@ void dr_face_coupling_clear(DrFaceCoupling *fc)
             fc->open[a][f] = 1.0;
             fc->velocity[a][f] = 0.0;
             if (fc->impulse[a]) fc->impulse[a][f] = 0.0;
+            if (fc->drag[a]) fc->drag[a][f] = 0.0;
         }
 }
 

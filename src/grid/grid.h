@@ -61,17 +61,24 @@ DrVec3 dr_mac_cell_center(const DrMacGrid *g, int i, int j, int k);
  *   impulse[a][f]   momentum added to the liquid through the face along e_a, N·s (kg·m/s; not per area):
  *                   the liquid turns it into the velocity increment J/m_f with its own face mass m_f.
  *                   May be NULL for none (the colliders' instance has none).
+ *   drag[a][f]      implicit drag mass β_f, kg (≥ 0; NULL for none): a porous solid on the face pulls the
+ *                   liquid towards velocity[a][f] within the projection, m_f u_f = m_f u*_f + J_f
+ *                   + β_f (velocity_f − u_f) − (pressure impulse), so the face's velocity is
+ *                   (m_f u*_f + J_f + β_f velocity_f)/(m_f + β_f) and its pressure coefficient is scaled by
+ *                   m_f/(m_f + β_f) (a porous face). The momentum it gives the liquid, β_f (velocity_f − u_f)
+ *                   with the projected u_f, is not part of the impulse sum (the liquid reports it apart).
  * A participant writing into one owns its arrays; nothing here is thread-safe against a concurrent writer. */
 typedef struct DrFaceCoupling {
     long nfaces[3];
     double *open[3];
     double *velocity[3];
     double *impulse[3];
+    double *drag[3];
 } DrFaceCoupling;
-/* Allocates the three arrays for grid g and clears them (dr_face_coupling_clear). DR_ERR_NOMEM. */
+/* Allocates the four arrays for grid g and clears them (dr_face_coupling_clear). DR_ERR_NOMEM. */
 DR_NODISCARD DrStatus dr_face_coupling_create(const DrMacGrid *g, DrFaceCoupling **out, DrError *err);
 void dr_face_coupling_destroy(DrFaceCoupling **fc);
-/* No solid: open 1, velocity 0, impulse 0 on every face. */
+/* No solid: open 1, velocity 0, impulse 0, drag 0 on every face. */
 void dr_face_coupling_clear(DrFaceCoupling *fc);
 
 /* ---- kernels --------------------------------------------------------------------------------------- */
