@@ -96,6 +96,10 @@ struct DrLiquid {
     int nproj;               /* projections since dr_liquid_begin */
     bool sample_ok;          /* the grid holds a projection's velocities and pressure (dr_liquid_sample) */
     DrVec3 added;            /* momentum the extra coupling's impulses gave in the last projection, N·s */
+    DrVec3 drag_added;       /* ... and its drag masses, β_f (V_f − u_f) with the projected u_f, N·s */
+    unsigned char *take[3];  /* faces that took the extra coupling's impulse and drag in the last projection */
+    double *porous[3];       /* m_f/(m_f + β_f) on faces taking a drag mass, 1 elsewhere (porous_on) */
+    bool porous_on;          /* the last projection's extra coupling had a drag mass */
     double pend_p2g, pend_other; /* seconds spent before the stats of dr_liquid_end can take them */
     long pend_visc_iterations;   /* the implicit viscosity solve's figures, likewise */
     int pend_visc_not_converged;
@@ -414,6 +418,7 @@ void dr_liquid_destroy(DrLiquid **liq)
         free(L->fm[a]); free(L->uold[a]); free(L->own.open[a]); free(L->wsol[a]); free(L->own.velocity[a]);
         free(L->mix.open[a]); free(L->mix.velocity[a]); free(L->ustar[a]);
         free(L->tmp[a]); free(L->tmp2[a]); free(L->valid[a]); free(L->valid2[a]); free(L->valid3[a]); free(L->shut[a]);
+        free(L->take[a]); free(L->porous[a]);
     }
     for (int a = 0; a < 3; a++) free(L->dsum[a]);
     free(L->nphi); free(L->nphi_static); free(L->open); free(L->near); free(L->cphi); free(L->dens);
@@ -439,6 +444,7 @@ const DrLiquidState *dr_liquid_state(const DrLiquid *liq) { return &liq->st; }
 DrLiquidState *dr_liquid_state_mut(DrLiquid *liq) { return &liq->st; }
 double dr_liquid_particle_mass(const DrLiquid *liq) { return liq->pmass; }
 const DrMacGrid *dr_liquid_grid(const DrLiquid *liq) { return liq->g; }
+const unsigned char *dr_liquid_coupled_faces(const DrLiquid *liq, int a) { return liq->take[a]; }
 const double *dr_liquid_face_mass(const DrLiquid *liq, int a)
 {
     assert(a >= 0 && a < 3);
@@ -790,11 +796,15 @@ static inline double face_mass(const DrLiquid *L, int a, long f)
    liquid reaches it: it takes no pressure impulse and is closed at the solid velocity, face_flux); else 1
    for the ghost-fluid formulation and ρΔx³/(m_f + m_f^virtual) for the mass-weighted one, m_f^virtual the
    virtual liquid's inside colliders (virtual_mass; 0 away from them). */
+static inline double porous_scale(const DrLiquid *L, int a, long f)
+{
+    return L->porous_on ? L->porous[a][f] : 1.0;
+}
 static inline double face_inv_density(const DrLiquid *L, int a, long f)
 {
     if (L->shut[a][f]) return 0.0;
-    if (L->d.pressure == DR_PRESSURE_GHOST_FLUID) return 1.0;
-    return L->vol_density / face_mass(L, a, f);
+    if (L->d.pressure == DR_PRESSURE_GHOST_FLUID) return porous_scale(L, a, f);
+    return L->vol_density / face_mass(L, a, f) * porous_scale(L, a, f);
 }
 
 /* Velocity through face f as the divergence sees it (m/s): w u + (1 − w) u_solid on an open face (the
@@ -893,13 +903,15 @@ static DrStatus mix_coupling(DrLiquid *L, const DrFaceCoupling *x, DrError *err)
     return DR_OK;
 }
 
-/* The extra coupling's impulses J_f (N·s) as velocity increments J_f/m_f, m_f the face's P2G mass, on the
-   faces that take part in the projection as liquid faces: open, not shut, not a domain wall, more than
+/* The extra coupling's impulses J_f (N·s) as velocity increments J_f/m_f and its drag masses β_f (kg) as the
+   implicit pull towards the solid's velocity V_f (grid.h): u_f ← (m_f u_f + J_f + β_f V_f)/(m_f + β_f), with the
+   face's pressure coefficient scaled by m_f/(m_f + β_f) (porous_scale), m_f the face's P2G mass, on the faces
+   that take part in the projection as liquid faces (take): open, not shut, not a domain wall, more than
    TINY_MASS of a full face's mass (a smaller one would turn a finite impulse into an unbounded velocity),
    and, ghost fluid, next to a pressure cell (the others are overwritten by the extrapolation). So the
    liquid's momentum gains exactly Σ J_f over these faces before the pressure acts; L->added holds that
    sum (slice partials added in slice order). After shut_slices. */
-typedef struct AddCtx { DrLiquid *L; int a; const double *J; } AddCtx;
+typedef struct AddCtx { DrLiquid *L; int a; const double *J, *beta, *V; } AddCtx;
 
 static void add_impulse_slices(long begin, long end, void *vctx)
 {
@@ -916,32 +928,87 @@ static void add_impulse_slices(long begin, long end, void *vctx)
         for (int j = 0; j < dim[1]; j++)
             for (int i = 0; i < dim[0]; i++) {
                 long f = dr_mac_face_index(g, a, i, j, (int)k);
-                double J = ctx->J[f];
                 int ijk[3] = {i, j, (int)k};
-                if (J == 0.0 || ijk[a] == 0 || ijk[a] == dim[a] - 1) continue;
-                if (!(L->cpl->open[a][f] > 0.0) || L->shut[a][f] || !(L->fm[a][f] > tiny)) continue;
-                if (!mw) {
+                bool takes = ijk[a] > 0 && ijk[a] < dim[a] - 1 && L->cpl->open[a][f] > 0.0 && !L->shut[a][f] &&
+                             L->fm[a][f] > tiny;
+                if (takes && !mw) {
                     long chi = dr_mac_cell_index(g, i, j, (int)k), clo = chi - cstride[a];
-                    if (L->row[chi] < 0 && L->row[clo] < 0) continue;
+                    takes = L->row[chi] >= 0 || L->row[clo] >= 0;
                 }
-                g->f[a][f] += J / L->fm[a][f];
-                sum += J;
+                L->take[a][f] = takes;
+                if (L->porous_on) L->porous[a][f] = 1.0;
+                if (!takes) continue;
+                double J = ctx->J ? ctx->J[f] : 0.0, m = L->fm[a][f];
+                if (J != 0.0) {
+                    g->f[a][f] += J / m;
+                    sum += J;
+                }
+                double beta = ctx->beta ? ctx->beta[f] : 0.0;
+                if (beta > 0.0) {
+                    g->f[a][f] = (m * g->f[a][f] + beta * ctx->V[f]) / (m + beta);
+                    L->porous[a][f] = m / (m + beta);
+                }
             }
         L->impulse_partial[IMPULSE_PARTS * k] = sum;
     }
 }
 
-static void add_impulse(DrLiquid *L, const DrFaceCoupling *x)
+static DrStatus add_impulse(DrLiquid *L, const DrFaceCoupling *x, DrError *err)
 {
     const DrMacGrid *g = L->g;
     double tot[3] = {0.0, 0.0, 0.0};
+    L->porous_on = false;
     for (int a = 0; a < 3; a++) {
-        if (!x->impulse[a]) continue;
-        AddCtx ctx = {L, a, x->impulse[a]};
+        if (!L->take[a]) DR_TRY(dr_calloc((size_t)g->nfaces[a], 1, &L->take[a], err));
+        if (x->drag[a]) {
+            if (!L->porous[a]) DR_TRY(dr_calloc((size_t)g->nfaces[a], sizeof(double), &L->porous[a], err));
+            L->porous_on = true;
+        }
+    }
+    for (int a = 0; a < 3 && L->porous_on; a++)
+        if (!L->porous[a]) DR_TRY(dr_calloc((size_t)g->nfaces[a], sizeof(double), &L->porous[a], err));
+    for (int a = 0; a < 3; a++) {
+        AddCtx ctx = {L, a, x->impulse[a], x->drag[a], x->velocity[a]};
         dr_parallel_for(g->fdim[a][2], slice_grain(g, a), add_impulse_slices, &ctx);
         for (int k = 0; k < g->fdim[a][2]; k++) tot[a] += L->impulse_partial[IMPULSE_PARTS * k];
     }
     L->added = dr_v3(tot[0], tot[1], tot[2]);
+    return DR_OK;
+}
+
+/* The momentum the drag masses gave in the projection just made: Σ β_f (V_f − u_f) over the faces taking them,
+   u_f projected (slice partials in slice order). */
+typedef struct DragSumCtx { DrLiquid *L; int a; const double *beta, *V; } DragSumCtx;
+
+static void drag_sum_slices(long begin, long end, void *vctx)
+{
+    DragSumCtx *ctx = vctx;
+    DrLiquid *L = ctx->L;
+    const DrMacGrid *g = L->g;
+    int a = ctx->a;
+    const int *dim = g->fdim[a];
+    for (long k = begin; k < end; k++) {
+        double sum = 0.0;
+        for (int j = 0; j < dim[1]; j++)
+            for (int i = 0; i < dim[0]; i++) {
+                long f = dr_mac_face_index(g, a, i, j, (int)k);
+                if (L->take[a][f] && ctx->beta[f] > 0.0) sum += ctx->beta[f] * (ctx->V[f] - g->f[a][f]);
+            }
+        L->impulse_partial[IMPULSE_PARTS * k + 1] = sum;
+    }
+}
+
+static void drag_sum(DrLiquid *L, const DrFaceCoupling *x)
+{
+    const DrMacGrid *g = L->g;
+    double tot[3] = {0.0, 0.0, 0.0};
+    for (int a = 0; a < 3; a++) {
+        if (!x->drag[a]) continue;
+        DragSumCtx ctx = {L, a, x->drag[a], x->velocity[a]};
+        dr_parallel_for(g->fdim[a][2], slice_grain(g, a), drag_sum_slices, &ctx);
+        for (int k = 0; k < g->fdim[a][2]; k++) tot[a] += L->impulse_partial[IMPULSE_PARTS * k + 1];
+    }
+    L->drag_added = dr_v3(tot[0], tot[1], tot[2]);
 }
 
 /* Volume correction (liquid.h): Δx·D for cell c, D = κ·(ρ̃ − 1 − band)/T where the smoothed density ρ̃
@@ -1415,7 +1482,8 @@ static DrStatus pressure_solve(DrLiquid *L, const DrFaceCoupling *extra, DrLiqui
     stats->liquid_cells = nrow;
     L->nrow = nrow;
     for (int a = 0; a < 3; a++) run_faces(L, shut_slices, a);
-    if (extra) add_impulse(L, extra);
+    L->porous_on = false;
+    if (extra) DR_TRY(add_impulse(L, extra, err));
     if (nrow == 0) return DR_OK;
     if (L->d.volume_correction > 0.0) {
         DensCtx dctx = {L, 0.0};
@@ -1508,7 +1576,7 @@ static void project_slices(long begin, long end, void *vctx)
                     val = 1;
                 } else if (flo || fhi) {
                     double qlo = q_of(L, clo, chi), qhi = q_of(L, chi, clo);
-                    g->f[a][f] -= (qhi - qlo) * inv;
+                    g->f[a][f] -= porous_scale(L, a, f) * (qhi - qlo) * inv;
                     val = 1;
                 }
                 L->valid[a][f] = val;
@@ -2166,6 +2234,8 @@ static DrStatus grid_project(DrLiquid *L, const DrFaceCoupling *extra, DrLiquidS
     DrMacGrid *g = L->g;
     double t_2 = dr_time_now();
     L->added = dr_v3(0, 0, 0);
+    L->drag_added = dr_v3(0, 0, 0);
+    L->porous_on = false;
     L->sample_ok = false;
     L->cpl = &L->own;
     if (extra) {
@@ -2176,6 +2246,7 @@ static DrStatus grid_project(DrLiquid *L, const DrFaceCoupling *extra, DrLiquidS
     /* 4. pressure projection */
     DR_TRY(pressure_solve(L, extra, stats, err));
     for (int a = 0; a < 3; a++) run_faces(L, project_slices, a);
+    if (extra && L->porous_on) drag_sum(L, extra);
     stats->divergence_mean = divergence_mean(L, stats->liquid_cells);
     double t_3 = dr_time_now();
     stats->seconds_pressure += t_3 - t_2;
@@ -2325,6 +2396,7 @@ static DrStatus step_end(DrLiquid *L, DrLiquidStats *stats, bool report, DrError
     double t_4 = dr_time_now();
     grid_impulse(L, L->h_step, stats);
     stats->added_impulse = dr_v3_add(stats->added_impulse, L->added);
+    stats->drag_impulse = dr_v3_add(stats->drag_impulse, L->drag_added);
     stats->seconds_p2g += L->pend_p2g;
     stats->seconds_other += L->pend_other;
     stats->viscosity_iterations += L->pend_visc_iterations;

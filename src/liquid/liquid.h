@@ -143,6 +143,9 @@ typedef struct DrLiquidStats {
        last dr_liquid_project (N·s; the faces that took them, dr_liquid_project); part of the grid impulse
        above. 0 without an extra coupling (dr_liquid_advance). */
     DrVec3 added_impulse;
+    /* Σ over substeps of the momentum the extra face coupling's drag masses gave the liquid in the substep's last
+       dr_liquid_project, β_f (V_f − u_f) with the projected u_f (N·s; grid.h); part of the grid impulse too. */
+    DrVec3 drag_impulse;
     /* The energy ledger (J), for a caller watching the liquid's energy E = Σ ½m|v|² − m g·x (dr_liquid_totals'
        kinetic plus the potential): what entered and left it besides gravity. source_work: Σ over substeps of the
        work of the last projection's sources, the moving solids (each face's blocked part, (1 − w) u_solid Δx²,
@@ -220,7 +223,9 @@ DR_NODISCARD DrStatus dr_liquid_begin(DrLiquid *liq, const DrCollider *const *co
    J_f/m_f (m_f the face's P2G mass) before the solve, on the faces that take part as liquid faces: open,
    neither a domain wall nor without liquid (at most 1e-6 of a full face's mass), and, ghost fluid, next
    to a pressure cell; impulses elsewhere are dropped. The momentum so given (Σ J_f over the faces taking
-   it) goes to stats->added_impulse at end. The extra solid fractions enter the projection only: the
+   it) goes to stats->added_impulse at end. Its drag mass β_f (grid.h) pulls the same faces towards the extra
+   coupling's velocity within the solve (a porous face: the pressure coefficient scaled by m_f/(m_f + β_f)); what
+   it gives goes to stats->drag_impulse. The extra solid fractions enter the projection only: the
    cells' open fractions (free-surface level set), the particles' push-out and the slip/friction
    constraint stay the colliders' (an extra solid keeps the liquid out through its blocked faces, as the
    pressure sees them; particles are not pushed out of it). Re-callable: every call starts from the
@@ -246,6 +251,11 @@ void dr_liquid_sample(const DrLiquid *liq, long n, const double *points, double 
    large velocity: a participant spreading a reaction over faces weights it by these masses (J_f = m_f δu
    for a velocity increment δu). */
 const double *dr_liquid_face_mass(const DrLiquid *liq, int a);
+/* The faces (nfaces[a] flags in dr_liquid_grid's face order) that took the extra coupling's impulse and drag mass in
+   the last dr_liquid_project given one (dr_liquid_project lists the conditions), valid until the next
+   dr_liquid_stable_dt; NULL before any. A participant that spreads a reaction over faces with these alone gives the
+   liquid exactly the momentum it meant to (an impulse elsewhere is dropped). */
+const unsigned char *dr_liquid_coupled_faces(const DrLiquid *liq, int a);
 /* end: the grid impulse (and a⁺ of the next CFL step) of the last projection, G2P, advection, push-out out
    of the colliders, the domain clamp, emitters and kill boxes; adds the substep to *stats (substeps,
    impulses, seconds of every phase) and sets particles and max_speed. DR_ERR_NOMEM if growing for emitters

@@ -39,6 +39,13 @@ static const DrFieldSpec solver_fields[] = {
      .doc = "relative residual at which the pressure solve stops"},
     {.name = "pressure_max_iterations", .kind = DR_FIELD_INT, .unit = "", .def = {2000}, RANGE(1, 1000000),
      .doc = "iteration limit of the pressure solve (reaching it is a warning)"},
+    {.name = "coupling_iterations", .kind = DR_FIELD_INT, .unit = "", .def = {3}, RANGE(1, 100),
+     .doc = "most iterations of the coupled solid-fluid loop per step (hair with a Drag component in a liquid): 1 is "
+            "the staggered step (solid with drag from the fluid, reaction, pressure); more converge to the monolithic "
+            "solution"},
+    {.name = "coupling_tolerance", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {1e-3}, RANGE_LO_OPEN(0, 1),
+     .doc = "relative change of the solids' velocities and of the fluid's velocity and pressure at them below which "
+            "the coupled loop stops before coupling_iterations"},
     {.name = "checkpoint_every", .kind = DR_FIELD_INT, .unit = "", .def = {1}, RANGE(1, 100000),
      .doc = "frames between checkpoints"},
     {.name = "on_instability", .kind = DR_FIELD_ENUM, .unit = "", .def_str = "warn", .choices = "warn|fail",
@@ -478,6 +485,32 @@ static const DrFieldSpec bem_solver_fields[] = {
      .doc = "move the drift left in the displacement into the frame each step (BEM 3.2.1)"},
 };
 
+static const DrFieldSpec drag_fields[] = {
+    {.name = "model", .kind = DR_FIELD_ENUM, .unit = "", .def_str = "scales", .choices = "scales|permeability",
+     .doc = "scales: inverse permeabilities from the drag scales (relative to the slender-body Stokes drag, see "
+            "reference); permeability: Drummond-Tahir permeabilities of a fibre array of the local solid fraction, "
+            "times the scales"},
+    {.name = "reference", .kind = DR_FIELD_ENUM, .unit = "", .def_str = "stokes", .choices = "stokes|literal",
+     .doc = "what the scales of model scales multiply: stokes (with every scale 1 a strand moving across itself feels "
+            "the low-Reynolds drag per unit length 4 pi mu |dv| / (ln(2 L/D) + 1/2)) or literal (the published "
+            "1e-4, about 1e4 times weaker)"},
+    {.name = "global_scale", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {1}, RANGE(0, 1e6),
+     .doc = "xi_D: scales the drag in every direction (0: none)"},
+    {.name = "normal_scale", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {1}, RANGE(0, 1e6),
+     .doc = "xi_perp: drag across the strand"},
+    {.name = "tangent_scale", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {0.5}, RANGE(0, 1e6),
+     .doc = "xi_par: drag along the strand (slender-body theory: about half the drag across)"},
+    {.name = "nonlinear_scale", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {1}, RANGE(0, 1e6),
+     .doc = "xi_N: the inertial (Ergun) part of the drag, growing with the Reynolds number of the strand"},
+    {.name = "degree", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {1}, RANGE(0, 3),
+     .doc = "c: the power of the Reynolds number in the inertial part"},
+    {.name = "lift_scale", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {0}, RANGE(0, 100),
+     .doc = "xi_L: lift orthogonal to the relative velocity, strongest at 45 degrees between strand and flow "
+            "(explicit: it limits the step)"},
+    {.name = "buoyancy", .kind = DR_FIELD_BOOL, .unit = "", .def = {1},
+     .doc = "the fluid's pressure gradient pushes on the strands' volume (Archimedes)"},
+};
+
 const DrComponentSpec dr_scene_components_[] = {
     {"Domain", "the simulation grid", domain_fields, COUNT(domain_fields)},
     {"LiquidSource", "liquid present at t=0 (needs box or mesh)", liquid_source_fields,
@@ -526,6 +559,9 @@ const DrComponentSpec dr_scene_components_[] = {
                  "hair element); needs Wetting", cohesion_fields, COUNT(cohesion_fields)},
     {"CrossFlow", "film flowing between bridged strands (the same on every wet hair element); needs Wetting",
      cross_flow_fields, COUNT(cross_flow_fields)},
+    {"Drag", "couples a hair element two ways with the liquid: anisotropic porous drag, lift and buoyancy in the "
+             "coupled loop (solver.coupling_iterations); hair without it does not feel the liquid",
+     drag_fields, COUNT(drag_fields)},
     {"LinearElastic", "isotropic linear elastic material of a boundary-element body", linear_elastic_fields,
      COUNT(linear_elastic_fields)},
     {"Compression", "wavelet compression of the boundary-element matrices (Haar transform, largest coefficients kept)",
@@ -548,7 +584,8 @@ static const char *const mpm_solid_components[] = {"Domain",     "MpmShape", "Mp
 static const char *const mpm_solid_required[] = {"Domain", "MpmShape"};
 static const char *const hair_components[] = {"Groom",          "RodMaterial",       "Collider",   "Transform",
                                               "Motion",         "CollisionGroup",    "CollisionResponse", "HairSolver",
-                                              "Wetting",        "Film",              "Cohesion",   "CrossFlow"};
+                                              "Wetting",        "Film",              "Cohesion",   "CrossFlow",
+                                              "Drag"};
 static const char *const hair_required[] = {"Groom"};
 static const char *const bem_solid_components[] = {"Mesh",      "LinearElastic",   "Compression", "BemSolver",
                                                    "Transform", "InitialVelocity", "Collider",    "FixedVertices"};

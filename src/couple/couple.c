@@ -1,0 +1,619 @@
+/* drench couple: the laws and the coupled loop (couple.h). */
+#include "couple/couple.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+void dr_drag_law_default(DrDragLaw *law)
+{
+    law->model = DR_DRAG_SCALES;
+    law->reference = DR_DRAG_STOKES;
+    law->global = 1.0;
+    law->normal = 1.0;
+    law->tangent = 0.5;
+    law->nonlinear = 1.0;
+    law->degree = 1.0;
+    law->lift = 0.0;
+    law->buoyancy = true;
+}
+
+void dr_couple_desc_default(DrCoupleDesc *d)
+{
+    d->iterations = 3;
+    d->tolerance = 1e-3;
+    d->position_derivative = true;
+}
+
+/* Dimensionless permeability k̃_l (k = k̃ D²) of the Drummond–Tahir fits, γ clamped into [1e-4, 0.5]. */
+static double drummond_tahir(int l, double gamma)
+{
+    double g = gamma < 1e-4 ? 1e-4 : (gamma > 0.5 ? 0.5 : gamma);
+    if (l == 1) return (-log(g) - 1.476 + 2.0 * g - 0.5 * g * g) / (16.0 * g);
+    return (-log(g) - 1.476 + 2.0 * g - 1.774 * g * g + 4.078 * g * g * g) / (32.0 * g);
+}
+
+/* 1/k_l of the law (couple.h). */
+static double inverse_permeability(const DrDragLaw *law, int l, const DrDragSite *site)
+{
+    double xi = law->global * (l == 0 ? law->normal : law->tangent);
+    if (law->model == DR_DRAG_PERMEABILITY) {
+        double g = site->gamma < 1e-4 ? 1e-4 : (site->gamma > 0.5 ? 0.5 : site->gamma);
+        return xi / (g * drummond_tahir(l, site->gamma));
+    }
+    if (law->reference == DR_DRAG_LITERAL) return xi * 1e-4;
+    double lam = site->slender > 1.0 ? site->slender : 1.0;
+    return xi * 16.0 / (log(2.0 * lam) + 0.5);
+}
+
+double dr_drag_coefficient(const DrDragLaw *law, int l, double rho, double mu, const DrDragSite *site, double speed)
+{
+    double ik = inverse_permeability(law, l, site);
+    if (!(ik > 0.0)) return 0.0;
+    double c = ik;
+    if (law->nonlinear > 0.0 && speed > 0.0) {
+        double g = site->gamma < 0.0 ? 0.0 : (site->gamma > 0.5 ? 0.5 : site->gamma);
+        double re = rho * site->diameter * speed / mu;
+        c += law->nonlinear * 1.75 / sqrt(150.0 / ik) / pow(1.0 - g, 1.5) * pow(re, law->degree);
+    }
+    return c;
+}
+
+void dr_drag_tensor(const DrDragLaw *law, double rho, double mu, const DrDragSite *site, DrVec3 dv, double K[9])
+{
+    double speed = dr_v3_norm(dv);
+    double s = mu * site->volume / (site->diameter * site->diameter);
+    double cp = s * dr_drag_coefficient(law, 0, rho, mu, site, speed);
+    double ct = s * dr_drag_coefficient(law, 1, rho, mu, site, speed);
+    double t[3] = {site->tangent.x, site->tangent.y, site->tangent.z};
+    for (int r = 0; r < 3; r++)
+        for (int q = 0; q < 3; q++) K[3 * r + q] = (r == q ? cp : 0.0) + (ct - cp) * t[r] * t[q];
+}
+
+DrVec3 dr_drag_lift(const DrDragLaw *law, const DrDragSite *site, const double K[9], DrVec3 dv)
+{
+    double d2 = dr_v3_dot(dv, dv);
+    if (!(law->lift > 0.0) || !(d2 > 0.0)) return dr_v3(0, 0, 0);
+    DrVec3 f = dr_v3(-(K[0] * dv.x + K[1] * dv.y + K[2] * dv.z), -(K[3] * dv.x + K[4] * dv.y + K[5] * dv.z),
+                     -(K[6] * dv.x + K[7] * dv.y + K[8] * dv.z));
+    DrVec3 e = site->tangent;
+    DrVec3 Q = dr_v3_cross(e, dr_v3_cross(e, f));
+    DrVec3 L = dr_v3_sub(Q, dr_v3_scale(dv, dr_v3_dot(Q, dv) / d2));
+    return dr_v3_scale(L, -law->lift);
+}
+
+/* ---- the loop ------------------------------------------------------------------------------------------------------ */
+
+/* One element's trilinear stencil on face component a's lattice. */
+typedef struct Stencil { long f[8]; double w[8]; } Stencil;
+
+typedef struct Element {
+    const DrDragLaw *law;
+    DrDragSite site;
+    double mass;
+    int solid, index;        /* owner and its element index */
+    bool active;             /* free and inside the fluid (every component has coupled faces) */
+    Stencil st[3];           /* raw trilinear weights */
+    double wn[3][8];         /* weights over the coupled faces, normalised (0 elsewhere) */
+} Element;
+
+struct DrCouple {
+    int cap;                 /* elements */
+    Element *el;
+    double *x, *v, *vprev, *u, *uprev, *p, *pprev, *gradp, *force, *dfdv, *kd, *g, *pts, *psamp;
+    int ncap_faces[3];
+    DrFaceCoupling fc;       /* the extra coupling handed to the fluid (arrays sized to the grid) */
+    double *phi[3], *num[3], *den[3];
+    DrVec3 ledger_solid, ledger_fluid;
+};
+
+DrStatus dr_couple_create(DrCouple **out, DrError *err)
+{
+    *out = NULL;
+    DrCouple *c = NULL;
+    DR_TRY(dr_calloc(1, sizeof *c, &c, err));
+    *out = c;
+    return DR_OK;
+}
+
+void dr_couple_destroy(DrCouple **cp)
+{
+    if (!cp || !*cp) return;
+    DrCouple *c = *cp;
+    free(c->el);
+    double **arr[] = {&c->x, &c->v, &c->vprev, &c->u, &c->uprev, &c->p, &c->pprev, &c->gradp, &c->force, &c->dfdv,
+                      &c->kd, &c->g, &c->pts, &c->psamp};
+    for (size_t i = 0; i < sizeof arr / sizeof arr[0]; i++) free(*arr[i]);
+    for (int a = 0; a < 3; a++) {
+        free(c->fc.open[a]); free(c->fc.velocity[a]); free(c->fc.impulse[a]); free(c->fc.drag[a]);
+        free(c->phi[a]); free(c->num[a]); free(c->den[a]);
+    }
+    free(c);
+    *cp = NULL;
+}
+
+void dr_couple_last_ledger(const DrCouple *c, DrVec3 *solid, DrVec3 *fluid)
+{
+    *solid = c->ledger_solid;
+    *fluid = c->ledger_fluid;
+}
+
+static DrStatus reserve(DrCouple *c, int n, const DrMacGrid *g, DrError *err)
+{
+    if (n > c->cap) {
+        int cap = n + n / 4 + 16;
+        Element *el = realloc(c->el, (size_t)cap * sizeof *el);
+        if (!el) return dr_error_set(err, DR_ERR_NOMEM, NULL, 0, 0, "couple: out of memory for %d elements.", cap);
+        c->el = el;
+        struct { double **p; int w; } arr[] = {{&c->x, 3}, {&c->v, 3}, {&c->vprev, 3}, {&c->u, 3}, {&c->uprev, 3},
+                                               {&c->p, 1}, {&c->pprev, 1}, {&c->gradp, 3}, {&c->force, 3},
+                                               {&c->dfdv, 9}, {&c->kd, 3}, {&c->g, 3}, {&c->pts, 21}, {&c->psamp, 7}};
+        for (size_t i = 0; i < sizeof arr / sizeof arr[0]; i++) {
+            double *q = realloc(*arr[i].p, (size_t)cap * arr[i].w * sizeof(double));
+            if (!q) return dr_error_set(err, DR_ERR_NOMEM, NULL, 0, 0, "couple: out of memory for %d elements.", cap);
+            *arr[i].p = q;
+        }
+        c->cap = cap;
+    }
+    for (int a = 0; a < 3; a++) {
+        if (c->ncap_faces[a] >= g->nfaces[a]) { c->fc.nfaces[a] = g->nfaces[a]; continue; }
+        double **arr[] = {&c->fc.open[a], &c->fc.velocity[a], &c->fc.impulse[a], &c->fc.drag[a], &c->phi[a],
+                          &c->num[a], &c->den[a]};
+        for (size_t i = 0; i < sizeof arr / sizeof arr[0]; i++) {
+            free(*arr[i]);
+            *arr[i] = NULL;
+            DR_TRY(dr_calloc((size_t)g->nfaces[a], sizeof(double), arr[i], err));
+        }
+        c->ncap_faces[a] = (int)g->nfaces[a];
+        c->fc.nfaces[a] = g->nfaces[a];
+    }
+    return DR_OK;
+}
+
+static Stencil face_stencil(const DrMacGrid *g, int a, DrVec3 x)
+{
+    Stencil st;
+    double s[3] = {(x.x - g->origin.x) / g->dx - dr_mac_face_offset(a, 0),
+                   (x.y - g->origin.y) / g->dx - dr_mac_face_offset(a, 1),
+                   (x.z - g->origin.z) / g->dx - dr_mac_face_offset(a, 2)};
+    int b[3];
+    double fr[3];
+    for (int d = 0; d < 3; d++) {
+        int hi = g->fdim[a][d] - 2;
+        double fb = floor(s[d]);
+        if (fb < 0.0) { b[d] = 0; fr[d] = 0.0; }
+        else if (fb > hi) { b[d] = hi; fr[d] = 1.0; }
+        else { b[d] = (int)fb; fr[d] = s[d] - fb; }
+        if (hi < 0) { b[d] = 0; fr[d] = 0.0; }
+    }
+    int q = 0;
+    for (int dk = 0; dk < 2; dk++)
+        for (int dj = 0; dj < 2; dj++)
+            for (int di = 0; di < 2; di++, q++) {
+                int i = b[0] + di, j = b[1] + dj, k = b[2] + dk;
+                if (i >= g->fdim[a][0]) i = g->fdim[a][0] - 1;
+                if (j >= g->fdim[a][1]) j = g->fdim[a][1] - 1;
+                if (k >= g->fdim[a][2]) k = g->fdim[a][2] - 1;
+                st.f[q] = dr_mac_face_index(g, a, i, j, k);
+                st.w[q] = (di ? fr[0] : 1.0 - fr[0]) * (dj ? fr[1] : 1.0 - fr[1]) * (dk ? fr[2] : 1.0 - fr[2]);
+            }
+    return st;
+}
+
+/* The derivative of the trilinear interpolation of component a along axis d at x, per metre. */
+static double face_gradient(const DrMacGrid *g, int a, int d, DrVec3 x)
+{
+    double s[3] = {(x.x - g->origin.x) / g->dx - dr_mac_face_offset(a, 0),
+                   (x.y - g->origin.y) / g->dx - dr_mac_face_offset(a, 1),
+                   (x.z - g->origin.z) / g->dx - dr_mac_face_offset(a, 2)};
+    int b[3];
+    double fr[3];
+    for (int e = 0; e < 3; e++) {
+        int hi = g->fdim[a][e] - 2;
+        if (hi < 0) return 0.0;
+        double fb = floor(s[e]);
+        if (fb < 0.0) { if (e == d) return 0.0; b[e] = 0; fr[e] = 0.0; }
+        else if (fb > hi) { if (e == d) return 0.0; b[e] = hi; fr[e] = 1.0; }
+        else { b[e] = (int)fb; fr[e] = s[e] - fb; }
+    }
+    double sum = 0.0;
+    for (int dk = 0; dk < 2; dk++)
+        for (int dj = 0; dj < 2; dj++)
+            for (int di = 0; di < 2; di++) {
+                int o[3] = {di, dj, dk};
+                double w = 1.0;
+                for (int e = 0; e < 3; e++) w *= e == d ? (o[e] ? 1.0 : -1.0) : (o[e] ? fr[e] : 1.0 - fr[e]);
+                sum += w * g->f[a][dr_mac_face_index(g, a, b[0] + di, b[1] + dj, b[2] + dk)];
+            }
+    return sum / g->dx;
+}
+
+/* Eigen-decomposition of a symmetric 3×3 matrix by cyclic Jacobi rotations: A = V diag(w) Vᵀ (V's columns). */
+static void sym3_eigen(const double Ain[9], double w[3], double V[9])
+{
+    double A[9];
+    memcpy(A, Ain, sizeof A);
+    for (int i = 0; i < 9; i++) V[i] = (i % 4 == 0) ? 1.0 : 0.0;
+    for (int sweep = 0; sweep < 32; sweep++) {
+        double off = A[1] * A[1] + A[2] * A[2] + A[5] * A[5];
+        double scale = A[0] * A[0] + A[4] * A[4] + A[8] * A[8];
+        if (off <= 1e-30 * scale || off == 0.0) break;
+        for (int p = 0; p < 2; p++)
+            for (int q = p + 1; q < 3; q++) {
+                double apq = A[3 * p + q];
+                if (apq == 0.0) continue;
+                double theta = (A[3 * q + q] - A[3 * p + p]) / (2.0 * apq);
+                double t = (theta >= 0 ? 1.0 : -1.0) / (fabs(theta) + sqrt(theta * theta + 1.0));
+                double cs = 1.0 / sqrt(t * t + 1.0), sn = t * cs;
+                for (int k = 0; k < 3; k++) { /* A ← A G */
+                    double akp = A[3 * k + p], akq = A[3 * k + q];
+                    A[3 * k + p] = cs * akp - sn * akq;
+                    A[3 * k + q] = sn * akp + cs * akq;
+                }
+                for (int k = 0; k < 3; k++) { /* A ← Gᵀ A */
+                    double apk = A[3 * p + k], aqk = A[3 * q + k];
+                    A[3 * p + k] = cs * apk - sn * aqk;
+                    A[3 * q + k] = sn * apk + cs * aqk;
+                }
+                for (int k = 0; k < 3; k++) {
+                    double vkp = V[3 * k + p], vkq = V[3 * k + q];
+                    V[3 * k + p] = cs * vkp - sn * vkq;
+                    V[3 * k + q] = sn * vkp + cs * vkq;
+                }
+            }
+    }
+    w[0] = A[0]; w[1] = A[4]; w[2] = A[8];
+}
+
+/* D ← the negative semidefinite part of sym(D). */
+static void nsd_part(double D[9])
+{
+    double S[9];
+    for (int r = 0; r < 3; r++)
+        for (int q = 0; q < 3; q++) S[3 * r + q] = 0.5 * (D[3 * r + q] + D[3 * q + r]);
+    double w[3], V[9];
+    sym3_eigen(S, w, V);
+    for (int r = 0; r < 3; r++)
+        for (int q = 0; q < 3; q++) {
+            double s = 0.0;
+            for (int e = 0; e < 3; e++)
+                if (w[e] < 0.0) s += V[3 * r + e] * w[e] * V[3 * q + e];
+            D[3 * r + q] = s;
+        }
+    for (int r = 0; r < 3; r++)
+        for (int q = r + 1; q < 3; q++) D[3 * q + r] = D[3 * r + q];
+}
+
+double dr_couple_stable_dt(const DrCoupleFluid *fluid, const DrCoupleSolid *solids, int nsolids)
+{
+    double h = INFINITY;
+    for (int s = 0; s < nsolids; s++) {
+        bool any = false;
+        for (int l = 0; l < solids[s].nlaws; l++) any = any || solids[s].laws[l].lift > 0.0;
+        if (!any) continue;
+        DrCoupleSamples sm = solids[s].samples(solids[s].ctx);
+        for (int i = 0; i < sm.n; i++) {
+            if (sm.held && sm.held[i]) continue;
+            const DrDragLaw *law = &solids[s].laws[sm.law ? sm.law[i] : 0];
+            if (!(law->lift > 0.0)) continue;
+            DrDragSite site = {dr_v3(sm.tangent[3 * i], sm.tangent[3 * i + 1], sm.tangent[3 * i + 2]), sm.diameter[i],
+                               sm.volume[i], sm.slender[i], 0.0};
+            double cp = fluid->viscosity * site.volume / (site.diameter * site.diameter) *
+                        dr_drag_coefficient(law, 0, fluid->density, fluid->viscosity, &site, 0.0);
+            double l = 0.5 * law->lift * cp;
+            if (l > 0.0 && sm.mass[i] / l < h) h = sm.mass[i] / l;
+        }
+    }
+    return h;
+}
+
+/* Gathers every solid's elements into c->el / c->x / c->v (the order: solids in order, their elements in order). */
+static DrStatus gather(DrCouple *c, const DrCoupleFluid *fluid, const DrCoupleSolid *solids, int nsolids, int *nout,
+                       DrError *err)
+{
+    int n = 0;
+    for (int s = 0; s < nsolids; s++) n += solids[s].samples(solids[s].ctx).n;
+    DR_TRY(reserve(c, n, fluid->grid, err));
+    int at = 0;
+    for (int s = 0; s < nsolids; s++) {
+        DrCoupleSamples sm = solids[s].samples(solids[s].ctx);
+        for (int i = 0; i < sm.n; i++, at++) {
+            Element *e = &c->el[at];
+            int li = sm.law ? sm.law[i] : 0;
+            if (li < 0 || li >= solids[s].nlaws)
+                return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "couple: element %d of solid %d names drag law %d "
+                                    "of %d.", i, s, li, solids[s].nlaws);
+            e->law = &solids[s].laws[li];
+            e->site.tangent = dr_v3(sm.tangent[3 * i], sm.tangent[3 * i + 1], sm.tangent[3 * i + 2]);
+            e->site.diameter = sm.diameter[i];
+            e->site.volume = sm.volume[i];
+            e->site.slender = sm.slender[i];
+            e->site.gamma = 0.0;
+            e->mass = sm.mass[i];
+            e->solid = s;
+            e->index = i;
+            e->active = !(sm.held && sm.held[i]);
+            for (int d = 0; d < 3; d++) {
+                c->x[3 * at + d] = sm.x[3 * i + d];
+                c->v[3 * at + d] = sm.v[3 * i + d];
+            }
+        }
+    }
+    *nout = n;
+    return DR_OK;
+}
+
+static void read_velocities(DrCouple *c, const DrCoupleSolid *solids, int nsolids)
+{
+    int at = 0;
+    for (int s = 0; s < nsolids; s++) {
+        DrCoupleSamples sm = solids[s].samples(solids[s].ctx);
+        memcpy(c->v + 3 * at, sm.v, (size_t)sm.n * 3 * sizeof(double));
+        at += sm.n;
+    }
+}
+
+/* The solid fraction φ_s and the solids' velocity on the faces: fc.open = 1 − min(φ_s, ½) (weights w V), fc.velocity
+   the mean of the elements' velocities (weights w V), fc.impulse and fc.drag zero. Sets each element's γ. */
+static void rasterise(DrCouple *c, const DrMacGrid *g, int n)
+{
+    double cell = g->dx * g->dx * g->dx;
+    for (int a = 0; a < 3; a++) {
+        memset(c->phi[a], 0, (size_t)g->nfaces[a] * sizeof(double));
+        memset(c->num[a], 0, (size_t)g->nfaces[a] * sizeof(double));
+        memset(c->fc.impulse[a], 0, (size_t)g->nfaces[a] * sizeof(double));
+        memset(c->fc.drag[a], 0, (size_t)g->nfaces[a] * sizeof(double));
+    }
+    for (int i = 0; i < n; i++) {
+        const Element *e = &c->el[i];
+        for (int a = 0; a < 3; a++)
+            for (int q = 0; q < 8; q++) {
+                double wv = e->st[a].w[q] * e->site.volume;
+                c->phi[a][e->st[a].f[q]] += wv;
+                c->num[a][e->st[a].f[q]] += wv * c->v[3 * i + a];
+            }
+    }
+    for (int a = 0; a < 3; a++)
+        for (long f = 0; f < g->nfaces[a]; f++) {
+            double vol = c->phi[a][f], ph = vol / cell;
+            c->fc.velocity[a][f] = vol > 0.0 ? c->num[a][f] / vol : 0.0;
+            c->phi[a][f] = ph;
+            c->fc.open[a][f] = 1.0 - (ph < 0.5 ? ph : 0.5);
+        }
+    for (int i = 0; i < n; i++) { /* γ around each element: the mean of its components' sampled φ_s */
+        double gm = 0.0;
+        for (int a = 0; a < 3; a++)
+            for (int q = 0; q < 8; q++) gm += c->el[i].st[a].w[q] * c->phi[a][c->el[i].st[a].f[q]];
+        gm /= 3.0;
+        c->el[i].site.gamma = gm < 0.5 ? gm : 0.5;
+    }
+}
+
+/* After a projection: each element's weights over the coupled faces (normalised; an element with a component
+   without any is outside the fluid: inactive for the step), and the fluid velocity ũ with them. */
+static void sample_velocity(DrCouple *c, const DrCoupleFluid *fluid, int n, bool weights)
+{
+    const DrMacGrid *g = fluid->grid;
+    const unsigned char *take[3];
+    for (int a = 0; a < 3; a++) take[a] = fluid->coupled_faces(fluid->ctx, a);
+    for (int i = 0; i < n; i++) {
+        Element *e = &c->el[i];
+        for (int a = 0; a < 3; a++) {
+            if (weights) {
+                double sum = 0.0;
+                for (int q = 0; q < 8; q++) sum += take[a] && take[a][e->st[a].f[q]] ? e->st[a].w[q] : 0.0;
+                for (int q = 0; q < 8; q++)
+                    e->wn[a][q] = sum > 0.0 && take[a][e->st[a].f[q]] ? e->st[a].w[q] / sum : 0.0;
+                if (!(sum > 0.0)) e->active = false;
+            }
+            double u = 0.0;
+            for (int q = 0; q < 8; q++) u += e->wn[a][q] * g->f[a][e->st[a].f[q]];
+            c->u[3 * i + a] = e->active ? u : 0.0;
+        }
+    }
+}
+
+/* The pressure and its gradient at every element (central differences over ±Δx/2), when any law has buoyancy. */
+static void sample_pressure(DrCouple *c, const DrCoupleFluid *fluid, int n)
+{
+    double d = 0.5 * fluid->grid->dx;
+    for (int i = 0; i < n; i++)
+        for (int q = 0; q < 7; q++)
+            for (int a = 0; a < 3; a++)
+                c->pts[21 * i + 3 * q + a] = c->x[3 * i + a] + (q > 0 && (q - 1) / 2 == a ? ((q - 1) % 2 ? d : -d) : 0.0);
+    fluid->pressure(fluid->ctx, 7L * n, c->pts, c->psamp);
+    for (int i = 0; i < n; i++) {
+        const double *ps = c->psamp + 7 * i;
+        c->p[i] = c->el[i].active ? ps[0] : 0.0;
+        for (int a = 0; a < 3; a++) c->gradp[3 * i + a] = c->el[i].active ? (ps[2 + 2 * a] - ps[1 + 2 * a]) / (2.0 * d) : 0.0;
+    }
+}
+
+/* The laws at the current iterate: K's diagonal (kd), D = ∂f/∂v₊ (dfdv) and the load force f(v*) − D v* (force). */
+static DrStatus laws(DrCouple *c, const DrCoupleDesc *desc, const DrCoupleFluid *fluid, int n, double h, DrError *err)
+{
+    const DrMacGrid *g = fluid->grid;
+    for (int i = 0; i < n; i++) {
+        const Element *e = &c->el[i];
+        double *F = c->force + 3 * i, *D = c->dfdv + 9 * i;
+        if (!e->active) {
+            memset(F, 0, 3 * sizeof(double));
+            memset(D, 0, 9 * sizeof(double));
+            memset(c->kd + 3 * i, 0, 3 * sizeof(double));
+            continue;
+        }
+        DrVec3 v = dr_v3(c->v[3 * i], c->v[3 * i + 1], c->v[3 * i + 2]);
+        DrVec3 u = dr_v3(c->u[3 * i], c->u[3 * i + 1], c->u[3 * i + 2]);
+        DrVec3 dv = dr_v3_sub(v, u);
+        double K[9];
+        dr_drag_tensor(e->law, fluid->density, fluid->viscosity, &e->site, dv, K);
+        for (int a = 0; a < 3; a++) c->kd[3 * i + a] = K[4 * a];
+        for (int q = 0; q < 9; q++) D[q] = -K[q];
+        if (desc->position_derivative) {
+            /* f = −K (v₊ − ũ(x + h v₊)): ∂f/∂v₊ = −K + h K ∇ũ, its symmetric part kept where it leaves the solve
+               positive definite */
+            double G[9];
+            DrVec3 x = dr_v3(c->x[3 * i], c->x[3 * i + 1], c->x[3 * i + 2]);
+            for (int a = 0; a < 3; a++)
+                for (int b = 0; b < 3; b++) G[3 * a + b] = face_gradient(g, a, b, x);
+            for (int r = 0; r < 3; r++)
+                for (int q = 0; q < 3; q++) {
+                    double s = 0.0;
+                    for (int m = 0; m < 3; m++) s += K[3 * r + m] * G[3 * m + q];
+                    D[3 * r + q] += h * s;
+                }
+            nsd_part(D);
+        }
+        DrVec3 lift = dr_drag_lift(e->law, &e->site, K, dv);
+        double vv[3] = {v.x, v.y, v.z}, dvv[3] = {dv.x, dv.y, dv.z}, fl[3] = {lift.x, lift.y, lift.z};
+        for (int r = 0; r < 3; r++) {
+            double f = fl[r];
+            for (int q = 0; q < 3; q++) f += -K[3 * r + q] * dvv[q] - D[3 * r + q] * vv[q];
+            if (e->law->buoyancy) f -= e->site.volume * c->gradp[3 * i + r];
+            F[r] = f;
+            if (!isfinite(f))
+                return dr_error_set(err, DR_ERR_RUNTIME, NULL, 0, 0, "couple: a non-finite drag on element %d of solid "
+                                    "%d (relative velocity %g m/s); lower the time step or the drag scales.",
+                                    e->index, e->solid, dr_v3_norm(dv));
+        }
+    }
+    return DR_OK;
+}
+
+/* What each element received over the step, g_i = h (f_i + D_i v_i), for the velocities the solids solved for. */
+static void received(DrCouple *c, int n, double h, DrVec3 *total)
+{
+    double t[3] = {0, 0, 0};
+    for (int i = 0; i < n; i++)
+        for (int r = 0; r < 3; r++) {
+            double f = c->force[3 * i + r];
+            for (int q = 0; q < 3; q++) f += c->dfdv[9 * i + 3 * r + q] * c->v[3 * i + q];
+            c->g[3 * i + r] = c->el[i].active ? h * f : 0.0;
+            t[r] += c->g[3 * i + r];
+        }
+    *total = dr_v3(t[0], t[1], t[2]);
+}
+
+/* The reaction −g_i spread over each element's coupled faces (fc.impulse), and, for an iteration before the last,
+   the drag mass β_f = h Σ_i wn_if K_aa with β_f (u_f − V_f) added to the impulse, u_f the last projection's
+   velocity: the fluid then solves (m + β) u = m u* − Σ wn g + β u^prev, whose fixed point carries exactly the
+   reaction. Returns Σ_f J_f over the spread reaction alone (the ledger's fluid side). */
+static DrVec3 spread(DrCouple *c, const DrMacGrid *g, int n, double h, bool drag)
+{
+    double t[3] = {0, 0, 0};
+    for (int i = 0; i < n; i++) {
+        const Element *e = &c->el[i];
+        if (!e->active) continue;
+        for (int a = 0; a < 3; a++)
+            for (int q = 0; q < 8; q++) {
+                double w = e->wn[a][q];
+                if (w == 0.0) continue;
+                c->fc.impulse[a][e->st[a].f[q]] -= w * c->g[3 * i + a];
+                if (drag) c->fc.drag[a][e->st[a].f[q]] += w * h * c->kd[3 * i + a];
+            }
+    }
+    for (int a = 0; a < 3; a++)
+        for (long f = 0; f < g->nfaces[a]; f++) {
+            t[a] += c->fc.impulse[a][f];
+            double b = c->fc.drag[a][f];
+            if (drag && b > 0.0) c->fc.impulse[a][f] += b * (g->f[a][f] - c->fc.velocity[a][f]);
+        }
+    return dr_v3(t[0], t[1], t[2]);
+}
+
+static double rel_change(const double *now, const double *before, long n, double floor_abs)
+{
+    double d = 0.0, s = 0.0;
+    for (long i = 0; i < n; i++) {
+        d += (now[i] - before[i]) * (now[i] - before[i]);
+        s += now[i] * now[i];
+    }
+    double den = sqrt(s);
+    if (den < floor_abs) den = floor_abs;
+    return sqrt(d) / den;
+}
+
+DrStatus dr_couple_step(DrCouple *c, const DrCoupleDesc *desc, const DrCoupleFluid *fluid,
+                        const DrCoupleSolid *solids, int nsolids, double h, DrCoupleStats *stats, DrError *err)
+{
+    if (!(h > 0.0) || !isfinite(h) || desc->iterations < 1 || !(desc->tolerance > 0.0))
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "couple: step %g s, %d iterations, tolerance %g: the step "
+                            "must be positive, the iterations at least 1 and the tolerance positive.", h,
+                            desc->iterations, desc->tolerance);
+    const DrMacGrid *g = fluid->grid;
+    int n = 0;
+    DR_TRY(gather(c, fluid, solids, nsolids, &n, err));
+    bool buoyancy = false;
+    for (int s = 0; s < nsolids; s++)
+        for (int l = 0; l < solids[s].nlaws; l++) buoyancy = buoyancy || solids[s].laws[l].buoyancy;
+    double t0 = dr_time_now();
+    for (int i = 0; i < n; i++)
+        for (int a = 0; a < 3; a++)
+            c->el[i].st[a] = face_stencil(g, a, dr_v3(c->x[3 * i], c->x[3 * i + 1], c->x[3 * i + 2]));
+    rasterise(c, g, n);
+    double t1 = dr_time_now();
+    DR_TRY(fluid->project(fluid->ctx, &c->fc, err));
+    double t2 = dr_time_now();
+    sample_velocity(c, fluid, n, true);
+    memset(c->gradp, 0, (size_t)n * 3 * sizeof(double));
+    memset(c->p, 0, (size_t)n * sizeof(double));
+    if (buoyancy) sample_pressure(c, fluid, n);
+    long active = 0;
+    for (int i = 0; i < n; i++) active += c->el[i].active;
+    double ufloor = 1e-12, change = INFINITY, change_fluid = INFINITY;
+    double sec_laws = t1 - t0, sec_solid = 0.0, sec_fluid = t2 - t1;
+    int k = 1;
+    for (;; k++) {
+        double a0 = dr_time_now();
+        DR_TRY(laws(c, desc, fluid, n, h, err));
+        double a1 = dr_time_now();
+        int at = 0;
+        for (int s = 0; s < nsolids; s++) {
+            DrCoupleSamples sm = solids[s].samples(solids[s].ctx);
+            DR_TRY(solids[s].solve(solids[s].ctx, c->force + 3 * at, c->dfdv + 9 * at, err));
+            at += sm.n;
+        }
+        double a2 = dr_time_now();
+        memcpy(c->vprev, c->v, (size_t)n * 3 * sizeof(double));
+        read_velocities(c, solids, nsolids);
+        DrVec3 got;
+        received(c, n, h, &got);
+        double cv = rel_change(c->v, c->vprev, 3L * n, ufloor);
+        change = k == 1 ? cv : (cv > change_fluid ? cv : change_fluid);
+        bool last = k >= desc->iterations || (k > 1 && change < desc->tolerance);
+        rasterise(c, g, n);
+        DrVec3 gave = spread(c, g, n, h, !last);
+        double a3 = dr_time_now();
+        DR_TRY(fluid->project(fluid->ctx, &c->fc, err));
+        double a4 = dr_time_now();
+        sec_laws += a1 - a0 + a3 - a2;
+        sec_solid += a2 - a1;
+        sec_fluid += a4 - a3;
+        if (last) {
+            c->ledger_solid = got;
+            c->ledger_fluid = gave;
+            break;
+        }
+        memcpy(c->uprev, c->u, (size_t)n * 3 * sizeof(double));
+        memcpy(c->pprev, c->p, (size_t)n * sizeof(double));
+        sample_velocity(c, fluid, n, false);
+        if (buoyancy) sample_pressure(c, fluid, n);
+        double cu = rel_change(c->u, c->uprev, 3L * n, ufloor);
+        double cp = buoyancy ? rel_change(c->p, c->pprev, n, 1e-9) : 0.0;
+        change_fluid = cu > cp ? cu : cp;
+    }
+    if (stats) {
+        stats->steps++;
+        stats->iterations_total += k;
+        if (k > stats->iterations_max) stats->iterations_max = k;
+        if (change >= desc->tolerance && k >= desc->iterations && desc->iterations > 1) stats->not_converged++;
+        if (change > stats->change_max && isfinite(change)) stats->change_max = change;
+        stats->elements = active;
+        stats->solid_impulse = dr_v3_add(stats->solid_impulse, c->ledger_solid);
+        stats->fluid_impulse = dr_v3_add(stats->fluid_impulse, c->ledger_fluid);
+        stats->seconds_laws += sec_laws;
+        stats->seconds_solid += sec_solid;
+        stats->seconds_fluid += sec_fluid;
+    }
+    return DR_OK;
+}

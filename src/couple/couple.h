@@ -1,0 +1,170 @@
+/* drench couple: drag, lift and buoyancy between Lagrangian solids (hair; cloth later) and a fluid on a MAC grid
+ * (liquid or air), and the coupled loop that makes them agree within a step (PHYSICS §6, DESIGN §8; [AV] §2).
+ *
+ * ---- the laws, per solid element ([AV] eqs. 1–4) -----------------------------------------------------------------
+ * An element (a rod vertex with the half edges beside it) of diameter D, volume V and unit direction e_∥, moving at
+ * Δv relative to the fluid (density ρ, dynamic viscosity μ) feels
+ *     f_drag = −(μV/D²) R C Rᵀ Δv,   R C Rᵀ = C_⊥ (I − e_∥e_∥ᵀ) + C_∥ e_∥e_∥ᵀ        (rods: C = diag(C_⊥, C_⊥, C_∥))
+ *     C_l = 1/k_l + ξ_N · 1.75/√(150 k_l) · (1 − γ)^(−3/2) · (ρ D |Δv| / μ)^c,     l ∈ {⊥, ∥}
+ * with γ the solid fraction around the element, ξ_N and c the nonlinear scale and degree, and the dimensionless
+ * inverse permeabilities 1/k_l from one of two models:
+ *   DR_DRAG_SCALES (default): 1/k_l = ξ_D ξ_l · C_S. The paper writes 1/k_l = ξ_D ξ_l/10⁴ ("chosen arbitrarily");
+ *     with every ξ = 1 that puts a 1 mm piece of 100 µm hair in water at 7.9e-11 N per m/s, about 1e4–1e5 below
+ *     the low-Reynolds drag on a thin cylinder. drench makes the scales relative to that drag instead: C_S =
+ *     16/(ln(2Λ) + ½), Λ = L/D the strand's slenderness (its length over its diameter), so that with ξ_D = ξ_⊥ = 1 a
+ *     rod moving across itself in the linear regime feels the slender-body (resistive-force) Stokes drag per unit
+ *     length f/L = 4πμ|Δv|/(ln(2Λ) + ½) (Cox 1970, leading order in 1/ln Λ); lengthwise it feels ξ_∥ times that
+ *     (slender-body theory gives about ½: the default ξ_∥ = 0.5). reference DR_DRAG_LITERAL restores the paper's
+ *     C_S = 1e-4 for scenes tuned to it.
+ *   DR_DRAG_PERMEABILITY: the Drummond–Tahir permeabilities of a fibre array of solid fraction γ (Fei et al. 2018),
+ *     k̃_∥ = (−ln γ − 1.476 + 2γ − ½γ²)/(16γ), k̃_⊥ = (−ln γ − 1.476 + 2γ − 1.774γ² + 4.078γ³)/(32γ) (k = k̃ D²), and
+ *     since Darcy's law gives the force per volume of the medium (the element's V/γ), 1/k_l = ξ_D ξ_l/(γ k̃_l); γ is
+ *     clamped into [1e-4, 0.5].
+ *     The nonlinear term is Ergun's inertial one with either model.
+ *     f_lift = −ξ_L (Q − (Q·Δv/|Δv|²) Δv),  Q = e_∥ × (e_∥ × f_drag)                                     (eq. 4)
+ * orthogonal to Δv, zero along and across the rod, ½ ξ_L (μV/D²) C_⊥ |Δv| sin 2φ at angle φ between them. It is
+ * explicit (it does no work on Δv but can feed energy through the solid's response): dr_couple_stable_dt bounds the
+ * step so that it turns an element's relative velocity by at most a radian per step, m/(½ ξ_L (μV/D²) C_⊥) with the
+ * linear C_⊥.
+ *     f_buoyancy = −V ∇p                                                                       (PHYSICS §6)
+ * with ∇p the fluid pressure's gradient at the element (a hydrostatic pool: −V ρ g, Archimedes).
+ *
+ * ---- the loop (one step of h) -------------------------------------------------------------------------------------
+ * The caller predicts every solid and begins the fluid's substep; dr_couple_step then
+ *   0. rasterises the solids' elements onto the MAC faces (trilinear weights w_if on each face component's lattice,
+ *      fixed for the step): the solid fraction φ_s,f = Σ_i w_if V_i/Δx³ (at most ½) as a porous blocked share moving
+ *      at the solids' velocity; projects the fluid with it (no drag yet) and samples the fluid velocity ũ_i at each
+ *      element with the same weights restricted to the faces that take part (the fluid's coupled faces, normalised);
+ *   k = 1, 2, …: every solid solves with the drag linearised about its last velocity and the fluid's iterate ũ
+ *      (force f_i(v*) − D_i v* and ∂f/∂v₊ = D_i = −K_i, K_i = (μV/D²) R C Rᵀ with C at |v* − ũ|; with
+ *      position_derivative the fluid velocity's change along the element's motion over the step, x₊ = x + h v₊, adds
+ *      h K_i ∇ũ_i, of which the symmetric part that keeps the solve positive definite enters), lift and buoyancy
+ *      explicit; then, unless this is the last iteration, the negated drag and its derivative go to the faces as an
+ *      implicit drag mass β_f = h Σ_i w_if (K_i)_aa pulling the fluid towards the solids' velocity (grid.h) and the
+ *      fluid projects again: block Gauss–Seidel on the monolithic fluid–solid system, whose fixed point is its
+ *      solution for linear drag. The loop ends when the relative change of the solids' velocities and of the sampled
+ *      fluid velocity and pressure falls below the tolerance, or at the iteration cap; the last projection takes the
+ *      exact reaction instead: the impulse g_i = h (f_i + D_i v_i) each element received, negated and spread over the
+ *      coupled faces with the weights it was sampled with, so that the fluid gains exactly −Σ g_i (the momentum
+ *      ledger, DrCoupleStats) for any iteration count. One iteration is the staggered step (solid with drag from the
+ *      fluid, reaction, pressure).
+ * The caller then commits every solid (their last solve) and ends the fluid's substep (its last projection).
+ *
+ * Units SI. Determinism: every sum runs in a fixed order; bit-identical for any thread count. Memory: scratch grows
+ * with the elements and is kept (a step after the first allocates nothing while the counts fit). */
+#ifndef DR_COUPLE_H
+#define DR_COUPLE_H
+
+#include "core/core.h"
+#include "grid/grid.h"
+
+typedef enum DrDragModel { DR_DRAG_SCALES, DR_DRAG_PERMEABILITY } DrDragModel;
+typedef enum DrDragReference { DR_DRAG_STOKES, DR_DRAG_LITERAL } DrDragReference;
+
+typedef struct DrDragLaw {
+    DrDragModel model;         /* default DR_DRAG_SCALES */
+    DrDragReference reference; /* DR_DRAG_SCALES only: default DR_DRAG_STOKES */
+    double global;             /* ξ_D ≥ 0, default 1 (0: no drag) */
+    double normal, tangent;    /* ξ_⊥, ξ_∥ ≥ 0, default 1 and 0.5 */
+    double nonlinear;          /* ξ_N ≥ 0, default 1 */
+    double degree;             /* c ≥ 0, default 1 */
+    double lift;               /* ξ_L ≥ 0, default 0 */
+    bool buoyancy;             /* default true */
+} DrDragLaw;
+void dr_drag_law_default(DrDragLaw *law);
+
+/* One element as the laws see it. */
+typedef struct DrDragSite {
+    DrVec3 tangent;   /* e_∥, unit */
+    double diameter;  /* D, m, > 0 */
+    double volume;    /* V, m³, ≥ 0 */
+    double slender;   /* Λ = L/D of its strand, > 1 */
+    double gamma;     /* solid fraction around it, [0, 1) */
+} DrDragSite;
+
+/* C_l (dimensionless) for l = 0 (⊥) or 1 (∥) at relative speed `speed` (m/s) in a fluid of density rho, viscosity mu. */
+double dr_drag_coefficient(const DrDragLaw *law, int l, double rho, double mu, const DrDragSite *site, double speed);
+/* K (row-major 3×3, N·s/m) with f_drag = −K Δv, C evaluated at |Δv|. */
+void dr_drag_tensor(const DrDragLaw *law, double rho, double mu, const DrDragSite *site, DrVec3 dv, double K[9]);
+/* Eq. 4 for the drag f_drag = −K Δv (K from dr_drag_tensor); zero for Δv = 0. */
+DrVec3 dr_drag_lift(const DrDragLaw *law, const DrDragSite *site, const double K[9], DrVec3 dv);
+
+/* ---- participants ------------------------------------------------------------------------------------------------ */
+
+/* A solid's elements, borrowed from it between its predict and its commit; x stays put for the step (the positions
+   at its start), v is its last solve's (the prediction's before any). */
+typedef struct DrCoupleSamples {
+    int n;
+    const double *x;          /* 3n, m */
+    const double *v;          /* 3n, m/s */
+    const double *mass;       /* n, kg */
+    const double *volume;     /* n, m³ */
+    const double *diameter;   /* n, m */
+    const double *slender;    /* n: Λ of the element's strand */
+    const double *tangent;    /* 3n, unit */
+    const unsigned char *held;/* n or NULL: 1 for an element whose motion is prescribed (no force on it or from it) */
+    const int *law;           /* n or NULL (all law 0): index into DrCoupleSolid.laws */
+} DrCoupleSamples;
+
+typedef struct DrCoupleSolid {
+    void *ctx;
+    int nlaws;
+    const DrDragLaw *laws;
+    /* Its elements (after its predict; re-read after each solve). */
+    DrCoupleSamples (*samples)(void *ctx);
+    /* Solves its predicted step with force_i + dforce_dv_i v₊_i on element i (3n N; 9n row-major 3×3 N·s/m,
+       symmetric negative semidefinite), from the prediction (as dr_rod_set_solve). Warnings (not converged) are the
+       solid's to report; a negative status stops the step. */
+    DrStatus (*solve)(void *ctx, const double *force, const double *dforce_dv, DrError *err);
+} DrCoupleSolid;
+
+typedef struct DrCoupleFluid {
+    void *ctx;
+    double density, viscosity;   /* kg/m³, Pa·s */
+    const DrMacGrid *grid;       /* its grid: after project, grid->f holds the velocities the coupling samples */
+    /* dr_liquid_project-like: re-callable from the substep's begin with the extra face coupling. */
+    DrStatus (*project)(void *ctx, const DrFaceCoupling *extra, DrError *err);
+    /* Pressure (Pa) at n points (3n, m), as dr_liquid_sample (velocity not asked). */
+    void (*pressure)(void *ctx, long n, const double *points, double *p);
+    /* The faces that took the extra coupling in the last project (dr_liquid_coupled_faces). */
+    const unsigned char *(*coupled_faces)(void *ctx, int a);
+} DrCoupleFluid;
+
+typedef struct DrCoupleDesc {
+    int iterations;            /* ≥ 1, default 3 (solver.coupling_iterations) */
+    double tolerance;          /* > 0, default 1e-3: relative change of v, ũ and p that ends the loop */
+    bool position_derivative;  /* default true */
+} DrCoupleDesc;
+void dr_couple_desc_default(DrCoupleDesc *d);
+
+typedef struct DrCoupleStats {
+    int steps;                 /* coupled steps */
+    long iterations_total;     /* solid solves over them */
+    int iterations_max;
+    int not_converged;         /* steps that stopped at the cap with the change above the tolerance */
+    double change_max;         /* the largest final relative change of a step */
+    long elements;             /* elements in the fluid (with coupled faces) at the last step */
+    DrVec3 solid_impulse;      /* N·s: Σ g_i, what the solids received (drag, lift, buoyancy) */
+    DrVec3 fluid_impulse;      /* N·s: what the coupled faces gave the fluid; solid + fluid = 0 to round-off */
+    double seconds_laws, seconds_solid, seconds_fluid;
+} DrCoupleStats;
+
+typedef struct DrCouple DrCouple;
+DR_NODISCARD DrStatus dr_couple_create(DrCouple **out, DrError *err);
+void dr_couple_destroy(DrCouple **c);
+
+/* The lift's limit on the step (INFINITY without lift) for the solids' elements as they are now. */
+double dr_couple_stable_dt(const DrCoupleFluid *fluid, const DrCoupleSolid *solids, int nsolids);
+
+/* One coupled step of h (above). stats accumulates (zero it first). DR_ERR_INPUT for bad arguments (a solid's law
+   index out of range, a non-positive h); a participant's failure is passed on; DR_ERR_RUNTIME for non-finite laws;
+   DR_ERR_NOMEM. */
+DR_NODISCARD DrStatus dr_couple_step(DrCouple *c, const DrCoupleDesc *desc, const DrCoupleFluid *fluid,
+                                     const DrCoupleSolid *solids, int nsolids, double h, DrCoupleStats *stats,
+                                     DrError *err);
+
+/* The coupling's momentum ledger of the last dr_couple_step: *solid (what the solids received) and *fluid (what the
+   fluid's coupled faces were given), N·s. */
+void dr_couple_last_ledger(const DrCouple *c, DrVec3 *solid, DrVec3 *fluid);
+
+#endif

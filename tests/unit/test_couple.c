@@ -1,0 +1,321 @@
+/* Unit tests of src/couple (couple.h): the drag law on one rod element (f = −(μV/D²)·scales·Δv along each axis, the
+ * ⊥/∥ ratio that of the scales, R C Rᵀ for any orientation), the Stokes reference (the slender-body drag per unit
+ * length of a long cylinder), the nonlinear and permeability models, lift (orthogonal to Δv, zero along and across,
+ * ∝ sin 2φ); a free rod falling through still liquid (one-way: a fluid at rest that takes nothing back) reproduces
+ * v_{n+1} = (v_n + g h)/(1 + h/τ) and its terminal velocity; the coupled loop's momentum ledger with a mock fluid. */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "core/core.h"
+#include "couple/couple.h"
+#include "grid/grid.h"
+#include "hair/hair.h"
+
+static void near_or_fail(double a, double b, double tol, const char *file, int line)
+{
+    if (fabs(a - b) <= tol) return;
+    print_error("%.17g != %.17g (|diff| %.3g > tol %.3g)\n", a, b, fabs(a - b), tol);
+    _fail(file, line);
+}
+#define assert_near(a, b, tol) near_or_fail((a), (b), (tol), __FILE__, __LINE__)
+#define CHECK(expr)                                                                                                \
+    do {                                                                                                           \
+        DrError err_;                                                                                              \
+        DrStatus s_ = (expr);                                                                                      \
+        if (s_ != DR_OK) fail_msg("%s: status %d: %s", #expr, s_, err_.message);                                  \
+    } while (0)
+#define ERR (&err_)
+
+static const double RHO = 1000.0, MU = 1e-3;
+
+static DrDragLaw linear_law(void)
+{
+    DrDragLaw law;
+    dr_drag_law_default(&law);
+    law.nonlinear = 0.0;
+    return law;
+}
+
+static DrDragSite site_along(DrVec3 t)
+{
+    DrDragSite s = {dr_v3_normalize(t), 1e-4, 0.0, 600.0, 0.0};
+    s.volume = M_PI / 4.0 * s.diameter * s.diameter * 1e-3; /* a 1 mm piece */
+    return s;
+}
+
+static DrVec3 apply(const double K[9], DrVec3 v)
+{
+    return dr_v3(-(K[0] * v.x + K[1] * v.y + K[2] * v.z), -(K[3] * v.x + K[4] * v.y + K[5] * v.z),
+                 -(K[6] * v.x + K[7] * v.y + K[8] * v.z));
+}
+
+/* Linear drag on a rod along z: f = −(μV/D²) ξ_D ξ_l C_S Δv along each axis, C_S = 16/(ln 2Λ + ½), to 1e-14. */
+static void test_linear_drag_axes(void **state)
+{
+    (void)state;
+    DrDragLaw law = linear_law();
+    law.global = 2.0;
+    law.normal = 1.5;
+    law.tangent = 0.25;
+    DrDragSite s = site_along(dr_v3(0, 0, 1));
+    double cs = 16.0 / (log(2.0 * s.slender) + 0.5), pre = MU * s.volume / (s.diameter * s.diameter);
+    DrVec3 axes[3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
+    double want[3] = {pre * 2.0 * 1.5 * cs, pre * 2.0 * 1.5 * cs, pre * 2.0 * 0.25 * cs};
+    for (int a = 0; a < 3; a++) {
+        DrVec3 dv = dr_v3_scale(axes[a], 0.37);
+        double K[9];
+        dr_drag_tensor(&law, RHO, MU, &s, dv, K);
+        DrVec3 f = apply(K, dv);
+        double fa[3] = {f.x, f.y, f.z};
+        for (int b = 0; b < 3; b++) {
+            double w = b == a ? -want[a] * 0.37 : 0.0;
+            assert_near(fa[b], w, 1e-14 * fabs(want[a] * 0.37));
+        }
+    }
+    /* ⊥/∥ exactly the ratio of the scales */
+    double K[9];
+    dr_drag_tensor(&law, RHO, MU, &s, dr_v3(1, 0, 0), K);
+    assert_near(K[0] / K[8], 1.5 / 0.25, 1e-14 * 6.0);
+    /* the literal reference: 1e-4 */
+    law.reference = DR_DRAG_LITERAL;
+    dr_drag_tensor(&law, RHO, MU, &s, dr_v3(1, 0, 0), K);
+    assert_near(K[0], pre * 2.0 * 1.5 * 1e-4, 1e-14 * K[0]);
+}
+
+/* With every scale 1, a long cylinder moving across itself feels the slender-body Stokes drag per unit length
+   4πμU/(ln(2L/D) + ½); lengthwise (ξ_∥ = ½) half of that, against slender-body theory's 2πμU/(ln(2L/D) − ½). */
+static void test_stokes_reference(void **state)
+{
+    (void)state;
+    DrDragLaw law = linear_law();
+    law.tangent = 1.0;
+    for (double lam = 50; lam <= 5000; lam *= 10) {
+        DrDragSite s = site_along(dr_v3(0, 1, 0));
+        s.slender = lam;
+        double L = 4.0 * s.volume / (M_PI * s.diameter * s.diameter), U = 0.01;
+        double K[9];
+        dr_drag_tensor(&law, RHO, MU, &s, dr_v3(U, 0, 0), K);
+        double per_length = K[0] * U / L, stokes = 4.0 * M_PI * MU * U / (log(2.0 * lam) + 0.5);
+        assert_near(per_length, stokes, 1e-13 * stokes);
+        double along = 0.5 * K[4] * U / L, sbt = 2.0 * M_PI * MU * U / (log(2.0 * lam) - 0.5);
+        assert_true(fabs(along / sbt - 1.0) < 0.25);
+    }
+}
+
+/* Any orientation: f = −(μV/D²) R C Rᵀ Δv, the ⊥ and ∥ parts of Δv scaled by C_⊥ and C_∥. */
+static void test_rotated_tensor(void **state)
+{
+    (void)state;
+    DrDragLaw law = linear_law();
+    law.tangent = 0.3;
+    DrDragSite s = site_along(dr_v3(0.3, -0.8, 0.52));
+    DrVec3 e = s.tangent, dv = dr_v3(0.2, 0.05, -0.4);
+    double K[9];
+    dr_drag_tensor(&law, RHO, MU, &s, dv, K);
+    double pre = MU * s.volume / (s.diameter * s.diameter), cs = 16.0 / (log(2.0 * s.slender) + 0.5);
+    DrVec3 par = dr_v3_scale(e, dr_v3_dot(e, dv)), perp = dr_v3_sub(dv, par);
+    DrVec3 want = dr_v3_scale(dr_v3_add(dr_v3_scale(perp, cs), dr_v3_scale(par, 0.3 * cs)), -pre);
+    DrVec3 f = apply(K, dv);
+    double tol = 1e-14 * dr_v3_norm(want);
+    assert_near(f.x, want.x, tol);
+    assert_near(f.y, want.y, tol);
+    assert_near(f.z, want.z, tol);
+    for (int r = 0; r < 3; r++)
+        for (int q = 0; q < 3; q++) assert_near(K[3 * r + q], K[3 * q + r], 1e-20);
+}
+
+/* The nonlinear (Ergun) part: C = 1/k + ξ_N 1.75/√(150k) (1−γ)^(−3/2) Re^c; the permeability model's Darcy limit. */
+static void test_nonlinear_and_permeability(void **state)
+{
+    (void)state;
+    DrDragLaw law;
+    dr_drag_law_default(&law);
+    law.degree = 1.3;
+    DrDragSite s = site_along(dr_v3(1, 0, 0));
+    s.gamma = 0.2;
+    double speed = 0.05, ik = 16.0 / (log(2.0 * s.slender) + 0.5);
+    double re = RHO * s.diameter * speed / MU;
+    double want = ik + 1.75 / sqrt(150.0 / ik) / pow(0.8, 1.5) * pow(re, 1.3);
+    assert_near(dr_drag_coefficient(&law, 0, RHO, MU, &s, speed), want, 1e-14 * want);
+    law.model = DR_DRAG_PERMEABILITY;
+    law.nonlinear = 0.0;
+    double g = 0.2, kperp = (-log(g) - 1.476 + 2 * g - 1.774 * g * g + 4.078 * g * g * g) / (32 * g);
+    double kpar = (-log(g) - 1.476 + 2 * g - 0.5 * g * g) / (16 * g);
+    assert_near(dr_drag_coefficient(&law, 0, RHO, MU, &s, speed), 1.0 / (g * kperp), 1e-13 / (g * kperp));
+    assert_near(dr_drag_coefficient(&law, 1, RHO, MU, &s, speed), 0.5 / (g * kpar), 1e-13 / (g * kpar));
+    /* denser fibres drag more */
+    s.gamma = 0.3;
+    assert_true(dr_drag_coefficient(&law, 0, RHO, MU, &s, speed) > 1.0 / (g * kperp));
+}
+
+/* Lift: orthogonal to Δv to 1e-12, zero along and across the rod, ½ ξ_L (μV/D²) C_⊥ |Δv| sin 2φ (maximum at 45°). */
+static void test_lift(void **state)
+{
+    (void)state;
+    DrDragLaw law = linear_law();
+    law.lift = 0.7;
+    law.tangent = 0.4;
+    DrDragSite s = site_along(dr_v3(0, 0, 1));
+    double pre = MU * s.volume / (s.diameter * s.diameter), cs = 16.0 / (log(2.0 * s.slender) + 0.5);
+    double U = 0.3, best = 0.0, best_phi = -1.0;
+    for (int k = 0; k <= 90; k++) {
+        double phi = k * M_PI / 180.0;
+        DrVec3 dv = dr_v3(U * sin(phi), 0.0, U * cos(phi));
+        double K[9];
+        dr_drag_tensor(&law, RHO, MU, &s, dv, K);
+        DrVec3 L = dr_drag_lift(&law, &s, K, dv);
+        double mag = dr_v3_norm(L), want = 0.5 * 0.7 * pre * cs * U * sin(2.0 * phi);
+        assert_true(fabs(dr_v3_dot(L, dv)) <= 1e-12 * (mag * U + 1e-300));
+        assert_near(mag, fabs(want), 1e-12 * pre * cs * U);
+        if (k == 0 || k == 90) assert_true(mag <= 1e-14 * pre * cs * U);
+        if (mag > best) { best = mag; best_phi = k; }
+    }
+    assert_near(best_phi, 45.0, 0.0);
+}
+
+/* ---- a mock fluid at rest on a small grid: every face coupled, no pressure, takes nothing back ------------------- */
+
+typedef struct Still { DrMacGrid *g; unsigned char *take[3]; int projects; } Still;
+
+static DrStatus still_project(void *ctx, const DrFaceCoupling *extra, DrError *err)
+{
+    (void)extra; (void)err;
+    ((Still *)ctx)->projects++;
+    return DR_OK;
+}
+static void still_pressure(void *ctx, long n, const double *pts, double *p)
+{
+    (void)ctx; (void)pts;
+    for (long i = 0; i < n; i++) p[i] = 0.0;
+}
+static const unsigned char *still_faces(void *ctx, int a) { return ((Still *)ctx)->take[a]; }
+
+static void still_make(Still *s)
+{
+    memset(s, 0, sizeof *s);
+    DrError err;
+    assert_int_equal(dr_mac_grid_create(16, 64, 16, 0.025, dr_v3(-0.2, -1.5, -0.2), &s->g, &err), DR_OK);
+    for (int a = 0; a < 3; a++) {
+        s->take[a] = malloc((size_t)s->g->nfaces[a]);
+        memset(s->take[a], 1, (size_t)s->g->nfaces[a]);
+    }
+}
+static void still_free(Still *s)
+{
+    for (int a = 0; a < 3; a++) free(s->take[a]);
+    dr_mac_grid_destroy(&s->g);
+}
+
+/* ---- a rod set as a coupled solid ----------------------------------------------------------------------------- */
+
+typedef struct RodSolid {
+    DrRodSet *r;
+    double *volume, *diameter, *slender;
+    double h;
+} RodSolid;
+
+static DrCoupleSamples rod_samples(void *ctx)
+{
+    RodSolid *rs = ctx;
+    DrRodSamples sm = dr_rod_set_samples(rs->r);
+    for (int i = 0; i < sm.n; i++) {
+        rs->volume[i] = M_PI * sm.radius[i] * sm.radius[i] * sm.length[i];
+        rs->diameter[i] = 2.0 * sm.radius[i];
+    }
+    return (DrCoupleSamples){sm.n, sm.x, sm.v, sm.mass, rs->volume, rs->diameter, rs->slender, sm.tangent, sm.held,
+                             NULL};
+}
+static DrStatus rod_solve(void *ctx, const double *force, const double *dfdv, DrError *err)
+{
+    RodSolid *rs = ctx;
+    DrStatus s = dr_rod_set_solve(rs->r, force, dfdv, NULL, err);
+    return s == DR_WARN_NOT_CONVERGED ? DR_OK : s;
+}
+
+/* A horizontal free rod falling across itself through still liquid, one-way, linear drag: every vertex has the same
+   τ = m D²/(μ V C) (the end vertices half the mass and half the volume), so the rod stays straight and
+   v_{n+1} = (v_n + g h)/(1 + h/τ) to round-off, tending to the terminal velocity g τ. */
+static void test_falling_rod_terminal_velocity(void **state)
+{
+    (void)state;
+    DrGroom gr = {1, NULL, NULL, NULL};
+    int nv = 11;
+    gr.offsets = malloc(2 * sizeof(int));
+    gr.offsets[0] = 0;
+    gr.offsets[1] = nv;
+    gr.x = malloc(3 * sizeof(double) * (size_t)nv);
+    gr.root_normal = malloc(3 * sizeof(double));
+    for (int i = 0; i < nv; i++) { gr.x[3 * i] = -0.05 + 0.01 * i; gr.x[3 * i + 1] = 0.0; gr.x[3 * i + 2] = 0.0; }
+    gr.root_normal[0] = 0; gr.root_normal[1] = 1; gr.root_normal[2] = 0;
+    DrRodMaterial m;
+    dr_rod_material_default(&m);
+    m.radius = 5e-5;
+    DrRodBatch b = {&gr, m, 1, 1, false, 10, 0, 0, 0, 0};
+    DrRodSetDesc d;
+    dr_rod_set_desc_default(&d);
+    d.roots = DR_ROD_ROOTS_FREE;
+    d.gravity = dr_v3(0, -9.81, 0);
+    d.solver.tol = 1e-13;
+    RodSolid rs = {NULL, NULL, NULL, NULL, 0};
+    CHECK(dr_rod_set_create(&d, &b, 1, &rs.r, ERR));
+    rs.volume = malloc(sizeof(double) * (size_t)nv);
+    rs.diameter = malloc(sizeof(double) * (size_t)nv);
+    rs.slender = malloc(sizeof(double) * (size_t)nv);
+    for (int i = 0; i < nv; i++) rs.slender[i] = 0.1 / (2.0 * m.radius);
+    DrDragLaw law = linear_law();
+    law.buoyancy = false;
+    Still fl;
+    still_make(&fl);
+    DrCoupleFluid fluid = {&fl, RHO, MU, fl.g, still_project, still_pressure, still_faces};
+    DrCoupleSolid solid = {&rs, 1, &law, rod_samples, rod_solve};
+    DrCouple *c = NULL;
+    CHECK(dr_couple_create(&c, ERR));
+    DrCoupleDesc cd;
+    dr_couple_desc_default(&cd);
+    cd.iterations = 1;
+    cd.position_derivative = false;
+    double D = 2 * m.radius, C = 16.0 / (log(2.0 * rs.slender[0]) + 0.5);
+    double tau = m.density * D * D / (MU * C), h = 2e-3, v = 0.0;
+    for (int n = 0; n < 60; n++) {
+        CHECK(dr_rod_set_predict(rs.r, h, NULL, NULL, 0, ERR));
+        DrCoupleStats st = {0};
+        CHECK(dr_couple_step(c, &cd, &fluid, &solid, 1, h, &st, ERR));
+        CHECK(dr_rod_set_commit(rs.r, NULL, ERR));
+        v = (v - 9.81 * h) / (1.0 + h / tau);
+        DrRodState s = dr_rod_set_state(rs.r);
+        for (int i = 0; i < nv; i++) {
+            assert_near(s.v[3 * i + 1], v, 1e-11 * 9.81 * tau);
+            assert_near(s.v[3 * i], 0.0, 1e-11 * 9.81 * tau);
+        }
+    }
+    /* 60 steps of 2 ms against τ ≈ 1.6 ms: at the terminal velocity −g τ */
+    assert_near(v, -9.81 * tau, 1e-6 * 9.81 * tau);
+    DrRodState s = dr_rod_set_state(rs.r);
+    assert_near(s.v[3 * 5 + 1], -9.81 * tau, 1e-6 * 9.81 * tau);
+    dr_couple_destroy(&c);
+    still_free(&fl);
+    dr_rod_set_destroy(&rs.r);
+    free(rs.volume); free(rs.diameter); free(rs.slender);
+    dr_groom_free(&gr);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_linear_drag_axes),
+        cmocka_unit_test(test_stokes_reference),
+        cmocka_unit_test(test_rotated_tensor),
+        cmocka_unit_test(test_nonlinear_and_permeability),
+        cmocka_unit_test(test_lift),
+        cmocka_unit_test(test_falling_rod_terminal_velocity),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
