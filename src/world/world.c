@@ -25,6 +25,10 @@ struct DrWorld {
     WorldSolver *mpm, *hair, *bem; /* into solvers, NULL when the scene has none */
     WorldSolver bem_built;         /* built first (the liquid seeds no particle inside a body), placed last */
     double *at, *proposal;         /* per solver during a frame: the time it stands at, its next step's end */
+    /* the coupled step (DESIGN §8 step 3): the fluid and the solid of src/couple's loop, -1 when there is none */
+    int couple_fluid, couple_solid;
+    DrCouple *couple;
+    DrCoupleDesc couple_desc;
 };
 
 int dr_world_first_frame(const DrWorld *w) { return w->first_frame; }
@@ -185,6 +189,22 @@ static DrStatus build(DrWorld *w, const DrWorldDesc *desc, DrError *err)
         w->bem = &w->solvers[w->nsolvers++];
         memset(&w->bem_built, 0, sizeof w->bem_built);
     }
+    /* the coupled loop: the first fluid and the Lagrangian solids when any takes part (hair with Drag) */
+    w->couple_fluid = w->couple_solid = -1;
+    for (int i = 0; i < w->nsolvers; i++) {
+        const WorldSolver *sv = &w->solvers[i];
+        if (sv->fluid_begin && w->couple_fluid < 0) w->couple_fluid = i;
+        if (sv->couples && sv->couples(sv->self)) w->couple_solid = i;
+    }
+    if (w->couple_fluid < 0 || w->couple_solid < 0) {
+        w->couple_fluid = w->couple_solid = -1;
+    } else {
+        const DrComponent *solver = dr_scene_section(scene, "solver");
+        dr_couple_desc_default(&w->couple_desc);
+        w->couple_desc.iterations = dr_component_int(solver, "coupling_iterations");
+        w->couple_desc.tolerance = dr_component_num(solver, "coupling_tolerance");
+        DR_TRY(dr_couple_create(&w->couple, err));
+    }
     return DR_OK;
 }
 
@@ -246,6 +266,7 @@ void dr_world_destroy(DrWorld **world)
     free(w->solvers);
     free(w->at);
     free(w->proposal);
+    dr_couple_destroy(&w->couple);
     world_kinematics_destroy(&w->kin);
     free(w);
     *world = NULL;
@@ -264,6 +285,40 @@ void dr_world_destroy(DrWorld **world)
  *      fast liquid's substeps nor a liquid substep at each BEM step end (the bodies' colliders are keyed over the
  *      frame so far, so a step may span several BEM steps).
  * After the last step each adapter checks its state and writes its block of the frame's stats. */
+
+/* Step 3 of a clock step for the fluid and the solids of the coupled loop, which step together at every clock step:
+   the fluid begins, the solids predict, the loop (src/couple) makes them agree, the solids commit, the fluid ends. */
+static DrStatus coupled_step(DrWorld *w, const WorldCtx *c, double t, double t_next, DrFrameStats *stats,
+                             DrError *err)
+{
+    int fi = w->couple_fluid, si = w->couple_solid;
+    WorldSolver *f = &w->solvers[fi], *s = &w->solvers[si];
+    assert(w->at[fi] == t && w->at[si] == t);
+    DrCoupleFluid fluid;
+    DrCoupleSolid solid;
+    double t0 = dr_time_now();
+    SOLVER_TRY(fi, c->frame, f->fluid_begin(f->self, c, t, t_next, &fluid, err));
+    DR_TRY(s->solid_predict(s->self, c, t, t_next, &solid, err));
+    DrCoupleStats cs = {0};
+    DR_TRY(dr_couple_step(w->couple, &w->couple_desc, &fluid, &solid, 1, t_next - t, &cs, err));
+    DR_TRY(s->solid_commit(s->self, c, t, t_next, err));
+    SOLVER_TRY(fi, c->frame, f->fluid_end(f->self, c, err));
+    stats->coupling.steps += cs.steps;
+    stats->coupling.iterations += cs.iterations_total;
+    if (cs.iterations_max > stats->coupling.iterations_max) stats->coupling.iterations_max = cs.iterations_max;
+    stats->coupling.not_converged += cs.not_converged;
+    if (cs.change_max > stats->coupling.change_max) stats->coupling.change_max = cs.change_max;
+    stats->coupling.elements = cs.elements;
+    stats->coupling.solid_impulse = dr_v3_add(stats->coupling.solid_impulse, cs.solid_impulse);
+    stats->coupling.fluid_impulse = dr_v3_add(stats->coupling.fluid_impulse, cs.fluid_impulse);
+    stats->coupling.seconds += dr_time_now() - t0;
+    for (int i = 0; i < 2; i++) {
+        int k = i ? si : fi;
+        w->at[k] = t_next;
+        w->proposal[k] = NAN;
+    }
+    return DR_OK;
+}
 
 DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrError *err)
 {
@@ -300,9 +355,10 @@ DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrError *err)
         /* a proposal a rounding error short of a landing time lands on it (no step of a few ulps after it) */
         if (land - t_next <= tol) t_next = land;
         world_kinematics_pose(w->kin, t_next);
+        if (w->couple) SOLVER_TRY(w->couple_solid, c.frame, coupled_step(w, &c, t, t_next, stats, err));
         for (int i = 0; i < w->nsolvers; i++) {
             WorldSolver *s = &w->solvers[i];
-            if (!s->step) continue;
+            if (!s->step || i == w->couple_fluid || i == w->couple_solid) continue;
             if (t_next < c.t1 && s->next_time && t_next < w->proposal[i]) continue; /* its own step ends later */
             SOLVER_TRY(i, c.frame, s->step(s->self, &c, w->at[i], t_next, err));
             w->at[i] = t_next;
@@ -347,6 +403,23 @@ static DrStatus write_frame_body(const DrWorld *w, const DrFrameStats *stats, Dr
     const char *g = "/diagnostics";
     DR_TRY(dr_h5_write_scalar(h, g, "substeps", stats->substeps, "1", err));
     DR_TRY(dr_h5_write_scalar(h, g, "liquid_volume_cells", stats->liquid.volume, "m^3", err));
+    if (w->couple) {
+        /* the coupled loop's figures and its momentum ledger (hair received + liquid given = 0) */
+        DR_TRY(dr_h5_write_scalar(h, g, "coupling_steps", stats->coupling.steps, "1", err));
+        DR_TRY(dr_h5_write_scalar(h, g, "coupling_iterations", (double)stats->coupling.iterations, "1", err));
+        DR_TRY(dr_h5_write_scalar(h, g, "coupling_iterations_max", stats->coupling.iterations_max, "1", err));
+        DR_TRY(dr_h5_write_scalar(h, g, "coupling_not_converged", stats->coupling.not_converged, "1", err));
+        DR_TRY(dr_h5_write_scalar(h, g, "coupling_change_max", stats->coupling.change_max, "1", err));
+        double ledger[6] = {stats->coupling.solid_impulse.x, stats->coupling.solid_impulse.y,
+                            stats->coupling.solid_impulse.z, stats->coupling.fluid_impulse.x,
+                            stats->coupling.fluid_impulse.y, stats->coupling.fluid_impulse.z};
+        DR_TRY(dr_h5_write_scalar(h, g, "coupling_impulse_hair_x", ledger[0], "N s", err));
+        DR_TRY(dr_h5_write_scalar(h, g, "coupling_impulse_hair_y", ledger[1], "N s", err));
+        DR_TRY(dr_h5_write_scalar(h, g, "coupling_impulse_hair_z", ledger[2], "N s", err));
+        DR_TRY(dr_h5_write_scalar(h, g, "coupling_impulse_liquid_x", ledger[3], "N s", err));
+        DR_TRY(dr_h5_write_scalar(h, g, "coupling_impulse_liquid_y", ledger[4], "N s", err));
+        DR_TRY(dr_h5_write_scalar(h, g, "coupling_impulse_liquid_z", ledger[5], "N s", err));
+    }
     /* Wall-clock seconds per phase are not written here: frame caches are bit-identical between runs
        (a determinism test compares them); timings go to progress.jsonl and report.json. */
     return DR_OK;

@@ -102,6 +102,16 @@ typedef struct DrFrameStats {
     DrMpmFrameStats mpm;
     DrHairFrameStats hair;
     DrBemFrameStats bem;
+    /* The coupled loop between hair with a Drag component and the liquid (src/couple), over the frame: steps,
+       iterations (solid solves), steps that stopped at solver.coupling_iterations with the change above
+       solver.coupling_tolerance, the largest final relative change, and the momentum ledger: what the hair received
+       (drag, lift, buoyancy) and what the liquid was given, N·s, whose sum is zero to round-off. */
+    struct {
+        int steps, iterations_max, not_converged;
+        long iterations, elements;
+        double change_max, seconds;
+        DrVec3 solid_impulse, fluid_impulse;
+    } coupling;
 } DrFrameStats;
 
 /* Loads every asset the scene references (meshes through assimp, collider SDFs through OpenVDB) and builds

@@ -8,6 +8,7 @@
 #include "world/world.h"
 
 #include "bem/bem.h"
+#include "couple/couple.h"
 #include "grid/grid.h"
 #include "io/io.h"
 
@@ -158,6 +159,18 @@ typedef struct WorldSolver {
     DR_NODISCARD DrStatus (*read)(void *self, const WorldCtx *c, DrH5 *h, const char *path, int frame, DrError *err);
     void (*hash)(const void *self, DrHasher *h);
     void (*destroy)(void *self);
+    /* ---- the coupled step (DESIGN §8 step 3, world.c; src/couple): NULL for a solver that does not take part ---- */
+    /* A fluid: begins its step from t (where its next_time was asked) to t_next and describes itself in *fluid for
+       the loop; fluid_end ends the step with the loop's last projection. */
+    DR_NODISCARD DrStatus (*fluid_begin)(void *self, const WorldCtx *c, double t, double t_next, DrCoupleFluid *fluid,
+                                         DrError *err);
+    DR_NODISCARD DrStatus (*fluid_end)(void *self, const WorldCtx *c, DrError *err);
+    /* A solid: whether it takes part in this scene; predicts its step from t to t_next and describes itself in *solid;
+       solid_commit commits the loop's last solve. */
+    bool (*couples)(const void *self);
+    DR_NODISCARD DrStatus (*solid_predict)(void *self, const WorldCtx *c, double t, double t_next,
+                                           DrCoupleSolid *solid, DrError *err);
+    DR_NODISCARD DrStatus (*solid_commit)(void *self, const WorldCtx *c, double t, double t_next, DrError *err);
 } WorldSolver;
 
 /* The adapters' constructors: each fills *out (out->self NULL when the scene has nothing for it) and logs nothing.

@@ -40,10 +40,26 @@ typedef struct WorldWet {
     double seconds_film, seconds_bridges, seconds_cross_flow; /* the frame's, disjoint parts of the hair's seconds */
 } WorldWet;
 
+/* Hair coupled two ways with a fluid (elements with a Drag component; src/couple): per vertex the element's law, the
+   volume, diameter and slenderness the laws read, and the coupling's load added to the film's. */
+typedef struct WorldCouple {
+    DrDragLaw *laws;           /* per hair element (an element without Drag: a law of no drag, no buoyancy) */
+    int *law;                  /* per vertex */
+    double *slender;           /* per vertex: its strand's rest length over its diameter */
+    double *volume, *diameter; /* per vertex, filled with the samples (volume 0 on an uncoupled element) */
+    unsigned char *coupled;    /* per element */
+    double *force, *dfdv;      /* the solve's load per vertex (the film's plus the coupling's) */
+    int *block_dof;
+    double *block;
+    double dt;                 /* the step being coupled */
+    bool not_converged;        /* a solve of the step stopped at its cap */
+} WorldCouple;
+
 typedef struct WorldHair {
     DrLag *system;           /* the one system; the rod set's strands are objects in it */
     DrRodSet *rods;
     WorldWet *wet;           /* NULL: no hair element is wet */
+    WorldCouple *cpl;        /* NULL: no hair element has a Drag component */
     const DrElement **elements;
     int nelements;
     double **keys;           /* per element: scalp motion keys (rows of 7: s, m, rad) */
@@ -100,6 +116,12 @@ static void hair_destroy(void *self)
     WorldHair *h = self;
     if (!h) return;
     wet_destroy(&h->wet);
+    if (h->cpl) {
+        WorldCouple *k = h->cpl;
+        free(k->laws); free(k->law); free(k->slender); free(k->volume); free(k->diameter); free(k->coupled);
+        free(k->force); free(k->dfdv); free(k->block_dof); free(k->block);
+        free(k);
+    }
     dr_rod_set_destroy(&h->rods);
     dr_lag_destroy(&h->system);
     free(h->fint);
@@ -379,8 +401,9 @@ static DrStatus hair_next_time(void *self, const WorldCtx *c, double t, double *
 }
 
 /* One step of the system: every model predicts (its DOFs, then, once the system has begun, its groups), one solve of
-   the whole system (no load: nothing couples it to a fluid yet), the multipliers, every model commits. */
-static DrStatus step_system(WorldHair *h, double dt, DrError *err)
+   the whole system (with the film's load and, coupled to a fluid, the coupling's), the multipliers, every model
+   commits. In three parts so that the coupled loop (src/couple) can solve between predict and commit several times. */
+static DrStatus system_predict(WorldHair *h, double dt, DrError *err)
 {
     WorldWet *w = h->wet;
     DrRodState rs = dr_rod_set_state(h->rods);
@@ -389,8 +412,6 @@ static DrStatus step_system(WorldHair *h, double dt, DrError *err)
     DR_TRY(dr_lag_dofs(h->system, &d, err));
     DR_TRY(dr_lag_begin(h->system, dt, d.mass, d.qdot, d.fext, d.prescribed, d.qdot_prescribed, err));
     DR_TRY(dr_rod_set_predict_groups(h->rods, h->colliders, h->ncolliders, err));
-    DrLagLoad load = {NULL, 0, NULL, NULL};
-    bool loaded = false;
     if (w) {
         /* wet hair: the bridges (at the start of the step) join the system, the film rides on the strands */
         double tb = dr_time_now();
@@ -405,11 +426,32 @@ static DrStatus step_system(WorldHair *h, double dt, DrError *err)
         memset(w->force, 0, 3 * (size_t)rs.nverts * sizeof(double));
         memset(w->dfdv, 0, 9 * (size_t)rs.nverts * sizeof(double));
         dr_film_hair_load(w->film, rs.x, rs.v, dt, w->force, w->dfdv);
+        memcpy(w->x_old, rs.x, 3 * (size_t)rs.nverts * sizeof(double));
+        w->seconds_bridges += dr_time_now() - tb;
+    }
+    return DR_OK;
+}
+
+/* A solve of the predicted step with the film's load plus (cforce, cdfdv: per vertex, NULL for none) the coupling's. */
+static DrStatus system_solve(WorldHair *h, const double *cforce, const double *cdfdv, DrError *err)
+{
+    WorldWet *w = h->wet;
+    DrLagDofs d;
+    DR_TRY(dr_lag_dofs(h->system, &d, err));
+    DrLagLoad load = {NULL, 0, NULL, NULL};
+    bool loaded = false;
+    if (cforce && h->cpl) {
+        WorldCouple *k = h->cpl;
+        int nv = dr_rod_set_state(h->rods).nverts;
+        for (long i = 0; i < 3L * nv; i++) k->force[i] = cforce[i] + (w ? w->force[i] : 0.0);
+        for (long i = 0; i < 9L * nv; i++) k->dfdv[i] = cdfdv[i] + (w ? w->dfdv[i] : 0.0);
+        dr_rod_set_fill_load(h->rods, k->force, k->dfdv, d.force, k->block_dof, k->block);
+        load = (DrLagLoad){d.force, dr_rod_set_load_blocks(h->rods), k->block_dof, k->block};
+        loaded = true;
+    } else if (w) {
         dr_rod_set_fill_load(h->rods, w->force, w->dfdv, d.force, w->block_dof, w->block);
         load = (DrLagLoad){d.force, dr_rod_set_load_blocks(h->rods), w->block_dof, w->block};
         loaded = true;
-        memcpy(w->x_old, rs.x, 3 * (size_t)rs.nverts * sizeof(double));
-        w->seconds_bridges += dr_time_now() - tb;
     }
     double ts = dr_time_now();
     DrLagStats ls;
@@ -421,6 +463,15 @@ static DrStatus step_system(WorldHair *h, double dt, DrError *err)
     h->frame.not_converged += ls.converged ? 0 : 1;
     h->frame.indefinite_blocks += ls.indefinite_blocks;
     h->frame.seconds_solve += dr_time_now() - ts;
+    return solved;
+}
+
+static DrStatus system_commit(WorldHair *h, double dt, DrError *err)
+{
+    WorldWet *w = h->wet;
+    DrRodState rs = dr_rod_set_state(h->rods);
+    DrLagDofs d;
+    DR_TRY(dr_lag_dofs(h->system, &d, err));
     dr_lag_update_multipliers(h->system, d.qdot_out);
     /* the work the scalp (and any held tip) does on the strands over the step: the force that gives each held DOF its
        prescribed velocity against gravity and the constraints, times its displacement h q̇₊ */
@@ -445,8 +496,19 @@ static DrStatus step_system(WorldHair *h, double dt, DrError *err)
         w->cross_flow += bst.cross_flow;
         w->seconds_cross_flow += dr_time_now() - tc;
     }
+    return DR_OK;
+}
+
+static DrStatus step_system(WorldHair *h, double dt, DrError *err)
+{
+    DR_TRY(system_predict(h, dt, err));
+    DrStatus solved = system_solve(h, NULL, NULL, err);
+    if (solved < 0) return solved;
+    DR_TRY(system_commit(h, dt, err));
     return solved;
 }
+
+static DrStatus after_step(WorldHair *h, const WorldCtx *c, double t_next, DrStatus s);
 
 static DrStatus hair_step(void *self, const WorldCtx *c, double t, double t_next, DrError *err)
 {
@@ -454,8 +516,64 @@ static DrStatus hair_step(void *self, const WorldCtx *c, double t, double t_next
     double t_start = dr_time_now();
     for (int b = 0; b < h->nelements; b++) h->poses[b] = dr_motion_pose(h->keys[b], h->nkeys[b], t_next);
     DrStatus s = step_system(h, t_next - t, err);
-    h->steps++;
     h->seconds += dr_time_now() - t_start;
+    return after_step(h, c, t_next, s);
+}
+
+/* ---- the coupled step (src/couple): the hair as a solid of the loop ------------------------------------------ */
+
+static DrCoupleSamples couple_samples(void *ctx)
+{
+    WorldHair *h = ctx;
+    WorldCouple *k = h->cpl;
+    DrRodSamples sm = dr_rod_set_samples(h->rods);
+    for (int i = 0; i < sm.n; i++) {
+        bool on = k->coupled[k->law[i]];
+        k->volume[i] = on ? M_PI * sm.radius[i] * sm.radius[i] * sm.length[i] : 0.0;
+        k->diameter[i] = 2.0 * sm.radius[i];
+    }
+    return (DrCoupleSamples){sm.n, sm.x, sm.v, sm.mass, k->volume, k->diameter, k->slender, sm.tangent, sm.held,
+                             k->law};
+}
+
+static DrStatus couple_solve(void *ctx, const double *force, const double *dforce_dv, DrError *err)
+{
+    WorldHair *h = ctx;
+    DrStatus s = system_solve(h, force, dforce_dv, err);
+    if (s == DR_WARN_NOT_CONVERGED) h->cpl->not_converged = true;
+    return s == DR_WARN_NOT_CONVERGED ? DR_OK : s; /* counted in the frame's stats */
+}
+
+static bool hair_couples(const void *self) { return ((const WorldHair *)self)->cpl != NULL; }
+
+static DrStatus hair_solid_predict(void *self, const WorldCtx *c, double t, double t_next, DrCoupleSolid *solid,
+                                   DrError *err)
+{
+    (void)c;
+    WorldHair *h = self;
+    h->cpl->dt = t_next - t;
+    h->cpl->not_converged = false;
+    for (int b = 0; b < h->nelements; b++) h->poses[b] = dr_motion_pose(h->keys[b], h->nkeys[b], t_next);
+    double t_start = dr_time_now();
+    DR_TRY(system_predict(h, t_next - t, err));
+    h->seconds += dr_time_now() - t_start;
+    *solid = (DrCoupleSolid){h, h->nelements, h->cpl->laws, couple_samples, couple_solve};
+    return DR_OK;
+}
+
+static DrStatus hair_solid_commit(void *self, const WorldCtx *c, double t, double t_next, DrError *err)
+{
+    WorldHair *h = self;
+    double t_start = dr_time_now();
+    DrStatus s = system_commit(h, t_next - t, err);
+    h->seconds += dr_time_now() - t_start;
+    if (s < 0) return s;
+    return after_step(h, c, t_next, h->cpl->not_converged ? DR_WARN_NOT_CONVERGED : DR_OK);
+}
+
+static DrStatus after_step(WorldHair *h, const WorldCtx *c, double t_next, DrStatus s)
+{
+    h->steps++;
     if (s == DR_WARN_NOT_CONVERGED) h->not_converged_steps++;
     else if (s != DR_OK) return s;
     /* the step-to-step growth of the largest speed: an instability shows as a jump of 10×–100× in one step */
@@ -804,6 +922,65 @@ static void hair_hash(const void *self, DrHasher *hs)
     }
 }
 
+/* The drag laws of the elements with a Drag component (none: no coupling), per vertex arrays. */
+static DrStatus build_couple(WorldHair *h, DrError *err)
+{
+    bool any = false;
+    for (int b = 0; b < h->nelements; b++) any = any || dr_element_component(h->elements[b], "Drag") != NULL;
+    if (!any) return DR_OK;
+    DrRodState rs = dr_rod_set_state(h->rods);
+    WorldCouple *k = NULL;
+    DR_TRY(dr_calloc(1, sizeof *k, &k, err));
+    h->cpl = k;
+    size_t nv = (size_t)rs.nverts;
+    DR_TRY(dr_calloc((size_t)h->nelements, sizeof *k->laws, &k->laws, err));
+    DR_TRY(dr_calloc((size_t)h->nelements, 1, &k->coupled, err));
+    DR_TRY(dr_calloc(nv, sizeof *k->law, &k->law, err));
+    DR_TRY(dr_calloc(nv, sizeof(double), &k->slender, err));
+    DR_TRY(dr_calloc(nv, sizeof(double), &k->volume, err));
+    DR_TRY(dr_calloc(nv, sizeof(double), &k->diameter, err));
+    DR_TRY(dr_calloc(3 * nv, sizeof(double), &k->force, err));
+    DR_TRY(dr_calloc(9 * nv, sizeof(double), &k->dfdv, err));
+    int nb = dr_rod_set_load_blocks(h->rods);
+    DR_TRY(dr_calloc((size_t)nb, sizeof(int), &k->block_dof, err));
+    DR_TRY(dr_calloc(9 * (size_t)nb, sizeof(double), &k->block, err));
+    for (int b = 0; b < h->nelements; b++) {
+        DrDragLaw *law = &k->laws[b];
+        dr_drag_law_default(law);
+        const DrComponent *dc = dr_element_component(h->elements[b], "Drag");
+        if (!dc) {
+            law->global = 0.0;
+            law->buoyancy = false;
+            continue;
+        }
+        k->coupled[b] = 1;
+        law->model = strcmp(dr_component_str(dc, "model"), "permeability") == 0 ? DR_DRAG_PERMEABILITY : DR_DRAG_SCALES;
+        law->reference = strcmp(dr_component_str(dc, "reference"), "literal") == 0 ? DR_DRAG_LITERAL : DR_DRAG_STOKES;
+        law->global = dr_component_num(dc, "global_scale");
+        law->normal = dr_component_num(dc, "normal_scale");
+        law->tangent = dr_component_num(dc, "tangent_scale");
+        law->nonlinear = dr_component_num(dc, "nonlinear_scale");
+        law->degree = dr_component_num(dc, "degree");
+        law->lift = dr_component_num(dc, "lift_scale");
+        law->buoyancy = dr_component_bool(dc, "buoyancy");
+    }
+    for (int b = 0; b < rs.nbatches; b++)
+        for (int st = rs.batch_offsets[b]; st < rs.batch_offsets[b + 1]; st++) {
+            double len = 0.0;
+            for (int v = rs.offsets[st]; v + 1 < rs.offsets[st + 1]; v++) {
+                DrVec3 a = dr_v3(rs.x[3 * v], rs.x[3 * v + 1], rs.x[3 * v + 2]);
+                DrVec3 c = dr_v3(rs.x[3 * v + 3], rs.x[3 * v + 4], rs.x[3 * v + 5]);
+                len += dr_v3_norm(dr_v3_sub(c, a));
+            }
+            double lam = len / (2.0 * rs.radius[st]);
+            for (int v = rs.offsets[st]; v < rs.offsets[st + 1]; v++) {
+                k->law[v] = b;
+                k->slender[v] = lam > 1.0 ? lam : 1.0;
+            }
+        }
+    return DR_OK;
+}
+
 DrStatus world_lagrangian_adapter(const WorldCtx *c, const char *cache_root, WorldSolver *out, DrError *err)
 {
     memset(out, 0, sizeof *out);
@@ -814,6 +991,7 @@ DrStatus world_lagrangian_adapter(const WorldCtx *c, const char *cache_root, Wor
     DrStatus s = build_hair(c, h, n, err);
     if (s == DR_OK) s = dr_calloc((size_t)dr_lag_dof_count(h->system), sizeof(double), &h->fint, err);
     if (s == DR_OK) s = build_wet(c, h, cache_root, err);
+    if (s == DR_OK) s = build_couple(h, err);
     if (s < 0) {
         hair_destroy(h);
         return s;
@@ -827,7 +1005,10 @@ DrStatus world_lagrangian_adapter(const WorldCtx *c, const char *cache_root, Wor
                          .write = hair_write,
                          .read = hair_read,
                          .hash = hair_hash,
-                         .destroy = hair_destroy};
+                         .destroy = hair_destroy,
+                         .couples = hair_couples,
+                         .solid_predict = hair_solid_predict,
+                         .solid_commit = hair_solid_commit};
     return DR_OK;
 }
 

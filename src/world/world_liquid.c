@@ -24,6 +24,7 @@ typedef struct WorldLiquid {
     double fill0;            /* dr_liquid_particle_volume over nominal at the watch's start */
     bool volume_alarm;       /* the volume alarm was raised (once per bake) */
     double volume, nominal;  /* m³: dr_liquid_particle_volume at the end of the last frame (diagnostics) */
+    double density, viscosity; /* kg/m³, Pa·s: what the coupled loop's laws read */
 } WorldLiquid;
 
 static void box_of(const DrComponent *c, const char *field, DrVec3 *lo, DrVec3 *hi) { dr_component_box(c, field, lo, hi); }
@@ -186,6 +187,8 @@ static DrStatus build_liquid(const WorldCtx *c, const DrElement *e, WorldLiquid 
                          k & 4 ? d.domain_hi.z : d.domain_lo.z);
         wl->low = fmin(wl->low, -dr_v3_dot(d.gravity, x));
     }
+    wl->density = d.density;
+    wl->viscosity = d.viscosity;
     DR_TRY(dr_liquid_create(&d, cols, ncols, &wl->liquid, err));
     return watch_start(wl, c, c->frame, err);
 }
@@ -212,6 +215,44 @@ static DrStatus liquid_step(void *self, const WorldCtx *c, double t, double t_ne
     int n = world_kinematics_liquid_colliders(c->kin, &cols);
     DR_TRY(dr_liquid_begin(wl->liquid, cols, n, t, h, err));
     DR_TRY(dr_liquid_project(wl->liquid, NULL, &wl->frame, err));
+    return dr_liquid_end(wl->liquid, &wl->frame, err);
+}
+
+/* ---- the coupled step: the liquid as the fluid of the loop (src/couple) ---- */
+
+static DrStatus fluid_project(void *ctx, const DrFaceCoupling *extra, DrError *err)
+{
+    WorldLiquid *wl = ctx;
+    return dr_liquid_project(wl->liquid, extra, &wl->frame, err);
+}
+static void fluid_pressure(void *ctx, long n, const double *points, double *p)
+{
+    dr_liquid_sample(((WorldLiquid *)ctx)->liquid, n, points, NULL, p);
+}
+static const unsigned char *fluid_faces(void *ctx, int a)
+{
+    return dr_liquid_coupled_faces(((WorldLiquid *)ctx)->liquid, a);
+}
+
+static DrStatus liquid_fluid_begin(void *self, const WorldCtx *c, double t, double t_next, DrCoupleFluid *fluid,
+                                   DrError *err)
+{
+    WorldLiquid *wl = self;
+    assert(t == wl->from);
+    double proposed_end = wl->h == c->t1 - t ? c->t1 : t + wl->h;
+    double h = t_next == proposed_end ? wl->h : t_next - t;
+    const DrCollider *const *cols = NULL;
+    int n = world_kinematics_liquid_colliders(c->kin, &cols);
+    DR_TRY(dr_liquid_begin(wl->liquid, cols, n, t, h, err));
+    *fluid = (DrCoupleFluid){wl, wl->density, wl->viscosity, dr_liquid_grid(wl->liquid), fluid_project, fluid_pressure,
+                             fluid_faces};
+    return DR_OK;
+}
+
+static DrStatus liquid_fluid_end(void *self, const WorldCtx *c, DrError *err)
+{
+    (void)c;
+    WorldLiquid *wl = self;
     return dr_liquid_end(wl->liquid, &wl->frame, err);
 }
 
@@ -425,7 +466,9 @@ DrStatus world_liquid_adapter(const WorldCtx *c, const DrElement *e, WorldSolver
                          .write = liquid_write,
                          .read = liquid_read,
                          .hash = liquid_hash,
-                         .destroy = liquid_destroy};
+                         .destroy = liquid_destroy,
+                         .fluid_begin = liquid_fluid_begin,
+                         .fluid_end = liquid_fluid_end};
     return DR_OK;
 }
 
