@@ -1186,7 +1186,8 @@ static void test_canonical_json(void **state)
                            "\"LiquidMaterial\":{},\"Domain\":{\"box\":[[0,0,-0.0],[1,1,1.0]]}}}],"
                            "\"render\":{\"camera\":{\"fov_deg\":30}}}");
     char *c = dr_scene_canonical(s, "solver");
-    assert_string_equal(c, "{\"cfl\":1,\"checkpoint_every\":1,\"max_substeps\":64,\"on_instability\":\"warn\","
+    assert_string_equal(c, "{\"cfl\":1,\"checkpoint_every\":1,\"coupling_iterations\":3,\"coupling_tolerance\":0.001,"
+                           "\"max_substeps\":64,\"on_instability\":\"warn\","
                            "\"pressure_max_iterations\":2000,\"pressure_tolerance\":9.9999999999999995e-07}");
     free(c);
     c = dr_scene_canonical(s, "elements");
@@ -1447,7 +1448,7 @@ static void test_reference_lists_everything(void **state)
     assert_contains(md, "| `scheme` | one of apic, flip, pic, rpic | - | `\"apic\"` | - |");
     assert_contains(md, "out/&lt;name&gt;/"); /* no raw HTML in the Markdown */
     assert_contains(text, "components: Groom (required), RodMaterial, Collider, Transform, Motion, CollisionGroup,\n"
-                          "    CollisionResponse, HairSolver, Wetting, Film, Cohesion, CrossFlow\n");
+                          "    CollisionResponse, HairSolver, Wetting, Film, Cohesion, CrossFlow, Drag\n");
     assert_contains(md, "| `preconditioner` | one of block, cluster, jacobi, none | - | `\"block\"` | - |");
     assert_contains(md, "| `collides_with` | integer | - | `2147483647` | [0, 2147483647] |");
     assert_contains(text, "components: Mesh (required), LinearElastic, Compression, BemSolver");
@@ -1482,7 +1483,7 @@ static void test_spec_lookups(void **state)
     assert_null(dr_scene_element_spec("fur"));
     const DrElementSpec *hair = dr_scene_element_spec("hair");
     assert_non_null(hair);
-    assert_int_equal(hair->component_count, 12); /* Groom … HairSolver, and the wet hair's Wetting … CrossFlow */
+    assert_int_equal(hair->component_count, 13); /* Groom … HairSolver, the wet hair's Wetting … CrossFlow, Drag */
     assert_int_equal(hair->required_count, 1);
     assert_string_equal(hair->required_components[0], "Groom");
     assert_false(hair->needs_precompute);
