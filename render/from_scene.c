@@ -329,6 +329,7 @@ DrStatus scene_preview(const DrScene *scene, const DrStageArgs *args, char *path
             break;
         case DR_ELEMENT_HAIR: s = add_groom(scene, e, rs, err); break;
         case DR_ELEMENT_BEM_JOINT: break; /* no surface of its own */
+        case DR_ELEMENT_AIR: break;       /* no surface */
         }
         dr_trimesh_free(&m);
     }

@@ -290,4 +290,126 @@ double dr_liquid_particle_mass(const DrLiquid *liq); /* density·dx³/per_cell *
 DR_NODISCARD DrStatus dr_liquid_particle_volume(DrLiquid *liq, double *volume, double *nominal, DrError *err);
 const DrMacGrid *dr_liquid_grid(const DrLiquid *liq);
 
+/* ==== air: a single-phase incompressible gas on a MAC grid with a wind inflow (liquid/air.c) ==================
+ *
+ * The air fills the whole box: every cell is a pressure unknown except those a collider blocks entirely. One
+ * substep: semi-Lagrangian advection of the face velocities (an RK2 backtrace, trilinear sampling written as
+ * a + f (b − a), so a uniform field is reproduced bit for bit) → explicit viscosity → boundary values →
+ * pressure projection (variational collider face fractions, the extra face coupling with impulses and implicit
+ * drag masses; PCG + MIC(0)). No particles: the state is the face velocities alone.
+ *
+ * Boundaries. The inflow face (axis inflow_axis, side inflow_side) holds the wind's normal component, ramped
+ * linearly from 0 over `ramp` seconds; backtraces that leave the box through it read the whole wind vector (its
+ * tangential part too). The opposite face is open: p = 0 on it (a ghost pressure −p mirrored across the face)
+ * and the velocity has zero gradient (its normal faces start each projection from the face one cell inside,
+ * backtraces beyond it read the nearest values). The other four faces are slip walls (normal velocity 0,
+ * zero-gradient tangential velocity). A wind whose normal component is 0 closes the box: six slip walls, a pure
+ * Neumann problem whose constant null space is removed (the right-hand side's mean is subtracted, the solution's
+ * mean too: a moving collider whose discrete face fractions change its volume by round-off cannot make the
+ * system incompatible; the box is taken as one connected region).
+ *
+ * Gravity is not applied: a gas of uniform density is held by its hydrostatic pressure ρ g·x, which the
+ * projection would cancel exactly; the pressure reported by dr_air_sample is the dynamic part.
+ *
+ * Numerical dissipation. Semi-Lagrangian linear sampling damps a resolved shear flow: an inviscid Taylor–Green
+ * cell (steady under the Euler equations) loses kinetic energy at a rate tests/validation/test_air.c measures
+ * and the README records. Viscosity (μ/ρ = ν) is explicit; when ν h/Δx² exceeds 1/6 the explicit update is
+ * subcycled (at most 8 parts: beyond that the diffusion number of each part is held at 1/6, which under-applies
+ * viscosity, and a warning is logged once). Air (ν = 1.5e-5 m²/s) on grids of millimetres or more never needs it.
+ *
+ * Face masses: m_f = ρΔx³ on every face that is a velocity unknown (interior faces and the outflow face,
+ * whatever the colliders' open fraction: the open fraction scales the face's flux and its Poisson
+ * coefficient, not its inertia); 0 on walls and on the inflow face (prescribed). Momentum (dr_air_totals) is
+ * Σ_f m_f u_f e_a, kinetic energy ½ Σ_f m_f u_f².
+ *
+ * Units SI. Determinism: bit-identical for any thread count (z-slices with dr_parallel_for, per-slice partial
+ * sums added in slice order; PCG's reductions are thread-count independent). Thread safety: one DrAir belongs
+ * to one thread at a time. Memory: everything is allocated in dr_air_create; the phases allocate nothing except
+ * the pressure matrix's growth when a collider uncovers cells. */
+typedef struct DrAirDesc {
+    DrVec3 domain_lo, domain_hi; double dx; /* grid = ceil((hi − lo)/dx) cells from lo */
+    double density, viscosity;              /* kg/m³ (default 1.2), Pa·s dynamic (default 1.8e-5), both > 0 / ≥ 0 */
+    int inflow_axis;                        /* 0, 1, 2: the axis normal to the inflow face */
+    int inflow_side;                        /* 0: the low face (−axis), 1: the high face (+axis) */
+    DrVec3 inflow_velocity;                 /* m/s; its normal component points into the box, or is 0 (closed box) */
+    double ramp;                            /* s ≥ 0: the wind grows linearly from 0 over it (0: at once) */
+    bool initial_stream;                    /* start with the full inflow velocity everywhere (else at rest) */
+    double cfl; int max_substeps; double pressure_tol; int pressure_max_iter;
+} DrAirDesc;
+/* Unit box, dx 1/32, air (1.2 kg/m³, 1.8e-5 Pa·s), inflow on −x at 0 m/s (a closed box), ramp 0, at rest, cfl 1,
+   64 substeps, tolerance 1e-6, 1000 iterations. */
+void dr_air_desc_default(DrAirDesc *d);
+
+typedef struct DrAirStats {
+    int substeps;
+    int pressure_iterations_max; long pressure_iterations_total; double pressure_residual_max;
+    int pressure_not_converged;   /* projections whose solve stopped at max_iter (each logged as a warning) */
+    long pressure_cells;          /* unknowns of the last projection */
+    double max_speed;             /* largest |u_f| over the velocity unknowns after the last projection, m/s */
+    double divergence_max;        /* largest |Σ_f ±flux_f|/Δx³ over the pressure cells after the last projection, 1/s */
+    double inflow_flux, outflow_flux; /* volume flux into the box through the inflow face and out through the outflow
+                                     face after the last projection, m³/s (flux_f = (w u + (1 − w) u_solid) Δx²) */
+    int viscosity_subcycles;      /* the most explicit viscosity parts of a substep (1 within the limit) */
+    /* Momentum (N·s) the last projection of each substep gave the air, summed over substeps, per face and e_a:
+       added_impulse Σ J_f over the faces taking the extra coupling's impulses; drag_impulse Σ β_f (V_f − u_f) with the
+       projected u_f; pressure_impulse Σ −m_f (q_hi − q_lo)/Δx, q = pΔt/ρ, the pressure's momentum, which sums to the
+       forces of the walls, the colliders and the outflow face. The projection's change Σ_f m_f (u_f − u*_f) e_a equals
+       added + drag + pressure to round-off (a closed box's pressure takes back whatever net momentum the others give:
+       no divergence-free field with closed walls carries momentum). */
+    DrVec3 added_impulse, drag_impulse, pressure_impulse;
+    double seconds_advect, seconds_pressure, seconds_other;
+} DrAirStats;
+
+typedef struct DrAir DrAir;
+/* Creates the grid and the face velocities (at rest or the stream; colliders borrowed for the call only: the initial
+   state is not projected around them, the first substep does it). DR_ERR_INPUT naming the field for out-of-range
+   parameters; DR_ERR_NOMEM. */
+DR_NODISCARD DrStatus dr_air_create(const DrAirDesc *desc, DrAir **out, DrError *err);
+void dr_air_destroy(DrAir **air);
+/* The loop while (t < t1) { stable_dt(t, t1, &h); begin(t, h); project(NULL); end(); t = h == t1 − t ? t1 : t + h; },
+   bit-identical to calling the phases. Zeroes *stats first. Errors as the phases'. */
+DR_NODISCARD DrStatus dr_air_advance(DrAir *air, const DrCollider *const *colliders, int ncolliders, double t0,
+                                     double t1, DrAirStats *stats, DrError *err);
+/* ---- the substep in phases (as the liquid's: one substep's calls come in this order, asserted) ----
+ * stable_dt: h ≤ cfl·Δx/max(U, |wind|), U the largest |u_f| (the full wind, not the ramped one), at most max_substeps
+ *   in the interval, the interval [t, t_end] split into equal substeps; h == t_end − t when it lands (take t_end as the
+ *   next t). The first call with a given t_end (or t before the interval's start) opens [t, t_end]. DR_ERR_INPUT for
+ *   a bad collider count or t_end not after t; DR_ERR_RUNTIME for non-finite velocities. *h is 0 on failure. */
+DR_NODISCARD DrStatus dr_air_stable_dt(DrAir *air, const DrCollider *const *colliders, int ncolliders, double t,
+                                       double t_end, double *h, DrError *err);
+/* begin: 0 < h ≤ (1 + 1e-9)·the stable step: colliders posed at t + h (face open fractions from their phi at the
+   face corners, their velocity on faces within 2Δx of them), advection over h, viscosity, the boundary values (the
+   wind at t + h); keeps the velocities every projection starts from. DR_ERR_INPUT for h out of range or a bad
+   collider count. */
+DR_NODISCARD DrStatus dr_air_begin(DrAir *air, const DrCollider *const *colliders, int ncolliders, double t, double h,
+                                   DrError *err);
+/* project: from the velocities begin kept (re-callable: the same extra gives the same bits), with extra (NULL: none;
+   sized like dr_air_grid; borrowed) added to the colliders' coupling exactly as dr_liquid_project documents: its
+   solid share adds to the colliders' (open = max(0, w_own + w_extra − 1), solid velocity share-weighted; faces it
+   leaves fully open keep the colliders' values), its impulse J_f becomes the velocity increment J_f/m_f on the
+   faces that are velocity unknowns with open > 0 (elsewhere dropped), and its drag mass β_f (≥ 0, same faces) pulling
+   towards its velocity V_f (extra->velocity, read wherever β_f > 0) gives u_f = (m_f u*_f + J_f + β_f V_f)/(m_f + β_f) before the pressure and scales the face's Poisson coefficient by
+   m_f/(m_f + β_f). Adds the solve's figures and the impulses to *stats (the impulses at end, of the last call).
+   DR_ERR_INPUT for an open fraction outside [0, 1], a negative drag mass or non-finite values; DR_ERR_RUNTIME if
+   PCG breaks down; a solve that does not converge is a warning (stats). */
+DR_NODISCARD DrStatus dr_air_project(DrAir *air, const DrFaceCoupling *extra, DrAirStats *stats, DrError *err);
+/* sample: after a project (until the next stable_dt): velocity (trilinear on each face lattice, dr_mac_sample_face)
+   and pressure (Pa, p = ρq/h at the pressure cells' centres, 0 in blocked cells, trilinear on the cell centres,
+   clamped at the box) at n points (3n). vel_out or pressure_out may be NULL. Reads only. */
+void dr_air_sample(const DrAir *air, long n, const double *points, double *vel_out, double *pressure_out);
+/* m_f of component a (kg; nfaces[a] values, grid face order): ρΔx³ on velocity unknowns, 0 on walls and the inflow
+   face. Constant for the air's life; borrowed. */
+const double *dr_air_face_mass(const DrAir *air, int a);
+/* end: closes the substep: adds it to *stats (substeps, impulses of the last projection, max speed, fluxes,
+   seconds). */
+DR_NODISCARD DrStatus dr_air_end(DrAir *air, DrAirStats *stats, DrError *err);
+
+const DrMacGrid *dr_air_grid(const DrAir *air);  /* face velocities, m/s */
+/* Mass ρ × the open volume (cells' open fractions, the colliders of the last begin), momentum Σ m_f u_f e_a, kinetic
+   energy ½ Σ m_f u_f². */
+void dr_air_totals(const DrAir *air, double *mass, DrVec3 *momentum, double *kinetic);
+/* Checkpoint: the face velocities (dr_air_grid) are the whole state; restore copies them back (nfaces[a] values each)
+   and closes any open substep. DR_ERR_INPUT for non-finite values. */
+DR_NODISCARD DrStatus dr_air_restore(DrAir *air, const double *const velocity[3], DrError *err);
+
 #endif

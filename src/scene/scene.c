@@ -370,6 +370,32 @@ static DrStatus check_emitter(Parser *p, const DrComponent *c, const char *where
     return DR_OK;
 }
 
+/* The wind enters through its face: the velocity's component along the face's axis points into the box, or the
+   whole velocity is 0 (a closed box). */
+static DrStatus check_wind(Parser *p, const DrComponent *c, const char *where)
+{
+    const char *face = value_at(c, "face")->str;
+    const double *v = value_at(c, "velocity")->num;
+    int axis = face[1] - 'x';
+    bool low = face[0] == '-';
+    double un = v[axis];
+    char a[32];
+    dr_scene_fmt_num_(un, a, sizeof a);
+    if (un == 0.0 && (v[0] != 0.0 || v[1] != 0.0 || v[2] != 0.0)) {
+        push_key(p, "velocity");
+        return fail(p, "%s.velocity has no %c component, so no wind enters through face %s: give it a component "
+                       "into the box (%s along %c), or set velocity to [0, 0, 0] for a closed box", where, 'x' + axis,
+                    face, low ? "positive" : "negative", 'x' + axis);
+    }
+    if (un != 0.0 && (un > 0.0) != low) {
+        push_key(p, "velocity");
+        return fail(p, "%s.velocity: its %c component (%s m/s) points out of the box through face %s, where the wind "
+                       "enters; make it %s, or set face to \"%c%c\"", where, 'x' + axis, a, face,
+                    low ? "positive" : "negative", low ? '+' : '-', 'x' + axis);
+    }
+    return DR_OK;
+}
+
 static DrStatus check_source(Parser *p, const DrComponent *c, const char *where)
 {
     if (!value_at(c, "box")->set && !value_at(c, "mesh")->set)
@@ -451,7 +477,7 @@ static const struct {
 } checks[] = {
     {"shot", check_shot},       {"render.camera", check_camera}, {"Emitter", check_emitter},
     {"LiquidSource", check_source}, {"Motion", check_motion}, {"MpmShape", check_mpm_shape},
-    {"Groom", check_groom},
+    {"Groom", check_groom}, {"Wind", check_wind},
 };
 
 /* ---- components and sections ------------------------------------------------------------------------- */
@@ -845,6 +871,33 @@ static DrStatus check_wet_hair(Parser *p)
     return DR_OK;
 }
 
+/* At most one air element, and none beside a liquid: the two fluids do not share a grid yet. */
+static DrStatus check_air(Parser *p)
+{
+    const DrScene *s = p->s;
+    const DrElement *air = NULL, *liquid = NULL;
+    for (int i = 0; i < s->element_count; i++) {
+        const DrElement *e = &s->elements[i];
+        if (e->kind == DR_ELEMENT_LIQUID && !liquid) liquid = e;
+        if (e->kind != DR_ELEMENT_AIR) continue;
+        if (air) {
+            push_index(p, e->index);
+            push_key(p, "type");
+            return fail(p, "air elements '%s' and '%s': a scene holds at most one air element; merge them into one "
+                           "(one AirDomain box, one Wind) or remove one", air->name, e->name);
+        }
+        air = e;
+    }
+    if (air && liquid) {
+        const DrElement *later = air->index > liquid->index ? air : liquid;
+        push_index(p, later->index);
+        push_key(p, "type");
+        return fail(p, "air element '%s' and liquid element '%s' in one scene: air together with a liquid is not "
+                       "supported yet; bake them as separate scenes, or remove one", air->name, liquid->name);
+    }
+    return DR_OK;
+}
+
 /* Every mpm_solid of a scene lives on one grid advanced by one step, so what defines the grid and the step
    must agree between them: the cell size and wall condition (Domain) and every Transfer and Integrator
    field. The grid box itself is the union of the Domain boxes (world.c). Every hair element is one object
@@ -859,6 +912,7 @@ static DrStatus check_cross_element(Parser *p)
                         "every mpm_solid of a scene shares one grid and one time step"));
     DR_TRY(check_bem_joints(p));
     DR_TRY(check_wet_hair(p));
+    DR_TRY(check_air(p));
     return check_shared(p, "hair", hair, 1, "every hair element of a scene is solved in one system");
 }
 

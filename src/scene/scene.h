@@ -90,6 +90,7 @@ typedef enum DrElementKind {
     DR_ELEMENT_HAIR,
     DR_ELEMENT_BEM_SOLID,
     DR_ELEMENT_BEM_JOINT,
+    DR_ELEMENT_AIR,
 } DrElementKind;
 
 typedef struct DrElementSpec {

@@ -511,6 +511,35 @@ static const DrFieldSpec drag_fields[] = {
      .doc = "the fluid's pressure gradient pushes on the strands' volume (Archimedes)"},
 };
 
+/* The air (liquid.h, "air"): air at sea level by default. */
+static const DrFieldSpec air_domain_fields[] = {
+    {.name = "box", .kind = DR_FIELD_BOX, .unit = "m", .required = true, POS_RANGE,
+     .doc = "the box the air fills: the wind enters through one face (Wind.face), leaves through the opposite one "
+            "(open, p = 0), and the other four are slip walls"},
+    {.name = "voxel_size", .kind = DR_FIELD_NUMBER, .unit = "m", .def = {0.02}, RANGE(1e-4, 10),
+     .doc = "grid cell size", .hint = "use a cell size such as 0.02 (a 1 m box gets 50 cells a side)"},
+};
+
+static const DrFieldSpec air_material_fields[] = {
+    {.name = "density", .kind = DR_FIELD_NUMBER, .unit = "kg/m^3", .def = {1.2}, RANGE_LO_OPEN(0, 1000),
+     .doc = "mass density", .hint = "use a positive density such as 1.2 for air"},
+    {.name = "viscosity", .kind = DR_FIELD_NUMBER, .unit = "Pa*s", .def = {1.8e-5}, RANGE(0, 10),
+     .doc = "dynamic viscosity", .hint = "air is 1.8e-5"},
+};
+
+static const DrFieldSpec wind_fields[] = {
+    {.name = "face", .kind = DR_FIELD_ENUM, .unit = "", .def_str = "-x", .choices = "-x|+x|-y|+y|-z|+z",
+     .doc = "the face of the AirDomain box the wind enters through (-x: the low x face); it leaves through the "
+            "opposite face"},
+    {.name = "velocity", .kind = DR_FIELD_VEC3, .unit = "m/s", .def = {0, 0, 0}, RANGE(-1e3, 1e3),
+     .doc = "wind velocity at the inflow face; its component normal to the face points into the box; [0, 0, 0] "
+            "closes the box (six walls, still air unless colliders move it)"},
+    {.name = "ramp", .kind = DR_FIELD_NUMBER, .unit = "s", .def = {0}, RANGE(0, 1e6),
+     .doc = "time over which the wind grows linearly from 0 to velocity; 0 = at once"},
+    {.name = "initial", .kind = DR_FIELD_ENUM, .unit = "", .def_str = "rest", .choices = "rest|stream",
+     .doc = "the air at t=0: at rest, or moving with the full wind velocity everywhere"},
+};
+
 const DrComponentSpec dr_scene_components_[] = {
     {"Domain", "the simulation grid", domain_fields, COUNT(domain_fields)},
     {"LiquidSource", "liquid present at t=0 (needs box or mesh)", liquid_source_fields,
@@ -566,6 +595,9 @@ const DrComponentSpec dr_scene_components_[] = {
      COUNT(linear_elastic_fields)},
     {"Compression", "wavelet compression of the boundary-element matrices (Haar transform, largest coefficients kept)",
      compression_fields, COUNT(compression_fields)},
+    {"AirDomain", "the box and grid of an air element", air_domain_fields, COUNT(air_domain_fields)},
+    {"AirMaterial", "material of the air", air_material_fields, COUNT(air_material_fields)},
+    {"Wind", "the wind blowing into the air's box through one face", wind_fields, COUNT(wind_fields)},
     {"BemSolver", "time discretisation of a boundary-element body: the step its matrices are built for, the history "
                   "length and the spatial quadrature; and how the body's frame moves in a bake",
      bem_solver_fields, COUNT(bem_solver_fields)},
@@ -591,6 +623,8 @@ static const char *const bem_solid_components[] = {"Mesh",      "LinearElastic",
                                                    "Transform", "InitialVelocity", "Collider",    "FixedVertices"};
 static const char *const bem_solid_required[] = {"Mesh"};
 static const char *const bem_joint_components[] = {"Joint"};
+static const char *const air_components[] = {"AirDomain", "AirMaterial", "Wind"};
+static const char *const air_required[] = {"AirDomain"};
 
 const DrElementSpec dr_scene_types_[] = {
     {"liquid", "a body of incompressible liquid (APIC/FLIP/PIC particles on a MAC grid inside its Domain)",
@@ -612,9 +646,13 @@ const DrElementSpec dr_scene_types_[] = {
      bem_solid_components, COUNT(bem_solid_components), bem_solid_required, COUNT(bem_solid_required), true, DR_ELEMENT_BEM_SOLID},
     {"bem_joint", "a joint between two bem_solid bodies: their vertices held together in a bake",
      bem_joint_components, COUNT(bem_joint_components), bem_joint_components, COUNT(bem_joint_components), false, DR_ELEMENT_BEM_JOINT},
+    {"air",
+     "incompressible air filling its AirDomain box on a MAC grid, blown by a Wind through one face; colliders move "
+     "it; at most one per scene, and not yet together with a liquid",
+     air_components, COUNT(air_components), air_required, COUNT(air_required), false, DR_ELEMENT_AIR},
 };
 const int dr_scene_type_count_ = COUNT(dr_scene_types_);
-_Static_assert(COUNT(dr_scene_types_) == DR_ELEMENT_BEM_JOINT + 1, "one DrElementKind per element type");
+_Static_assert(COUNT(dr_scene_types_) == DR_ELEMENT_AIR + 1, "one DrElementKind per element type");
 
 /* ---- lookups ---------------------------------------------------------------------------------------------- */
 

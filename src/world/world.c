@@ -10,7 +10,7 @@
 #include "liquid/liquid.h"
 #include "vdb/vdb.h"
 
-enum { MAX_SOLVERS_FIXED = 3 }; /* MPM, hair, BEM: one adapter each; the liquids come before them, one per element */
+enum { MAX_SOLVERS_FIXED = 4 }; /* MPM, hair, air, BEM: one adapter each; the liquids come before them, one per element */
 
 struct DrWorld {
     const DrScene *scene;
@@ -18,7 +18,7 @@ struct DrWorld {
     double fps;
     DrVec3 gravity;
     WorldKinematics *kin;
-    /* the adapters in the order they are stepped, written and hashed: the liquids (element order), MPM, hair, BEM */
+    /* the adapters in the order they are stepped, written and hashed: the liquids (element order), MPM, hair, air, BEM */
     WorldSolver *solvers;
     int nsolvers;
     int nliquids;
@@ -131,6 +131,7 @@ static DrStatus solver_failed(const DrWorld *w, int i, int frame, DrStatus s, Dr
     if (sv == w->mpm) return failed(w, DR_ELEMENT_MPM_SOLID, NULL, frame, s, err);
     if (sv == w->hair) return failed(w, DR_ELEMENT_HAIR, NULL, frame, s, err);
     if (sv == w->bem) return failed(w, DR_ELEMENT_BEM_SOLID, NULL, frame, s, err);
+    if (strcmp(sv->name, "air") == 0) return failed(w, DR_ELEMENT_AIR, NULL, frame, s, err);
     for (int k = 0, liquid = 0; k < dr_scene_element_count(w->scene); k++) {
         const DrElement *e = dr_scene_element(w->scene, k);
         if (e->kind == DR_ELEMENT_LIQUID && liquid++ == i) return failed(w, e->kind, e, frame, s, err);
@@ -184,6 +185,8 @@ static DrStatus build(DrWorld *w, const DrWorldDesc *desc, DrError *err)
         w->solvers[w->nsolvers] = s;
         w->hair = &w->solvers[w->nsolvers++];
     }
+    BUILD_TRY(DR_ELEMENT_AIR, NULL, world_air_adapter(&c, &s, err));
+    if (s.self) w->solvers[w->nsolvers++] = s;
     if (w->bem_built.self) {
         w->solvers[w->nsolvers] = w->bem_built;
         w->bem = &w->solvers[w->nsolvers++];

@@ -187,5 +187,10 @@ DR_NODISCARD DrStatus world_lagrangian_adapter(const WorldCtx *c, const char *ca
                                                 DrError *err);
 void world_lagrangian_hair_counts(const WorldSolver *s, int *strands, int *vertices);
 void world_bem_counts(const WorldSolver *s, int *bodies, long *vertices, int *sets);
+/* The scene's air element (at most one; out->self NULL without one), stepped alone with the scene's colliders (not the
+   bem_solid bodies), and its solver for a coupling loop or a test (NULL when s holds none). */
+DR_NODISCARD DrStatus world_air_adapter(const WorldCtx *c, WorldSolver *out, DrError *err);
+typedef struct DrAir DrAir;
+DrAir *world_air_solver(const WorldSolver *s);
 
 #endif

@@ -84,7 +84,7 @@ DrStatus world_make_collider(const DrTriMesh *mesh, double dx, double friction, 
     return s;
 }
 
-/* The smallest cell of any grid that samples colliders (liquid and MPM) or, for hair, a grown groom's segment
+/* The smallest cell of any grid that samples colliders (liquid, MPM and air) or, for hair, a grown groom's segment
    length (4 mm for curves read from a file), 0 when nothing samples colliders. */
 static double smallest_grid_dx(const DrScene *scene)
 {
@@ -97,6 +97,8 @@ static double smallest_grid_dx(const DrScene *scene)
             d = dr_component_is_set(g, "scalp") ? dr_component_num(g, "length") / dr_component_int(g, "segments") : 0.004;
         } else if (e->kind == DR_ELEMENT_LIQUID || e->kind == DR_ELEMENT_MPM_SOLID) {
             d = dr_component_num(dr_element_component(e, "Domain"), "voxel_size");
+        } else if (e->kind == DR_ELEMENT_AIR) {
+            d = dr_component_num(dr_element_component(e, "AirDomain"), "voxel_size");
         } else {
             continue;
         }

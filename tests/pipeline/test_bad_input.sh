@@ -14,6 +14,12 @@ run_bad "negative density names element.component.field and range" "water\.Liqui
   "$bad/negative_density.json"
 run_bad "missing asset names the path" "not found" "$bad/missing_asset.json"
 run_bad "frames out of order" "out of order" "$bad/frames_order.json"
+run_bad "a wind blowing out of its inflow face names element.component.field and the fix" \
+  "gust\.Wind\.velocity: its x component \(-3 m/s\) points out of the box through face -x.*make it positive" \
+  "$bad/air_wind_outward.json"
+run_bad "air beside a liquid names both and says it is not supported yet" \
+  "air element 'gust' and liquid element 'water' in one scene: air together with a liquid is not supported yet" \
+  "$bad/air_with_liquid.json"
 expect_exit "missing scene file" 2 "nope\.json" "$BIN/bake" "$WORK/nope.json"
 # Assets whose content is bad are found when the bake loads them, still before anything is written.
 mkdir -p "$WORK/scenes"

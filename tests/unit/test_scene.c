@@ -279,10 +279,11 @@ static void test_full_scene_getters(void **state)
 static void test_element_kinds(void **state)
 {
     (void)state;
-    const char *types[] = {"liquid", "collider", "mpm_solid", "hair", "bem_solid", "bem_joint"};
+    const char *types[] = {"liquid", "collider", "mpm_solid", "hair", "bem_solid", "bem_joint", "air"};
     const DrElementKind kinds[] = {DR_ELEMENT_LIQUID,    DR_ELEMENT_COLLIDER,  DR_ELEMENT_MPM_SOLID,
-                                   DR_ELEMENT_HAIR,      DR_ELEMENT_BEM_SOLID, DR_ELEMENT_BEM_JOINT};
-    for (int i = 0; i < 6; i++) {
+                                   DR_ELEMENT_HAIR,      DR_ELEMENT_BEM_SOLID, DR_ELEMENT_BEM_JOINT,
+                                   DR_ELEMENT_AIR};
+    for (int i = 0; i < 7; i++) {
         const DrElementSpec *t = dr_scene_element_spec(types[i]);
         assert_non_null(t);
         assert_int_equal(t->kind, kinds[i]);
@@ -870,6 +871,53 @@ static void bem_shot_scene(const char *shot, const char *components, char *buf, 
     snprintf(buf, size,
              "{\"shot\":{%s},\"elements\":[{\"name\":\"jelly\",\"type\":\"bem_solid\",\"components\":{%s}}]}", shot,
              components);
+}
+
+/* The air element: defaults (air at sea level, a closed box), and bad values named element.component.field with
+   the value, the range and the fix; at most one air element, and none beside a liquid. */
+static void test_air(void **state)
+{
+    (void)state;
+    DrScene *s = load_text("{\"elements\":[{\"name\":\"gust\",\"type\":\"air\",\"components\":{"
+                           "\"AirDomain\":{\"box\":[[0,0,0],[1,1,1]]}}}]}");
+    const DrElement *e = dr_scene_find(s, "gust");
+    assert_int_equal(e->kind, DR_ELEMENT_AIR);
+    assert_true(dr_component_num(dr_element_component(e, "AirMaterial"), "density") == 1.2);
+    assert_true(dr_component_num(dr_element_component(e, "AirMaterial"), "viscosity") == 1.8e-5);
+    assert_true(dr_component_num(dr_element_component(e, "AirDomain"), "voxel_size") == 0.02);
+    const DrComponent *w = dr_element_component(e, "Wind");
+    assert_string_equal(dr_component_str(w, "face"), "-x");
+    assert_true(dr_v3_norm(dr_component_vec3(w, "velocity")) == 0.0);
+    assert_string_equal(dr_component_str(w, "initial"), "rest");
+    dr_scene_destroy(&s);
+    const char *head = "{\"elements\":[{\"name\":\"gust\",\"type\":\"air\",\"components\":{"
+                       "\"AirDomain\":{\"box\":[[0,0,0],[1,1,1]]}";
+    struct {
+        const char *tail, *says[3];
+    } cases[] = {
+        {",\"AirMaterial\":{\"density\":0}}}]}", {"gust.AirMaterial.density = 0 is out of range (0, 1000] kg/m^3",
+                                                    "such as 1.2 for air"}},
+        {",\"AirMaterial\":{\"viscosity\":-1}}}]}", {"gust.AirMaterial.viscosity = -1 is out of range [0, 10] Pa*s"}},
+        {",\"Wind\":{\"face\":\"x\"}}}]}", {"gust.Wind.face: 'x' is not a valid choice", "-x, +x, -y, +y, -z, +z"}},
+        {",\"Wind\":{\"face\":\"+y\",\"velocity\":[0,3,0]}}}]}",
+         {"gust.Wind.velocity: its y component (3 m/s) points out of the box through face +y", "make it negative",
+          "set face to \"-y\""}},
+        {",\"Wind\":{\"velocity\":[0,0,2]}}}]}", {"gust.Wind.velocity has no x component", "[0, 0, 0] for a closed box"}},
+        {",\"Wind\":{\"velocity\":[2,0,0],\"ramp\":-1}}}]}", {"gust.Wind.ramp = -1 is out of range [0, 1000000] s"}},
+        {",\"Wind\":{\"initial\":\"moving\"}}}]}", {"gust.Wind.initial: 'moving' is not a valid choice", "rest, stream"}},
+        {"}},{\"name\":\"breeze\",\"type\":\"air\",\"components\":{\"AirDomain\":{\"box\":"
+         "[[0,0,0],[1,1,1]]}}}]}", {"air elements 'gust' and 'breeze'", "at most one air element"}},
+        {"}},{\"name\":\"water\",\"type\":\"liquid\",\"components\":{\"Domain\":{\"box\":[[0,0,0],[1,1,1]]}}}]}",
+         {"air element 'gust' and liquid element 'water'", "not supported yet"}},
+        {"}}]}", {NULL}},
+    };
+    for (size_t k = 0; cases[k].says[0]; k++) {
+        char text[1024];
+        snprintf(text, sizeof text, "%s%s", head, cases[k].tail);
+        DrError err;
+        assert_int_equal(load_bad(text, &err), DR_ERR_INPUT);
+        for (int m = 0; m < 3 && cases[k].says[m]; m++) assert_contains(err.message, cases[k].says[m]);
+    }
 }
 
 static void test_bem_solid_defaults(void **state)
@@ -1518,6 +1566,7 @@ int main(void)
         cmocka_unit_test(test_error_positions),
         cmocka_unit_test(test_hair_defaults),
         cmocka_unit_test(test_hair_bad_input),
+        cmocka_unit_test(test_air),
         cmocka_unit_test(test_bem_solid_defaults),
         cmocka_unit_test(test_bem_solid_bad_input),
         cmocka_unit_test(test_bem_solid_keys),
