@@ -27,6 +27,7 @@ struct DrAir {
     long ncells;
     bool closed;             /* the wind's normal component is 0: six walls, pure Neumann */
     double *fm[3];           /* m_f, kg: ρΔx³ on velocity unknowns, 0 on walls and the inflow face */
+    unsigned char *take[3];  /* the faces that took the last extra coupling (m_f > 0, open); allocated with one */
     unsigned char *kind[3];  /* FACE_* */
     double *ustar[3];        /* the velocities every projection starts from (begin) */
     double *tmp[3];          /* advection and viscosity output */
@@ -234,6 +235,7 @@ void dr_air_destroy(DrAir **air)
     if (!air || !*air) return;
     DrAir *A = *air;
     dr_mac_grid_destroy(&A->g);
+    for (int a = 0; a < 3; a++) free(A->take[a]);
     free_faces(A->fm);
     free_faces(A->ustar);
     free_faces(A->tmp);
@@ -258,6 +260,7 @@ void dr_air_destroy(DrAir **air)
 }
 
 const DrMacGrid *dr_air_grid(const DrAir *air) { return air->g; }
+const unsigned char *dr_air_coupled_faces(const DrAir *air, int a) { return air->take[a]; }
 const double *dr_air_face_mass(const DrAir *air, int a)
 {
     assert(a >= 0 && a < 3);
@@ -550,6 +553,7 @@ static void hat_slices(long begin, long end, void *vctx)
                 long f = dr_mac_face_index(g, a, i, j, (int)k);
                 double m = A->fm[a][f];
                 double u = A->ustar[a][f];
+                if (A->take[a] && ctx->x) A->take[a][f] = m > 0.0 && w[f] > 0.0;
                 if (m > 0.0 && !(w[f] > 0.0)) u = V[f];
                 else if (m > 0.0) {
                     double Jf = J ? J[f] : 0.0, bf = beta ? beta[f] : 0.0;
@@ -984,6 +988,8 @@ DrStatus dr_air_project(DrAir *air, const DrFaceCoupling *extra, DrAirStats *sta
 {
     assert(air->phase == PHASE_BEGUN || air->phase == PHASE_PROJECTED); /* dr_air_begin first */
     air->phase = PHASE_BEGUN;
+    for (int a = 0; extra && a < 3; a++)
+        if (!air->take[a]) DR_TRY(dr_calloc((size_t)air->g->nfaces[a], 1, &air->take[a], err));
     DR_TRY(project(air, extra, stats, err));
     air->phase = PHASE_PROJECTED;
     return DR_OK;

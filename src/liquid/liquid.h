@@ -400,6 +400,9 @@ void dr_air_sample(const DrAir *air, long n, const double *points, double *vel_o
 /* m_f of component a (kg; nfaces[a] values, grid face order): ρΔx³ on velocity unknowns, 0 on walls and the inflow
    face. Constant for the air's life; borrowed. */
 const double *dr_air_face_mass(const DrAir *air, int a);
+/* The faces that took the extra coupling's impulse and drag in the last dr_air_project given one (velocity unknowns
+   the colliders leave open), as dr_liquid_coupled_faces; NULL before any. */
+const unsigned char *dr_air_coupled_faces(const DrAir *air, int a);
 /* end: closes the substep: adds it to *stats (substeps, impulses of the last projection, max speed, fluxes,
    seconds). */
 DR_NODISCARD DrStatus dr_air_end(DrAir *air, DrAirStats *stats, DrError *err);

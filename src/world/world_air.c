@@ -76,6 +76,41 @@ static DrStatus air_step(void *self, const WorldCtx *c, double t, double t_next,
     return dr_air_end(wa->air, &wa->frame, err);
 }
 
+/* ---- the coupled step: the air as the fluid of the loop (src/couple) ---- */
+
+static DrStatus fluid_project(void *ctx, const DrFaceCoupling *extra, DrError *err)
+{
+    WorldAir *wa = ctx;
+    return dr_air_project(wa->air, extra, &wa->frame, err);
+}
+static void fluid_pressure(void *ctx, long n, const double *points, double *p)
+{
+    dr_air_sample(((WorldAir *)ctx)->air, n, points, NULL, p);
+}
+static const unsigned char *fluid_faces(void *ctx, int a) { return dr_air_coupled_faces(((WorldAir *)ctx)->air, a); }
+
+static DrStatus air_fluid_begin(void *self, const WorldCtx *c, double t, double t_next, DrCoupleFluid *fluid,
+                                DrError *err)
+{
+    WorldAir *wa = self;
+    assert(t == wa->from);
+    double proposed_end = wa->h == c->t1 - t ? c->t1 : t + wa->h;
+    double h = t_next == proposed_end ? wa->h : t_next - t;
+    const DrCollider *const *cols = NULL;
+    int n = world_kinematics_colliders(c->kin, &cols);
+    DR_TRY(dr_air_begin(wa->air, cols, n, t, h, err));
+    const DrComponent *mat = dr_element_component(wa->element, "AirMaterial");
+    *fluid = (DrCoupleFluid){wa, dr_component_num(mat, "density"), dr_component_num(mat, "viscosity"),
+                             dr_air_grid(wa->air), fluid_project, fluid_pressure, fluid_faces};
+    return DR_OK;
+}
+
+static DrStatus air_fluid_end(void *self, const WorldCtx *c, DrError *err)
+{
+    (void)c;
+    return dr_air_end(((WorldAir *)self)->air, &((WorldAir *)self)->frame, err);
+}
+
 static void air_begin_frame(void *self, const WorldCtx *c)
 {
     (void)c;
@@ -197,7 +232,9 @@ DrStatus world_air_adapter(const WorldCtx *c, WorldSolver *out, DrError *err)
                          .write = air_write,
                          .read = air_read,
                          .hash = air_hash,
-                         .destroy = air_destroy};
+                         .destroy = air_destroy,
+                         .fluid_begin = air_fluid_begin,
+                         .fluid_end = air_fluid_end};
     return DR_OK;
 }
 
