@@ -41,6 +41,8 @@ struct DrMg {
     size_t band_capacity;
     int kd;          /* bandwidth of the coarsest level (rows in increasing cell order) */
     int fallbacks;   /* coarsest pivots replaced by the diagonal entry in the last update */
+    int *bad;        /* per block of MG_PAR_MIN_ROWS finest rows: its first row failing a check, or −1 */
+    long bad_capacity;
 };
 
 void dr_mg_desc_default(DrMgDesc *d)
@@ -119,6 +121,90 @@ static void level_inverse_diagonal(MgLevel *l)
     for (int r = 0; r < l->n; r++) l->inv_diag[r] = l->diag[r] > 0.0 ? 1.0 / l->diag[r] : 1.0;
 }
 
+/* Row r of the finest level from row r of A (the map holds every row's cell). Returns the failure
+ * (err may be NULL: then only the status). */
+static DrStatus fine_row(MgLevel *l, const DrCsr *A, int r, DrError *err)
+{
+    const int *dims = l->dims;
+    long stride[3] = {1, dims[0], (long)dims[0] * dims[1]};
+    int *nb = l->nb + 6 * (size_t)r;
+    double *off = l->off + 6 * (size_t)r;
+    for (int f = 0; f < 6; f++) nb[f] = r, off[f] = 0.0;
+    l->diag[r] = 0.0;
+    int ci[3];
+    cell_ijk(l, l->cell[r], ci);
+    int prev = -1;
+    for (int k = A->rowptr[r]; k < A->rowptr[r + 1]; k++) {
+        int c = A->col[k];
+        double v = A->val[k];
+        if (c < 0 || c >= A->n || c <= prev)
+            return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                                "multigrid: row %d: column %d out of range [0, %d) or not increasing; check the "
+                                "matrix with dr_csr_check", r, c, A->n);
+        prev = c;
+        if (!isfinite(v))
+            return dr_error_set(err, DR_ERR_RUNTIME, NULL, 0, 0,
+                                "multigrid: entry (%d, %d) of the matrix is %g; the assembly produced a non-finite "
+                                "coefficient", r, c, v);
+        if (c == r) {
+            if (v < 0.0)
+                return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                                    "multigrid: diagonal entry (%d, %d) = %g is negative, so the matrix is not "
+                                    "positive semidefinite; check the sign convention of the assembly", r, r, v);
+            l->diag[r] = v;
+            continue;
+        }
+        long d = l->cell[c] - l->cell[r];
+        int face = -1;
+        for (int a = 0; a < 3 && face < 0; a++) {
+            if (d == stride[a] && ci[a] + 1 < dims[a]) face = 2 * a + 1;
+            else if (d == -stride[a] && ci[a] > 0) face = 2 * a;
+        }
+        if (face < 0)
+            return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                                "multigrid: entry (%d, %d) couples cells that are not face neighbours; the matrix "
+                                "must be a 7-point stencil on the rows' cells", r, c);
+        nb[face] = c;
+        off[face] = v;
+    }
+    return DR_OK;
+}
+
+/* The V-cycle is a symmetric preconditioner only for a symmetric matrix. */
+static DrStatus symmetric_row(const MgLevel *l, int r, DrError *err)
+{
+    for (int f = 0; f < 6; f++) {
+        int c = l->nb[6 * (size_t)r + f];
+        if (c == r) continue;
+        double v = l->off[6 * (size_t)r + f], w = l->off[6 * (size_t)c + (f ^ 1)];
+        if (!(fabs(v - w) <= 1e-12 * fmax(fabs(v), fabs(w))))
+            return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                                "multigrid: the matrix is not symmetric: entry (%d, %d) = %.17g but (%d, %d) = "
+                                "%.17g", r, c, v, c, r, w);
+    }
+    return DR_OK;
+}
+
+/* Blocks of MG_PAR_MIN_ROWS rows in parallel; bad[block] = the block's first failing row or −1. Pass 0
+ * reads the rows, pass 1 checks symmetry (it reads other rows' entries: after pass 0 has finished). */
+typedef struct FineCtx { MgLevel *l; const DrCsr *A; int *bad; int pass; } FineCtx;
+
+static void fine_blocks(long begin, long end, void *vctx)
+{
+    const FineCtx *x = vctx;
+    for (long blk = begin; blk < end; blk++) {
+        x->bad[blk] = -1;
+        int r0 = (int)(blk * MG_PAR_MIN_ROWS), r1 = r0 + MG_PAR_MIN_ROWS < x->l->n ? r0 + MG_PAR_MIN_ROWS : x->l->n;
+        for (int r = r0; r < r1; r++) {
+            DrStatus s = x->pass == 0 ? fine_row(x->l, x->A, r, NULL) : symmetric_row(x->l, r, NULL);
+            if (s != DR_OK) {
+                x->bad[blk] = r;
+                break;
+            }
+        }
+    }
+}
+
 /* The finest level from the CSR matrix and the cells of its rows. Structure problems are DR_ERR_INPUT,
  * non-finite values DR_ERR_RUNTIME; both name the row. */
 static DrStatus level_from_csr(DrMg *M, const DrCsr *A, const int *ijk, const int dims[3], DrError *err)
@@ -148,6 +234,11 @@ static DrStatus level_from_csr(DrMg *M, const DrCsr *A, const int *ijk, const in
                                 "multigrid: rowptr decreases at row %d (%d then %d)", r, A->rowptr[r],
                                 A->rowptr[r + 1]);
     DR_TRY(level_reserve(l, A->n, ncell, err));
+    long nbad = A->n / MG_PAR_MIN_ROWS + 1;
+    if (nbad > M->bad_capacity) {
+        DR_TRY(dr_realloc((size_t)nbad, sizeof(int), &M->bad, err));
+        M->bad_capacity = nbad;
+    }
     for (int a = 0; a < 3; a++) l->dims[a] = dims[a];
     l->ncell = ncell;
     for (int r = 0; r < A->n; r++) {
@@ -170,71 +261,19 @@ static DrStatus level_from_csr(DrMg *M, const DrCsr *A, const int *ijk, const in
         l->cell[r] = c;
         l->n = r + 1;
     }
-    long stride[3] = {1, dims[0], (long)dims[0] * dims[1]};
+    FineCtx fc = {l, A, M->bad, 0};
+    long nblocks = (l->n + MG_PAR_MIN_ROWS - 1) / MG_PAR_MIN_ROWS;
     DrStatus s = DR_OK;
-    for (int r = 0; r < l->n && s == DR_OK; r++) {
-        int *nb = l->nb + 6 * (size_t)r;
-        double *off = l->off + 6 * (size_t)r;
-        for (int f = 0; f < 6; f++) nb[f] = r, off[f] = 0.0;
-        l->diag[r] = 0.0;
-        int ci[3];
-        cell_ijk(l, l->cell[r], ci);
-        int prev = -1;
-        for (int k = A->rowptr[r]; k < A->rowptr[r + 1]; k++) {
-            int c = A->col[k];
-            double v = A->val[k];
-            if (c < 0 || c >= A->n || c <= prev) {
-                s = dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
-                                 "multigrid: row %d: column %d out of range [0, %d) or not increasing; check "
-                                 "the matrix with dr_csr_check", r, c, A->n);
+    for (int pass = 0; pass < 2 && s == DR_OK; pass++) {
+        fc.pass = pass;
+        dr_parallel_for(nblocks, 1, fine_blocks, &fc);
+        for (long blk = 0; blk < nblocks; blk++)
+            if (M->bad[blk] >= 0) { /* again on one row, for the message */
+                s = pass == 0 ? fine_row(l, A, M->bad[blk], err) : symmetric_row(l, M->bad[blk], err);
+                assert(s != DR_OK);
                 break;
             }
-            prev = c;
-            if (!isfinite(v)) {
-                s = dr_error_set(err, DR_ERR_RUNTIME, NULL, 0, 0,
-                                 "multigrid: entry (%d, %d) of the matrix is %g; the assembly produced a "
-                                 "non-finite coefficient", r, c, v);
-                break;
-            }
-            if (c == r) {
-                if (v < 0.0) {
-                    s = dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
-                                     "multigrid: diagonal entry (%d, %d) = %g is negative, so the matrix is not "
-                                     "positive semidefinite; check the sign convention of the assembly", r, r, v);
-                    break;
-                }
-                l->diag[r] = v;
-                continue;
-            }
-            long d = l->cell[c] - l->cell[r];
-            int face = -1;
-            for (int a = 0; a < 3 && face < 0; a++) {
-                if (d == stride[a] && ci[a] + 1 < dims[a]) face = 2 * a + 1;
-                else if (d == -stride[a] && ci[a] > 0) face = 2 * a;
-            }
-            if (face < 0) {
-                s = dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
-                                 "multigrid: entry (%d, %d) couples cells that are not face neighbours; the "
-                                 "matrix must be a 7-point stencil on the rows' cells", r, c);
-                break;
-            }
-            nb[face] = c;
-            off[face] = v;
-        }
     }
-    /* symmetry: the V-cycle is a symmetric preconditioner only for a symmetric matrix */
-    for (int r = 0; r < l->n && s == DR_OK; r++)
-        for (int f = 0; f < 6; f++) {
-            int c = l->nb[6 * (size_t)r + f];
-            if (c == r) continue;
-            double v = l->off[6 * (size_t)r + f], w = l->off[6 * (size_t)c + (f ^ 1)];
-            if (!(fabs(v - w) <= 1e-12 * fmax(fabs(v), fabs(w)))) {
-                s = dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
-                                 "multigrid: the matrix is not symmetric: entry (%d, %d) = %.17g but (%d, %d) = "
-                                 "%.17g", r, c, v, c, r, w);
-                break;
-            }
-        }
     if (s != DR_OK) {
         level_unmap(l);
         l->n = 0;
@@ -487,6 +526,7 @@ void dr_mg_destroy(DrMg **M)
     if (!M || !*M) return;
     for (int l = 0; l < DR_MG_MAX_LEVELS; l++) level_free(&(*M)->lv[l]);
     free((*M)->band);
+    free((*M)->bad);
     free(*M);
     *M = NULL;
 }
