@@ -68,6 +68,8 @@ struct DrLiquid {
     long *cells_of_row;
     DrCsr *A;
     DrMic0 *M;
+    DrMg *mg;                /* the multigrid V-cycle (pressure_precond DR_PRECOND_MULTIGRID), on first use */
+    int *row_ijk;            /* 3 per pressure row: its cell (i, j, k), for the multigrid */
     double *rhs, *q, *work;
     double *impulse_partial; /* IMPULSE_PARTS per z-slice of faces: grid-impulse partial sums, speed maxima */
     double accel;            /* a⁺, the largest speed gain per second of a face in the last substep (CFL) */
@@ -145,6 +147,7 @@ void dr_liquid_desc_default(DrLiquidDesc *d)
     d->pressure_tol = 1e-6;
     d->pressure_max_iter = 1000;
     d->pressure = DR_PRESSURE_GHOST_FLUID;
+    d->pressure_precond = DR_PRECOND_MULTIGRID;
 }
 
 /* ---- particles storage ---------------------------------------------------------------------- */
@@ -285,6 +288,8 @@ static DrStatus check_desc(const DrLiquidDesc *d, int ncolliders, DrError *err)
     if (!(d->pressure_tol > 0.0 && d->pressure_tol < 1.0)) BAD("liquid pressure_tol must be in (0, 1) (got %g).", d->pressure_tol);
     if (d->pressure != DR_PRESSURE_GHOST_FLUID && d->pressure != DR_PRESSURE_MASS_WEIGHTED)
         BAD("liquid pressure formulation %d is unknown (ghost_fluid, mass_weighted).", (int)d->pressure);
+    if (d->pressure_precond != DR_PRECOND_MULTIGRID && d->pressure_precond != DR_PRECOND_MIC0)
+        BAD("liquid pressure preconditioner %d is unknown (multigrid, mic0).", (int)d->pressure_precond);
     if (!(d->volume_correction >= 0.0) || !isfinite(d->volume_correction))
         BAD("liquid volume_correction must be >= 0 (got %g).", d->volume_correction);
     if (d->pressure_max_iter < 1) BAD("liquid pressure_max_iter must be >= 1 (got %d).", d->pressure_max_iter);
@@ -346,6 +351,8 @@ DrStatus dr_liquid_create(const DrLiquidDesc *desc, const DrCollider *const *col
     if ((s = dr_calloc((size_t)L->ncells, sizeof(double), &L->div_target, err)) < 0) goto fail;
     if ((s = dr_calloc((size_t)L->ncells, sizeof(int), &L->row, err)) < 0) goto fail;
     if ((s = dr_calloc((size_t)L->ncells, sizeof(long), &L->cells_of_row, err)) < 0) goto fail;
+    if (L->d.pressure_precond == DR_PRECOND_MULTIGRID &&
+        (s = dr_calloc((size_t)L->ncells * 3, sizeof(int), &L->row_ijk, err)) < 0) goto fail;
     if ((s = dr_calloc((size_t)L->ncells, sizeof(double), &L->rhs, err)) < 0) goto fail;
     if ((s = dr_calloc((size_t)L->ncells, sizeof(double), &L->q, err)) < 0) goto fail;
     if ((s = dr_calloc((size_t)L->ncells * 4, sizeof(double), &L->work, err)) < 0) goto fail;
@@ -427,6 +434,8 @@ void dr_liquid_destroy(DrLiquid **liq)
     free(L->rhs); free(L->q); free(L->work); free(L->impulse_partial);
     dr_csr_destroy(&L->A);
     dr_mic0_destroy(&L->M);
+    dr_mg_destroy(&L->mg);
+    free(L->row_ijk);
     dr_bins_destroy(&L->bins);
     dr_bins_destroy(&L->vbins);
     dr_mac_grid_destroy(&L->vg);
@@ -1505,10 +1514,25 @@ static DrStatus pressure_solve(DrLiquid *L, const DrFaceCoupling *extra, DrLiqui
     actx.fill = true;
     dr_parallel_for(nrow, grain, assemble_rows, &actx);
     A->nnz = A->rowptr[nrow];
-    if (!L->M) DR_TRY(dr_mic0_create(A, DR_MIC0_TAU_DEFAULT, DR_MIC0_SIGMA_DEFAULT, &L->M, err));
-    else DR_TRY(dr_mic0_update(L->M, A, err));
+    DrLinearOp Mop;
+    if (L->d.pressure_precond == DR_PRECOND_MULTIGRID) {
+        for (int r = 0; r < nrow; r++) {
+            long c = L->cells_of_row[r];
+            L->row_ijk[3 * r] = (int)(c % g->nx);
+            L->row_ijk[3 * r + 1] = (int)((c / g->nx) % g->ny);
+            L->row_ijk[3 * r + 2] = (int)(c / cstride[2]);
+        }
+        int dims[3] = {g->nx, g->ny, g->nz};
+        if (!L->mg) DR_TRY(dr_mg_create(A, L->row_ijk, dims, NULL, &L->mg, err));
+        else DR_TRY(dr_mg_update(L->mg, A, L->row_ijk, dims, err));
+        Mop = dr_mg_op(L->mg);
+    } else {
+        if (!L->M) DR_TRY(dr_mic0_create(A, DR_MIC0_TAU_DEFAULT, DR_MIC0_SIGMA_DEFAULT, &L->M, err));
+        else DR_TRY(dr_mic0_update(L->M, A, err));
+        Mop = dr_mic0_op(L->M);
+    }
     memset(L->q, 0, (size_t)nrow * sizeof(double));
-    DrLinearOp Aop = dr_csr_op(A), Mop = dr_mic0_op(L->M);
+    DrLinearOp Aop = dr_csr_op(A);
     DrPcgDesc pd;
     dr_pcg_desc_default(&pd);
     pd.rel_tol = L->d.pressure_tol;

@@ -132,6 +132,8 @@ static DrStatus build_liquid(const WorldCtx *c, const DrElement *e, WorldLiquid 
     d.max_substeps = dr_component_int(solver, "max_substeps");
     d.pressure_tol = dr_component_num(solver, "pressure_tolerance");
     d.pressure_max_iter = dr_component_int(solver, "pressure_max_iterations");
+    d.pressure_precond = strcmp(dr_component_str(solver, "pressure_preconditioner"), "mic0") == 0 ? DR_PRECOND_MIC0
+                                                                                                : DR_PRECOND_MULTIGRID;
 
     DrBoxVel source = {0}, emitter = {0};
     DrVec3 kill_lo, kill_hi, shape_vel = dr_v3(0, 0, 0);
