@@ -926,7 +926,8 @@ static void hair_hash(const void *self, DrHasher *hs)
 static DrStatus build_couple(WorldHair *h, DrError *err)
 {
     bool any = false;
-    for (int b = 0; b < h->nelements; b++) any = any || dr_element_component(h->elements[b], "Drag") != NULL;
+    for (int b = 0; b < h->nelements; b++)
+        any = any || dr_component_present(dr_element_component(h->elements[b], "Drag"));
     if (!any) return DR_OK;
     DrRodState rs = dr_rod_set_state(h->rods);
     WorldCouple *k = NULL;
@@ -948,7 +949,7 @@ static DrStatus build_couple(WorldHair *h, DrError *err)
         DrDragLaw *law = &k->laws[b];
         dr_drag_law_default(law);
         const DrComponent *dc = dr_element_component(h->elements[b], "Drag");
-        if (!dc) {
+        if (!dr_component_present(dc)) {
             law->global = 0.0;
             law->buoyancy = false;
             continue;
