@@ -332,7 +332,7 @@ static DrStatus gather(DrCouple *c, const DrCoupleFluid *fluid, const DrCoupleSo
             e->mass = sm.mass[i];
             e->solid = s;
             e->index = i;
-            e->active = !(sm.held && sm.held[i]);
+            e->active = true; /* a held element drags the fluid too, its reaction going to what holds it */
             for (int d = 0; d < 3; d++) {
                 c->x[3 * at + d] = sm.x[3 * i + d];
                 c->v[3 * at + d] = sm.v[3 * i + d];

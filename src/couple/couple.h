@@ -102,7 +102,9 @@ typedef struct DrCoupleSamples {
     const double *diameter;   /* n, m */
     const double *slender;    /* n: Λ of the element's strand */
     const double *tangent;    /* 3n, unit */
-    const unsigned char *held;/* n or NULL: 1 for an element whose motion is prescribed (no force on it or from it) */
+    const unsigned char *held;/* n or NULL: 1 for an element whose motion is prescribed (a root): it drags the fluid
+                                 with its prescribed velocity, and what it receives goes to what holds it (the solid
+                                 ignores forces on it; the ledger counts them) */
     const int *law;           /* n or NULL (all law 0): index into DrCoupleSolid.laws */
 } DrCoupleSamples;
 
