@@ -436,6 +436,124 @@ static void test_closed_box_momentum(void **state)
     assert_true(v1 < 0.05 && v4 < 0.05);
 }
 
+/* ---- a porous layer across a channel ------------------------------------------------------------------------------ */
+
+/* A fixed layer of straight strands (held elements along z, one per cell) across a channel of water with a uniform
+   inflow U (the air solver as a single-phase fluid of water's density and viscosity, inflow on −x, outflow on +x):
+   in steady state the pressure drop across the layer times the channel's area equals the total drag on it within
+   2 %, and the force on the solid is minus the force on the fluid to round-off. */
+typedef struct Layer { int n; double *x, *v, *mass, *volume, *diameter, *slender, *tangent; unsigned char *held; } Layer;
+
+static DrCoupleSamples layer_samples(void *ctx)
+{
+    Layer *l = ctx;
+    return (DrCoupleSamples){l->n, l->x, l->v, l->mass, l->volume, l->diameter, l->slender, l->tangent, l->held, NULL};
+}
+static DrStatus layer_solve(void *ctx, const double *force, const double *dfdv, DrError *err)
+{
+    (void)ctx; (void)force; (void)dfdv; (void)err;
+    return DR_OK; /* every element is held */
+}
+
+static DrStatus air_project_cb(void *ctx, const DrFaceCoupling *extra, DrError *err)
+{
+    DrAirStats st;
+    memset(&st, 0, sizeof st);
+    return dr_air_project(ctx, extra, &st, err);
+}
+static void air_pressure_cb(void *ctx, long n, const double *pts, double *p) { dr_air_sample(ctx, n, pts, NULL, p); }
+static const unsigned char *air_faces_cb(void *ctx, int a) { return dr_air_coupled_faces(ctx, a); }
+
+static void test_porous_layer(void **state)
+{
+    (void)state;
+    DrAirDesc d;
+    dr_air_desc_default(&d);
+    d.domain_lo = dr_v3(0, 0, 0);
+    d.domain_hi = dr_v3(0.32, 0.16, 0.16);
+    d.dx = 0.01;
+    d.density = 1000.0;
+    d.viscosity = 1e-3;
+    d.inflow_axis = 0;
+    d.inflow_side = 0;
+    d.inflow_velocity = dr_v3(0.05, 0, 0);
+    d.initial_stream = true;
+    d.pressure_tol = 1e-12;
+    DrAir *air = NULL;
+    CHECK(dr_air_create(&d, &air, ERR));
+    Layer l;
+    l.n = 16 * 16;
+    size_t n = (size_t)l.n;
+    l.x = calloc(3 * n, sizeof(double)); l.v = calloc(3 * n, sizeof(double)); l.tangent = calloc(3 * n, sizeof(double));
+    l.mass = calloc(n, sizeof(double)); l.volume = calloc(n, sizeof(double)); l.diameter = calloc(n, sizeof(double));
+    l.slender = calloc(n, sizeof(double)); l.held = calloc(n, 1);
+    double r = 2e-4;
+    for (int j = 0; j < 16; j++)
+        for (int k = 0; k < 16; k++) {
+            int i = 16 * j + k;
+            l.x[3 * i] = 0.155; l.x[3 * i + 1] = 0.005 + 0.01 * j; l.x[3 * i + 2] = 0.005 + 0.01 * k;
+            l.tangent[3 * i + 2] = 1.0;
+            l.mass[i] = 1e-6;
+            l.volume[i] = M_PI * r * r * 0.01;
+            l.diameter[i] = 2.0 * r;
+            l.slender[i] = 0.16 / (2.0 * r);
+            l.held[i] = 1;
+        }
+    DrDragLaw law = linear_law();
+    law.buoyancy = false;
+    law.global = 20.0;
+    DrCoupleFluid fluid = {air, d.density, d.viscosity, dr_air_grid(air), air_project_cb, air_pressure_cb, air_faces_cb};
+    DrCoupleSolid solid = {&l, 1, &law, layer_samples, layer_solve};
+    DrCouple *c = NULL;
+    CHECK(dr_couple_create(&c, ERR));
+    DrCoupleDesc cd;
+    dr_couple_desc_default(&cd);
+    double t = 0.0;
+    DrVec3 gs = dr_v3(0, 0, 0), gf = dr_v3(0, 0, 0);
+    double h = 0;
+    for (int step = 0; step < 20; step++) {
+        CHECK(dr_air_stable_dt(air, NULL, 0, t, t + 0.02, &h, ERR));
+        CHECK(dr_air_begin(air, NULL, 0, t, h, ERR));
+        DrCoupleStats st = {0};
+        CHECK(dr_couple_step(c, &cd, &fluid, &solid, 1, h, &st, ERR));
+        dr_couple_last_ledger(c, &gs, &gf);
+        /* force on the solid = −force on the fluid, to round-off */
+        assert_true(dr_v3_norm(dr_v3_add(gs, gf)) <= 1e-13 * dr_v3_norm(gs));
+        if (step < 19) {
+            DrAirStats ast;
+            memset(&ast, 0, sizeof ast);
+            CHECK(dr_air_end(air, &ast, ERR));
+            t += h;
+        }
+    }
+    /* the pressure drop across the layer, averaged over the channel's cross-section well away from it */
+    double dp = 0.0;
+    for (int j = 0; j < 16; j++)
+        for (int k = 0; k < 16; k++) {
+            double pts[6] = {0.075, 0.005 + 0.01 * j, 0.005 + 0.01 * k, 0.245, 0.005 + 0.01 * j, 0.005 + 0.01 * k};
+            double p[2];
+            dr_air_sample(air, 2, pts, NULL, p);
+            dp += (p[0] - p[1]) / 256.0;
+        }
+    double area = 0.16 * 0.16, drag = gs.x / h;
+    /* the drag's analytic value at the inflow speed */
+    DrDragSite site = {dr_v3(0, 0, 1), 2 * r, M_PI * r * r * 0.01, 0.16 / (2 * r), 0};
+    double K[9];
+    dr_drag_tensor(&law, d.density, d.viscosity, &site, dr_v3(1, 0, 0), K);
+    double analytic = 256.0 * K[0] * 0.05;
+    print_message("porous layer: dp %.6g Pa, dp*A %.6g N, drag %.6g N (analytic at U: %.6g N), ratio %.5f\n", dp,
+                  dp * area, drag, analytic, dp * area / drag);
+    assert_true(drag > 0.0);
+    assert_true(fabs(dp * area / drag - 1.0) < 0.02);
+    assert_true(fabs(drag / analytic - 1.0) < 0.02);
+    DrAirStats ast;
+    memset(&ast, 0, sizeof ast);
+    CHECK(dr_air_end(air, &ast, ERR));
+    dr_couple_destroy(&c);
+    dr_air_destroy(&air);
+    free(l.x); free(l.v); free(l.tangent); free(l.mass); free(l.volume); free(l.diameter); free(l.slender); free(l.held);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -446,6 +564,7 @@ int main(void)
         cmocka_unit_test(test_lift),
         cmocka_unit_test(test_falling_rod_terminal_velocity),
         cmocka_unit_test(test_closed_box_momentum),
+        cmocka_unit_test(test_porous_layer),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
