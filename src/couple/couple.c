@@ -92,7 +92,9 @@ typedef struct Element {
     DrDragSite site;
     double mass;
     int solid, index;        /* owner and its element index */
-    bool active;             /* free and inside the fluid (every component has coupled faces) */
+    bool active;             /* inside the fluid (every component has coupled faces) */
+    bool held;               /* its motion is prescribed */
+    bool implicit;           /* the last projection holds its drag implicit (held, or heavier than its fluid) */
     Stencil st[3];           /* raw trilinear weights */
     double wn[3][8];         /* weights over the coupled faces, normalised (0 elsewhere) */
 } Element;
@@ -100,7 +102,7 @@ typedef struct Element {
 struct DrCouple {
     int cap;                 /* elements */
     Element *el;
-    double *x, *v, *vprev, *u, *uprev, *p, *pprev, *gradp, *force, *dfdv, *kd, *g, *pts, *psamp;
+    double *x, *v, *vprev, *u, *uprev, *p, *pprev, *gradp, *force, *dfdv, *kd, *kf, *dv, *g, *pts, *psamp;
     int ncap_faces[3];
     DrFaceCoupling fc;       /* the extra coupling handed to the fluid (arrays sized to the grid) */
     double *phi[3], *num[3], *den[3];
@@ -122,7 +124,7 @@ void dr_couple_destroy(DrCouple **cp)
     DrCouple *c = *cp;
     free(c->el);
     double **arr[] = {&c->x, &c->v, &c->vprev, &c->u, &c->uprev, &c->p, &c->pprev, &c->gradp, &c->force, &c->dfdv,
-                      &c->kd, &c->g, &c->pts, &c->psamp};
+                      &c->kd, &c->kf, &c->dv, &c->g, &c->pts, &c->psamp};
     for (size_t i = 0; i < sizeof arr / sizeof arr[0]; i++) free(*arr[i]);
     for (int a = 0; a < 3; a++) {
         free(c->fc.open[a]); free(c->fc.velocity[a]); free(c->fc.impulse[a]); free(c->fc.drag[a]);
@@ -147,7 +149,7 @@ static DrStatus reserve(DrCouple *c, int n, const DrMacGrid *g, DrError *err)
         c->el = el;
         struct { double **p; int w; } arr[] = {{&c->x, 3}, {&c->v, 3}, {&c->vprev, 3}, {&c->u, 3}, {&c->uprev, 3},
                                                {&c->p, 1}, {&c->pprev, 1}, {&c->gradp, 3}, {&c->force, 3},
-                                               {&c->dfdv, 9}, {&c->kd, 3}, {&c->g, 3}, {&c->pts, 21}, {&c->psamp, 7}};
+                                               {&c->dfdv, 9}, {&c->kd, 3}, {&c->kf, 9}, {&c->dv, 3}, {&c->g, 3}, {&c->pts, 21}, {&c->psamp, 7}};
         for (size_t i = 0; i < sizeof arr / sizeof arr[0]; i++) {
             double *q = realloc(*arr[i].p, (size_t)cap * arr[i].w * sizeof(double));
             if (!q) return dr_error_set(err, DR_ERR_NOMEM, NULL, 0, 0, "couple: out of memory for %d elements.", cap);
@@ -333,6 +335,8 @@ static DrStatus gather(DrCouple *c, const DrCoupleFluid *fluid, const DrCoupleSo
             e->solid = s;
             e->index = i;
             e->active = true; /* a held element drags the fluid too, its reaction going to what holds it */
+            e->held = sm.held && sm.held[i];
+            e->implicit = false;
             for (int d = 0; d < 3; d++) {
                 c->x[3 * at + d] = sm.x[3 * i + d];
                 c->v[3 * at + d] = sm.v[3 * i + d];
@@ -440,6 +444,7 @@ static DrStatus laws(DrCouple *c, const DrCoupleDesc *desc, const DrCoupleFluid 
             memset(F, 0, 3 * sizeof(double));
             memset(D, 0, 9 * sizeof(double));
             memset(c->kd + 3 * i, 0, 3 * sizeof(double));
+            memset(c->kf + 9 * i, 0, 9 * sizeof(double));
             continue;
         }
         DrVec3 v = dr_v3(c->v[3 * i], c->v[3 * i + 1], c->v[3 * i + 2]);
@@ -448,6 +453,7 @@ static DrStatus laws(DrCouple *c, const DrCoupleDesc *desc, const DrCoupleFluid 
         double K[9];
         dr_drag_tensor(e->law, fluid->density, fluid->viscosity, &e->site, dv, K);
         for (int a = 0; a < 3; a++) c->kd[3 * i + a] = K[4 * a];
+        memcpy(c->kf + 9 * i, K, 9 * sizeof(double));
         for (int q = 0; q < 9; q++) D[q] = -K[q];
         if (desc->position_derivative) {
             /* f = −K (v₊ − ũ(x + h v₊)): ∂f/∂v₊ = −K + h K ∇ũ, its symmetric part kept where it leaves the solve
@@ -521,6 +527,102 @@ static DrVec3 spread(DrCouple *c, const DrMacGrid *g, int n, double h, bool drag
     return dr_v3(t[0], t[1], t[2]);
 }
 
+/* The last projection (couple.h): explicit reactions of the elements lighter than their fluid, implicit drag of the
+   others; then what those received, and their velocity corrections. *got and *gave: the ledger. */
+static DrStatus final_exchange(DrCouple *c, const DrCoupleFluid *fluid, const DrCoupleSolid *solids, int nsolids,
+                               int n, double h, DrVec3 *got, DrVec3 *gave, DrError *err)
+{
+    const DrMacGrid *g = fluid->grid;
+    const double *fm[3];
+    for (int a = 0; a < 3; a++) fm[a] = fluid->face_mass ? fluid->face_mass(fluid->ctx, a) : NULL;
+    for (int i = 0; i < n; i++) {
+        Element *e = &c->el[i];
+        e->implicit = false;
+        if (!e->active) continue;
+        if (e->held) { e->implicit = true; continue; }
+        if (!solids[e->solid].correct || !fm[0]) continue;
+        double mf = 0.0;
+        for (int a = 0; a < 3; a++)
+            for (int q = 0; q < 8; q++) mf += e->wn[a][q] * fm[a][e->st[a].f[q]] / 3.0;
+        e->implicit = e->mass >= mf;
+    }
+    /* the faces: spread reactions (explicit), drag masses and their targets (implicit), off-diagonal parts */
+    double expl[3] = {0, 0, 0};
+    for (int i = 0; i < n; i++) {
+        const Element *e = &c->el[i];
+        if (!e->active) continue;
+        const double *K = c->kf + 9 * i, *v = c->v + 3 * i, *u = c->u + 3 * i;
+        for (int a = 0; a < 3; a++) {
+            double off = 0.0;
+            if (e->implicit)
+                for (int b = 0; b < 3; b++)
+                    if (b != a) off += h * K[3 * a + b] * (v[b] - u[b]);
+            for (int q = 0; q < 8; q++) {
+                double w = e->wn[a][q];
+                if (w == 0.0) continue;
+                long f = e->st[a].f[q];
+                if (!e->implicit) {
+                    c->fc.impulse[a][f] -= w * c->g[3 * i + a];
+                } else {
+                    c->fc.impulse[a][f] += w * off;
+                    c->fc.drag[a][f] += w * h * K[4 * a];
+                    c->num[a][f] += w * h * K[4 * a] * v[a];
+                }
+            }
+        }
+    }
+    for (int a = 0; a < 3; a++)
+        for (long f = 0; f < g->nfaces[a]; f++) {
+            expl[a] += c->fc.impulse[a][f];
+            double b = c->fc.drag[a][f];
+            if (b > 0.0) {
+                c->num[a][f] /= b; /* the implicit elements' velocity the drag pulls towards */
+                c->fc.impulse[a][f] += b * (c->num[a][f] - c->fc.velocity[a][f]);
+            }
+        }
+    DR_TRY(fluid->project(fluid->ctx, &c->fc, err));
+    double drag[3] = {0, 0, 0};
+    for (int a = 0; a < 3; a++)
+        for (long f = 0; f < g->nfaces[a]; f++) {
+            double b = c->fc.drag[a][f];
+            if (b > 0.0) drag[a] += b * (c->num[a][f] - g->f[a][f]);
+        }
+    *gave = dr_v3(expl[0] + drag[0], expl[1] + drag[1], expl[2] + drag[2]);
+    /* what the implicit elements received: the diagonal with the final fluid velocity, the rest as spread */
+    memcpy(c->uprev, c->u, (size_t)n * 3 * sizeof(double));
+    sample_velocity(c, fluid, n, false);
+    memset(c->dv, 0, (size_t)n * 3 * sizeof(double));
+    bool any = false;
+    for (int i = 0; i < n; i++) {
+        const Element *e = &c->el[i];
+        if (!e->implicit) continue;
+        const double *K = c->kf + 9 * i, *v = c->v + 3 * i, *un = c->u + 3 * i, *up = c->uprev + 3 * i;
+        for (int a = 0; a < 3; a++) {
+            double gn = h * K[4 * a] * (un[a] - v[a]);
+            for (int b = 0; b < 3; b++)
+                if (b != a) gn += h * K[3 * a + b] * (up[b] - v[b]);
+            if (!e->held) {
+                c->dv[3 * i + a] = (gn - c->g[3 * i + a]) / e->mass;
+                any = true;
+            }
+            c->g[3 * i + a] = gn;
+        }
+    }
+    double t[3] = {0, 0, 0};
+    for (int i = 0; i < n; i++)
+        for (int a = 0; a < 3; a++) t[a] += c->g[3 * i + a];
+    *got = dr_v3(t[0], t[1], t[2]);
+    if (any) {
+        int at = 0;
+        for (int s = 0; s < nsolids; s++) {
+            int ns = solids[s].samples(solids[s].ctx).n;
+            if (solids[s].correct) solids[s].correct(solids[s].ctx, c->dv + 3 * at);
+            at += ns;
+        }
+    }
+    return DR_OK;
+}
+
 static double rel_change(const double *now, const double *before, long n, double floor_abs)
 {
     double d = 0.0, s = 0.0;
@@ -582,18 +684,27 @@ DrStatus dr_couple_step(DrCouple *c, const DrCoupleDesc *desc, const DrCoupleFlu
         change = k == 1 ? cv : (cv > change_fluid ? cv : change_fluid);
         bool last = k >= desc->iterations || (k > 1 && change < desc->tolerance);
         rasterise(c, g, n);
-        DrVec3 gave = spread(c, g, n, h, !last);
         double a3 = dr_time_now();
+        if (last) {
+            DrVec3 gave;
+            memset(c->num[0], 0, (size_t)g->nfaces[0] * sizeof(double));
+            memset(c->num[1], 0, (size_t)g->nfaces[1] * sizeof(double));
+            memset(c->num[2], 0, (size_t)g->nfaces[2] * sizeof(double));
+            DR_TRY(final_exchange(c, fluid, solids, nsolids, n, h, &got, &gave, err));
+            double a4 = dr_time_now();
+            sec_laws += a1 - a0 + a3 - a2;
+            sec_solid += a2 - a1;
+            sec_fluid += a4 - a3;
+            c->ledger_solid = got;
+            c->ledger_fluid = gave;
+            break;
+        }
+        spread(c, g, n, h, true);
         DR_TRY(fluid->project(fluid->ctx, &c->fc, err));
         double a4 = dr_time_now();
         sec_laws += a1 - a0 + a3 - a2;
         sec_solid += a2 - a1;
         sec_fluid += a4 - a3;
-        if (last) {
-            c->ledger_solid = got;
-            c->ledger_fluid = gave;
-            break;
-        }
         memcpy(c->uprev, c->u, (size_t)n * 3 * sizeof(double));
         memcpy(c->pprev, c->p, (size_t)n * sizeof(double));
         sample_velocity(c, fluid, n, false);

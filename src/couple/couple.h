@@ -43,11 +43,19 @@
  *      implicit drag mass β_f = h Σ_i w_if (K_i)_aa pulling the fluid towards the solids' velocity (grid.h) and the
  *      fluid projects again: block Gauss–Seidel on the monolithic fluid–solid system, whose fixed point is its
  *      solution for linear drag. The loop ends when the relative change of the solids' velocities and of the sampled
- *      fluid velocity and pressure falls below the tolerance, or at the iteration cap; the last projection takes the
- *      exact reaction instead: the impulse g_i = h (f_i + D_i v_i) each element received, negated and spread over the
- *      coupled faces with the weights it was sampled with, so that the fluid gains exactly −Σ g_i (the momentum
- *      ledger, DrCoupleStats) for any iteration count. One iteration is the staggered step (solid with drag from the
- *      fluid, reaction, pressure).
+ *      fluid velocity and pressure falls below the tolerance, or at the iteration cap. The last projection settles
+ *      what each element and the fluid exchanged, exactly, for any iteration count (the momentum ledger,
+ *      DrCoupleStats), the lighter side taking the explicit part, so that an unconverged step cannot blow up:
+ *      - an element lighter than the fluid around it (its mass below Σ w_if m_f): the fluid takes the impulse
+ *        g_i = h (f_i + D_i v_i) the element received in its solve, negated and spread over the coupled faces with the
+ *        weights it was sampled with (an explicit reaction, bounded by the element's own momentum change);
+ *      - an element at least as heavy, or held (a root: its reaction goes to what holds it): the fluid keeps the
+ *        implicit drag mass of K's diagonal towards the element's velocity (the off-diagonal part explicit, with the
+ *        last iterate), and the element then receives exactly what the fluid gave, hK_aa (ũ_a − v_a) with the final
+ *        ũ, the difference from its solve added to its velocity (DrCoupleSolid.correct; bounded by the fluid's
+ *        momentum change over the element's larger mass).
+ *      One iteration is the staggered step (solid with drag from the fluid, reaction, pressure); at convergence the
+ *      corrections vanish and both sides hold the monolithic solution.
  * The caller then commits every solid (their last solve) and ends the fluid's substep (its last projection).
  *
  * Units SI. Determinism: every sum runs in a fixed order; bit-identical for any thread count. Memory: scratch grows
@@ -118,6 +126,9 @@ typedef struct DrCoupleSolid {
        symmetric negative semidefinite), from the prediction (as dr_rod_set_solve). Warnings (not converged) are the
        solid's to report; a negative status stops the step. */
     DrStatus (*solve)(void *ctx, const double *force, const double *dforce_dv, DrError *err);
+    /* NULL, or adds dv (3n, m/s) to the last solve's velocities of its free elements (dr_rod_set_add_velocity): the
+       loop's correction of an element heavier than the fluid around it (below). */
+    void (*correct)(void *ctx, const double *dv);
 } DrCoupleSolid;
 
 typedef struct DrCoupleFluid {
@@ -130,6 +141,8 @@ typedef struct DrCoupleFluid {
     void (*pressure)(void *ctx, long n, const double *points, double *p);
     /* The faces that took the extra coupling in the last project (dr_liquid_coupled_faces). */
     const unsigned char *(*coupled_faces)(void *ctx, int a);
+    /* Its face masses m_f, kg (dr_liquid_face_mass), valid after the substep's begin. */
+    const double *(*face_mass)(void *ctx, int a);
 } DrCoupleFluid;
 
 typedef struct DrCoupleDesc {

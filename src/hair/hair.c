@@ -938,6 +938,16 @@ void dr_rod_set_fill_load(DrRodSet *r, const double *force, const double *dforce
     if (dforce_dv) memcpy(r->dload, dforce_dv, 9 * (size_t)r->V * sizeof(double));
 }
 
+void dr_rod_set_add_velocity(DrRodSet *r, const double *dv)
+{
+    assert(r->phase == PHASE_SOLVED);
+    for (int vid = 0; vid < r->V; vid++) {
+        int dof = r->vdof[vid];
+        for (int a = 0; a < 3; a++)
+            if (!r->pres[dof + a]) r->qdot_out[dof + a] += dv[3 * vid + a];
+    }
+}
+
 void dr_rod_set_take(DrRodSet *r)
 {
     assert(r->phase == PHASE_PREDICTED || r->phase == PHASE_SOLVED);

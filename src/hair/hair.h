@@ -240,6 +240,12 @@ DrRodSamples dr_rod_set_samples(DrRodSet *rods);
 DR_NODISCARD DrStatus dr_rod_set_solve(DrRodSet *rods, const double *force, const double *dforce_dv,
                                        DrRodStats *stats, DrError *err);
 
+/* Between a solve (or dr_rod_set_take) and commit: adds dv (3 nverts, m/s) to the solved velocities of the vertices'
+ * free DOFs (held ones keep their prescribed velocity). An explicit correction by a caller that learns after the solve
+ * what an external force finally was (src/couple: the fluid's drag on a vertex heavier than the fluid around it);
+ * samples and commit (its multipliers included) then see the corrected velocities. */
+void dr_rod_set_add_velocity(DrRodSet *rods, const double *dv);
+
 /* Ends the step with the last solve: multipliers λ₊, Coulomb friction at the collider contacts, positions,
  * twists, time-transported directors and reference twists; stats (may be NULL) counts the step and takes its
  * contacts, timings, energies and momenta. DR_ERR_RUNTIME when the state becomes non-finite (the state,

@@ -89,6 +89,8 @@ static void fluid_pressure(void *ctx, long n, const double *points, double *p)
 }
 static const unsigned char *fluid_faces(void *ctx, int a) { return dr_air_coupled_faces(((WorldAir *)ctx)->air, a); }
 
+static const double *fluid_mass(void *ctx, int a) { return dr_air_face_mass(((WorldAir *)ctx)->air, a); }
+
 static DrStatus air_fluid_begin(void *self, const WorldCtx *c, double t, double t_next, DrCoupleFluid *fluid,
                                 DrError *err)
 {
@@ -101,7 +103,8 @@ static DrStatus air_fluid_begin(void *self, const WorldCtx *c, double t, double 
     DR_TRY(dr_air_begin(wa->air, cols, n, t, h, err));
     const DrComponent *mat = dr_element_component(wa->element, "AirMaterial");
     *fluid = (DrCoupleFluid){wa, dr_component_num(mat, "density"), dr_component_num(mat, "viscosity"),
-                             dr_air_grid(wa->air), fluid_project, fluid_pressure, fluid_faces};
+                             dr_air_grid(wa->air), fluid_project, fluid_pressure, fluid_faces,
+                             fluid_mass};
     return DR_OK;
 }
 

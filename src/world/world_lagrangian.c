@@ -544,6 +544,8 @@ static DrStatus couple_solve(void *ctx, const double *force, const double *dforc
     return s == DR_WARN_NOT_CONVERGED ? DR_OK : s; /* counted in the frame's stats */
 }
 
+static void couple_correct(void *ctx, const double *dv) { dr_rod_set_add_velocity(((WorldHair *)ctx)->rods, dv); }
+
 static bool hair_couples(const void *self) { return ((const WorldHair *)self)->cpl != NULL; }
 
 static DrStatus hair_solid_predict(void *self, const WorldCtx *c, double t, double t_next, DrCoupleSolid *solid,
@@ -557,7 +559,7 @@ static DrStatus hair_solid_predict(void *self, const WorldCtx *c, double t, doub
     double t_start = dr_time_now();
     DR_TRY(system_predict(h, t_next - t, err));
     h->seconds += dr_time_now() - t_start;
-    *solid = (DrCoupleSolid){h, h->nelements, h->cpl->laws, couple_samples, couple_solve};
+    *solid = (DrCoupleSolid){h, h->nelements, h->cpl->laws, couple_samples, couple_solve, couple_correct};
     return DR_OK;
 }
 

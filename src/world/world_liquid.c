@@ -236,6 +236,8 @@ static const unsigned char *fluid_faces(void *ctx, int a)
     return dr_liquid_coupled_faces(((WorldLiquid *)ctx)->liquid, a);
 }
 
+static const double *fluid_mass(void *ctx, int a) { return dr_liquid_face_mass(((WorldLiquid *)ctx)->liquid, a); }
+
 static DrStatus liquid_fluid_begin(void *self, const WorldCtx *c, double t, double t_next, DrCoupleFluid *fluid,
                                    DrError *err)
 {
@@ -247,7 +249,7 @@ static DrStatus liquid_fluid_begin(void *self, const WorldCtx *c, double t, doub
     int n = world_kinematics_liquid_colliders(c->kin, &cols);
     DR_TRY(dr_liquid_begin(wl->liquid, cols, n, t, h, err));
     *fluid = (DrCoupleFluid){wl, wl->density, wl->viscosity, dr_liquid_grid(wl->liquid), fluid_project, fluid_pressure,
-                             fluid_faces};
+                             fluid_faces, fluid_mass};
     return DR_OK;
 }
 

@@ -234,6 +234,8 @@ static DrCoupleSamples rod_samples(void *ctx)
     return (DrCoupleSamples){sm.n, sm.x, sm.v, sm.mass, rs->volume, rs->diameter, rs->slender, sm.tangent, sm.held,
                              NULL};
 }
+static void rod_correct(void *ctx, const double *dv) { dr_rod_set_add_velocity(((RodSolid *)ctx)->r, dv); }
+
 static DrStatus rod_solve(void *ctx, const double *force, const double *dfdv, DrError *err)
 {
     RodSolid *rs = ctx;
@@ -275,8 +277,8 @@ static void test_falling_rod_terminal_velocity(void **state)
     law.buoyancy = false;
     Still fl;
     still_make(&fl);
-    DrCoupleFluid fluid = {&fl, RHO, MU, fl.g, still_project, still_pressure, still_faces};
-    DrCoupleSolid solid = {&rs, 1, &law, rod_samples, rod_solve};
+    DrCoupleFluid fluid = {&fl, RHO, MU, fl.g, still_project, still_pressure, still_faces, NULL};
+    DrCoupleSolid solid = {&rs, 1, &law, rod_samples, rod_solve, rod_correct};
     DrCouple *c = NULL;
     CHECK(dr_couple_create(&c, ERR));
     DrCoupleDesc cd;
@@ -318,6 +320,7 @@ static DrStatus liq_project(void *ctx, const DrFaceCoupling *extra, DrError *err
 }
 static void liq_pressure(void *ctx, long n, const double *pts, double *p) { dr_liquid_sample(ctx, n, pts, NULL, p); }
 static const unsigned char *liq_faces(void *ctx, int a) { return dr_liquid_coupled_faces(ctx, a); }
+static const double *liq_mass(void *ctx, int a) { return dr_liquid_face_mass(ctx, a); }
 
 /* A patch of free strands (no held vertex) inside a blob of liquid moving through a closed, gravity-free box, away
    from its walls (mass-weighted pressure, APIC: the liquid alone conserves momentum exactly there): liquid + hair
@@ -377,8 +380,9 @@ static void run_closed_box(int iterations, double *hair_speed)
     dr_drag_law_default(&law);
     law.global = 50.0; /* strong enough to move the strands within a few steps */
     law.lift = 0.5;
-    DrCoupleFluid fluid = {liq, d.density, d.viscosity, dr_liquid_grid(liq), liq_project, liq_pressure, liq_faces};
-    DrCoupleSolid solid = {&rs, 1, &law, rod_samples, rod_solve};
+    DrCoupleFluid fluid = {liq, d.density, d.viscosity, dr_liquid_grid(liq), liq_project, liq_pressure, liq_faces,
+                           liq_mass};
+    DrCoupleSolid solid = {&rs, 1, &law, rod_samples, rod_solve, rod_correct};
     DrCouple *c = NULL;
     CHECK(dr_couple_create(&c, ERR));
     DrCoupleDesc cd;
@@ -463,6 +467,7 @@ static DrStatus air_project_cb(void *ctx, const DrFaceCoupling *extra, DrError *
 }
 static void air_pressure_cb(void *ctx, long n, const double *pts, double *p) { dr_air_sample(ctx, n, pts, NULL, p); }
 static const unsigned char *air_faces_cb(void *ctx, int a) { return dr_air_coupled_faces(ctx, a); }
+static const double *air_mass_cb(void *ctx, int a) { return dr_air_face_mass(ctx, a); }
 
 static void test_porous_layer(void **state)
 {
@@ -502,8 +507,9 @@ static void test_porous_layer(void **state)
     DrDragLaw law = linear_law();
     law.buoyancy = false;
     law.global = 20.0;
-    DrCoupleFluid fluid = {air, d.density, d.viscosity, dr_air_grid(air), air_project_cb, air_pressure_cb, air_faces_cb};
-    DrCoupleSolid solid = {&l, 1, &law, layer_samples, layer_solve};
+    DrCoupleFluid fluid = {air, d.density, d.viscosity, dr_air_grid(air), air_project_cb, air_pressure_cb, air_faces_cb,
+                           air_mass_cb};
+    DrCoupleSolid solid = {&l, 1, &law, layer_samples, layer_solve, NULL};
     DrCouple *c = NULL;
     CHECK(dr_couple_create(&c, ERR));
     DrCoupleDesc cd;
