@@ -23,6 +23,7 @@ void dr_couple_desc_default(DrCoupleDesc *d)
     d->iterations = 3;
     d->tolerance = 1e-3;
     d->position_derivative = true;
+    d->explicit_reaction = false;
 }
 
 /* Dimensionless permeability k̃_l (k = k̃ D²) of the Drummond–Tahir fits, γ clamped into [1e-4, 0.5]. */
@@ -107,6 +108,9 @@ struct DrCouple {
     DrFaceCoupling fc;       /* the extra coupling handed to the fluid (arrays sized to the grid) */
     double *phi[3], *num[3], *den[3];
     DrVec3 ledger_solid, ledger_fluid;
+    double changes[64];      /* the last step's, per iteration */
+    int nchanges;
+    double residual;
 };
 
 DrStatus dr_couple_create(DrCouple **out, DrError *err)
@@ -133,6 +137,13 @@ void dr_couple_destroy(DrCouple **cp)
     free(c);
     *cp = NULL;
 }
+
+int dr_couple_last_changes(const DrCouple *c, double *out, int max)
+{
+    for (int k = 0; k < c->nchanges && k < max && k < 64; k++) out[k] = c->changes[k];
+    return c->nchanges;
+}
+double dr_couple_last_residual(const DrCouple *c) { return c->residual; }
 
 void dr_couple_last_ledger(const DrCouple *c, DrVec3 *solid, DrVec3 *fluid)
 {
@@ -527,10 +538,12 @@ static DrVec3 spread(DrCouple *c, const DrMacGrid *g, int n, double h, bool drag
     return dr_v3(t[0], t[1], t[2]);
 }
 
+static double rel_change(const double *now, const double *before, long n, double floor_abs);
+
 /* The last projection (couple.h): explicit reactions of the elements lighter than their fluid, implicit drag of the
    others; then what those received, and their velocity corrections. *got and *gave: the ledger. */
 static DrStatus final_exchange(DrCouple *c, const DrCoupleFluid *fluid, const DrCoupleSolid *solids, int nsolids,
-                               int n, double h, DrVec3 *got, DrVec3 *gave, DrError *err)
+                               int n, double h, bool all_explicit, DrVec3 *got, DrVec3 *gave, DrError *err)
 {
     const DrMacGrid *g = fluid->grid;
     const double *fm[3];
@@ -538,7 +551,7 @@ static DrStatus final_exchange(DrCouple *c, const DrCoupleFluid *fluid, const Dr
     for (int i = 0; i < n; i++) {
         Element *e = &c->el[i];
         e->implicit = false;
-        if (!e->active) continue;
+        if (!e->active || all_explicit) continue;
         if (e->held) { e->implicit = true; continue; }
         if (!solids[e->solid].correct || !fm[0]) continue;
         double mf = 0.0;
@@ -591,6 +604,7 @@ static DrStatus final_exchange(DrCouple *c, const DrCoupleFluid *fluid, const Dr
     /* what the implicit elements received: the diagonal with the final fluid velocity, the rest as spread */
     memcpy(c->uprev, c->u, (size_t)n * 3 * sizeof(double));
     sample_velocity(c, fluid, n, false);
+    c->residual = rel_change(c->u, c->uprev, 3L * n, 1e-12);
     memset(c->dv, 0, (size_t)n * 3 * sizeof(double));
     bool any = false;
     for (int i = 0; i < n; i++) {
@@ -682,6 +696,8 @@ DrStatus dr_couple_step(DrCouple *c, const DrCoupleDesc *desc, const DrCoupleFlu
         received(c, n, h, &got);
         double cv = rel_change(c->v, c->vprev, 3L * n, ufloor);
         change = k == 1 ? cv : (cv > change_fluid ? cv : change_fluid);
+        if (k <= 64) c->changes[k - 1] = change;
+        c->nchanges = k;
         bool last = k >= desc->iterations || (k > 1 && change < desc->tolerance);
         rasterise(c, g, n);
         double a3 = dr_time_now();
@@ -690,7 +706,7 @@ DrStatus dr_couple_step(DrCouple *c, const DrCoupleDesc *desc, const DrCoupleFlu
             memset(c->num[0], 0, (size_t)g->nfaces[0] * sizeof(double));
             memset(c->num[1], 0, (size_t)g->nfaces[1] * sizeof(double));
             memset(c->num[2], 0, (size_t)g->nfaces[2] * sizeof(double));
-            DR_TRY(final_exchange(c, fluid, solids, nsolids, n, h, &got, &gave, err));
+            DR_TRY(final_exchange(c, fluid, solids, nsolids, n, h, desc->explicit_reaction, &got, &gave, err));
             double a4 = dr_time_now();
             sec_laws += a1 - a0 + a3 - a2;
             sec_solid += a2 - a1;

@@ -149,6 +149,9 @@ typedef struct DrCoupleDesc {
     int iterations;            /* ≥ 1, default 3 (solver.coupling_iterations) */
     double tolerance;          /* > 0, default 1e-3: relative change of v, ũ and p that ends the loop */
     bool position_derivative;  /* default true */
+    bool explicit_reaction;    /* default false. true: every element's reaction is explicit in the last projection
+                                  (the plain staggered exchange, for comparison: unstable where h K exceeds the fluid's
+                                  face mass, e.g. stiff drag of roots in air) */
 } DrCoupleDesc;
 void dr_couple_desc_default(DrCoupleDesc *d);
 
@@ -181,5 +184,11 @@ DR_NODISCARD DrStatus dr_couple_step(DrCouple *c, const DrCoupleDesc *desc, cons
 /* The coupling's momentum ledger of the last dr_couple_step: *solid (what the solids received) and *fluid (what the
    fluid's coupled faces were given), N·s. */
 void dr_couple_last_ledger(const DrCouple *c, DrVec3 *solid, DrVec3 *fluid);
+/* The last step's relative change after each of its iterations (up to max values; returns the iterations taken), and
+   its fixed-point residual: the relative difference between the fluid velocity at the elements after the last
+   projection and the one the solids last solved with (0 at the monolithic solution: then the solids' solve and the
+   fluid's projection hold together). */
+int dr_couple_last_changes(const DrCouple *c, double *out, int max);
+double dr_couple_last_residual(const DrCouple *c);
 
 #endif

@@ -39,6 +39,8 @@ struct DrAir {
     double *nphi;            /* collider-union phi at the grid nodes */
     int *row;                /* cell → pressure unknown, −1 if blocked */
     long *cells_of_row;
+    int *row_ijk;            /* 3 per row: its cell (the multigrid preconditioner's geometry) */
+    DrMg *mg;
     long nrow;
     DrCsr *A;
     DrMic0 *M;
@@ -173,6 +175,7 @@ static DrStatus create(DrAir *A, DrError *err)
     DR_TRY(dr_calloc((size_t)(n[0] + 1) * (n[1] + 1) * (n[2] + 1), sizeof(double), &A->nphi, err));
     DR_TRY(dr_calloc((size_t)A->ncells, sizeof(int), &A->row, err));
     DR_TRY(dr_calloc((size_t)A->ncells, sizeof(long), &A->cells_of_row, err));
+    DR_TRY(dr_calloc((size_t)A->ncells * 3, sizeof(int), &A->row_ijk, err));
     DR_TRY(dr_calloc((size_t)A->ncells, sizeof(double), &A->rhs, err));
     DR_TRY(dr_calloc((size_t)A->ncells, sizeof(double), &A->q, err));
     DR_TRY(dr_calloc((size_t)A->ncells * 4, sizeof(double), &A->work, err));
@@ -249,6 +252,8 @@ void dr_air_destroy(DrAir **air)
     free(A->nphi);
     free(A->row);
     free(A->cells_of_row);
+    free(A->row_ijk);
+    dr_mg_destroy(&A->mg);
     free(A->rhs);
     free(A->q);
     free(A->work);
@@ -640,9 +645,18 @@ static void assemble_rows(long begin, long end, void *vctx)
 /* The one place the pressure system is solved, so that its preconditioner can be swapped: PCG with MIC(0). */
 static DrStatus solve_pressure(DrAir *A, DrPcgStats *ps, DrError *err)
 {
-    if (!A->M) DR_TRY(dr_mic0_create(A->A, DR_MIC0_TAU_DEFAULT, DR_MIC0_SIGMA_DEFAULT, &A->M, err));
-    else DR_TRY(dr_mic0_update(A->M, A->A, err));
-    DrLinearOp Aop = dr_csr_op(A->A), Mop = dr_mic0_op(A->M);
+    /* multigrid-preconditioned CG (src/linalg DrMg: iterations flat in the resolution), as the liquid's default */
+    const DrMacGrid *g = A->g;
+    for (long r = 0; r < A->nrow; r++) {
+        long c = A->cells_of_row[r];
+        A->row_ijk[3 * r] = (int)(c % g->nx);
+        A->row_ijk[3 * r + 1] = (int)((c / g->nx) % g->ny);
+        A->row_ijk[3 * r + 2] = (int)(c / ((long)g->nx * g->ny));
+    }
+    int dims[3] = {g->nx, g->ny, g->nz};
+    if (!A->mg) DR_TRY(dr_mg_create(A->A, A->row_ijk, dims, NULL, &A->mg, err));
+    else DR_TRY(dr_mg_update(A->mg, A->A, A->row_ijk, dims, err));
+    DrLinearOp Aop = dr_csr_op(A->A), Mop = dr_mg_op(A->mg);
     DrPcgDesc pd;
     dr_pcg_desc_default(&pd);
     pd.rel_tol = A->d.pressure_tol;
