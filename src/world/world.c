@@ -355,6 +355,17 @@ DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrError *err)
             if (isnan(w->proposal[i])) SOLVER_TRY(i, c.frame, s->next_time(s->self, &c, w->at[i], &w->proposal[i], err));
             t_next = fmin(t_next, w->proposal[i]);
         }
+        if (w->couple) {
+            /* the coupled solids' explicit forces (lift) limit the coupled step */
+            const WorldSolver *f = &w->solvers[w->couple_fluid], *sd = &w->solvers[w->couple_solid];
+            double rho = 0.0, mu = 0.0;
+            f->fluid_properties(f->self, &rho, &mu);
+            double lim = sd->solid_stable_dt ? sd->solid_stable_dt(sd->self, rho, mu) : INFINITY;
+            if (t + lim < t_next) {
+                double n = ceil((t_next - t) / lim);
+                t_next = t + (t_next - t) / n;
+            }
+        }
         /* a proposal a rounding error short of a landing time lands on it (no step of a few ulps after it) */
         if (land - t_next <= tol) t_next = land;
         world_kinematics_pose(w->kin, t_next);

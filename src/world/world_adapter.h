@@ -165,12 +165,16 @@ typedef struct WorldSolver {
     DR_NODISCARD DrStatus (*fluid_begin)(void *self, const WorldCtx *c, double t, double t_next, DrCoupleFluid *fluid,
                                          DrError *err);
     DR_NODISCARD DrStatus (*fluid_end)(void *self, const WorldCtx *c, DrError *err);
+    /* A fluid's density (kg/m³) and dynamic viscosity (Pa·s), for the solids' step limits. */
+    void (*fluid_properties)(const void *self, double *density, double *viscosity);
     /* A solid: whether it takes part in this scene; predicts its step from t to t_next and describes itself in *solid;
        solid_commit commits the loop's last solve. */
     bool (*couples)(const void *self);
     DR_NODISCARD DrStatus (*solid_predict)(void *self, const WorldCtx *c, double t, double t_next,
                                            DrCoupleSolid *solid, DrError *err);
     DR_NODISCARD DrStatus (*solid_commit)(void *self, const WorldCtx *c, double t, double t_next, DrError *err);
+    /* A solid's limit on the coupled step in that fluid (its explicit forces: lift), s; INFINITY if none. */
+    double (*solid_stable_dt)(const void *self, double density, double viscosity);
 } WorldSolver;
 
 /* The adapters' constructors: each fills *out (out->self NULL when the scene has nothing for it) and logs nothing.

@@ -108,6 +108,13 @@ static DrStatus air_fluid_begin(void *self, const WorldCtx *c, double t, double 
     return DR_OK;
 }
 
+static void air_fluid_properties(const void *self, double *density, double *viscosity)
+{
+    const DrComponent *mat = dr_element_component(((const WorldAir *)self)->element, "AirMaterial");
+    *density = dr_component_num(mat, "density");
+    *viscosity = dr_component_num(mat, "viscosity");
+}
+
 static DrStatus air_fluid_end(void *self, const WorldCtx *c, DrError *err)
 {
     (void)c;
@@ -237,7 +244,8 @@ DrStatus world_air_adapter(const WorldCtx *c, WorldSolver *out, DrError *err)
                          .hash = air_hash,
                          .destroy = air_destroy,
                          .fluid_begin = air_fluid_begin,
-                         .fluid_end = air_fluid_end};
+                         .fluid_end = air_fluid_end,
+                         .fluid_properties = air_fluid_properties};
     return DR_OK;
 }
 

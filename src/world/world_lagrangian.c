@@ -546,6 +546,38 @@ static DrStatus couple_solve(void *ctx, const double *force, const double *dforc
 
 static void couple_correct(void *ctx, const double *dv) { dr_rod_set_add_velocity(((WorldHair *)ctx)->rods, dv); }
 
+/* The lift's limit (couple.h): m/(½ ξ_L (μV/D²) C_⊥) over the free vertices of elements with lift, V and the
+   vertex's length from the current state. */
+static double hair_solid_stable_dt(const void *self, double density, double viscosity)
+{
+    const WorldHair *h = self;
+    const WorldCouple *k = h->cpl;
+    bool any = false;
+    for (int b = 0; b < h->nelements; b++) any = any || (k->coupled[b] && k->laws[b].lift > 0.0);
+    if (!any) return INFINITY;
+    DrRodState rs = dr_rod_set_state(h->rods);
+    double dt = INFINITY;
+    for (int st = 0; st < rs.nstrands; st++)
+        for (int v = rs.offsets[st]; v < rs.offsets[st + 1]; v++) {
+            const DrDragLaw *law = &k->laws[k->law[v]];
+            if (!k->coupled[k->law[v]] || !(law->lift > 0.0)) continue;
+            double len = 0.0;
+            for (int e = v - 1; e <= v; e++) {
+                if (e < rs.offsets[st] || e + 1 >= rs.offsets[st + 1]) continue;
+                DrVec3 a = dr_v3(rs.x[3 * e], rs.x[3 * e + 1], rs.x[3 * e + 2]);
+                DrVec3 c = dr_v3(rs.x[3 * e + 3], rs.x[3 * e + 4], rs.x[3 * e + 5]);
+                len += 0.5 * dr_v3_norm(dr_v3_sub(c, a));
+            }
+            double r = rs.vertex_radius[v];
+            DrDragSite site = {dr_v3(1, 0, 0), 2.0 * r, M_PI * r * r * len, k->slender[v], 0.0};
+            double cp = viscosity * site.volume / (site.diameter * site.diameter) *
+                        dr_drag_coefficient(law, 0, density, viscosity, &site, 0.0);
+            double l = 0.5 * law->lift * cp;
+            if (l > 0.0 && rs.mass[v] / l < dt) dt = rs.mass[v] / l;
+        }
+    return dt;
+}
+
 static bool hair_couples(const void *self) { return ((const WorldHair *)self)->cpl != NULL; }
 
 static DrStatus hair_solid_predict(void *self, const WorldCtx *c, double t, double t_next, DrCoupleSolid *solid,
@@ -1011,7 +1043,8 @@ DrStatus world_lagrangian_adapter(const WorldCtx *c, const char *cache_root, Wor
                          .destroy = hair_destroy,
                          .couples = hair_couples,
                          .solid_predict = hair_solid_predict,
-                         .solid_commit = hair_solid_commit};
+                         .solid_commit = hair_solid_commit,
+                         .solid_stable_dt = hair_solid_stable_dt};
     return DR_OK;
 }
 

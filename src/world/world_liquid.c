@@ -253,6 +253,13 @@ static DrStatus liquid_fluid_begin(void *self, const WorldCtx *c, double t, doub
     return DR_OK;
 }
 
+static void liquid_fluid_properties(const void *self, double *density, double *viscosity)
+{
+    const WorldLiquid *wl = self;
+    *density = wl->density;
+    *viscosity = wl->viscosity;
+}
+
 static DrStatus liquid_fluid_end(void *self, const WorldCtx *c, DrError *err)
 {
     (void)c;
@@ -472,7 +479,8 @@ DrStatus world_liquid_adapter(const WorldCtx *c, const DrElement *e, WorldSolver
                          .hash = liquid_hash,
                          .destroy = liquid_destroy,
                          .fluid_begin = liquid_fluid_begin,
-                         .fluid_end = liquid_fluid_end};
+                         .fluid_end = liquid_fluid_end,
+                         .fluid_properties = liquid_fluid_properties};
     return DR_OK;
 }
 
