@@ -185,6 +185,15 @@ static void append_progress(const char *path, const DrFrameStats *fs, const Fram
                 fs->hair.film_volume, fs->hair.pool_volume, fs->hair.film_max_ratio, fs->hair.film_kinetic_energy,
                 fs->hair.film_gravity_energy, fs->hair.film_substeps, fs->hair.bridges, fs->hair.solid_bridges,
                 fs->hair.cross_flow);
+    if (fs->coupling.steps > 0) /* the coupled loop (src/couple): iterations and the momentum ledger, N s */
+        fprintf(f,
+                "\"coupling_steps\":%d,\"coupling_iterations\":%ld,\"coupling_iterations_max\":%d,"
+                "\"coupling_not_converged\":%d,\"coupling_change_max\":%.6g,\"coupling_impulse_hair\":{\"x\":%.9g,"
+                "\"y\":%.9g,\"z\":%.9g},\"coupling_impulse_fluid\":{\"x\":%.9g,\"y\":%.9g,\"z\":%.9g},",
+                fs->coupling.steps, fs->coupling.iterations, fs->coupling.iterations_max, fs->coupling.not_converged,
+                fs->coupling.change_max, fs->coupling.solid_impulse.x, fs->coupling.solid_impulse.y,
+                fs->coupling.solid_impulse.z, fs->coupling.fluid_impulse.x, fs->coupling.fluid_impulse.y,
+                fs->coupling.fluid_impulse.z);
     fprintf(f,
             "\"seconds\":{\"p2g\":%.6f,\"pressure\":%.6f,\"g2p\":%.6f,\"advect\":%.6f,\"other\":%.6f,",
             fs->liquid.seconds_p2g, fs->liquid.seconds_pressure, fs->liquid.seconds_g2p, fs->liquid.seconds_advect, fs->liquid.seconds_other);
@@ -552,7 +561,7 @@ int main(int argc, char **argv)
         tot.bem_seconds_pgs += fs.bem.seconds_pgs;
         tot.bem_seconds_final += fs.bem.seconds_final;
         tot.bem_max_displacement = fmax(tot.bem_max_displacement, fs.bem.max_displacement);
-        char detail[400], mpm[96] = "", hair[96] = "", bem[96] = "";
+        char detail[460], mpm[96] = "", hair[96] = "", bem[96] = "";
         if (fs.mpm.present)
             snprintf(mpm, sizeof mpm, " mpm %ld newton %ld cg %ld", fs.mpm.particles, fs.mpm.newton_iterations,
                      fs.mpm.cg_iterations);
@@ -562,9 +571,12 @@ int main(int argc, char **argv)
         if (fs.bem.present)
             snprintf(bem, sizeof bem, " bem %d steps %ld max|u| %.3g m", fs.bem.bodies, fs.bem.steps,
                      fs.bem.max_displacement);
-        snprintf(detail, sizeof detail, "frame %d substeps %d iters %d particles %ld cells %+.1f%%%s%s%s %.2fs",
+        char cpl[64] = "";
+        if (fs.coupling.steps > 0)
+            snprintf(cpl, sizeof cpl, " couple %.1f it/step", (double)fs.coupling.iterations / fs.coupling.steps);
+        snprintf(detail, sizeof detail, "frame %d substeps %d iters %d particles %ld cells %+.1f%%%s%s%s%s %.2fs",
                  fs.frame, fs.substeps, fs.liquid.pressure_iterations_max, fs.liquid.particles, 100.0 * fs.liquid.drift, mpm, hair,
-                 bem, fs.seconds + io);
+                 cpl, bem, fs.seconds + io);
         dr_progress_step(&prog, detail);
         if (stop_signal && dr_world_frame(world) < last) break;
     }

@@ -21,7 +21,7 @@ void dr_drag_law_default(DrDragLaw *law)
 void dr_couple_desc_default(DrCoupleDesc *d)
 {
     d->iterations = 3;
-    d->tolerance = 1e-3;
+    d->tolerance = 1e-2;
     d->position_derivative = true;
     d->explicit_reaction = false;
 }

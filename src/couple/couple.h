@@ -147,7 +147,7 @@ typedef struct DrCoupleFluid {
 
 typedef struct DrCoupleDesc {
     int iterations;            /* ≥ 1, default 3 (solver.coupling_iterations) */
-    double tolerance;          /* > 0, default 1e-3: relative change of v, ũ and p that ends the loop */
+    double tolerance;          /* > 0, default 1e-2: relative change of v, ũ and p that ends the loop */
     bool position_derivative;  /* default true */
     bool explicit_reaction;    /* default false. true: every element's reaction is explicit in the last projection
                                   (the plain staggered exchange, for comparison: unstable where h K exceeds the fluid's

@@ -48,7 +48,7 @@ static const DrFieldSpec solver_fields[] = {
      .doc = "most iterations of the coupled solid-fluid loop per step (hair with a Drag component in a liquid): 1 is "
             "the staggered step (solid with drag from the fluid, reaction, pressure); more converge to the monolithic "
             "solution"},
-    {.name = "coupling_tolerance", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {1e-3}, RANGE_LO_OPEN(0, 1),
+    {.name = "coupling_tolerance", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {1e-2}, RANGE_LO_OPEN(0, 1),
      .doc = "relative change of the solids' velocities and of the fluid's velocity and pressure at them below which "
             "the coupled loop stops before coupling_iterations"},
     {.name = "checkpoint_every", .kind = DR_FIELD_INT, .unit = "", .def = {1}, RANGE(1, 100000),

@@ -1234,7 +1234,7 @@ static void test_canonical_json(void **state)
                            "\"LiquidMaterial\":{},\"Domain\":{\"box\":[[0,0,-0.0],[1,1,1.0]]}}}],"
                            "\"render\":{\"camera\":{\"fov_deg\":30}}}");
     char *c = dr_scene_canonical(s, "solver");
-    assert_string_equal(c, "{\"cfl\":1,\"checkpoint_every\":1,\"coupling_iterations\":3,\"coupling_tolerance\":0.001,"
+    assert_string_equal(c, "{\"cfl\":1,\"checkpoint_every\":1,\"coupling_iterations\":3,\"coupling_tolerance\":0.01,"
                            "\"max_substeps\":64,\"on_instability\":\"warn\","
                            "\"pressure_max_iterations\":2000,\"pressure_preconditioner\":\"multigrid\","
                            "\"pressure_tolerance\":9.9999999999999995e-07}");
