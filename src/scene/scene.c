@@ -898,6 +898,25 @@ static DrStatus check_air(Parser *p)
     return DR_OK;
 }
 
+/* A hair element's Drag couples it with the scene's fluid (its liquid or its air element); without one there is
+   nothing to drag against, and the component would be silently ignored. */
+static DrStatus check_drag_fluid(Parser *p)
+{
+    const DrScene *s = p->s;
+    for (int i = 0; i < s->element_count; i++)
+        if (s->elements[i].kind == DR_ELEMENT_LIQUID || s->elements[i].kind == DR_ELEMENT_AIR) return DR_OK;
+    for (int i = 0; i < s->element_count; i++) {
+        const DrElement *e = &s->elements[i];
+        if (e->kind != DR_ELEMENT_HAIR || !dr_element_component(e, "Drag")->present) continue;
+        push_index(p, e->index);
+        push_key(p, "components");
+        push_key(p, "Drag");
+        return fail(p, "%s.Drag couples hair element '%s' with the scene's fluid, but the scene has neither a liquid "
+                       "nor an air element; add a liquid or an air element, or remove Drag", e->name, e->name);
+    }
+    return DR_OK;
+}
+
 /* Every mpm_solid of a scene lives on one grid advanced by one step, so what defines the grid and the step
    must agree between them: the cell size and wall condition (Domain) and every Transfer and Integrator
    field. The grid box itself is the union of the Domain boxes (world.c). Every hair element is one object
@@ -913,6 +932,7 @@ static DrStatus check_cross_element(Parser *p)
     DR_TRY(check_bem_joints(p));
     DR_TRY(check_wet_hair(p));
     DR_TRY(check_air(p));
+    DR_TRY(check_drag_fluid(p));
     return check_shared(p, "hair", hair, 1, "every hair element of a scene is solved in one system");
 }
 

@@ -20,6 +20,14 @@ run_bad "a wind blowing out of its inflow face names element.component.field and
 run_bad "air beside a liquid names both and says it is not supported yet" \
   "air element 'gust' and liquid element 'water' in one scene: air together with a liquid is not supported yet" \
   "$bad/air_with_liquid.json"
+run_bad "a Drag field out of range names element.component.field and range" \
+  "fur\.Drag\.tangent_scale = -1 is out of range \[0, 1000000\]" "$bad/drag_tangent_scale.json"
+run_bad "Drag on hair in a scene without liquid or air names the element and the fix" \
+  "fur\.Drag couples hair element 'fur' with the scene's fluid, but the scene has neither a liquid nor an air element; add a liquid or an air element, or remove Drag" \
+  "$bad/drag_no_fluid.json"
+run_bad "zero coupling iterations names solver.coupling_iterations and its range" \
+  "coupling_iterations_zero\.json:3:[0-9]+: error: solver\.coupling_iterations = 0 is out of range \[1, 100\]" \
+  "$bad/coupling_iterations_zero.json"
 expect_exit "missing scene file" 2 "nope\.json" "$BIN/bake" "$WORK/nope.json"
 # Assets whose content is bad are found when the bake loads them, still before anything is written.
 mkdir -p "$WORK/scenes"

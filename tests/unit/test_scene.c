@@ -783,6 +783,11 @@ static void test_hair_bad_input(void **state)
           "block, cluster, jacobi, none"}},
         {"\"Groom\":{\"scalp\":\"meshes/tri.obj\"},\"HairSolver\":{\"substeps\":0}", NULL,
          {"fur.HairSolver.substeps = 0 is out of range [1, 100000]"}},
+        {"\"Groom\":{\"scalp\":\"meshes/tri.obj\"},\"Drag\":{}", NULL,
+         {"fur.Drag couples hair element 'fur' with the scene's fluid, but the scene has neither a liquid nor an air "
+          "element; add a liquid or an air element, or remove Drag"}},
+        {"\"Groom\":{\"scalp\":\"meshes/tri.obj\"},\"Drag\":{\"tangent_scale\":-1}", NULL,
+         {"fur.Drag.tangent_scale = -1 is out of range [0, 1000000]"}},
         {"\"Groom\":{\"scalp\":\"meshes/tri.obj\"},\"Domain\":{}", NULL,
          {"unknown component 'Domain' ('Domain' is a component of liquid elements)"}},
         {NULL,
