@@ -62,16 +62,21 @@ static DrStatus air_next_time(void *self, const WorldCtx *c, double t, double *t
     return DR_OK;
 }
 
-/* The substep the clock chose: the one proposed when it ends where the proposal ended, else shorter. */
-static DrStatus air_step(void *self, const WorldCtx *c, double t, double t_next, DrError *err)
+/* The substep the clock chose (the one proposed when it ends where the proposal ended, else shorter) begun. */
+static DrStatus begin_substep(WorldAir *wa, const WorldCtx *c, double t, double t_next, DrError *err)
 {
-    WorldAir *wa = self;
     assert(t == wa->from);
     double proposed_end = wa->h == c->t1 - t ? c->t1 : t + wa->h;
     double h = t_next == proposed_end ? wa->h : t_next - t;
     const DrCollider *const *cols = NULL;
     int n = world_kinematics_colliders(c->kin, &cols);
-    DR_TRY(dr_air_begin(wa->air, cols, n, t, h, err));
+    return dr_air_begin(wa->air, cols, n, t, h, err);
+}
+
+static DrStatus air_step(void *self, const WorldCtx *c, double t, double t_next, DrError *err)
+{
+    WorldAir *wa = self;
+    DR_TRY(begin_substep(wa, c, t, t_next, err));
     DR_TRY(dr_air_project(wa->air, NULL, &wa->frame, err));
     return dr_air_end(wa->air, &wa->frame, err);
 }
@@ -91,29 +96,25 @@ static const unsigned char *fluid_faces(void *ctx, int a) { return dr_air_couple
 
 static const double *fluid_mass(void *ctx, int a) { return dr_air_face_mass(((WorldAir *)ctx)->air, a); }
 
-static DrStatus air_fluid_begin(void *self, const WorldCtx *c, double t, double t_next, DrCoupleFluid *fluid,
-                                DrError *err)
-{
-    WorldAir *wa = self;
-    assert(t == wa->from);
-    double proposed_end = wa->h == c->t1 - t ? c->t1 : t + wa->h;
-    double h = t_next == proposed_end ? wa->h : t_next - t;
-    const DrCollider *const *cols = NULL;
-    int n = world_kinematics_colliders(c->kin, &cols);
-    DR_TRY(dr_air_begin(wa->air, cols, n, t, h, err));
-    const DrComponent *mat = dr_element_component(wa->element, "AirMaterial");
-    *fluid = (DrCoupleFluid){wa, dr_component_num(mat, "density"), dr_component_num(mat, "viscosity"),
-                             dr_air_grid(wa->air), fluid_project, fluid_pressure, fluid_faces,
-                             fluid_mass};
-    return DR_OK;
-}
-
 static void air_fluid_properties(const void *self, double *density, double *viscosity)
 {
     const DrComponent *mat = dr_element_component(((const WorldAir *)self)->element, "AirMaterial");
     *density = dr_component_num(mat, "density");
     *viscosity = dr_component_num(mat, "viscosity");
 }
+
+static DrStatus air_fluid_begin(void *self, const WorldCtx *c, double t, double t_next, DrCoupleFluid *fluid,
+                                DrError *err)
+{
+    WorldAir *wa = self;
+    DR_TRY(begin_substep(wa, c, t, t_next, err));
+    double density, viscosity;
+    air_fluid_properties(wa, &density, &viscosity);
+    *fluid = (DrCoupleFluid){wa, density, viscosity, dr_air_grid(wa->air), fluid_project, fluid_pressure, fluid_faces,
+                             fluid_mass};
+    return DR_OK;
+}
+
 
 static DrStatus air_fluid_end(void *self, const WorldCtx *c, DrError *err)
 {

@@ -206,16 +206,21 @@ static DrStatus liquid_next_time(void *self, const WorldCtx *c, double t, double
     return DR_OK;
 }
 
-/* The substep the clock chose: the one proposed when it ends where the proposal ended, else shorter. */
-static DrStatus liquid_step(void *self, const WorldCtx *c, double t, double t_next, DrError *err)
+/* The substep the clock chose (the one proposed when it ends where the proposal ended, else shorter) begun. */
+static DrStatus begin_substep(WorldLiquid *wl, const WorldCtx *c, double t, double t_next, DrError *err)
 {
-    WorldLiquid *wl = self;
     assert(t == wl->from);
     double proposed_end = wl->h == c->t1 - t ? c->t1 : t + wl->h;
     double h = t_next == proposed_end ? wl->h : t_next - t;
     const DrCollider *const *cols = NULL;
     int n = world_kinematics_liquid_colliders(c->kin, &cols);
-    DR_TRY(dr_liquid_begin(wl->liquid, cols, n, t, h, err));
+    return dr_liquid_begin(wl->liquid, cols, n, t, h, err);
+}
+
+static DrStatus liquid_step(void *self, const WorldCtx *c, double t, double t_next, DrError *err)
+{
+    WorldLiquid *wl = self;
+    DR_TRY(begin_substep(wl, c, t, t_next, err));
     DR_TRY(dr_liquid_project(wl->liquid, NULL, &wl->frame, err));
     return dr_liquid_end(wl->liquid, &wl->frame, err);
 }
@@ -242,12 +247,7 @@ static DrStatus liquid_fluid_begin(void *self, const WorldCtx *c, double t, doub
                                    DrError *err)
 {
     WorldLiquid *wl = self;
-    assert(t == wl->from);
-    double proposed_end = wl->h == c->t1 - t ? c->t1 : t + wl->h;
-    double h = t_next == proposed_end ? wl->h : t_next - t;
-    const DrCollider *const *cols = NULL;
-    int n = world_kinematics_liquid_colliders(c->kin, &cols);
-    DR_TRY(dr_liquid_begin(wl->liquid, cols, n, t, h, err));
+    DR_TRY(begin_substep(wl, c, t, t_next, err));
     *fluid = (DrCoupleFluid){wl, wl->density, wl->viscosity, dr_liquid_grid(wl->liquid), fluid_project, fluid_pressure,
                              fluid_faces, fluid_mass};
     return DR_OK;

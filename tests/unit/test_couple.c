@@ -320,23 +320,35 @@ static DrCoupleSamples points_samples(void *ctx)
     Points *p = ctx;
     return (DrCoupleSamples){p->n, p->x, p->v, p->mass, p->volume, p->diameter, p->slender, p->tangent, NULL, NULL};
 }
-static DrStatus points_solve(void *ctx, const double *force, const double *dfdv, DrError *err)
+/* x = A⁻¹ b for a 3×3 A (row-major), by Cramer's rule. */
+static void solve3(const double A[9], const double b[3], double x[3])
 {
-    (void)err;
-    Points *p = ctx;
-    /* the point starts from rest each solve (its step's v = 0): (M − h D) v₊ = h f, 3×3 by Cramer's rule */
-    double h = 1e-3, A[9], b[3];
-    for (int r = 0; r < 3; r++) {
-        b[r] = h * force[r];
-        for (int q = 0; q < 3; q++) A[3 * r + q] = (r == q ? p->mass[0] : 0.0) - h * dfdv[3 * r + q];
-    }
     double det = A[0] * (A[4] * A[8] - A[5] * A[7]) - A[1] * (A[3] * A[8] - A[5] * A[6]) + A[2] * (A[3] * A[7] - A[4] * A[6]);
     for (int c = 0; c < 3; c++) {
         double M[9];
         memcpy(M, A, sizeof M);
         for (int r = 0; r < 3; r++) M[3 * r + c] = b[r];
-        p->v[c] = (M[0] * (M[4] * M[8] - M[5] * M[7]) - M[1] * (M[3] * M[8] - M[5] * M[6]) + M[2] * (M[3] * M[7] - M[4] * M[6])) / det;
+        x[c] = (M[0] * (M[4] * M[8] - M[5] * M[7]) - M[1] * (M[3] * M[8] - M[5] * M[6]) + M[2] * (M[3] * M[7] - M[4] * M[6])) /
+               det;
     }
+}
+
+/* A point of mass M from rest over h: (M I − h D) v₊ = h f. */
+static void point_step(double M, double h, const double *force, const double *dfdv, double *v)
+{
+    double A[9], b[3];
+    for (int r = 0; r < 3; r++) {
+        b[r] = h * force[r];
+        for (int q = 0; q < 3; q++) A[3 * r + q] = (r == q ? M : 0.0) - h * dfdv[3 * r + q];
+    }
+    solve3(A, b, v);
+}
+
+static DrStatus points_solve(void *ctx, const double *force, const double *dfdv, DrError *err)
+{
+    (void)err;
+    Points *p = ctx;
+    point_step(p->mass[0], 1e-3, force, dfdv, p->v);
     return DR_OK;
 }
 
@@ -799,21 +811,7 @@ static DrStatus mono_solve(void *ctx, const double *force, const double *dfdv, D
 {
     (void)err;
     MonoSolid *p = ctx;
-    for (int i = 0; i < *p->n; i++) {
-        double A[9], b[3];
-        for (int r = 0; r < 3; r++) {
-            b[r] = p->h * force[3 * i + r];
-            for (int q = 0; q < 3; q++) A[3 * r + q] = (r == q ? p->mass[i] : 0.0) - p->h * dfdv[9 * i + 3 * r + q];
-        }
-        double det = A[0] * (A[4] * A[8] - A[5] * A[7]) - A[1] * (A[3] * A[8] - A[5] * A[6]) + A[2] * (A[3] * A[7] - A[4] * A[6]);
-        for (int c = 0; c < 3; c++) {
-            double M[9];
-            memcpy(M, A, sizeof M);
-            for (int r = 0; r < 3; r++) M[3 * r + c] = b[r];
-            p->v[3 * i + c] = (M[0] * (M[4] * M[8] - M[5] * M[7]) - M[1] * (M[3] * M[8] - M[5] * M[6]) +
-                               M[2] * (M[3] * M[7] - M[4] * M[6])) / det;
-        }
-    }
+    for (int i = 0; i < *p->n; i++) point_step(p->mass[i], p->h, force + 3 * i, dfdv + 9 * i, p->v + 3 * i);
     return DR_OK;
 }
 
@@ -846,24 +844,15 @@ static void mono_weights(const DrMacGrid *g, int a, const double *x, long f[8], 
 static void mono_pass(Mono *m, const double *ut, double *v, double *uout)
 {
     const DrMacGrid *g = dr_air_grid(m->air);
-    double A[9];
     for (int i = 0; i < m->n; i++) {
         /* (M I + h K) v = h K ũ (from rest) */
-        double b[3] = {0, 0, 0};
-        for (int r = 0; r < 3; r++) {
+        double f[3] = {0, 0, 0}, D[9];
+        for (int r = 0; r < 3; r++)
             for (int q = 0; q < 3; q++) {
-                A[3 * r + q] = (r == q ? m->M : 0.0) + m->h * m->K[3 * r + q];
-                b[r] += m->h * m->K[3 * r + q] * ut[3 * i + q];
+                f[r] += m->K[3 * r + q] * ut[3 * i + q];
+                D[3 * r + q] = -m->K[3 * r + q];
             }
-        }
-        double det = A[0] * (A[4] * A[8] - A[5] * A[7]) - A[1] * (A[3] * A[8] - A[5] * A[6]) + A[2] * (A[3] * A[7] - A[4] * A[6]);
-        for (int c = 0; c < 3; c++) {
-            double Mx[9];
-            memcpy(Mx, A, sizeof Mx);
-            for (int r = 0; r < 3; r++) Mx[3 * r + c] = b[r];
-            v[3 * i + c] = (Mx[0] * (Mx[4] * Mx[8] - Mx[5] * Mx[7]) - Mx[1] * (Mx[3] * Mx[8] - Mx[5] * Mx[6]) +
-                            Mx[2] * (Mx[3] * Mx[7] - Mx[4] * Mx[6])) / det;
-        }
+        point_step(m->M, m->h, f, D, v + 3 * i);
     }
     dr_face_coupling_clear(m->fc);
     double cell = g->dx * g->dx * g->dx;
