@@ -80,6 +80,27 @@ DR_NODISCARD DrStatus dr_face_coupling_create(const DrMacGrid *g, DrFaceCoupling
 void dr_face_coupling_destroy(DrFaceCoupling **fc);
 /* No solid: open 1, velocity 0, impulse 0, drag 0 on every face. */
 void dr_face_coupling_clear(DrFaceCoupling *fc);
+/* One face of two disjoint solids' couplings together (the colliders' own and another participant's): the solid shares
+   add, open = 1 − (1 − w_own) − (1 − w_extra) (at least 0), and the solid velocity is their share-weighted mean. A face
+   the extra coupling leaves open (w_extra ≥ 1, or not a number) keeps the own values exactly. */
+static inline void dr_face_mix(double w_own, double v_own, double w_extra, double v_extra, double *w_out, double *v_out)
+{
+    if (w_extra >= 1.0 || !(w_extra >= 0.0)) {
+        *w_out = w_own;
+        *v_out = v_own;
+        return;
+    }
+    double so = 1.0 - w_own, se = 1.0 - w_extra, sum = so + se;
+    *w_out = sum < 1.0 ? 1.0 - sum : 0.0;
+    *v_out = (so * v_own + se * v_extra) / sum;
+}
+/* The z-slices per chunk of a parallel loop over the faces of component a: at least min_items faces a chunk. */
+static inline long dr_mac_slice_grain(const DrMacGrid *g, int a, long min_items)
+{
+    long per = (long)g->fdim[a][0] * g->fdim[a][1];
+    long grain = (min_items + per - 1) / per;
+    return grain < 1 ? 1 : grain;
+}
 
 /* ---- kernels --------------------------------------------------------------------------------------- */
 

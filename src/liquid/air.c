@@ -82,12 +82,7 @@ void dr_air_desc_default(DrAirDesc *d)
     d->pressure_max_iter = 1000;
 }
 
-static long slice_grain(const DrMacGrid *g, int a)
-{
-    long per = (long)g->fdim[a][0] * g->fdim[a][1];
-    long grain = (PAR_MIN_ITEMS + per - 1) / per;
-    return grain < 1 ? 1 : grain;
-}
+static long slice_grain(const DrMacGrid *g, int a) { return dr_mac_slice_grain(g, a, PAR_MIN_ITEMS); }
 
 static inline long face_stride(const DrMacGrid *g, int a)
 {
@@ -526,14 +521,12 @@ static void mix_slices(long begin, long end, void *vctx)
                     (beta && !(beta[f] >= 0.0 && isfinite(beta[f]))))
                     bad = true;
                 if (beta && beta[f] > 0.0 && A->fm[a][f] > 0.0) A->coef[a][f] = A->fm[a][f] / (A->fm[a][f] + beta[f]);
-                if (we[f] >= 1.0 || !(we[f] >= 0.0) || A->kind[a][f] == FACE_WALL) {
+                if (A->kind[a][f] == FACE_WALL) { /* domain walls stay closed and at rest */
                     wm[f] = wo[f];
                     vm[f] = vo[f];
                     continue;
                 }
-                double so = 1.0 - wo[f], se = 1.0 - we[f], sum = so + se;
-                wm[f] = sum < 1.0 ? 1.0 - sum : 0.0;
-                vm[f] = (so * vo[f] + se * ve[f]) / sum;
+                dr_face_mix(wo[f], vo[f], we[f], ve[f], &wm[f], &vm[f]);
             }
         A->part[PARTS * k + P_BAD] = bad;
     }

@@ -112,12 +112,7 @@ struct DrLiquid {
 enum { PHASE_IDLE, PHASE_READY, PHASE_BEGUN, PHASE_PROJECTED };
 
 /* Grain (z-slices per chunk) of a loop over the faces of component a: at least PAR_MIN_ITEMS faces. */
-static long slice_grain(const DrMacGrid *g, int a)
-{
-    long per = (long)g->fdim[a][0] * g->fdim[a][1];
-    long grain = (PAR_MIN_ITEMS + per - 1) / per;
-    return grain < 1 ? 1 : grain;
-}
+static long slice_grain(const DrMacGrid *g, int a) { return dr_mac_slice_grain(g, a, PAR_MIN_ITEMS); }
 
 /* Face index of the low face of cell (i,j,k) along axis a (the high face is +1 along a). */
 static inline long low_face(const DrMacGrid *g, int a, int i, int j, int k) { return dr_mac_face_index(g, a, i, j, k); }
@@ -877,14 +872,12 @@ static void mix_slices(long begin, long end, void *vctx)
                 long f = dr_mac_face_index(g, a, i, j, (int)k);
                 int ijk[3] = {i, j, (int)k};
                 if (!(we[f] >= 0.0 && we[f] <= 1.0) || !isfinite(ve[f]) || (J && !isfinite(J[f]))) bad = true;
-                if (we[f] >= 1.0 || !(we[f] >= 0.0) || ijk[a] == 0 || ijk[a] == dim[a] - 1) {
+                if (ijk[a] == 0 || ijk[a] == dim[a] - 1) { /* domain walls stay closed and at rest */
                     wm[f] = wo[f];
                     vm[f] = vo[f];
                     continue;
                 }
-                double so = 1.0 - wo[f], se = 1.0 - we[f], sum = so + se;
-                wm[f] = sum < 1.0 ? 1.0 - sum : 0.0;
-                vm[f] = (so * vo[f] + se * ve[f]) / sum;
+                dr_face_mix(wo[f], vo[f], we[f], ve[f], &wm[f], &vm[f]);
             }
         L->impulse_partial[IMPULSE_PARTS * k + 5] = bad;
     }
