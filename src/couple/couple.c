@@ -559,49 +559,41 @@ static DrStatus final_exchange(DrCouple *c, const DrCoupleFluid *fluid, const Dr
             for (int q = 0; q < 8; q++) mf += e->wn[a][q] * fm[a][e->st[a].f[q]] / 3.0;
         e->implicit = e->mass >= mf;
     }
-    /* the faces: spread reactions (explicit), drag masses and their targets (implicit), off-diagonal parts */
-    double expl[3] = {0, 0, 0};
+    /* the faces: every element's reaction spread (the impulse its solve received, negated); the implicit ones add
+       their drag mass with β_f (u_f − V_f), u_f the last projection's: the fluid then solves
+       (m + β) u = m u* − Σ w g + β u^prev, whose fixed point is the loop's */
+    double expl[3] = {0, 0, 0}, pull[3] = {0, 0, 0};
     for (int i = 0; i < n; i++) {
         const Element *e = &c->el[i];
         if (!e->active) continue;
-        const double *K = c->kf + 9 * i, *v = c->v + 3 * i, *u = c->u + 3 * i;
-        for (int a = 0; a < 3; a++) {
-            double off = 0.0;
-            if (e->implicit)
-                for (int b = 0; b < 3; b++)
-                    if (b != a) off += h * K[3 * a + b] * (v[b] - u[b]);
+        for (int a = 0; a < 3; a++)
             for (int q = 0; q < 8; q++) {
                 double w = e->wn[a][q];
                 if (w == 0.0) continue;
                 long f = e->st[a].f[q];
-                if (!e->implicit) {
-                    c->fc.impulse[a][f] -= w * c->g[3 * i + a];
-                } else {
-                    c->fc.impulse[a][f] += w * off;
-                    c->fc.drag[a][f] += w * h * K[4 * a];
-                    c->num[a][f] += w * h * K[4 * a] * v[a];
-                }
+                c->fc.impulse[a][f] -= w * c->g[3 * i + a];
+                if (e->implicit) c->fc.drag[a][f] += w * h * c->kd[3 * i + a];
             }
-        }
     }
     for (int a = 0; a < 3; a++)
         for (long f = 0; f < g->nfaces[a]; f++) {
             expl[a] += c->fc.impulse[a][f];
             double b = c->fc.drag[a][f];
             if (b > 0.0) {
-                c->num[a][f] /= b; /* the implicit elements' velocity the drag pulls towards */
-                c->fc.impulse[a][f] += b * (c->num[a][f] - c->fc.velocity[a][f]);
+                c->fc.impulse[a][f] += b * (g->f[a][f] - c->fc.velocity[a][f]);
+                pull[a] += b * g->f[a][f];
             }
         }
     DR_TRY(fluid->project(fluid->ctx, &c->fc, err));
-    double drag[3] = {0, 0, 0};
+    /* the fluid gained the spread reactions and Σ β (u^prev − u) */
     for (int a = 0; a < 3; a++)
         for (long f = 0; f < g->nfaces[a]; f++) {
             double b = c->fc.drag[a][f];
-            if (b > 0.0) drag[a] += b * (c->num[a][f] - g->f[a][f]);
+            if (b > 0.0) pull[a] -= b * g->f[a][f];
         }
-    *gave = dr_v3(expl[0] + drag[0], expl[1] + drag[1], expl[2] + drag[2]);
-    /* what the implicit elements received: the diagonal with the final fluid velocity, the rest as spread */
+    *gave = dr_v3(expl[0] + pull[0], expl[1] + pull[1], expl[2] + pull[2]);
+    /* what the implicit elements received besides their solve's impulse: h K_aa (ũ − ũ^prev), the fluid's change at
+       them in this projection; a free element's velocity takes it */
     memcpy(c->uprev, c->u, (size_t)n * 3 * sizeof(double));
     sample_velocity(c, fluid, n, false);
     c->residual = rel_change(c->u, c->uprev, 3L * n, 1e-12);
@@ -610,16 +602,13 @@ static DrStatus final_exchange(DrCouple *c, const DrCoupleFluid *fluid, const Dr
     for (int i = 0; i < n; i++) {
         const Element *e = &c->el[i];
         if (!e->implicit) continue;
-        const double *K = c->kf + 9 * i, *v = c->v + 3 * i, *un = c->u + 3 * i, *up = c->uprev + 3 * i;
         for (int a = 0; a < 3; a++) {
-            double gn = h * K[4 * a] * (un[a] - v[a]);
-            for (int b = 0; b < 3; b++)
-                if (b != a) gn += h * K[3 * a + b] * (up[b] - v[b]);
+            double dg = h * c->kd[3 * i + a] * (c->u[3 * i + a] - c->uprev[3 * i + a]);
             if (!e->held) {
-                c->dv[3 * i + a] = (gn - c->g[3 * i + a]) / e->mass;
+                c->dv[3 * i + a] = dg / e->mass;
                 any = true;
             }
-            c->g[3 * i + a] = gn;
+            c->g[3 * i + a] += dg;
         }
     }
     double t[3] = {0, 0, 0};

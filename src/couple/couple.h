@@ -49,11 +49,11 @@
  *      - an element lighter than the fluid around it (its mass below Σ w_if m_f): the fluid takes the impulse
  *        g_i = h (f_i + D_i v_i) the element received in its solve, negated and spread over the coupled faces with the
  *        weights it was sampled with (an explicit reaction, bounded by the element's own momentum change);
- *      - an element at least as heavy, or held (a root: its reaction goes to what holds it): the fluid keeps the
- *        implicit drag mass of K's diagonal towards the element's velocity (the off-diagonal part explicit, with the
- *        last iterate), and the element then receives exactly what the fluid gave, hK_aa (ũ_a − v_a) with the final
- *        ũ, the difference from its solve added to its velocity (DrCoupleSolid.correct; bounded by the fluid's
- *        momentum change over the element's larger mass).
+ *      - an element at least as heavy, or held (a root: its reaction goes to what holds it): the fluid takes the same
+ *        reaction but also keeps the element's implicit drag mass β = h K_aa pulling it towards the last iterate
+ *        (as in the iterations before), and the element receives in addition exactly what that pull gave,
+ *        h K_aa (ũ_a − ũ_a^prev), added to its velocity (DrCoupleSolid.correct; bounded by the fluid's change over the
+ *        element's larger mass). It vanishes at convergence: both forms have the loop's fixed point.
  *      One iteration is the staggered step (solid with drag from the fluid, reaction, pressure); at convergence the
  *      corrections vanish and both sides hold the monolithic solution.
  * The caller then commits every solid (their last solve) and ends the fluid's substep (its last projection).
