@@ -125,6 +125,9 @@ DrMat3 dr_m3_rotation_exp(DrVec3 w);
    result means nothing for other matrices). At a half turn w and −w are the same rotation; either is returned.
    dr_m3_rotation_exp(dr_m3_rotation_log(R)) gives R back to ~1e-15 at every angle, near 0 and near π included. */
 DrVec3 dr_m3_rotation_log(DrMat3 R);
+/* The eigen-decomposition of a symmetric 3×3 A (row-major; only its symmetric part is meaningful) by cyclic Jacobi
+   rotations: A = V diag(e) Vᵀ, the eigenvectors in V's columns, unsorted. */
+void dr_m3a_sym_eigen(const double A[9], double e[3], double V[9]);
 
 /* 3×3 matrices in flat arrays. The solvers keep matrices in per-particle and per-body arrays of 9 doubles, row-major
    (a[3·row + col], the layout of DrMat3), and work on them in place. dr_m3a_mul, dr_m3a_transpose and dr_m3a_apply

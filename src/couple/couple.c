@@ -183,22 +183,34 @@ static DrStatus reserve(DrCouple *c, int n, const DrMacGrid *g, DrError *err)
     return DR_OK;
 }
 
-static Stencil face_stencil(const DrMacGrid *g, int a, DrVec3 x)
+/* The cell of face component a's lattice holding x (its lowest corner b, the fractions fr within it), clamped into the
+   lattice; per axis, whether x lies outside it (then fr is 0 or 1). False when the lattice has a single node along an
+   axis (b 0 and fr 0 there: every weight on it; no gradient). */
+static bool lattice_cell(const DrMacGrid *g, int a, DrVec3 x, int b[3], double fr[3], bool outside[3])
 {
-    Stencil st;
     double s[3] = {(x.x - g->origin.x) / g->dx - dr_mac_face_offset(a, 0),
                    (x.y - g->origin.y) / g->dx - dr_mac_face_offset(a, 1),
                    (x.z - g->origin.z) / g->dx - dr_mac_face_offset(a, 2)};
-    int b[3];
-    double fr[3];
+    bool full = true;
     for (int d = 0; d < 3; d++) {
         int hi = g->fdim[a][d] - 2;
         double fb = floor(s[d]);
-        if (fb < 0.0) { b[d] = 0; fr[d] = 0.0; }
+        outside[d] = fb < 0.0 || fb > hi;
+        if (hi < 0) { b[d] = 0; fr[d] = 0.0; full = false; } /* one node along d: all weight on it */
+        else if (fb < 0.0) { b[d] = 0; fr[d] = 0.0; }
         else if (fb > hi) { b[d] = hi; fr[d] = 1.0; }
         else { b[d] = (int)fb; fr[d] = s[d] - fb; }
-        if (hi < 0) { b[d] = 0; fr[d] = 0.0; }
     }
+    return full;
+}
+
+static Stencil face_stencil(const DrMacGrid *g, int a, DrVec3 x)
+{
+    Stencil st;
+    int b[3];
+    double fr[3];
+    bool out[3];
+    (void)lattice_cell(g, a, x, b, fr, out);
     int q = 0;
     for (int dk = 0; dk < 2; dk++)
         for (int dj = 0; dj < 2; dj++)
@@ -213,22 +225,14 @@ static Stencil face_stencil(const DrMacGrid *g, int a, DrVec3 x)
     return st;
 }
 
-/* The derivative of the trilinear interpolation of component a along axis d at x, per metre. */
+/* The derivative of the trilinear interpolation of component a along axis d at x, per metre (0 outside the
+   lattice along d). */
 static double face_gradient(const DrMacGrid *g, int a, int d, DrVec3 x)
 {
-    double s[3] = {(x.x - g->origin.x) / g->dx - dr_mac_face_offset(a, 0),
-                   (x.y - g->origin.y) / g->dx - dr_mac_face_offset(a, 1),
-                   (x.z - g->origin.z) / g->dx - dr_mac_face_offset(a, 2)};
     int b[3];
     double fr[3];
-    for (int e = 0; e < 3; e++) {
-        int hi = g->fdim[a][e] - 2;
-        if (hi < 0) return 0.0;
-        double fb = floor(s[e]);
-        if (fb < 0.0) { if (e == d) return 0.0; b[e] = 0; fr[e] = 0.0; }
-        else if (fb > hi) { if (e == d) return 0.0; b[e] = hi; fr[e] = 1.0; }
-        else { b[e] = (int)fb; fr[e] = s[e] - fb; }
-    }
+    bool out[3];
+    if (!lattice_cell(g, a, x, b, fr, out) || out[d]) return 0.0;
     double sum = 0.0;
     for (int dk = 0; dk < 2; dk++)
         for (int dj = 0; dj < 2; dj++)
@@ -241,43 +245,6 @@ static double face_gradient(const DrMacGrid *g, int a, int d, DrVec3 x)
     return sum / g->dx;
 }
 
-/* Eigen-decomposition of a symmetric 3×3 matrix by cyclic Jacobi rotations: A = V diag(w) Vᵀ (V's columns). */
-static void sym3_eigen(const double Ain[9], double w[3], double V[9])
-{
-    double A[9];
-    memcpy(A, Ain, sizeof A);
-    for (int i = 0; i < 9; i++) V[i] = (i % 4 == 0) ? 1.0 : 0.0;
-    for (int sweep = 0; sweep < 32; sweep++) {
-        double off = A[1] * A[1] + A[2] * A[2] + A[5] * A[5];
-        double scale = A[0] * A[0] + A[4] * A[4] + A[8] * A[8];
-        if (off <= 1e-30 * scale || off == 0.0) break;
-        for (int p = 0; p < 2; p++)
-            for (int q = p + 1; q < 3; q++) {
-                double apq = A[3 * p + q];
-                if (apq == 0.0) continue;
-                double theta = (A[3 * q + q] - A[3 * p + p]) / (2.0 * apq);
-                double t = (theta >= 0 ? 1.0 : -1.0) / (fabs(theta) + sqrt(theta * theta + 1.0));
-                double cs = 1.0 / sqrt(t * t + 1.0), sn = t * cs;
-                for (int k = 0; k < 3; k++) { /* A ← A G */
-                    double akp = A[3 * k + p], akq = A[3 * k + q];
-                    A[3 * k + p] = cs * akp - sn * akq;
-                    A[3 * k + q] = sn * akp + cs * akq;
-                }
-                for (int k = 0; k < 3; k++) { /* A ← Gᵀ A */
-                    double apk = A[3 * p + k], aqk = A[3 * q + k];
-                    A[3 * p + k] = cs * apk - sn * aqk;
-                    A[3 * q + k] = sn * apk + cs * aqk;
-                }
-                for (int k = 0; k < 3; k++) {
-                    double vkp = V[3 * k + p], vkq = V[3 * k + q];
-                    V[3 * k + p] = cs * vkp - sn * vkq;
-                    V[3 * k + q] = sn * vkp + cs * vkq;
-                }
-            }
-    }
-    w[0] = A[0]; w[1] = A[4]; w[2] = A[8];
-}
-
 /* D ← the negative semidefinite part of sym(D). */
 static void nsd_part(double D[9])
 {
@@ -285,7 +252,7 @@ static void nsd_part(double D[9])
     for (int r = 0; r < 3; r++)
         for (int q = 0; q < 3; q++) S[3 * r + q] = 0.5 * (D[3 * r + q] + D[3 * q + r]);
     double w[3], V[9];
-    sym3_eigen(S, w, V);
+    dr_m3a_sym_eigen(S, w, V);
     for (int r = 0; r < 3; r++)
         for (int q = 0; q < 3; q++) {
             double s = 0.0;

@@ -53,44 +53,6 @@ static void zero_z(int dim, double A[9])
 
 /* ---- polar decomposition -------------------------------------------------------------------- */
 
-/* Cyclic Jacobi on the symmetric A: A = V diag(e) Vᵀ. */
-static void sym_eig3(const double Ain[9], double e[3], double V[9])
-{
-    double A[9];
-    memcpy(A, Ain, sizeof A);
-    for (int k = 0; k < 9; k++) V[k] = (k % 4 == 0) ? 1.0 : 0.0;
-    for (int sweep = 0; sweep < 30; sweep++) {
-        double off = A[1] * A[1] + A[2] * A[2] + A[5] * A[5];
-        double diag = A[0] * A[0] + A[4] * A[4] + A[8] * A[8];
-        if (off <= 1e-32 * diag || off == 0.0) break;
-        static const int PQ[3][2] = {{0, 1}, {0, 2}, {1, 2}};
-        for (int r = 0; r < 3; r++) {
-            int p = PQ[r][0], q = PQ[r][1];
-            double apq = A[3 * p + q];
-            if (apq == 0.0) continue;
-            double theta = (A[3 * q + q] - A[3 * p + p]) / (2.0 * apq);
-            double t = (theta >= 0 ? 1.0 : -1.0) / (fabs(theta) + sqrt(theta * theta + 1.0));
-            double c = 1.0 / sqrt(t * t + 1.0), s = t * c;
-            /* A ← Jᵀ A J, J the rotation in the (p, q) plane */
-            for (int k = 0; k < 3; k++) {
-                double akp = A[3 * k + p], akq = A[3 * k + q];
-                A[3 * k + p] = c * akp - s * akq;
-                A[3 * k + q] = s * akp + c * akq;
-            }
-            for (int k = 0; k < 3; k++) {
-                double apk = A[3 * p + k], aqk = A[3 * q + k];
-                A[3 * p + k] = c * apk - s * aqk;
-                A[3 * q + k] = s * apk + c * aqk;
-            }
-            for (int k = 0; k < 3; k++) {
-                double vkp = V[3 * k + p], vkq = V[3 * k + q];
-                V[3 * k + p] = c * vkp - s * vkq;
-                V[3 * k + q] = s * vkp + c * vkq;
-            }
-        }
-    }
-    e[0] = A[0], e[1] = A[4], e[2] = A[8];
-}
 
 static void swap_cols(double V[9], double e[3], int a, int b)
 {
@@ -107,7 +69,7 @@ static void svd3(const double F[9], double U[9], double sig[3], double V[9])
 {
     double A[9], e[3];
     dr_m3a_mul_tn(F, F, A);
-    sym_eig3(A, e, V);
+    dr_m3a_sym_eigen(A, e, V);
     if (e[0] < e[1]) swap_cols(V, e, 0, 1);
     if (e[0] < e[2]) swap_cols(V, e, 0, 2);
     if (e[1] < e[2]) swap_cols(V, e, 1, 2);
