@@ -103,7 +103,7 @@ typedef struct Element {
 struct DrCouple {
     int cap;                 /* elements */
     Element *el;
-    double *x, *v, *vprev, *u, *uprev, *p, *pprev, *gradp, *force, *dfdv, *kd, *kf, *dv, *g, *pts, *psamp;
+    double *x, *v, *vprev, *u, *uprev, *p, *pprev, *gradp, *force, *dfdv, *kf, *dv, *g, *pts, *psamp;
     int ncap_faces[3];
     DrFaceCoupling fc;       /* the extra coupling handed to the fluid (arrays sized to the grid) */
     double *phi[3], *num[3], *den[3];
@@ -128,7 +128,7 @@ void dr_couple_destroy(DrCouple **cp)
     DrCouple *c = *cp;
     free(c->el);
     double **arr[] = {&c->x, &c->v, &c->vprev, &c->u, &c->uprev, &c->p, &c->pprev, &c->gradp, &c->force, &c->dfdv,
-                      &c->kd, &c->kf, &c->dv, &c->g, &c->pts, &c->psamp};
+                      &c->kf, &c->dv, &c->g, &c->pts, &c->psamp};
     for (size_t i = 0; i < sizeof arr / sizeof arr[0]; i++) free(*arr[i]);
     for (int a = 0; a < 3; a++) {
         free(c->fc.open[a]); free(c->fc.velocity[a]); free(c->fc.impulse[a]); free(c->fc.drag[a]);
@@ -160,7 +160,7 @@ static DrStatus reserve(DrCouple *c, int n, const DrMacGrid *g, DrError *err)
         c->el = el;
         struct { double **p; int w; } arr[] = {{&c->x, 3}, {&c->v, 3}, {&c->vprev, 3}, {&c->u, 3}, {&c->uprev, 3},
                                                {&c->p, 1}, {&c->pprev, 1}, {&c->gradp, 3}, {&c->force, 3},
-                                               {&c->dfdv, 9}, {&c->kd, 3}, {&c->kf, 9}, {&c->dv, 3}, {&c->g, 3}, {&c->pts, 21}, {&c->psamp, 7}};
+                                               {&c->dfdv, 9}, {&c->kf, 9}, {&c->dv, 3}, {&c->g, 3}, {&c->pts, 21}, {&c->psamp, 7}};
         for (size_t i = 0; i < sizeof arr / sizeof arr[0]; i++) {
             double *q = realloc(*arr[i].p, (size_t)cap * arr[i].w * sizeof(double));
             if (!q) return dr_error_set(err, DR_ERR_NOMEM, NULL, 0, 0, "couple: out of memory for %d elements.", cap);
@@ -411,7 +411,7 @@ static void sample_pressure(DrCouple *c, const DrCoupleFluid *fluid, int n)
     }
 }
 
-/* The laws at the current iterate: K's diagonal (kd), D = ∂f/∂v₊ (dfdv) and the load force f(v*) − D v* (force). */
+/* The laws at the current iterate: K (kf), D = ∂f/∂v₊ (dfdv) and the load force f(v*) − D v* (force). */
 static DrStatus laws(DrCouple *c, const DrCoupleDesc *desc, const DrCoupleFluid *fluid, int n, double h, DrError *err)
 {
     const DrMacGrid *g = fluid->grid;
@@ -421,7 +421,6 @@ static DrStatus laws(DrCouple *c, const DrCoupleDesc *desc, const DrCoupleFluid 
         if (!e->active) {
             memset(F, 0, 3 * sizeof(double));
             memset(D, 0, 9 * sizeof(double));
-            memset(c->kd + 3 * i, 0, 3 * sizeof(double));
             memset(c->kf + 9 * i, 0, 9 * sizeof(double));
             continue;
         }
@@ -430,7 +429,6 @@ static DrStatus laws(DrCouple *c, const DrCoupleDesc *desc, const DrCoupleFluid 
         DrVec3 dv = dr_v3_sub(v, u);
         double K[9];
         dr_drag_tensor(e->law, fluid->density, fluid->viscosity, &e->site, dv, K);
-        for (int a = 0; a < 3; a++) c->kd[3 * i + a] = K[4 * a];
         memcpy(c->kf + 9 * i, K, 9 * sizeof(double));
         for (int q = 0; q < 9; q++) D[q] = -K[q];
         if (desc->position_derivative) {
@@ -465,43 +463,47 @@ static DrStatus laws(DrCouple *c, const DrCoupleDesc *desc, const DrCoupleFluid 
 }
 
 /* What each element received over the step, g_i = h (f_i + D_i v_i), for the velocities the solids solved for. */
-static void received(DrCouple *c, int n, double h, DrVec3 *total)
+static void received(DrCouple *c, int n, double h)
 {
-    double t[3] = {0, 0, 0};
     for (int i = 0; i < n; i++)
         for (int r = 0; r < 3; r++) {
             double f = c->force[3 * i + r];
             for (int q = 0; q < 3; q++) f += c->dfdv[9 * i + 3 * r + q] * c->v[3 * i + q];
             c->g[3 * i + r] = c->el[i].active ? h * f : 0.0;
-            t[r] += c->g[3 * i + r];
         }
-    *total = dr_v3(t[0], t[1], t[2]);
 }
 
-/* The reaction −g_i spread over each element's coupled faces (fc.impulse), and, for an iteration before the last,
-   the drag mass β_f = h Σ_i wn_if K_aa with β_f (u_f − V_f) added to the impulse, u_f the last projection's
-   velocity: the fluid then solves (m + β) u = m u* − Σ wn g + β u^prev, whose fixed point carries exactly the
-   reaction. Returns Σ_f J_f over the spread reaction alone (the ledger's fluid side). */
-static DrVec3 spread(DrCouple *c, const DrMacGrid *g, int n, double h, bool drag)
+/* The reaction −g_i spread over each element's coupled faces (fc.impulse), and the drag mass β_f = h Σ_i wn_if K_aa of
+   every element in an iteration before the last, of the implicit ones (Element.implicit) in the last, with
+   β_f (u_f − V_f) added to the impulse, u_f the last projection's velocity: the fluid then solves
+   (m + β) u = m u* − Σ wn g + β u^prev, whose fixed point carries exactly the reaction. Returns Σ_f J_f over the spread
+   reaction alone, and in *pull Σ_f β_f u_f (the ledger's fluid side is the first plus *pull less Σ_f β_f u_f after the
+   projection). */
+static DrVec3 spread(DrCouple *c, const DrMacGrid *g, int n, double h, bool last, DrVec3 *pull)
 {
-    double t[3] = {0, 0, 0};
+    double t[3] = {0, 0, 0}, pl[3] = {0, 0, 0};
     for (int i = 0; i < n; i++) {
         const Element *e = &c->el[i];
         if (!e->active) continue;
+        bool drag = !last || e->implicit;
         for (int a = 0; a < 3; a++)
             for (int q = 0; q < 8; q++) {
                 double w = e->wn[a][q];
                 if (w == 0.0) continue;
                 c->fc.impulse[a][e->st[a].f[q]] -= w * c->g[3 * i + a];
-                if (drag) c->fc.drag[a][e->st[a].f[q]] += w * h * c->kd[3 * i + a];
+                if (drag) c->fc.drag[a][e->st[a].f[q]] += w * h * c->kf[9 * i + 4 * a];
             }
     }
     for (int a = 0; a < 3; a++)
         for (long f = 0; f < g->nfaces[a]; f++) {
             t[a] += c->fc.impulse[a][f];
             double b = c->fc.drag[a][f];
-            if (drag && b > 0.0) c->fc.impulse[a][f] += b * (g->f[a][f] - c->fc.velocity[a][f]);
+            if (b > 0.0) {
+                c->fc.impulse[a][f] += b * (g->f[a][f] - c->fc.velocity[a][f]);
+                pl[a] += b * g->f[a][f];
+            }
         }
+    *pull = dr_v3(pl[0], pl[1], pl[2]);
     return dr_v3(t[0], t[1], t[2]);
 }
 
@@ -526,31 +528,10 @@ static DrStatus final_exchange(DrCouple *c, const DrCoupleFluid *fluid, const Dr
             for (int q = 0; q < 8; q++) mf += e->wn[a][q] * fm[a][e->st[a].f[q]] / 3.0;
         e->implicit = e->mass >= mf;
     }
-    /* the faces: every element's reaction spread (the impulse its solve received, negated); the implicit ones add
-       their drag mass with β_f (u_f − V_f), u_f the last projection's: the fluid then solves
-       (m + β) u = m u* − Σ w g + β u^prev, whose fixed point is the loop's */
-    double expl[3] = {0, 0, 0}, pull[3] = {0, 0, 0};
-    for (int i = 0; i < n; i++) {
-        const Element *e = &c->el[i];
-        if (!e->active) continue;
-        for (int a = 0; a < 3; a++)
-            for (int q = 0; q < 8; q++) {
-                double w = e->wn[a][q];
-                if (w == 0.0) continue;
-                long f = e->st[a].f[q];
-                c->fc.impulse[a][f] -= w * c->g[3 * i + a];
-                if (e->implicit) c->fc.drag[a][f] += w * h * c->kd[3 * i + a];
-            }
-    }
-    for (int a = 0; a < 3; a++)
-        for (long f = 0; f < g->nfaces[a]; f++) {
-            expl[a] += c->fc.impulse[a][f];
-            double b = c->fc.drag[a][f];
-            if (b > 0.0) {
-                c->fc.impulse[a][f] += b * (g->f[a][f] - c->fc.velocity[a][f]);
-                pull[a] += b * g->f[a][f];
-            }
-        }
+    /* the faces: every element's reaction spread, the implicit ones' drag masses pulling towards the last iterate */
+    DrVec3 pv;
+    DrVec3 ev = spread(c, g, n, h, true, &pv);
+    double expl[3] = {ev.x, ev.y, ev.z}, pull[3] = {pv.x, pv.y, pv.z};
     DR_TRY(fluid->project(fluid->ctx, &c->fc, err));
     /* the fluid gained the spread reactions and Σ β (u^prev − u) */
     for (int a = 0; a < 3; a++)
@@ -570,7 +551,7 @@ static DrStatus final_exchange(DrCouple *c, const DrCoupleFluid *fluid, const Dr
         const Element *e = &c->el[i];
         if (!e->implicit) continue;
         for (int a = 0; a < 3; a++) {
-            double dg = h * c->kd[3 * i + a] * (c->u[3 * i + a] - c->uprev[3 * i + a]);
+            double dg = h * c->kf[9 * i + 4 * a] * (c->u[3 * i + a] - c->uprev[3 * i + a]);
             if (!e->held) {
                 c->dv[3 * i + a] = dg / e->mass;
                 any = true;
@@ -648,8 +629,7 @@ DrStatus dr_couple_step(DrCouple *c, const DrCoupleDesc *desc, const DrCoupleFlu
         double a2 = dr_time_now();
         memcpy(c->vprev, c->v, (size_t)n * 3 * sizeof(double));
         read_velocities(c, solids, nsolids);
-        DrVec3 got;
-        received(c, n, h, &got);
+        received(c, n, h);
         double cv = rel_change(c->v, c->vprev, 3L * n, ufloor);
         change = k == 1 ? cv : (cv > change_fluid ? cv : change_fluid);
         if (k <= 64) c->changes[k - 1] = change;
@@ -658,7 +638,7 @@ DrStatus dr_couple_step(DrCouple *c, const DrCoupleDesc *desc, const DrCoupleFlu
         rasterise(c, g, n);
         double a3 = dr_time_now();
         if (last) {
-            DrVec3 gave;
+            DrVec3 got, gave;
             memset(c->num[0], 0, (size_t)g->nfaces[0] * sizeof(double));
             memset(c->num[1], 0, (size_t)g->nfaces[1] * sizeof(double));
             memset(c->num[2], 0, (size_t)g->nfaces[2] * sizeof(double));
@@ -671,7 +651,8 @@ DrStatus dr_couple_step(DrCouple *c, const DrCoupleDesc *desc, const DrCoupleFlu
             c->ledger_fluid = gave;
             break;
         }
-        spread(c, g, n, h, true);
+        DrVec3 unused;
+        (void)spread(c, g, n, h, false, &unused);
         DR_TRY(fluid->project(fluid->ctx, &c->fc, err));
         double a4 = dr_time_now();
         sec_laws += a1 - a0 + a3 - a2;
