@@ -20,6 +20,16 @@
    (up to a scheduler time slice): small grids run their loops serially instead. */
 #define PAR_MIN_ITEMS 16384
 
+/* A face coupling a rigid body (dr_liquid_set_bodies): its solid share σ, its row J = (e_a, (x_f − c) × e_a) and the
+   pressure rows on its two sides (−1: none). */
+typedef struct BodyFace {
+    long f;
+    int a;
+    int lo, hi;
+    double sigma;
+    double J[6];
+} BodyFace;
+
 struct DrLiquid {
     DrLiquidDesc d;          /* copy; pointer fields below are owned copies, sources are cleared */
     DrBoxVel *emitters;
@@ -99,6 +109,14 @@ struct DrLiquid {
     bool sample_ok;          /* the grid holds a projection's velocities and pressure (dr_liquid_sample) */
     DrVec3 added;            /* momentum the extra coupling's impulses gave in the last projection, N·s */
     DrVec3 drag_added;       /* ... and its drag masses, β_f (V_f − u_f) with the projected u_f, N·s */
+    signed char *owner[3];   /* per face: the index (into frames) of the nearest moving collider, on the faces that
+                                take a collider velocity (weight_slices); −1 elsewhere */
+    DrLiquidBody *bodies;    /* the rigid participants of the substep (dr_liquid_set_bodies), borrowed */
+    int nbodies;
+    int frame_body[MAX_COLLIDERS_FRAME]; /* the body each posed collider is, −1 */
+    struct BodyFace *bface;  /* the faces coupling the bodies in the projection, body by body (body_faces) */
+    long nbface, cap_bface;
+    long *bface_start;       /* nbodies + 1 offsets into bface */
     unsigned char *take[3];  /* faces that took the extra coupling's impulse and drag in the last projection */
     double *porous[3];       /* m_f/(m_f + β_f) on faces taking a drag mass, 1 elsewhere (porous_on) */
     bool porous_on;          /* the last projection's extra coupling had a drag mass */
@@ -325,6 +343,7 @@ DrStatus dr_liquid_create(const DrLiquidDesc *desc, const DrCollider *const *col
         if ((s = dr_calloc(nf, sizeof(double), &L->uold[a], err)) < 0) goto fail;
         if ((s = dr_calloc(nf, sizeof(double), &L->own.open[a], err)) < 0) goto fail;
         if ((s = dr_calloc(nf, sizeof(float), &L->wsol[a], err)) < 0) goto fail;
+        if ((s = dr_calloc(nf, 1, &L->owner[a], err)) < 0) goto fail;
         if ((s = dr_calloc(nf, sizeof(double), &L->own.velocity[a], err)) < 0) goto fail;
         L->own.nfaces[a] = L->mix.nfaces[a] = (long)nf;
         if ((s = dr_calloc(nf, sizeof(double), &L->tmp[a], err)) < 0) goto fail;
@@ -418,12 +437,14 @@ void dr_liquid_destroy(DrLiquid **liq)
     DrLiquid *L = *liq;
     for (int a = 0; a < 3; a++) {
         free(L->fm[a]); free(L->uold[a]); free(L->own.open[a]); free(L->wsol[a]); free(L->own.velocity[a]);
+        free(L->owner[a]);
         free(L->mix.open[a]); free(L->mix.velocity[a]); free(L->ustar[a]);
         free(L->tmp[a]); free(L->tmp2[a]); free(L->valid[a]); free(L->valid2[a]); free(L->valid3[a]); free(L->shut[a]);
         free(L->take[a]); free(L->porous[a]);
     }
     for (int a = 0; a < 3; a++) free(L->dsum[a]);
     free(L->nphi); free(L->nphi_static); free(L->open); free(L->near); free(L->cphi); free(L->dens);
+    free(L->bface); free(L->bface_start);
     free(L->div_target); free(L->row); free(L->cells_of_row); free(L->blocks); free(L->vfill);
     dr_viscosity_destroy(&L->visc);
     free(L->rhs); free(L->q); free(L->work); free(L->impulse_partial);
@@ -687,6 +708,7 @@ static void weight_slices(long begin, long end, void *vctx)
                 long f = dr_mac_face_index(g, a, i, j, (int)k);
                 int ijk[3] = {i, j, (int)k};
                 double w = 1.0, vs = 0.0;
+                int owner = -1;
                 if (L->nframes > 0) {
                     double p[4];
                     for (int q = 0; q < 4; q++) {
@@ -717,6 +739,7 @@ static void weight_slices(long begin, long end, void *vctx)
                             if (ph < best) {
                                 best = ph;
                                 vs = dr_v3_get(dr_collider_frame_velocity(&L->frames[cc], x), a);
+                                owner = cc;
                             }
                         }
                     }
@@ -725,7 +748,9 @@ static void weight_slices(long begin, long end, void *vctx)
                 if (ijk[a] == 0 || ijk[a] == dim[a] - 1) {
                     w = 0.0;
                     vs = 0.0;
+                    owner = -1;
                 }
+                L->owner[a][f] = (signed char)owner;
                 L->own.open[a][f] = w;
                 L->own.velocity[a][f] = vs;
             }
@@ -1440,6 +1465,207 @@ static DrStatus virtual_mass(DrLiquid *L, DrError *err)
     return DR_OK;
 }
 
+/* ---- rigid bodies in the projection (dr_liquid_set_bodies) ----------------------------------------------------- */
+
+/* V + ω × (x − c) with the body's velocity after the last projection. */
+static DrVec3 body_point_velocity(const DrLiquidBody *b, DrVec3 x)
+{
+    double r[3] = {x.x - b->center[0], x.y - b->center[1], x.z - b->center[2]};
+    const double *v = b->velocity_out, *w = b->angular_velocity_out;
+    return dr_v3(v[0] + w[1] * r[2] - w[2] * r[1], v[1] + w[2] * r[0] - w[0] * r[2], v[2] + w[0] * r[1] - w[1] * r[0]);
+}
+
+/* The solid velocity array of component a the projection in progress reads (the colliders' own, or their mix with
+   an extra coupling): L's own storage either way. */
+static double *coupling_velocity(DrLiquid *L, int a)
+{
+    return L->cpl == &L->own ? L->own.velocity[a] : L->mix.velocity[a];
+}
+
+static inline double body_face_velocity(const BodyFace *bf, const double v[3], const double w[3])
+{
+    return bf->J[0] * v[0] + bf->J[1] * v[1] + bf->J[2] * v[2] + bf->J[3] * w[0] + bf->J[4] * w[1] + bf->J[5] * w[2];
+}
+
+/* The faces each body owns with a solid share σ > 0, body by body in face order, with their rows and J; their solid
+   velocity becomes the body's rigid velocity before the pressure (so the right-hand side carries σ J V). After the
+   rows and shut_slices. */
+static DrStatus body_faces(DrLiquid *L, DrError *err)
+{
+    const DrMacGrid *g = L->g;
+    long cstride[3] = {1, g->nx, (long)g->nx * g->ny};
+    if (!L->bface_start) DR_TRY(dr_calloc(MAX_COLLIDERS_FRAME + 1, sizeof(long), &L->bface_start, err));
+    L->nbface = 0;
+    for (int b = 0; b < L->nbodies; b++) {
+        DrLiquidBody *B = &L->bodies[b];
+        memcpy(B->velocity_out, B->velocity, sizeof B->velocity_out);
+        memcpy(B->angular_velocity_out, B->angular_velocity, sizeof B->angular_velocity_out);
+        memset(B->impulse, 0, sizeof B->impulse);
+        memset(B->angular_impulse, 0, sizeof B->angular_impulse);
+        L->bface_start[b] = L->nbface;
+        for (int a = 0; a < 3; a++) {
+            double *vel = coupling_velocity(L, a);
+            const int *dim = g->fdim[a];
+            for (int k = 0; k < dim[2]; k++)
+                for (int j = 0; j < dim[1]; j++)
+                    for (int i = 0; i < dim[0]; i++) {
+                        long f = dr_mac_face_index(g, a, i, j, k);
+                        int o = L->owner[a][f];
+                        if (o < 0 || L->frame_body[o] != b) continue;
+                        double sigma = L->shut[a][f] ? 1.0 : 1.0 - L->cpl->open[a][f];
+                        if (!(sigma > 0.0)) continue;
+                        if (L->nbface == L->cap_bface) {
+                            long cap = L->cap_bface + L->cap_bface / 2 + 1024;
+                            DR_TRY(dr_realloc((size_t)cap, sizeof(BodyFace), &L->bface, err));
+                            L->cap_bface = cap;
+                        }
+                        BodyFace *bf = &L->bface[L->nbface++];
+                        long chi = dr_mac_cell_index(g, i, j, k), clo = chi - cstride[a];
+                        bf->f = f;
+                        bf->a = a;
+                        bf->lo = L->row[clo];
+                        bf->hi = L->row[chi];
+                        bf->sigma = sigma;
+                        DrVec3 x = dr_mac_face_position(g, a, i, j, k);
+                        double r[3] = {x.x - B->center[0], x.y - B->center[1], x.z - B->center[2]};
+                        double J[6] = {a == 0, a == 1, a == 2, 0, 0, 0};
+                        /* (r × e_a) */
+                        J[3] = a == 0 ? 0.0 : (a == 1 ? -r[2] : r[1]);
+                        J[4] = a == 0 ? r[2] : (a == 1 ? 0.0 : -r[0]);
+                        J[5] = a == 0 ? -r[1] : (a == 1 ? r[0] : 0.0);
+                        memcpy(bf->J, J, sizeof J);
+                        vel[f] = body_face_velocity(bf, B->velocity, B->angular_velocity);
+                    }
+        }
+        B->faces = L->nbface - L->bface_start[b];
+    }
+    L->bface_start[L->nbodies] = L->nbface;
+    return DR_OK;
+}
+
+/* K q for body b: Σ_f σ_f J_fᵀ (q_lo − q_hi), q = 0 outside the pressure rows. Serial over the body's faces in their
+   order: the same bits for any thread count. */
+static void body_kq(const DrLiquid *L, int b, const double *q, double k6[6])
+{
+    for (int i = 0; i < 6; i++) k6[i] = 0.0;
+    for (long n = L->bface_start[b]; n < L->bface_start[b + 1]; n++) {
+        const BodyFace *bf = &L->bface[n];
+        double d = (bf->lo >= 0 ? q[bf->lo] : 0.0) - (bf->hi >= 0 ? q[bf->hi] : 0.0);
+        if (d == 0.0) continue;
+        for (int i = 0; i < 6; i++) k6[i] += bf->sigma * bf->J[i] * d;
+    }
+}
+
+/* The velocity change M⁻¹ ρΔx² K q of body b (linear in v, angular in w). */
+static void body_dv(const DrLiquid *L, int b, const double k6[6], double v[3], double w[3])
+{
+    const DrLiquidBody *B = &L->bodies[b];
+    double s = L->d.density * L->g->dx * L->g->dx;
+    for (int i = 0; i < 3; i++) {
+        v[i] = s * B->inv_mass * k6[i];
+        w[i] = s * (B->inv_inertia[3 * i] * k6[3] + B->inv_inertia[3 * i + 1] * k6[4] + B->inv_inertia[3 * i + 2] * k6[5]);
+    }
+}
+
+static bool body_free(const DrLiquidBody *b)
+{
+    if (b->inv_mass != 0.0) return true;
+    for (int i = 0; i < 9; i++)
+        if (b->inv_inertia[i] != 0.0) return true;
+    return false;
+}
+
+/* Whether any body moves with the pressure (a held one adds nothing to the system). */
+static bool bodies_free(const DrLiquid *L)
+{
+    for (int b = 0; b < L->nbodies; b++)
+        if (body_free(&L->bodies[b]) && L->bface_start[b + 1] > L->bface_start[b]) return true;
+    return false;
+}
+
+/* y = (A + ρΔx³ Σ_b K_bᵀ M_b⁻¹ K_b) x. */
+typedef struct BodyOp { const DrLiquid *L; const DrCsr *A; } BodyOp;
+
+static void body_apply(const double *x, double *y, void *vctx)
+{
+    const BodyOp *op = vctx;
+    const DrLiquid *L = op->L;
+    dr_csr_matvec(op->A, x, y);
+    for (int b = 0; b < L->nbodies; b++) {
+        if (!body_free(&L->bodies[b])) continue;
+        double k6[6], v[3], w[3];
+        body_kq(L, b, x, k6);
+        body_dv(L, b, k6, v, w);
+        for (long n = L->bface_start[b]; n < L->bface_start[b + 1]; n++) {
+            const BodyFace *bf = &L->bface[n];
+            double s = L->g->dx * bf->sigma * body_face_velocity(bf, v, w);
+            if (bf->lo >= 0) y[bf->lo] += s;
+            if (bf->hi >= 0) y[bf->hi] -= s;
+        }
+    }
+}
+
+/* After the solve: each body's impulse ρΔx² K q, its velocity after the pressure, and that velocity on its faces. */
+static void body_results(DrLiquid *L)
+{
+    double s = L->d.density * L->g->dx * L->g->dx;
+    for (int b = 0; b < L->nbodies; b++) {
+        DrLiquidBody *B = &L->bodies[b];
+        double k6[6] = {0}, v[3] = {0}, w[3] = {0};
+        if (L->nrow > 0) {
+            body_kq(L, b, L->q, k6);
+            if (body_free(B)) body_dv(L, b, k6, v, w);
+        }
+        for (int i = 0; i < 3; i++) {
+            B->impulse[i] = s * k6[i];
+            B->angular_impulse[i] = s * k6[3 + i];
+            B->velocity_out[i] = B->velocity[i] + v[i];
+            B->angular_velocity_out[i] = B->angular_velocity[i] + w[i];
+        }
+        for (long n = L->bface_start[b]; n < L->bface_start[b + 1]; n++) {
+            const BodyFace *bf = &L->bface[n];
+            coupling_velocity(L, bf->a)[bf->f] = body_face_velocity(bf, B->velocity_out, B->angular_velocity_out);
+        }
+    }
+}
+
+DrStatus dr_liquid_set_bodies(DrLiquid *liq, DrLiquidBody *bodies, int n, DrError *err)
+{
+    assert(liq->phase == PHASE_BEGUN || liq->phase == PHASE_PROJECTED); /* dr_liquid_begin first */
+    if (n < 0 || n > MAX_COLLIDERS_FRAME)
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "liquid bodies: between 0 and %d bodies.", MAX_COLLIDERS_FRAME);
+    for (int c = 0; c < liq->nframes; c++) liq->frame_body[c] = -1;
+    for (int b = 0; b < n; b++) {
+        const DrLiquidBody *B = &bodies[b];
+        int found = -1;
+        for (int c = 0; c < liq->nframes && found < 0; c++)
+            if (liq->frames[c].c == B->collider) found = c;
+        bool ok = found >= 0 && isfinite(B->inv_mass) && B->inv_mass >= 0.0;
+        for (int i = 0; i < 9 && ok; i++) ok = isfinite(B->inv_inertia[i]);
+        for (int i = 0; i < 3 && ok; i++) ok = isfinite(B->velocity[i]) && isfinite(B->angular_velocity[i]) &&
+                                               isfinite(B->center[i]);
+        if (!ok) {
+            for (int c = 0; c < liq->nframes; c++) liq->frame_body[c] = -1;
+            liq->nbodies = 0;
+            return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                                found < 0 ? "liquid bodies: body %d's collider was not given to dr_liquid_begin."
+                                          : "liquid bodies: body %d has a negative or non-finite mass, inertia, "
+                                            "velocity or centre.", b);
+        }
+        liq->frame_body[found] = b;
+    }
+    liq->bodies = bodies;
+    liq->nbodies = n;
+    for (int b = 0; b < n; b++) { /* until a projection: moving as given */
+        memcpy(bodies[b].velocity_out, bodies[b].velocity, sizeof bodies[b].velocity_out);
+        memcpy(bodies[b].angular_velocity_out, bodies[b].angular_velocity, sizeof bodies[b].angular_velocity_out);
+        memset(bodies[b].impulse, 0, sizeof bodies[b].impulse);
+        memset(bodies[b].angular_impulse, 0, sizeof bodies[b].angular_impulse);
+        bodies[b].faces = 0;
+    }
+    return DR_OK;
+}
+
 static DrStatus pressure_solve(DrLiquid *L, const DrFaceCoupling *extra, DrLiquidStats *stats, DrError *err)
 {
     const DrMacGrid *g = L->g;
@@ -1486,7 +1712,11 @@ static DrStatus pressure_solve(DrLiquid *L, const DrFaceCoupling *extra, DrLiqui
     for (int a = 0; a < 3; a++) run_faces(L, shut_slices, a);
     L->porous_on = false;
     if (extra) DR_TRY(add_impulse(L, extra, err));
-    if (nrow == 0) return DR_OK;
+    if (L->nbodies > 0) DR_TRY(body_faces(L, err));
+    if (nrow == 0) {
+        body_results(L);
+        return DR_OK;
+    }
     if (L->d.volume_correction > 0.0) {
         DensCtx dctx = {L, 0.0};
         dr_parallel_for(g->nz, 1, density_slices, &dctx);
@@ -1526,6 +1756,8 @@ static DrStatus pressure_solve(DrLiquid *L, const DrFaceCoupling *extra, DrLiqui
     }
     memset(L->q, 0, (size_t)nrow * sizeof(double));
     DrLinearOp Aop = dr_csr_op(A);
+    BodyOp bop = {L, A};
+    if (bodies_free(L)) Aop = (DrLinearOp){nrow, body_apply, &bop};
     DrPcgDesc pd;
     dr_pcg_desc_default(&pd);
     pd.rel_tol = L->d.pressure_tol;
@@ -1533,6 +1765,7 @@ static DrStatus pressure_solve(DrLiquid *L, const DrFaceCoupling *extra, DrLiqui
     DrPcgStats ps;
     DrStatus s = dr_pcg_solve(&Aop, &Mop, L->rhs, L->q, &pd, L->work, &ps, err);
     if (s < 0) return s;
+    if (L->nbodies > 0) body_results(L);
     if (ps.iterations > stats->pressure_iterations_max) stats->pressure_iterations_max = ps.iterations;
     stats->pressure_iterations_total += ps.iterations;
     if (ps.rel_residual > stats->pressure_residual_max) stats->pressure_residual_max = ps.rel_residual;
@@ -1771,7 +2004,8 @@ static void collider_slices(long begin, long end, void *vctx)
                 if (best < 0 || phi >= 0.5 * g->dx) continue;
                 (void)dr_collider_frame_phi(&L->frames[best], x, &n); /* the gradient: six more samples */
                 const DrColliderFrame *fr = &L->frames[best];
-                DrVec3 vs = dr_collider_frame_velocity(fr, x);
+                DrVec3 vs = L->frame_body[best] >= 0 ? body_point_velocity(&L->bodies[L->frame_body[best]], x)
+                                                     : dr_collider_frame_velocity(fr, x);
                 DrVec3 vrel = dr_v3_sub(face_full_velocity(L, a, i, j, (int)k), vs);
                 DrVec3 out;
                 if (dr_collider_no_slip(fr->c)) {
@@ -2209,6 +2443,8 @@ static DrStatus grid_begin(DrLiquid *L, const DrCollider *const *colliders, int 
     double t_1 = dr_time_now();
     L->nframes = ncolliders;
     for (int c = 0; c < ncolliders; c++) L->frames[c] = dr_collider_frame(colliders[c], t + dt);
+    for (int c = 0; c < MAX_COLLIDERS_FRAME; c++) L->frame_body[c] = -1;
+    L->nbodies = 0; /* dr_liquid_set_bodies gives the substep's */
 
     /* 2. forces: gravity, then explicit viscosity within its stability limit */
     for (int a = 0; a < 3; a++) {
@@ -2550,6 +2786,49 @@ static double sample_pressure(const DrLiquid *L, DrVec3 x)
                 if (r >= 0) sum += w[0][ii] * w[1][jj] * w[2][kk] * L->q[r];
             }
     return sum * L->d.density / L->h_step;
+}
+
+/* The same over the pressure cells alone, renormalised by their weight (dr_liquid_sample_wet_pressure). */
+static double sample_wet_pressure(const DrLiquid *L, DrVec3 x, double *wet)
+{
+    const DrMacGrid *g = L->g;
+    int n[3] = {g->nx, g->ny, g->nz}, idx[3][2];
+    double w[3][2];
+    for (int d = 0; d < 3; d++) {
+        double s = (dr_v3_get(x, d) - dr_v3_get(g->origin, d)) / g->dx - 0.5;
+        int hi = n[d] - 1;
+        if (s < 0.0) s = 0.0;
+        if (s > hi) s = hi;
+        DrStencil2 st = dr_kernel_linear(s);
+        idx[d][0] = st.base;
+        idx[d][1] = st.base + 1 > hi ? hi : st.base + 1;
+        w[d][0] = st.w[0];
+        w[d][1] = st.w[1];
+    }
+    double sum = 0.0, wsum = 0.0;
+    for (int kk = 0; kk < 2; kk++)
+        for (int jj = 0; jj < 2; jj++)
+            for (int ii = 0; ii < 2; ii++) {
+                int r = L->row[dr_mac_cell_index(g, idx[0][ii], idx[1][jj], idx[2][kk])];
+                double ww = w[0][ii] * w[1][jj] * w[2][kk];
+                if (r >= 0) {
+                    sum += ww * L->q[r];
+                    wsum += ww;
+                }
+            }
+    *wet = wsum;
+    return wsum > 0.0 ? sum / wsum * L->d.density / L->h_step : 0.0;
+}
+
+void dr_liquid_sample_wet_pressure(const DrLiquid *liq, long n, const double *points, double *pressure_out,
+                                   double *wet_out)
+{
+    assert(liq->sample_ok);
+    for (long i = 0; i < n; i++) {
+        double wet;
+        pressure_out[i] = sample_wet_pressure(liq, dr_v3(points[3 * i], points[3 * i + 1], points[3 * i + 2]), &wet);
+        if (wet_out) wet_out[i] = wet;
+    }
 }
 
 typedef struct SampleCtx { const DrLiquid *L; const double *x; double *v, *p; } SampleCtx;

@@ -249,6 +249,37 @@ DR_NODISCARD DrStatus dr_liquid_begin(DrLiquid *liq, const DrCollider *const *co
    non-finite values; DR_ERR_RUNTIME if the solver breaks down; DR_ERR_NOMEM. */
 DR_NODISCARD DrStatus dr_liquid_project(DrLiquid *liq, const DrFaceCoupling *extra, DrLiquidStats *stats,
                                         DrError *err);
+/* Rigid participants of the projection: bodies that the liquid pushes and that push it within one pressure solve
+   (the variational solid–fluid coupling of PHYSICS §6: the body's velocity is eliminated into the pressure system,
+   which stays symmetric positive semi-definite and keeps the multigrid preconditioner of the liquid alone). Each body
+   is one of the colliders given to dr_liquid_begin; the faces whose nearest moving collider it is (the faces that take
+   a collider velocity: within 2Δx of it) let it through at its rigid velocity V + ω × (x − c). On those faces the solid
+   share σ_f = 1 − w_f (1 on a face the projection shuts) moves with the body; the body's velocity after the solve is
+   V⁺ = V + M⁻¹ Σ_f σ_f J_fᵀ ρΔx² (q_lo − q_hi), q the pressure unknowns (0 outside the pressure cells), J_f the face's
+   row (e_a, (x_f − c) × e_a), and the pressure system gains ρΔx³ Kᵀ M⁻¹ K (K the 6 × rows matrix of those σ_f J_f).
+   velocity/angular_velocity are read on every dr_liquid_project as the body's velocity before the pressure (its
+   other forces over the substep included) and left untouched; the results go to the _out fields. A body with zero
+   inverse mass and inverse inertia is held: it moves as given and receives the impulse it would feel. */
+typedef struct DrLiquidBody {
+    const DrCollider *collider;  /* among the colliders of dr_liquid_begin */
+    double center[3];            /* c: centre of mass at the end of the substep, m */
+    double inv_mass;             /* 1/m, 1/kg (0: held) */
+    double inv_inertia[9];       /* I⁻¹ about c, world axes, row-major, 1/(kg m²) (0: no rotation) */
+    double velocity[3];          /* V before the pressure, m/s */
+    double angular_velocity[3];  /* ω before the pressure, rad/s */
+    double velocity_out[3], angular_velocity_out[3]; /* after the last projection */
+    double impulse[3];           /* the pressure's impulse on the body in the last projection, N s */
+    double angular_impulse[3];   /* ... and its moment about c, N m s */
+    long faces;                  /* faces that coupled it in the last projection */
+} DrLiquidBody;
+/* The bodies of the substep begun (borrowed until dr_liquid_end; n = 0 clears). DR_ERR_INPUT naming the body when its
+   collider was not given to dr_liquid_begin, or its mass or inertia is negative or not finite. */
+DR_NODISCARD DrStatus dr_liquid_set_bodies(DrLiquid *liq, DrLiquidBody *bodies, int n, DrError *err);
+/* Pressure (Pa) at n points (3n, m) from the pressure cells alone: trilinear over the cell centres that are pressure
+   cells, renormalised by their weight; wet_out[i] (may be NULL) that weight in [0, 1], and p = 0 where it is 0 (a
+   point with no pressure cell around it: dry, or inside a solid). After a project, like dr_liquid_sample. */
+void dr_liquid_sample_wet_pressure(const DrLiquid *liq, long n, const double *points, double *pressure_out,
+                                   double *wet_out);
 /* sample: after a project (and until the next stable_dt), the grid velocity (m/s; trilinear on each face
    component's lattice, dr_mac_sample_face) and the pressure (Pa; p = ρq/Δt at the pressure cells' centres,
    0 at every other cell centre — air and solids —, trilinear on the lattice of cell centres) at n points

@@ -488,6 +488,11 @@ static const DrFieldSpec bem_solver_fields[] = {
             "carries all motion"},
     {.name = "error_correction", .kind = DR_FIELD_BOOL, .unit = "", .def = {1},
      .doc = "move the drift left in the displacement into the frame each step (BEM 3.2.1)"},
+    {.name = "liquid_coupling", .kind = DR_FIELD_ENUM, .unit = "", .def_str = "two_way", .choices = "two_way|one_way",
+     .doc = "with a liquid in the scene: two_way, the liquid's pressure pushes the body (buoyancy, drag, splash) and the "
+            "body pushes the liquid, its rigid motion solved with the liquid's pressure at every liquid substep and "
+            "the pressure's traction loading its elastic step; one_way, the body moves the liquid and feels nothing "
+            "of it. Bodies with one time_step move together, so they share one choice"},
 };
 
 static const DrFieldSpec drag_fields[] = {

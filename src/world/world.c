@@ -58,6 +58,21 @@ long dr_world_hair_vertex_count(const DrWorld *w)
     return verts;
 }
 
+int dr_world_bem_count(const DrWorld *w)
+{
+    const DrBemSolid *const *s = NULL;
+    const DrElement *const *e = NULL;
+    return w->bem ? world_bem_solids(w->bem, &s, &e) : 0;
+}
+
+const DrBemSolid *dr_world_bem_solid(const DrWorld *w, int i)
+{
+    const DrBemSolid *const *s = NULL;
+    const DrElement *const *e = NULL;
+    int n = w->bem ? world_bem_solids(w->bem, &s, &e) : 0;
+    return i >= 0 && i < n ? s[i] : NULL;
+}
+
 double dr_world_frame_time(const DrWorld *w, int frame) { return (double)(frame - w->first_frame + 1) / w->fps; }
 
 /* The context every adapter reads: the frame being advanced is w->frame + 1 (or, when writing, w->frame). */
@@ -163,6 +178,7 @@ static DrStatus build(DrWorld *w, const DrWorldDesc *desc, DrError *err)
     const DrElement *const *elements = NULL;
     int nbodies = w->bem_built.self ? world_bem_solids(&w->bem_built, &solids, &elements) : 0;
     DR_TRY(world_kinematics_add_bodies(w->kin, scene, solids, elements, nbodies, err));
+
     int nl = dr_scene_count_kind(scene, DR_ELEMENT_LIQUID);
     DR_TRY(dr_calloc((size_t)nl + MAX_SOLVERS_FIXED, sizeof(WorldSolver), &w->solvers, err));
     DR_TRY(dr_calloc((size_t)nl + MAX_SOLVERS_FIXED, sizeof(double), &w->at, err));
@@ -187,6 +203,12 @@ static DrStatus build(DrWorld *w, const DrWorldDesc *desc, DrError *err)
     }
     BUILD_TRY(DR_ELEMENT_AIR, NULL, world_air_adapter(&c, &s, err));
     if (s.self) w->solvers[w->nsolvers++] = s;
+    /* two-way bodies: the first liquid's projections move them, so it steps at every clock step (every BEM step end) */
+    for (int i = 0; i < nbodies; i++)
+        if (world_bem_coupled(&w->bem_built, i)) {
+            BUILD_TRY(DR_ELEMENT_BEM_SOLID, elements[i], world_kinematics_body_couple(w->kin, i, err));
+            if (w->nliquids > 0) w->solvers[0].lockstep = true;
+        }
     if (w->bem_built.self) {
         w->solvers[w->nsolvers] = w->bem_built;
         w->bem = &w->solvers[w->nsolvers++];
@@ -373,11 +395,14 @@ DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrError *err)
         for (int i = 0; i < w->nsolvers; i++) {
             WorldSolver *s = &w->solvers[i];
             if (!s->step || i == w->couple_fluid || i == w->couple_solid) continue;
-            if (t_next < c.t1 && s->next_time && t_next < w->proposal[i]) continue; /* its own step ends later */
+            if (!s->lockstep && t_next < c.t1 && s->next_time && t_next < w->proposal[i]) continue; /* its own step ends later */
             SOLVER_TRY(i, c.frame, s->step(s->self, &c, w->at[i], t_next, err));
             w->at[i] = t_next;
             w->proposal[i] = NAN;
         }
+        for (int i = 0; i < w->nsolvers; i++)
+            if (w->solvers[i].step_last)
+                SOLVER_TRY(i, c.frame, w->solvers[i].step_last(w->solvers[i].self, &c, t, t_next, err));
         stats->clock_steps++;
         t = t_next;
     }

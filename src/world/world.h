@@ -88,6 +88,7 @@ typedef struct DrBemFrameStats {
     double residual;         /* m: the largest after a step */
     int not_converged;       /* steps kept above the tolerance (a warning) */
     double seconds_trial, seconds_detect, seconds_assembly, seconds_pgs, seconds_final;
+    DrVec3 liquid_impulse;   /* N s: what the liquid's pressure gave the two-way bodies in the frame */
 } DrBemFrameStats;
 
 typedef struct DrFrameStats {
@@ -143,6 +144,9 @@ long dr_world_mpm_particle_count(const DrWorld *w); /* 0 when the scene has no M
 typedef struct DrLiquid DrLiquid;
 const DrLiquid *dr_world_liquid(const DrWorld *w, int i);
 const DrElement *dr_world_liquid_element(const DrWorld *w, int i);
+/* The bem_solid bodies in element order (0 and NULL without any). */
+int dr_world_bem_count(const DrWorld *w);
+const DrBemSolid *dr_world_bem_solid(const DrWorld *w, int i);
 /* Colliders whose SDF was built (none when no solver samples colliders). */
 int dr_world_live_collider_count(const DrWorld *w);
 

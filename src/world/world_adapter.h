@@ -11,6 +11,7 @@
 #include "couple/couple.h"
 #include "grid/grid.h"
 #include "io/io.h"
+#include "liquid/liquid.h"
 
 /* snprintf into an array that must hold the result: element names are at most 128 characters, so the
  * HDF5 paths built here always fit; a truncation would be a programming error. */
@@ -80,6 +81,22 @@ void world_kinematics_body_begin(WorldKinematics *k, int i);
 DR_NODISCARD DrStatus world_kinematics_body_end(WorldKinematics *k, int i, double t_frame, double t0, double t1,
                                                 DrError *err);
 int world_kinematics_body_rebuilds(const WorldKinematics *k); /* SDF rebuilds of the bodies so far */
+/* Two-way bodies (world_kinematics.c explains the scheme): body i is pushed by the first liquid; call once after
+   world_kinematics_add_bodies (a no-op when the kinematics keep no collider for it). */
+DR_NODISCARD DrStatus world_kinematics_body_couple(WorldKinematics *k, int i, DrError *err);
+bool world_kinematics_body_coupled(const WorldKinematics *k, int i);
+/* Before the liquid's substep [t, t + h] begins: the two-way bodies predicted over it under gravity, their colliders
+   keyed along that motion, and the bodies as the projection takes them (*out: borrowed until the next call; give
+   them to dr_liquid_set_bodies after dr_liquid_begin). Returns how many; DR_ERR_NOMEM. */
+int world_kinematics_liquid_bodies(WorldKinematics *k, double t, double h, DrLiquidBody **out, DrError *err);
+/* After the substep's last projection (before dr_liquid_end): the bodies take the velocities and impulses it gave,
+   and their vertices the pressure around them. */
+void world_kinematics_liquid_bodies_done(WorldKinematics *k, const DrLiquid *liquid);
+/* At the end of body i's step of dt: the traction (3N, body axes at the step's start, Pa) the liquid gave over the
+   step, whose resultant force and moment are exactly the gathered impulses over dt, and those (impulse, N s). */
+void world_kinematics_body_load(WorldKinematics *k, int i, double dt, double *traction, DrVec3 *impulse);
+/* After body i's step ending at t1: its proxy from the body, nothing gathered, its SDF rebuilt if it deformed. */
+DR_NODISCARD DrStatus world_kinematics_body_synced(WorldKinematics *k, int i, double t1, DrError *err);
 /* The frame cache's collider groups: rotation and translation of each live collider at t. */
 DR_NODISCARD DrStatus world_kinematics_write(const WorldKinematics *k, DrH5 *h, double t, DrError *err);
 
@@ -140,6 +157,7 @@ DR_NODISCARD DrStatus world_watch_alarm(const WorldWatch *w, const char *message
 typedef struct WorldSolver {
     const char *name;
     void *self;
+    bool lockstep;           /* steps at every clock step (the liquid that two-way BEM bodies take part in) */
     /* The frame begins: per-frame sums are zeroed. */
     void (*begin_frame)(void *self, const WorldCtx *c);
     /* The end time of the solver's next step from t towards the frame end (its stable_dt turned into steps that
@@ -150,6 +168,9 @@ typedef struct WorldSolver {
     /* Called before the kinematics of a clock step from t to t_next (BEM bodies take their whole step here, at its
        start, so that the solvers stepped after them see the bodies' motion through the step). NULL: nothing. */
     DR_NODISCARD DrStatus (*step_first)(void *self, const WorldCtx *c, double t, double t_next, DrError *err);
+    /* Called after every solver stepped a clock step from t to t_next (two-way BEM bodies take the step that ends
+       there, loaded with what the liquid gave them over it). NULL: nothing. */
+    DR_NODISCARD DrStatus (*step_last)(void *self, const WorldCtx *c, double t, double t_next, DrError *err);
     /* Advances from t to t_next (predict, solve without coupling forces, commit). NULL: nothing. */
     DR_NODISCARD DrStatus (*step)(void *self, const WorldCtx *c, double t, double t_next, DrError *err);
     /* The frame ended: non-finite checks, warnings, the solver's block of stats. */
@@ -181,6 +202,8 @@ typedef struct WorldSolver {
    The BEM bodies are built first (the liquid seeds no particle inside them), then the liquids, MPM and hair. */
 DR_NODISCARD DrStatus world_bem_adapter(const WorldCtx *c, const char *cache_root, WorldSolver *out, DrError *err);
 /* The bodies' solids and elements (borrowed), for the kinematics; 0 without bodies. */
+/* Whether body i (world_bem_solids' order) is two-way with the liquid (BemSolver.liquid_coupling, a liquid present). */
+bool world_bem_coupled(const WorldSolver *bem, int i);
 int world_bem_solids(const WorldSolver *bem, const DrBemSolid *const **solids, const DrElement *const **elements);
 DR_NODISCARD DrStatus world_liquid_adapter(const WorldCtx *c, const DrElement *e, WorldSolver *out, DrError *err);
 const DrLiquid *world_liquid_solver(const WorldSolver *s);

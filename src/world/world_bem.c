@@ -46,6 +46,8 @@ typedef struct WorldBemGroup {
     DrBemFixed *fixed;
     DrBemJoint *joints;
     bool constrained;        /* anything to solve; else each member is stepped alone, as without contact */
+    bool coupled;            /* two-way with the liquid: each step is taken at its end, loaded with the liquid's
+                                pressure gathered over it (world_kinematics.c); else at its start, one-way */
 } WorldBemGroup;
 
 typedef struct WorldBem {
@@ -72,6 +74,10 @@ typedef struct WorldBem {
     WorldWatch watch;
     bool watched;
     DrVec3 gravity;
+    double *traction;        /* 3N scratch of the largest body: a two-way body's load */
+    double **forces;         /* per body: 3N world-frame forces of a constrained two-way step (NULL: none) */
+    DrVec3 liquid_impulse;   /* N s: what the liquid gave the two-way bodies in the frame being advanced */
+    DrVec3 last_liquid_impulse;
     double low;              /* J/kg: the least potential −g·x of any collider's box, +INFINITY without colliders */
 } WorldBem;
 
@@ -90,6 +96,10 @@ static void bem_destroy(void *self)
         free(gr->joints);
     }
     free(b->groups);
+    free(b->traction);
+    if (b->forces)
+        for (int i = 0; i < b->nbodies; i++) free(b->forces[i]);
+    free(b->forces);
     if (b->own)
         for (int c = 0; c < b->ncolliders; c++) dr_collider_destroy(&b->own[c]);
     free(b->own);
@@ -468,6 +478,21 @@ static DrStatus build_groups(const WorldCtx *w, WorldBem *b, DrError *err)
         gr->members[gr->count] = i;
         gr->solids[gr->count++] = b->bodies[i].solid;
     }
+    bool liquid = dr_scene_count_kind(w->scene, DR_ELEMENT_LIQUID) > 0;
+    for (int g = 0; g < b->ngroups; g++) {
+        WorldBemGroup *gr = &b->groups[g];
+        for (int k = 0; k < gr->count; k++) {
+            const DrElement *e = b->bodies[gr->members[k]].element, *e0 = b->bodies[gr->members[0]].element;
+            const char *mode = dr_component_str(dr_element_component(e, "BemSolver"), "liquid_coupling");
+            const char *mode0 = dr_component_str(dr_element_component(e0, "BemSolver"), "liquid_coupling");
+            if (strcmp(mode, mode0) != 0)
+                return dr_error_set(err, DR_ERR_INPUT, dr_scene_path(w->scene), 0, 0,
+                                    "%s.BemSolver.liquid_coupling = \"%s\" but %s.BemSolver.liquid_coupling = \"%s\", "
+                                    "and both bodies step together (the same BemSolver.time_step); give them the same "
+                                    "liquid_coupling", e->name, mode, e0->name, mode0);
+            gr->coupled = liquid && strcmp(mode, "two_way") == 0;
+        }
+    }
     for (int g = 0; g < b->ngroups; g++) {
         WorldBemGroup *gr = &b->groups[g];
         DrBemConstraints *c = &gr->constraints;
@@ -534,6 +559,7 @@ static WorldEnergy bem_energy(const WorldBem *b)
 
 static DrStatus build_bem(const WorldCtx *w, WorldBem *b, int n, const char *cache_root, DrError *err)
 {
+    DR_TRY(dr_calloc((size_t)n, sizeof *b->forces, &b->forces, err));
     DR_TRY(dr_calloc((size_t)n, sizeof *b->bodies, &b->bodies, err));
     DR_TRY(dr_calloc((size_t)n, sizeof *b->sets, &b->sets, err));
     DR_TRY(dr_calloc((size_t)n, sizeof *b->keys, &b->keys, err));
@@ -550,6 +576,19 @@ static DrStatus build_bem(const WorldCtx *w, WorldBem *b, int n, const char *cac
     }
     DR_TRY(build_colliders(w, b, err));
     DR_TRY(build_groups(w, b, err));
+    int nmax = 0;
+    for (int i = 0; i < b->nbodies; i++) {
+        int nv = dr_bem_solid_matrices(b->bodies[i].solid)->n;
+        if (nv > nmax) nmax = nv;
+    }
+    DR_TRY(dr_calloc((size_t)nmax, sizeof(double), &b->traction, err));
+    for (int g = 0; g < b->ngroups; g++)
+        if (b->groups[g].coupled && b->groups[g].constrained)
+            for (int k = 0; k < b->groups[g].count; k++) {
+                int i = b->groups[g].members[k];
+                DR_TRY(dr_calloc((size_t)dr_bem_solid_matrices(b->bodies[i].solid)->n, sizeof(double), &b->forces[i],
+                                 err));
+            }
     world_watch_init(&b->watch, w->scene);
     b->watch.cumulative_only = true;
     b->watched = true;
@@ -673,6 +712,7 @@ static void bem_begin_frame(void *self, const WorldCtx *c)
     WorldBem *b = self;
     memset(&b->contact, 0, sizeof b->contact);
     b->not_converged = 0;
+    b->liquid_impulse = dr_v3(0, 0, 0);
     for (int i = 0; i < b->nbodies; i++) {
         b->bodies[i].last_steps = 0;
         memset(&b->bodies[i].frame, 0, sizeof b->bodies[i].frame);
@@ -686,6 +726,10 @@ static double bem_landing(const void *self, const WorldCtx *c, double t)
     double next = INFINITY;
     for (int g = 0; g < b->ngroups; g++) {
         const WorldBemGroup *gr = &b->groups[g];
+        if (gr->coupled) {
+            if (gr->done < gr->steps_per_frame) next = fmin(next, group_step_end(gr, c, gr->done + 1));
+            continue;
+        }
         if (gr->done > 0 && gr->done <= gr->steps_per_frame) next = fmin(next, group_step_end(gr, c, gr->done));
     }
     (void)t;
@@ -698,7 +742,7 @@ static DrStatus bem_step_first(void *self, const WorldCtx *c, double t, double t
     WorldBem *b = self;
     for (int g = 0; g < b->ngroups; g++) {
         WorldBemGroup *gr = &b->groups[g];
-        if (gr->done >= gr->steps_per_frame) continue;
+        if (gr->done >= gr->steps_per_frame || gr->coupled) continue;
         /* the group's step n starts at the end of its step n − 1 (the frame's start for n = 0) */
         double start = gr->done == 0 ? c->t0 : group_step_end(gr, c, gr->done);
         if (t != start) continue;
@@ -713,6 +757,102 @@ static DrStatus bem_step_first(void *self, const WorldCtx *c, double t, double t
     return DR_OK;
 }
 
+/* A two-way group's step that ends at t_next: each member loaded with the liquid's pressure gathered over the step
+   (world_kinematics_body_load), stepped alone or with its constraints, and its proxy synced to it. */
+static DrStatus bem_step_last(void *self, const WorldCtx *c, double t, double t_next, DrError *err)
+{
+    (void)t;
+    WorldBem *b = self;
+    for (int g = 0; g < b->ngroups; g++) {
+        WorldBemGroup *gr = &b->groups[g];
+        if (!gr->coupled || gr->done >= gr->steps_per_frame || t_next != group_step_end(gr, c, gr->done + 1)) continue;
+        int n = gr->done;
+        if (!gr->constrained) {
+            for (int k = 0; k < gr->count; k++) {
+                WorldBemBody *wb = &b->bodies[gr->members[k]];
+                DrVec3 J;
+                world_kinematics_body_load(c->kin, gr->members[k], gr->dt, b->traction, &J);
+                b->liquid_impulse = dr_v3_add(b->liquid_impulse, J);
+                DrBemStepStats st;
+                DrStatus s = dr_bem_solid_predict(wb->solid, err);
+                if (s >= 0) s = dr_bem_solid_solve(wb->solid, b->traction, NULL, &st, err);
+                if (s < 0) {
+                    char what[64];
+                    snprintf(what, sizeof what, "failed in frame %d", c->frame);
+                    return body_context(s, wb->element->name, what, err);
+                }
+                dr_bem_solid_commit(wb->solid, &st);
+                DrBemStepStats *sum = &wb->frame;
+                sum->seconds_history += st.seconds_history;
+                sum->seconds_solve += st.seconds_solve;
+                sum->seconds_correction += st.seconds_correction;
+                sum->translation_error = fmax(sum->translation_error, st.translation_error);
+                sum->rotation_error = fmax(sum->rotation_error, st.rotation_error);
+                wb->last_steps++;
+            }
+        } else {
+            /* the constraints in world forces: f = R (p area) with R at the step's start */
+            const double *force[64];
+            assert(gr->count <= 64);
+            for (int k = 0; k < gr->count; k++) {
+                int i = gr->members[k];
+                WorldBemBody *wb = &b->bodies[i];
+                const DrBemMatrices *m = dr_bem_solid_matrices(wb->solid);
+                DrVec3 J;
+                world_kinematics_body_load(c->kin, i, gr->dt, b->traction, &J);
+                b->liquid_impulse = dr_v3_add(b->liquid_impulse, J);
+                double R[9], T[3];
+                dr_bem_solid_pose(wb->solid, R, T);
+                for (int v = 0; v < m->nv; v++) {
+                    double pa[3] = {b->traction[3 * v] * m->area[v], b->traction[3 * v + 1] * m->area[v],
+                                    b->traction[3 * v + 2] * m->area[v]};
+                    dr_m3a_apply(R, pa, b->forces[i] + 3 * v);
+                }
+                force[k] = b->forces[i];
+            }
+            for (int q = 0; q < b->ncolliders; q++)
+                if (b->posed[q].moving) b->posed[q].frame = dr_collider_frame(b->posed[q].collider, t_next);
+            DrBemConstraintStats st;
+            DrStatus s = dr_bem_solids_predict(gr->solids, gr->count, &gr->constraints, &st, err);
+            if (s >= 0) s = dr_bem_solids_solve(gr->solids, gr->count, force, &st, err);
+            if (s < 0) {
+                char names[256];
+                group_names(b, gr, names, sizeof names);
+                return dr_error_prefix(s, err, "bem_solid %s failed with contact in frame %d (step %d of %d)", names,
+                                       c->frame, n + 1, gr->steps_per_frame);
+            }
+            if (s > 0) {
+                char names[256];
+                group_names(b, gr, names, sizeof names);
+                dr_log_warn("bem: %s: frame %d, step %d: constraints not converged (residual %.3g m after %d passes); "
+                            "the step is kept: %s", names, c->frame, n + 1, st.residual, st.passes, err->message);
+                b->not_converged++;
+            }
+            dr_bem_solids_commit(gr->solids, gr->count, &st);
+            DrBemConstraintStats *sum = &b->contact;
+            if (n + 1 == gr->steps_per_frame) {
+                sum->fixed += st.fixed;
+                sum->contacts += st.contacts;
+                sum->joints += st.joints;
+                sum->body_contacts += st.body_contacts;
+                sum->sticking += st.sticking;
+            }
+            sum->iterations += st.iterations;
+            sum->passes += st.passes;
+            sum->residual = fmax(sum->residual, st.residual);
+            sum->seconds_trial += st.seconds_trial;
+            sum->seconds_detect += st.seconds_detect;
+            sum->seconds_assembly += st.seconds_assembly;
+            sum->seconds_pgs += st.seconds_pgs;
+            sum->seconds_final += st.seconds_final;
+            for (int k = 0; k < gr->count; k++) b->bodies[gr->members[k]].last_steps++;
+        }
+        gr->done++;
+        for (int k = 0; k < gr->count; k++) DR_TRY(world_kinematics_body_synced(c->kin, gr->members[k], t_next, err));
+    }
+    return DR_OK;
+}
+
 static DrStatus bem_end_frame(void *self, const WorldCtx *c, DrFrameStats *stats, DrError *err)
 {
     WorldBem *b = self;
@@ -723,9 +863,11 @@ static DrStatus bem_end_frame(void *self, const WorldCtx *c, DrFrameStats *stats
                 memset(&b->bodies[b->groups[g].members[k]].frame, 0, sizeof(DrBemStepStats));
     b->last_contact = b->contact;
     b->last_not_converged = b->not_converged;
+    b->last_liquid_impulse = b->liquid_impulse;
     DrBemFrameStats *o = &stats->bem;
     o->present = true;
     o->bodies = b->nbodies;
+    o->liquid_impulse = b->liquid_impulse;
     const DrBemConstraintStats *cs = &b->contact;
     o->contacts = cs->contacts;
     o->body_contacts = cs->body_contacts;
@@ -955,6 +1097,10 @@ static DrStatus bem_read(void *self, const WorldCtx *w, DrH5 *h, const char *fil
         free(steps);
         DR_TRY(s);
     }
+    for (int g = 0; g < b->ngroups; g++)
+        if (b->groups[g].coupled)
+            for (int k = 0; k < b->groups[g].count; k++)
+                DR_TRY(world_kinematics_body_synced(w->kin, b->groups[g].members[k], w->t1, err));
     WorldEnergy e = bem_energy(b);
     world_watch_start(&b->watch, frame + 1, &e);
     return DR_OK;
@@ -987,12 +1133,22 @@ DrStatus world_bem_adapter(const WorldCtx *c, const char *cache_root, WorldSolve
                          .begin_frame = bem_begin_frame,
                          .landing = bem_landing,
                          .step_first = bem_step_first,
+                         .step_last = bem_step_last,
                          .end_frame = bem_end_frame,
                          .write = bem_write,
                          .read = bem_read,
                          .hash = bem_hash,
                          .destroy = bem_destroy};
     return DR_OK;
+}
+
+bool world_bem_coupled(const WorldSolver *bem, int i)
+{
+    const WorldBem *b = bem->self;
+    for (int g = 0; g < b->ngroups; g++)
+        for (int k = 0; k < b->groups[g].count; k++)
+            if (b->groups[g].members[k] == i) return b->groups[g].coupled;
+    return false;
 }
 
 int world_bem_solids(const WorldSolver *bem, const DrBemSolid *const **solids, const DrElement *const **elements)

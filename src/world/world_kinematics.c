@@ -7,6 +7,7 @@
 #include <string.h>
 
 #include "contact/contact.h"
+#include "liquid/liquid.h"
 #include "stage/stage.h"
 #include "vdb/vdb.h"
 
@@ -32,6 +33,18 @@ typedef struct WorldBodyCollider {
     double *keys;            /* the frame's key rows so far (7 each) */
     int nkeys, cap_keys;
     DrCollider *collider;    /* the SDF posed by keys; rebuilt every BEM step */
+    /* two-way with the liquid (world_kinematics_body_couple): a rigid proxy of the body's frame that the liquid's
+       substeps move between two BEM steps, and what the liquid gave it over the BEM step being gathered */
+    bool coupled;
+    DrMat3 R;                /* the proxy: rotation, centre of mass, velocity, angular velocity (world) */
+    DrVec3 T, V, W;
+    double mass;             /* kg */
+    DrMat3 Ib_inv;           /* inverse inertia about x̄, body axes */
+    DrVec3 impulse, angular_impulse; /* summed over the step's substeps, N s and N m s about the centre */
+    double span;             /* seconds gathered */
+    double *pdt, *wdt;       /* N: ∫ p dt (Pa s) and ∫ wet dt (s) at each vertex */
+    double *nb;              /* 3N unit outward normals of the deformed surface, body axes */
+    double *pts, *pv, *pw;   /* scratch: 3N sample points, N pressures, N wet weights */
 } WorldBodyCollider;
 
 struct WorldKinematics {
@@ -48,6 +61,11 @@ struct WorldKinematics {
     int nliquid;
     WorldPosedCollider *body_posed; /* the bodies posed at the clock step's end, as the hair sees them */
     DrPointField *mpm_surface; /* the MPM particles as a surface for the hair, NULL without hair or MPM */
+    DrVec3 gravity;          /* the shot's, m/s² (the bodies' proxies) */
+    DrLiquidBody *lbodies;   /* the two-way bodies as the liquid's substep takes them, and their body indices */
+    int *lb_body;
+    int nlb;
+    double lb_h;             /* the substep they were predicted for */
 };
 
 double world_posed_sdf(DrVec3 x, DrVec3 *normal, void *ctx)
@@ -369,12 +387,294 @@ DrStatus world_kinematics_body_end(WorldKinematics *k, int i, double t_frame, do
 
 int world_kinematics_body_rebuilds(const WorldKinematics *k) { return k->rebuilds; }
 
+/* ---- two-way bodies: the liquid pushes them ---------------------------------------------------------------------
+ * Between two of its BEM steps a two-way body is, for the liquid, a rigid body: a proxy of its frame (R, T, Ṫ, ω,
+ * with the body's mass and inertia) that each liquid substep predicts under gravity, keys the body's collider along,
+ * and hands to the projection, which solves the proxy's velocity with the pressure (dr_liquid_set_bodies). The
+ * proxy takes the velocity the projection gives and keeps the position the liquid saw, and every vertex gathers the
+ * pressure one liquid cell outside it. At the step's end the body takes one BEM step loaded with that pressure as
+ * traction, corrected by the least rigid field so that its resultant force and moment are exactly the impulses the
+ * projections gave the proxy over the step: the frame's velocity after the step is the proxy's (the BEM frame
+ * integrates its position over the whole step, the proxy over the substeps: they differ by O(Δt²) in position,
+ * which the next step's proxy starts from). The elastic response to the pressure is lagged by the BEM step (the
+ * deformed shape the liquid sees is that of the last step; the deformation's own velocity u̇ is not seen). */
+
+/* Area-weighted unit vertex normals of the deformed surface ref + u, body axes. */
+static void body_normals(WorldBodyCollider *bc)
+{
+    const DrBemMatrices *m = dr_bem_solid_matrices(bc->solid);
+    const double *ref = dr_bem_solid_reference(bc->solid), *u = dr_bem_solid_displacement(bc->solid);
+    memset(bc->nb, 0, sizeof(double) * 3 * (size_t)m->nv);
+    for (int t = 0; t < m->nt; t++) {
+        const int *tv = m->tri + 3 * t;
+        DrVec3 p[3];
+        for (int q = 0; q < 3; q++)
+            p[q] = dr_v3(ref[3 * tv[q]] + u[3 * tv[q]], ref[3 * tv[q] + 1] + u[3 * tv[q] + 1],
+                         ref[3 * tv[q] + 2] + u[3 * tv[q] + 2]);
+        DrVec3 n = dr_v3_cross(dr_v3_sub(p[1], p[0]), dr_v3_sub(p[2], p[0])); /* twice the area, outward */
+        for (int q = 0; q < 3; q++) {
+            bc->nb[3 * tv[q]] += n.x;
+            bc->nb[3 * tv[q] + 1] += n.y;
+            bc->nb[3 * tv[q] + 2] += n.z;
+        }
+    }
+    for (int v = 0; v < m->nv; v++) {
+        double *n = bc->nb + 3 * v, l = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+        if (l > 0.0)
+            for (int c = 0; c < 3; c++) n[c] /= l;
+    }
+}
+
+/* The proxy from the body's frame now, nothing gathered. */
+static void proxy_sync(WorldBodyCollider *bc)
+{
+    double R[9], T[3], v[3], w[3];
+    dr_bem_solid_pose(bc->solid, R, T);
+    dr_bem_solid_frame_velocity(bc->solid, v, w);
+    bc->R = dr_m3_load(R);
+    bc->T = dr_v3(T[0], T[1], T[2]);
+    bc->V = dr_v3(v[0], v[1], v[2]);
+    bc->W = dr_v3(w[0], w[1], w[2]);
+    bc->impulse = bc->angular_impulse = dr_v3(0, 0, 0);
+    bc->span = 0.0;
+    int nv = dr_bem_solid_matrices(bc->solid)->nv;
+    memset(bc->pdt, 0, sizeof(double) * (size_t)nv);
+    memset(bc->wdt, 0, sizeof(double) * (size_t)nv);
+    body_normals(bc);
+}
+
+/* Keys: the pose now at t, X1 at t1, and one more along V1, W1 past it. */
+static DrStatus proxy_keys(WorldBodyCollider *bc, double t, DrMat3 R0, DrVec3 T0, double t1, DrMat3 R1, DrVec3 T1,
+                           DrVec3 V1, DrVec3 W1, DrError *err)
+{
+    double h = t1 - t;
+    DrVec3 e0 = euler_near(R0, bc->nkeys > 0 ? dr_v3(bc->keys[4], bc->keys[5], bc->keys[6]) : dr_v3(0, 0, 0));
+    DrVec3 e1 = euler_near(R1, e0);
+    DrVec3 e2 = euler_near(dr_m3_mul(dr_m3_rotation_exp(dr_v3_scale(W1, h)), R1), e1);
+    if (bc->cap_keys < 3) {
+        DR_TRY(dr_realloc(3 * 7, sizeof(double), &bc->keys, err));
+        bc->cap_keys = 3;
+    }
+    put_key(bc->keys, t, T0, e0);
+    put_key(bc->keys + 7, t1, T1, e1);
+    put_key(bc->keys + 14, t1 + h, dr_v3_add(T1, dr_v3_scale(V1, h)), e2);
+    bc->nkeys = 3;
+    return dr_collider_set_keys(bc->collider, bc->keys, bc->nkeys, err);
+}
+
+DrStatus world_kinematics_body_couple(WorldKinematics *k, int i, DrError *err)
+{
+    if (i >= k->nbodies) return DR_OK;
+    WorldBodyCollider *bc = &k->bodies[i];
+    const DrBemMatrices *m = dr_bem_solid_matrices(bc->solid);
+    size_t nv = (size_t)m->nv;
+    DR_TRY(dr_calloc(nv, sizeof(double), &bc->pdt, err));
+    DR_TRY(dr_calloc(nv, sizeof(double), &bc->wdt, err));
+    DR_TRY(dr_calloc(3 * nv, sizeof(double), &bc->nb, err));
+    DR_TRY(dr_calloc(3 * nv, sizeof(double), &bc->pts, err));
+    DR_TRY(dr_calloc(nv, sizeof(double), &bc->pv, err));
+    DR_TRY(dr_calloc(nv, sizeof(double), &bc->pw, err));
+    double Ib[9];
+    bc->mass = m->body.mass;
+    if (!dr_m3a_inverse(m->body.inertia, Ib))
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "%s.Mesh.file: the body's inertia is singular (a flat or "
+                            "degenerate mesh); it cannot float in the liquid: give a closed mesh with volume or set "
+                            "%s.BemSolver.liquid_coupling to \"one_way\"", bc->element->name, bc->element->name);
+    bc->Ib_inv = dr_m3_load(Ib);
+    bc->coupled = true;
+    int n = 0;
+    for (int b = 0; b < k->nbodies; b++) n += k->bodies[b].coupled;
+    DR_TRY(dr_realloc((size_t)n, sizeof(DrLiquidBody), &k->lbodies, err));
+    DR_TRY(dr_realloc((size_t)n, sizeof(int), &k->lb_body, err));
+    proxy_sync(bc);
+    return DR_OK;
+}
+
+bool world_kinematics_body_coupled(const WorldKinematics *k, int i) { return i < k->nbodies && k->bodies[i].coupled; }
+
+int world_kinematics_liquid_bodies(WorldKinematics *k, double t, double h, DrLiquidBody **out, DrError *err)
+{
+    k->nlb = 0;
+    k->lb_h = h;
+    for (int i = 0; i < k->nbodies; i++) {
+        WorldBodyCollider *bc = &k->bodies[i];
+        if (!bc->coupled) continue;
+        DrVec3 V = dr_v3_add(bc->V, dr_v3_scale(k->gravity, h)), W = bc->W;
+        DrVec3 T1 = dr_v3_add(bc->T, dr_v3_scale(V, h));
+        DrMat3 R1 = dr_m3_mul(dr_m3_rotation_exp(dr_v3_scale(W, h)), bc->R);
+        DrStatus s = proxy_keys(bc, t, bc->R, bc->T, t + h, R1, T1, V, W, err);
+        if (s < 0) return dr_error_prefix(s, err, "%s.BemSolver", bc->element->name);
+        if (k->nliquid > k->nlive) k->liquid[k->nlive + i] = bc->collider;
+        k->body_posed[i].collider = bc->collider;
+        DrLiquidBody *lb = &k->lbodies[k->nlb];
+        memset(lb, 0, sizeof *lb);
+        lb->collider = bc->collider;
+        lb->center[0] = T1.x, lb->center[1] = T1.y, lb->center[2] = T1.z;
+        lb->inv_mass = 1.0 / bc->mass;
+        dr_m3_store(dr_m3_mul(dr_m3_mul(R1, bc->Ib_inv), dr_m3_transpose(R1)), lb->inv_inertia);
+        lb->velocity[0] = V.x, lb->velocity[1] = V.y, lb->velocity[2] = V.z;
+        lb->angular_velocity[0] = W.x, lb->angular_velocity[1] = W.y, lb->angular_velocity[2] = W.z;
+        k->lb_body[k->nlb++] = i;
+    }
+    *out = k->lbodies;
+    return k->nlb;
+}
+
+void world_kinematics_liquid_bodies_done(WorldKinematics *k, const DrLiquid *liquid)
+{
+    double h = k->lb_h, dx = dr_liquid_grid(liquid)->dx;
+    for (int n = 0; n < k->nlb; n++) {
+        const DrLiquidBody *lb = &k->lbodies[n];
+        WorldBodyCollider *bc = &k->bodies[k->lb_body[n]];
+        /* the pose the liquid saw at the substep's end, the velocity its projection gave */
+        bc->T = dr_v3(lb->center[0], lb->center[1], lb->center[2]);
+        bc->R = dr_m3_mul(dr_m3_rotation_exp(dr_v3_scale(dr_v3(lb->angular_velocity[0], lb->angular_velocity[1],
+                                                                 lb->angular_velocity[2]), h)), bc->R);
+        bc->V = dr_v3(lb->velocity_out[0], lb->velocity_out[1], lb->velocity_out[2]);
+        bc->W = dr_v3(lb->angular_velocity_out[0], lb->angular_velocity_out[1], lb->angular_velocity_out[2]);
+        bc->impulse = dr_v3_add(bc->impulse, dr_v3(lb->impulse[0], lb->impulse[1], lb->impulse[2]));
+        bc->angular_impulse = dr_v3_add(bc->angular_impulse, dr_v3(lb->angular_impulse[0], lb->angular_impulse[1],
+                                                                   lb->angular_impulse[2]));
+        bc->span += h;
+        /* the pressure a cell outside each vertex */
+        const DrBemMatrices *m = dr_bem_solid_matrices(bc->solid);
+        const double *ref = dr_bem_solid_reference(bc->solid), *u = dr_bem_solid_displacement(bc->solid);
+        for (int v = 0; v < m->nv; v++) {
+            DrVec3 y = dr_v3(ref[3 * v] + u[3 * v] + dx * bc->nb[3 * v], ref[3 * v + 1] + u[3 * v + 1] + dx * bc->nb[3 * v + 1],
+                             ref[3 * v + 2] + u[3 * v + 2] + dx * bc->nb[3 * v + 2]);
+            DrVec3 x = dr_v3_add(dr_m3_apply(bc->R, y), bc->T);
+            bc->pts[3 * v] = x.x, bc->pts[3 * v + 1] = x.y, bc->pts[3 * v + 2] = x.z;
+        }
+        dr_liquid_sample_wet_pressure(liquid, m->nv, bc->pts, bc->pv, bc->pw);
+        for (int v = 0; v < m->nv; v++) {
+            bc->pdt[v] += h * bc->pv[v];
+            bc->wdt[v] += h * bc->pw[v];
+        }
+    }
+    k->nlb = 0;
+}
+
+/* Solves the 6 × 6 system a x = b by Gaussian elimination with partial pivoting; false if singular. */
+static bool solve6(double a[36], double b[6])
+{
+    for (int c = 0; c < 6; c++) {
+        int p = c;
+        for (int r = c + 1; r < 6; r++)
+            if (fabs(a[6 * r + c]) > fabs(a[6 * p + c])) p = r;
+        if (!(fabs(a[6 * p + c]) > 1e-300)) return false;
+        if (p != c) {
+            for (int q = 0; q < 6; q++) {
+                double tmp = a[6 * c + q];
+                a[6 * c + q] = a[6 * p + q];
+                a[6 * p + q] = tmp;
+            }
+            double tmp = b[c];
+            b[c] = b[p];
+            b[p] = tmp;
+        }
+        for (int r = c + 1; r < 6; r++) {
+            double f = a[6 * r + c] / a[6 * c + c];
+            for (int q = c; q < 6; q++) a[6 * r + q] -= f * a[6 * c + q];
+            b[r] -= f * b[c];
+        }
+    }
+    for (int c = 5; c >= 0; c--) {
+        for (int q = c + 1; q < 6; q++) b[c] -= a[6 * c + q] * b[q];
+        b[c] /= a[6 * c + c];
+    }
+    return true;
+}
+
+/* [A p; C p] of eq. (10) for a traction p (3N, body frame). */
+static void frame_load(const DrBemMatrices *m, const double *p, double out[6])
+{
+    for (int i = 0; i < 6; i++) out[i] = 0.0;
+    for (int i = 0; i < 3; i++)
+        for (int c = 0; c < m->n; c++) {
+            out[i] += m->A[(size_t)i * m->n + c] * p[c];
+            out[3 + i] += m->C[(size_t)i * m->n + c] * p[c];
+        }
+}
+
+void world_kinematics_body_load(WorldKinematics *k, int i, double dt, double *traction, DrVec3 *impulse)
+{
+    WorldBodyCollider *bc = &k->bodies[i];
+    const DrBemMatrices *m = dr_bem_solid_matrices(bc->solid);
+    const double *ref = dr_bem_solid_reference(bc->solid);
+    int nv = m->nv, n = m->n;
+    *impulse = bc->impulse;
+    /* the mean pressure as traction −p̄ n */
+    for (int v = 0; v < nv; v++)
+        for (int c = 0; c < 3; c++) traction[3 * v + c] = -bc->pdt[v] / dt * bc->nb[3 * v + c];
+    /* the frame's accelerations the impulses give, body axes at the step's start (eqs. 10–11 use that rotation) */
+    double R[9], T[3];
+    dr_bem_solid_pose(bc->solid, R, T);
+    DrMat3 Rt = dr_m3_transpose(dr_m3_load(R));
+    DrVec3 F = dr_m3_apply(Rt, dr_v3_scale(bc->impulse, 1.0 / dt));
+    DrVec3 tau = dr_m3_apply(Rt, dr_v3_scale(bc->angular_impulse, 1.0 / dt));
+    DrVec3 alpha = dr_m3_apply(bc->Ib_inv, tau);
+    double want[6] = {F.x / bc->mass, F.y / bc->mass, F.z / bc->mass, alpha.x, alpha.y, alpha.z}, have[6];
+    frame_load(m, traction, have);
+    /* the least rigid field c + d × r over the wet vertices (all of them if none was wet) closing the difference */
+    double wsum = 0.0;
+    for (int v = 0; v < nv; v++) wsum += bc->wdt[v];
+    double a[36], rhs[6];
+    double *basis = bc->pts; /* 3N scratch */
+    for (int q = 0; q < 6; q++) {
+        for (int v = 0; v < nv; v++) {
+            double wt = wsum > 0.0 ? bc->wdt[v] / dt : 1.0;
+            double r[3] = {ref[3 * v], ref[3 * v + 1], ref[3 * v + 2]}, e[3] = {0, 0, 0}, f[3];
+            e[q % 3] = 1.0;
+            if (q < 3) memcpy(f, e, sizeof f);
+            else { /* e × r */
+                f[0] = e[1] * r[2] - e[2] * r[1];
+                f[1] = e[2] * r[0] - e[0] * r[2];
+                f[2] = e[0] * r[1] - e[1] * r[0];
+            }
+            for (int c = 0; c < 3; c++) basis[3 * v + c] = wt * f[c];
+        }
+        double col[6];
+        frame_load(m, basis, col);
+        for (int r = 0; r < 6; r++) a[6 * r + q] = col[r];
+    }
+    for (int r = 0; r < 6; r++) rhs[r] = want[r] - have[r];
+    if (solve6(a, rhs))
+        for (int v = 0; v < nv; v++) {
+            double wt = wsum > 0.0 ? bc->wdt[v] / dt : 1.0;
+            double r[3] = {ref[3 * v], ref[3 * v + 1], ref[3 * v + 2]};
+            double d[3] = {rhs[3], rhs[4], rhs[5]};
+            double f[3] = {rhs[0] + d[1] * r[2] - d[2] * r[1], rhs[1] + d[2] * r[0] - d[0] * r[2],
+                           rhs[2] + d[0] * r[1] - d[1] * r[0]};
+            for (int c = 0; c < 3; c++) traction[3 * v + c] += wt * f[c];
+        }
+    (void)n;
+}
+
+DrStatus world_kinematics_body_synced(WorldKinematics *k, int i, double t1, DrError *err)
+{
+    WorldBodyCollider *bc = &k->bodies[i];
+    if (deformed_since_built(bc)) {
+        DR_TRY(build_body_sdf(bc, k->dx, err));
+        DR_TRY(pose_body_collider(bc, err));
+        k->rebuilds++;
+    }
+    proxy_sync(bc);
+    DrStatus s = proxy_keys(bc, t1, bc->R, bc->T, t1 + 1e-3, dr_m3_mul(dr_m3_rotation_exp(dr_v3_scale(bc->W, 1e-3)), bc->R),
+                            dr_v3_add(bc->T, dr_v3_scale(bc->V, 1e-3)), bc->V, bc->W, err);
+    DR_TRY(dr_error_prefix(s, err, "%s.BemSolver", bc->element->name));
+    if (k->nliquid > k->nlive) k->liquid[k->nlive + i] = bc->collider;
+    k->body_posed[i].collider = bc->collider;
+    return DR_OK;
+}
+
+
 /* ---- the kinematics object ------------------------------------------------------------------------------------ */
 
 DrStatus world_kinematics_create(const DrScene *scene, int first_frame, double fps, WorldKinematics **out, DrError *err)
 {
     WorldKinematics *k = NULL;
     DR_TRY(dr_calloc(1, sizeof *k, &k, err));
+    k->gravity = dr_component_vec3(dr_scene_section(scene, "shot"), "gravity");
     DrStatus s = build_colliders(k, scene, first_frame, fps, err);
     if (s == DR_OK && dr_scene_count_kind(scene, DR_ELEMENT_HAIR) > 0 && dr_scene_count_kind(scene, DR_ELEMENT_MPM_SOLID) > 0)
         s = dr_point_field_create(&k->mpm_surface, err);
@@ -396,6 +696,12 @@ void world_kinematics_destroy(WorldKinematics **kp)
         free(k->bodies[i].keys);
         free(k->bodies[i].built_u);
     }
+    for (int i = 0; i < k->nbodies; i++) {
+        WorldBodyCollider *bc = &k->bodies[i];
+        free(bc->pdt), free(bc->wdt), free(bc->nb), free(bc->pts), free(bc->pv), free(bc->pw);
+    }
+    free(k->lbodies);
+    free(k->lb_body);
     free(k->bodies);
     free(k->body_posed);
     dr_point_field_destroy(&k->mpm_surface);

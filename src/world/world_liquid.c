@@ -25,6 +25,7 @@ typedef struct WorldLiquid {
     bool volume_alarm;       /* the volume alarm was raised (once per bake) */
     double volume, nominal;  /* m³: dr_liquid_particle_volume at the end of the last frame (diagnostics) */
     double density, viscosity; /* kg/m³, Pa·s: what the coupled loop's laws read */
+    bool bodies;             /* the first liquid: the two-way BEM bodies take part in its projections */
 } WorldLiquid;
 
 static void box_of(const DrComponent *c, const char *field, DrVec3 *lo, DrVec3 *hi) { dr_component_box(c, field, lo, hi); }
@@ -107,6 +108,13 @@ static DrStatus build_liquid(const WorldCtx *c, const DrElement *e, WorldLiquid 
     const DrComponent *tr = dr_element_component(e, "Transfer");
     const DrComponent *par = dr_element_component(e, "Particles");
     wl->element = e;
+    for (int i = 0; i < dr_scene_element_count(c->scene); i++) {
+        const DrElement *x = dr_scene_element(c->scene, i);
+        if (x->kind == DR_ELEMENT_LIQUID) {
+            wl->bodies = x == e;
+            break;
+        }
+    }
 
     DrLiquidDesc d;
     dr_liquid_desc_default(&d);
@@ -212,9 +220,20 @@ static DrStatus begin_substep(WorldLiquid *wl, const WorldCtx *c, double t, doub
     assert(t == wl->from);
     double proposed_end = wl->h == c->t1 - t ? c->t1 : t + wl->h;
     double h = t_next == proposed_end ? wl->h : t_next - t;
+    DrLiquidBody *lb = NULL;
+    int nb = wl->bodies ? world_kinematics_liquid_bodies(c->kin, t, h, &lb, err) : 0;
+    if (nb < 0) return nb;
     const DrCollider *const *cols = NULL;
     int n = world_kinematics_liquid_colliders(c->kin, &cols);
-    return dr_liquid_begin(wl->liquid, cols, n, t, h, err);
+    DR_TRY(dr_liquid_begin(wl->liquid, cols, n, t, h, err));
+    return nb > 0 ? dr_liquid_set_bodies(wl->liquid, lb, nb, err) : DR_OK;
+}
+
+/* The substep's end: the two-way bodies take what its last projection gave them, then the liquid ends. */
+static DrStatus end_substep(WorldLiquid *wl, const WorldCtx *c, DrError *err)
+{
+    if (wl->bodies) world_kinematics_liquid_bodies_done(c->kin, wl->liquid);
+    return dr_liquid_end(wl->liquid, &wl->frame, err);
 }
 
 static DrStatus liquid_step(void *self, const WorldCtx *c, double t, double t_next, DrError *err)
@@ -222,7 +241,7 @@ static DrStatus liquid_step(void *self, const WorldCtx *c, double t, double t_ne
     WorldLiquid *wl = self;
     DR_TRY(begin_substep(wl, c, t, t_next, err));
     DR_TRY(dr_liquid_project(wl->liquid, NULL, &wl->frame, err));
-    return dr_liquid_end(wl->liquid, &wl->frame, err);
+    return end_substep(wl, c, err);
 }
 
 /* ---- the coupled step: the liquid as the fluid of the loop (src/couple) ---- */
@@ -262,9 +281,8 @@ static void liquid_fluid_properties(const void *self, double *density, double *v
 
 static DrStatus liquid_fluid_end(void *self, const WorldCtx *c, DrError *err)
 {
-    (void)c;
     WorldLiquid *wl = self;
-    return dr_liquid_end(wl->liquid, &wl->frame, err);
+    return end_substep(wl, c, err);
 }
 
 static void liquid_begin_frame(void *self, const WorldCtx *c)
