@@ -117,6 +117,13 @@ struct DrLiquid {
     struct BodyFace *bface;  /* the faces coupling the bodies in the projection, body by body (body_faces) */
     long nbface, cap_bface;
     long *bface_start;       /* nbodies + 1 offsets into bface */
+    double *bimp[3];         /* per face: the momentum m_f Δu that setting a body's velocity on it gave the liquid
+                                (blocked faces, the collider constraint), N s, and the body (bwho, −1: none) */
+    signed char *bwho[3];
+    double *pdv;             /* per particle: the velocity the push-out out of a body took (3 each), and the body
+                                (pwho, −1: none); capacity pcap */
+    signed char *pwho;
+    long pcap;
     unsigned char *take[3];  /* faces that took the extra coupling's impulse and drag in the last projection */
     double *porous[3];       /* m_f/(m_f + β_f) on faces taking a drag mass, 1 elsewhere (porous_on) */
     bool porous_on;          /* the last projection's extra coupling had a drag mass */
@@ -437,14 +444,14 @@ void dr_liquid_destroy(DrLiquid **liq)
     DrLiquid *L = *liq;
     for (int a = 0; a < 3; a++) {
         free(L->fm[a]); free(L->uold[a]); free(L->own.open[a]); free(L->wsol[a]); free(L->own.velocity[a]);
-        free(L->owner[a]);
+        free(L->owner[a]); free(L->bimp[a]); free(L->bwho[a]);
         free(L->mix.open[a]); free(L->mix.velocity[a]); free(L->ustar[a]);
         free(L->tmp[a]); free(L->tmp2[a]); free(L->valid[a]); free(L->valid2[a]); free(L->valid3[a]); free(L->shut[a]);
         free(L->take[a]); free(L->porous[a]);
     }
     for (int a = 0; a < 3; a++) free(L->dsum[a]);
     free(L->nphi); free(L->nphi_static); free(L->open); free(L->near); free(L->cphi); free(L->dens);
-    free(L->bface); free(L->bface_start);
+    free(L->bface); free(L->bface_start); free(L->pdv); free(L->pwho);
     free(L->div_target); free(L->row); free(L->cells_of_row); free(L->blocks); free(L->vfill);
     dr_viscosity_destroy(&L->visc);
     free(L->rhs); free(L->q); free(L->work); free(L->impulse_partial);
@@ -825,6 +832,14 @@ static inline double face_mass(const DrLiquid *L, int a, long f)
    liquid reaches it: it takes no pressure impulse and is closed at the solid velocity, face_flux); else 1
    for the ghost-fluid formulation and ρΔx³/(m_f + m_f^virtual) for the mass-weighted one, m_f^virtual the
    virtual liquid's inside colliders (virtual_mass; 0 away from them). */
+/* The body (dr_liquid_set_bodies) that owns face f, −1 if none. */
+static inline int face_body(const DrLiquid *L, int a, long f)
+{
+    if (L->nbodies == 0) return -1;
+    int o = L->owner[a][f];
+    return o < 0 ? -1 : L->frame_body[o];
+}
+
 static inline double porous_scale(const DrLiquid *L, int a, long f)
 {
     return L->porous_on ? L->porous[a][f] : 1.0;
@@ -1095,6 +1110,9 @@ static int pressure_row(const DrLiquid *L, int r, int col[7], double val[7], dou
             int nbi = idx[a] + (side ? 1 : -1);
             if (nbi < 0 || nbi >= n[a]) continue;
             long nb = c + (side ? cstride[a] : -cstride[a]);
+            /* mass-weighted, a body's face takes the variational form: the liquid on it moves by w of the pressure
+               impulse and the body by the rest (1 − w), so the two add up to the face's whole impulse */
+            if (!gf && face_body(L, a, f) >= 0) w *= w;
             w *= face_inv_density(L, a, f);
             if (w <= 0.0) continue;
             if (L->row[nb] >= 0) {
@@ -1810,6 +1828,8 @@ static void project_slices(long begin, long end, void *vctx)
                 long clo = has_lo ? (has_hi ? chi - cstride[a] : dr_mac_cell_index(g, i, j, (int)k) - cstride[a]) : -1;
                 bool flo = clo >= 0 && L->row[clo] >= 0, fhi = chi >= 0 && L->row[chi] >= 0;
                 unsigned char val = 0;
+                int body = face_body(L, a, f);
+                double before = g->f[a][f];
                 if (L->cpl->open[a][f] <= 0.0) {
                     g->f[a][f] = L->cpl->velocity[a][f];
                     val = 1;
@@ -1820,16 +1840,29 @@ static void project_slices(long begin, long end, void *vctx)
                         val = 1;
                     }
                 } else if (mw) {
-                    /* every face with mass: u −= (ρ/ρ_f) Δq/Δx with q = 0 in air cells (air–air: no change) */
+                    /* every face with mass: u −= (ρ/ρ_f) Δq/Δx with q = 0 in air cells (air–air: no change); on a
+                       body's face the liquid's share w of it (pressure_row) */
                     double qlo = flo ? L->q[L->row[clo]] : 0.0, qhi = fhi ? L->q[L->row[chi]] : 0.0;
-                    g->f[a][f] -= face_inv_density(L, a, f) * (qhi - qlo) * inv;
+                    double share = body >= 0 ? L->cpl->open[a][f] : 1.0;
+                    g->f[a][f] -= share * face_inv_density(L, a, f) * (qhi - qlo) * inv;
                     val = 1;
+                    if (body >= 0) {
+                        /* the liquid's share w of the face's impulse ρΔx²(q_lo − q_hi) that its real mass did not
+                           take (the virtual liquid's part of the face mass) goes to the body, which took 1 − w */
+                        double full = share * L->d.density * g->dx * g->dx * (qlo - qhi);
+                        L->bimp[a][f] = -(full - L->fm[a][f] * (g->f[a][f] - before));
+                        L->bwho[a][f] = (signed char)body;
+                    }
                 } else if (flo || fhi) {
                     double qlo = q_of(L, clo, chi), qhi = q_of(L, chi, clo);
                     g->f[a][f] -= porous_scale(L, a, f) * (qhi - qlo) * inv;
                     val = 1;
                 }
                 L->valid[a][f] = val;
+                if (body >= 0 && (L->cpl->open[a][f] <= 0.0 || L->shut[a][f]) && g->f[a][f] != before) {
+                    L->bimp[a][f] = L->fm[a][f] * (g->f[a][f] - before);
+                    L->bwho[a][f] = (signed char)body;
+                }
             }
 }
 
@@ -2007,6 +2040,7 @@ static void collider_slices(long begin, long end, void *vctx)
                 DrVec3 vs = L->frame_body[best] >= 0 ? body_point_velocity(&L->bodies[L->frame_body[best]], x)
                                                      : dr_collider_frame_velocity(fr, x);
                 DrVec3 vrel = dr_v3_sub(face_full_velocity(L, a, i, j, (int)k), vs);
+                double before = g->f[a][f];
                 DrVec3 out;
                 if (dr_collider_no_slip(fr->c)) {
                     out = vs;
@@ -2020,6 +2054,10 @@ static void collider_slices(long begin, long end, void *vctx)
                     out = dr_v3_add(vs, dr_v3_scale(vt, scale));
                 }
                 g->f[a][f] = dr_v3_get(out, a);
+                if (L->frame_body[best] >= 0) {
+                    L->bimp[a][f] += L->fm[a][f] * (g->f[a][f] - before);
+                    L->bwho[a][f] = (signed char)L->frame_body[best];
+                }
             }
 }
 
@@ -2221,9 +2259,16 @@ static void advect_range(long begin, long end, void *vctx)
                 /* remove the inward relative velocity, then push out along ∇φ a little beyond the surface;
                    components of ∇φ that point out of the domain at a wall the particle touches are dropped
                    (a collider standing on the floor pushes sideways or up, never through the wall) */
-                DrVec3 vs = dr_collider_frame_velocity(fr, xp);
+                int body = L->frame_body[c];
+                DrVec3 vs = body >= 0 ? body_point_velocity(&L->bodies[body], xp) : dr_collider_frame_velocity(fr, xp);
                 double vn = dr_v3_dot(dr_v3_sub(vp, vs), n);
-                if (vn < 0.0) vp = dr_v3_sub(vp, dr_v3_scale(n, vn));
+                if (vn < 0.0) {
+                    vp = dr_v3_sub(vp, dr_v3_scale(n, vn));
+                    if (body >= 0) { /* the body takes what the particle lost (body_pushout_impulses) */
+                        for (int d = 0; d < 3; d++) L->pdv[3 * p + d] -= dr_v3_get(n, d) * vn;
+                        L->pwho[p] = (signed char)body;
+                    }
+                }
                 double gd[3] = {n.x, n.y, n.z};
                 for (int d = 0; d < 3; d++) {
                     double xd = dr_v3_get(xp, d);
@@ -2479,6 +2524,91 @@ static DrStatus grid_begin(DrLiquid *L, const DrCollider *const *colliders, int 
     return DR_OK;
 }
 
+/* What setting a body's velocity on faces gave the liquid (blocked and shut faces in the projection, the collider
+   constraint), taken from the body: its impulse and velocity lose it, so liquid and body together keep their momentum.
+   Serial over the faces in order: the same bits for any thread count. */
+static void body_constraint_impulses(DrLiquid *L)
+{
+    const DrMacGrid *g = L->g;
+    double s = 0.0;
+    (void)s;
+    for (int b = 0; b < L->nbodies; b++) {
+        DrLiquidBody *B = &L->bodies[b];
+        double J[6] = {0};
+        for (int a = 0; a < 3; a++) {
+            const int *dim = g->fdim[a];
+            for (int k = 0; k < dim[2]; k++)
+                for (int j = 0; j < dim[1]; j++)
+                    for (int i = 0; i < dim[0]; i++) {
+                        long f = dr_mac_face_index(g, a, i, j, k);
+                        if (L->bwho[a][f] != b || L->bimp[a][f] == 0.0) continue;
+                        DrVec3 x = dr_mac_face_position(g, a, i, j, k);
+                        double r[3] = {x.x - B->center[0], x.y - B->center[1], x.z - B->center[2]};
+                        double m = L->bimp[a][f];
+                        J[a] += m;
+                        /* (r × e_a) m */
+                        J[3] += m * (a == 0 ? 0.0 : (a == 1 ? -r[2] : r[1]));
+                        J[4] += m * (a == 0 ? r[2] : (a == 1 ? 0.0 : -r[0]));
+                        J[5] += m * (a == 0 ? -r[1] : (a == 1 ? r[0] : 0.0));
+                    }
+        }
+        for (int i = 0; i < 3; i++) {
+            B->impulse[i] -= J[i];
+            B->angular_impulse[i] -= J[3 + i];
+        }
+        if (!body_free(B)) continue;
+        for (int i = 0; i < 3; i++) {
+            B->velocity_out[i] -= B->inv_mass * J[i];
+            B->angular_velocity_out[i] -= B->inv_inertia[3 * i] * J[3] + B->inv_inertia[3 * i + 1] * J[4] +
+                                          B->inv_inertia[3 * i + 2] * J[5];
+        }
+    }
+}
+
+/* The momentum the extrapolation gives the faces with liquid mass that a body owns and the projection left
+   (sign −1 before it, +1 after): the body loses it too (body_constraint_impulses). */
+static void body_extrapolated(DrLiquid *L, double sign)
+{
+    const DrMacGrid *g = L->g;
+    for (int a = 0; a < 3; a++)
+        for (long f = 0; f < g->nfaces[a]; f++) {
+            int b = face_body(L, a, f);
+            if (b < 0 || L->valid[a][f] || !(L->fm[a][f] > 0.0)) continue;
+            L->bimp[a][f] += sign * L->fm[a][f] * g->f[a][f];
+            L->bwho[a][f] = (signed char)b;
+        }
+}
+
+/* The velocity the push-out took from particles leaving a body (their inward velocity relative to it), taken from the
+   body as well; serial over the particles in order (their positions after the push-out as the lever arms). */
+static void body_pushout_impulses(DrLiquid *L)
+{
+    const DrLiquidState *st = &L->st;
+    for (int b = 0; b < L->nbodies; b++) {
+        DrLiquidBody *B = &L->bodies[b];
+        double J[6] = {0};
+        for (long p = 0; p < st->n; p++) {
+            if (L->pwho[p] != b) continue;
+            double m[3] = {L->pmass * L->pdv[3 * p], L->pmass * L->pdv[3 * p + 1], L->pmass * L->pdv[3 * p + 2]};
+            double r[3] = {st->x[3 * p] - B->center[0], st->x[3 * p + 1] - B->center[1], st->x[3 * p + 2] - B->center[2]};
+            J[0] += m[0], J[1] += m[1], J[2] += m[2];
+            J[3] += r[1] * m[2] - r[2] * m[1];
+            J[4] += r[2] * m[0] - r[0] * m[2];
+            J[5] += r[0] * m[1] - r[1] * m[0];
+        }
+        for (int i = 0; i < 3; i++) {
+            B->impulse[i] -= J[i];
+            B->angular_impulse[i] -= J[3 + i];
+        }
+        if (!body_free(B)) continue;
+        for (int i = 0; i < 3; i++) {
+            B->velocity_out[i] -= B->inv_mass * J[i];
+            B->angular_velocity_out[i] -= B->inv_inertia[3 * i] * J[3] + B->inv_inertia[3 * i + 1] * J[4] +
+                                          B->inv_inertia[3 * i + 2] * J[5];
+        }
+    }
+}
+
 /* 4.–6. of a substep, after grid_begin: the pressure projection with the coupling `extra` added to the
    colliders' (NULL: theirs alone), the extrapolation of the grid change, the collider velocity constraint
    (domain walls stay at rest). */
@@ -2496,6 +2626,16 @@ static DrStatus grid_project(DrLiquid *L, const DrFaceCoupling *extra, DrLiquidS
         L->cpl = &L->mix;
     }
 
+    if (L->nbodies > 0)
+        for (int a = 0; a < 3; a++) {
+            if (!L->bimp[a]) {
+                DR_TRY(dr_calloc((size_t)g->nfaces[a], sizeof(double), &L->bimp[a], err));
+                DR_TRY(dr_calloc((size_t)g->nfaces[a], 1, &L->bwho[a], err));
+            }
+            memset(L->bimp[a], 0, (size_t)g->nfaces[a] * sizeof(double));
+            memset(L->bwho[a], 0xff, (size_t)g->nfaces[a]);
+        }
+
     /* 4. pressure projection */
     DR_TRY(pressure_solve(L, extra, stats, err));
     for (int a = 0; a < 3; a++) run_faces(L, project_slices, a);
@@ -2505,11 +2645,14 @@ static DrStatus grid_project(DrLiquid *L, const DrFaceCoupling *extra, DrLiquidS
     stats->seconds_pressure += t_3 - t_2;
 
     /* 5. extrapolation; 6. collider velocity constraint */
+    if (L->nbodies > 0) body_extrapolated(L, -1.0);
     extrapolate(L);
+    if (L->nbodies > 0) body_extrapolated(L, 1.0);
     if (L->nframes > 0) {
         for (int a = 0; a < 3; a++) memcpy(L->tmp[a], g->f[a], (size_t)g->nfaces[a] * sizeof(double));
         for (int a = 0; a < 3; a++) run_faces(L, collider_slices, a);
     }
+    if (L->nbodies > 0) body_constraint_impulses(L);
     L->sample_ok = true;
     stats->seconds_other += dr_time_now() - t_3;
     return DR_OK;
@@ -2672,7 +2815,18 @@ static DrStatus step_end(DrLiquid *L, DrLiquidStats *stats, bool report, DrError
     actx.L = L;
     actx.dt = L->h_step;
     for (int c = 0; c < L->nframes; c++) dr_collider_frame_bounds(&L->frames[c], &actx.blo[c], &actx.bhi[c]);
+    if (L->nbodies > 0) {
+        if (s->n > L->pcap) {
+            long cap = s->n + s->n / 4 + 1024;
+            DR_TRY(dr_realloc((size_t)cap * 3, sizeof(double), &L->pdv, err));
+            DR_TRY(dr_realloc((size_t)cap, 1, &L->pwho, err));
+            L->pcap = cap;
+        }
+        memset(L->pdv, 0, (size_t)s->n * 3 * sizeof(double));
+        memset(L->pwho, 0xff, (size_t)s->n);
+    }
     dr_parallel_for(s->n, L->nframes > 0 ? 2048 : PAR_MIN_ITEMS, advect_range, &actx);
+    if (L->nbodies > 0) body_pushout_impulses(L);
     double t_7 = dr_time_now();
     stats->seconds_advect += t_7 - t_6;
 

@@ -229,11 +229,13 @@ static DrStatus begin_substep(WorldLiquid *wl, const WorldCtx *c, double t, doub
     return nb > 0 ? dr_liquid_set_bodies(wl->liquid, lb, nb, err) : DR_OK;
 }
 
-/* The substep's end: the two-way bodies take what its last projection gave them, then the liquid ends. */
+/* The substep's end: the liquid ends (its push-out out of a body gives that body what it takes), then the two-way
+   bodies take what the substep gave them. */
 static DrStatus end_substep(WorldLiquid *wl, const WorldCtx *c, DrError *err)
 {
+    DR_TRY(dr_liquid_end(wl->liquid, &wl->frame, err));
     if (wl->bodies) world_kinematics_liquid_bodies_done(c->kin, wl->liquid);
-    return dr_liquid_end(wl->liquid, &wl->frame, err);
+    return DR_OK;
 }
 
 static DrStatus liquid_step(void *self, const WorldCtx *c, double t, double t_next, DrError *err)
