@@ -18,6 +18,16 @@
    accumulators live in registers instead of memory. */
 #define UNROLL _Pragma("GCC unroll 16")
 
+/* The scatters and gathers work on lane vectors of 4 doubles: a node's velocity components (x, y, z and a
+   zero pad lane), or P2G's (mass, momentum x, y, z). Every lane does the scalar arithmetic of its component
+   in the order of a loop over the components, so results are those of that loop bit for bit, whatever width
+   the compiler gives the vector operations: two SSE2 halves in the baseline x86-64 build, one AVX register
+   in the AVX2 build of each kernel, chosen at run time (cpu_avx2). The AVX2 build holds a vector in one of
+   16 registers, where SSE2 needs two and spills; it adds no fused multiply-add (no "fma" target, and
+   -ffp-contract=off), so both builds do the same IEEE operations and give the same bits. */
+typedef double V4 __attribute__((vector_size(4 * sizeof(double))));
+static bool cpu_avx2(void) { return __builtin_cpu_supports("avx2"); }
+
 /* ==== kernels ==================================================================================== */
 
 static int kernel_nodes(DrKernel k) { return k == DR_KERNEL_LINEAR ? 2 : (k == DR_KERNEL_QUADRATIC ? 3 : 4); }
@@ -304,9 +314,10 @@ typedef struct ScatterCtx {
     void (*bin_fn)(const struct ScatterCtx *, long);
 } ScatterCtx;
 
-/* One bin: its particles are summed into a local K^dim block of nodes (4 accumulators each), which is
-   then added to the grid once: every grid value is read and written once per bin instead of once per
-   particle. The block's order of summation depends on the particle data only. */
+/* One bin: its particles are summed into a local K^dim block of nodes (one lane vector of 4 accumulators
+   each), which is then added to the grid once: every grid value is read and written once per bin instead
+   of once per particle. The block's order of summation depends on the particle data only, and every lane
+   does the scalar arithmetic of its accumulator in the order of a loop over them (see V4). */
 DR_INLINE void scatter_bin(const ScatterCtx *c, long bin, int K, int D3, ScatterOp op)
 {
     const DrNodeBins *b = c->b;
@@ -316,8 +327,10 @@ DR_INLINE void scatter_bin(const ScatterCtx *c, long bin, int K, int D3, Scatter
     const double ox = g->origin.x, oy = g->origin.y, oz = g->origin.z;
     const int bx = (int)(bin % b->nb[0]), by = (int)((bin / b->nb[0]) % b->nb[1]),
               bz = (int)(bin / ((long)b->nb[0] * b->nb[1]));
-    double blk[64][4];
-    memset(blk, 0, sizeof(double) * 4 * (size_t)(K * K * KZ));
+    const V4 zero = {0, 0, 0, 0};
+    V4 blk[64];
+    UNROLL
+    for (int q = 0; q < K * K * KZ; q++) blk[q] = zero;
     for (long q = b->start[bin]; q < b->start[bin + 1]; q++) {
         long p = b->order[q];
         const double *xp = c->x + 3 * p;
@@ -333,76 +346,68 @@ DR_INLINE void scatter_bin(const ScatterCtx *c, long bin, int K, int D3, Scatter
         (void)ax, (void)ay, (void)az;
         if (op == OP_P2G) {
             /* eqs. (24)–(26) with C_p = B_p D_p⁻¹ (or the lagged C of §5.9): node momentum
-               w m (v_p + C_p (x_i − x_p)); the affine part is separable along the axes */
+               w m (v_p + C_p (x_i − x_p)); the affine part is separable along the axes. Lanes (mass,
+               momentum x, y, z): lane 0 carries 1 through the sums, so it adds w m. */
             const double m = c->mass[p];
-            double vp[3] = {c->v[3 * p], c->v[3 * p + 1], D3 ? c->v[3 * p + 2] : 0.0};
-            double Cp[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
-            if (c->C) memcpy(Cp, c->C + 9 * p, sizeof Cp);
-            double cx[3][4], ry[4], rz[4];
+            const double *vp = c->v + 3 * p;
+            V4 c0 = zero, c1 = zero, c2 = zero; /* columns of C_p in lanes 1–3 */
+            if (c->C) {
+                const double *Cp = c->C + 9 * p;
+                c0 = (V4){0, Cp[0], Cp[3], Cp[6]};
+                c1 = (V4){0, Cp[1], Cp[4], Cp[7]};
+                c2 = (V4){0, Cp[2], Cp[5], Cp[8]};
+            }
+            const V4 v1 = {1, vp[0], vp[1], D3 ? vp[2] : 0.0};
+            V4 cx[4];
+            double ry[4], rz[4];
             UNROLL
             for (int i = 0; i < K; i++) {
                 double rx = dx * ((double)i - (sx - bx));
                 ry[i] = dx * ((double)i - (sy - by));
                 rz[i] = D3 ? dx * ((double)i - (sz - bz)) : 0.0;
-                UNROLL
-                for (int a = 0; a < 3; a++) cx[a][i] = Cp[3 * a] * rx;
+                cx[i] = c0 * rx;
             }
             UNROLL
             for (int kk = 0; kk < KZ; kk++) {
-                double wzm = wz[kk] * m, vz[3];
-                UNROLL
-                for (int a = 0; a < 3; a++) vz[a] = D3 ? vp[a] + Cp[3 * a + 2] * rz[kk] : vp[a];
+                double wzm = wz[kk] * m;
+                V4 vz = D3 ? v1 + c2 * rz[kk] : v1;
                 UNROLL
                 for (int jj = 0; jj < K; jj++) {
-                    double wyz = wy[jj] * wzm, vyz[3];
+                    double wyz = wy[jj] * wzm;
+                    V4 vyz = vz + c1 * ry[jj];
+                    V4 *row = blk + K * (jj + K * kk);
                     UNROLL
-                    for (int a = 0; a < 3; a++) vyz[a] = vz[a] + Cp[3 * a + 1] * ry[jj];
-                    double (*row)[4] = blk + K * (jj + K * kk);
-                    UNROLL
-                    for (int ii = 0; ii < K; ii++) {
-                        double wm = wx[ii] * wyz;
-                        row[ii][0] += wm;
-                        row[ii][1] += wm * (vyz[0] + cx[0][ii]);
-                        row[ii][2] += wm * (vyz[1] + cx[1][ii]);
-                        if (D3) row[ii][3] += wm * (vyz[2] + cx[2][ii]);
-                    }
+                    for (int ii = 0; ii < K; ii++) row[ii] += (wx[ii] * wyz) * (vyz + cx[ii]);
                 }
             }
         } else if (op == OP_GRADIENT) {
             /* out_i += M_p ∇w_ip, ∇w = (w'_x w_y w_z, w_x w'_y w_z, w_x w_y w'_z)/Δx: per row of nodes along
-               x, M ∇w = α_r w'_x + β_r w_x */
+               x, M ∇w = α_r w'_x + β_r w_x (lanes: the rows r of M) */
             const double *M = c->in + 9 * p;
+            const V4 m0 = {M[0], M[3], D3 ? M[6] : 0.0, 0}, m1 = {M[1], M[4], D3 ? M[7] : 0.0, 0},
+                     m2 = {M[2], M[5], D3 ? M[8] : 0.0, 0};
             UNROLL
             for (int kk = 0; kk < KZ; kk++)
                 UNROLL
                 for (int jj = 0; jj < K; jj++) {
-                    double wyz = wy[jj] * wz[kk] * inv, al[3], be[3];
+                    double wyz = wy[jj] * wz[kk] * inv;
                     double dy = dwy[jj] * wz[kk] * inv, dz = wy[jj] * dwz[kk] * inv;
+                    V4 al = m0 * wyz, be = D3 ? m1 * dy + m2 * dz : m1 * dy;
+                    V4 *row = blk + K * (jj + K * kk);
                     UNROLL
-                    for (int r = 0; r < NA; r++) {
-                        al[r] = M[3 * r] * wyz;
-                        be[r] = D3 ? M[3 * r + 1] * dy + M[3 * r + 2] * dz : M[3 * r + 1] * dy;
-                    }
-                    double (*row)[4] = blk + K * (jj + K * kk);
-                    UNROLL
-                    for (int ii = 0; ii < K; ii++)
-                        UNROLL
-                        for (int r = 0; r < NA; r++) row[ii][r] += al[r] * dwx[ii] + be[r] * wx[ii];
+                    for (int ii = 0; ii < K; ii++) row[ii] += al * dwx[ii] + be * wx[ii];
                 }
         } else {
             const double *f = c->in + 3 * p;
+            const V4 fv = {f[0], f[1], D3 ? f[2] : 0.0, 0};
             UNROLL
             for (int kk = 0; kk < KZ; kk++)
                 UNROLL
                 for (int jj = 0; jj < K; jj++) {
                     double wyz = wy[jj] * wz[kk];
-                    double (*row)[4] = blk + K * (jj + K * kk);
+                    V4 *row = blk + K * (jj + K * kk);
                     UNROLL
-                    for (int ii = 0; ii < K; ii++) {
-                        double w = wx[ii] * wyz;
-                        UNROLL
-                        for (int a = 0; a < NA; a++) row[ii][a] += w * f[a];
-                    }
+                    for (int ii = 0; ii < K; ii++) row[ii] += (wx[ii] * wyz) * fv;
                 }
         }
     }
@@ -413,7 +418,7 @@ DR_INLINE void scatter_bin(const ScatterCtx *c, long bin, int K, int D3, Scatter
         UNROLL
         for (int jj = 0; jj < K; jj++) {
             long node = bx + n0 * ((long)(by + jj) + n1 * (long)(bz + kk));
-            const double (*row)[4] = blk + K * (jj + K * kk);
+            const V4 *row = blk + K * (jj + K * kk);
             if (op == OP_P2G) {
                 double *m = c->acc0 + node, *mv = c->acc3 + 3 * node;
                 UNROLL
@@ -432,8 +437,13 @@ DR_INLINE void scatter_bin(const ScatterCtx *c, long bin, int K, int D3, Scatter
         }
 }
 
+/* Each scatter is built for SSE2 and for AVX2 (same bits; see V4). */
 #define SCATTER_FN(name, K, D3, OP) \
-    static void name(const ScatterCtx *c, long bin) { scatter_bin(c, bin, K, D3, OP); }
+    static void name(const ScatterCtx *c, long bin) { scatter_bin(c, bin, K, D3, OP); } \
+    __attribute__((target("avx2"))) static void name##_avx2(const ScatterCtx *c, long bin) \
+    { \
+        scatter_bin(c, bin, K, D3, OP); \
+    }
 SCATTER_FN(p2g_l2, 2, 0, OP_P2G)
 SCATTER_FN(p2g_l3, 2, 1, OP_P2G)
 SCATTER_FN(p2g_q2, 3, 0, OP_P2G)
@@ -453,10 +463,17 @@ SCATTER_FN(vec_q3, 3, 1, OP_VECTOR)
 SCATTER_FN(vec_c2, 4, 0, OP_VECTOR)
 SCATTER_FN(vec_c3, 4, 1, OP_VECTOR)
 
-static void (*const scatter_table[3][3][2])(const ScatterCtx *, long) = {
-    {{p2g_l2, p2g_l3}, {p2g_q2, p2g_q3}, {p2g_c2, p2g_c3}},
-    {{grad_l2, grad_l3}, {grad_q2, grad_q3}, {grad_c2, grad_c3}},
-    {{vec_l2, vec_l3}, {vec_q2, vec_q3}, {vec_c2, vec_c3}},
+static void (*const scatter_table[2][3][3][2])(const ScatterCtx *, long) = {
+    {
+        {{p2g_l2, p2g_l3}, {p2g_q2, p2g_q3}, {p2g_c2, p2g_c3}},
+        {{grad_l2, grad_l3}, {grad_q2, grad_q3}, {grad_c2, grad_c3}},
+        {{vec_l2, vec_l3}, {vec_q2, vec_q3}, {vec_c2, vec_c3}},
+    },
+    {
+        {{p2g_l2_avx2, p2g_l3_avx2}, {p2g_q2_avx2, p2g_q3_avx2}, {p2g_c2_avx2, p2g_c3_avx2}},
+        {{grad_l2_avx2, grad_l3_avx2}, {grad_q2_avx2, grad_q3_avx2}, {grad_c2_avx2, grad_c3_avx2}},
+        {{vec_l2_avx2, vec_l3_avx2}, {vec_q2_avx2, vec_q3_avx2}, {vec_c2_avx2, vec_c3_avx2}},
+    },
 };
 
 static void scatter_slabs(long begin, long end, void *vctx)
@@ -501,7 +518,7 @@ static void scatter(ScatterCtx *c, ScatterOp op)
     long ngrain = g->nnodes >= 4 * NODE_PAR_MIN ? NODE_PAR_MIN : g->nnodes;
     NodeCtx z = {c->acc0, c->acc3, c->acc0};
     dr_parallel_for(g->nnodes, ngrain, zero_range, &z);
-    c->bin_fn = scatter_table[op][b->K - 2][b->dim == 3];
+    c->bin_fn = scatter_table[cpu_avx2()][op][b->K - 2][b->dim == 3];
     long nslab_axis = b->nb[b->dim - 1];
     long nslabs = (nslab_axis + NODE_SLAB - 1) / NODE_SLAB;
     for (int parity = 0; parity < 2; parity++) {
@@ -542,11 +559,6 @@ enum {
     G_GO = 8, /* Σ O ŵ'ᵀ */
     G_T = 16, /* T = Σ w A Oᵀ */
 };
-/* Node values and sums are vectors over the velocity components (lanes x, y, z and a zero pad lane): every
-   lane does the scalar arithmetic of its component in the same order, so results are those of a loop over
-   components, bit for bit, whatever width the compiler gives the vector operations (two SSE2 halves, or one
-   AVX register in the avx2 clones below). */
-typedef double V4 __attribute__((vector_size(4 * sizeof(double))));
 /* Sums over the stencil, as columns: B[c] holds B[3a + c] in lane a, likewise gA, gO, and T[e] holds
    T[3a + e] (T = Σ w A Oᵀ). */
 typedef struct Sums { V4 vA, vO, B[3], gA[3], gO[3], T[3]; } Sums;
@@ -788,10 +800,7 @@ DR_INLINE void gather_range(const GatherCtx *c, long begin, long end, int K, int
     }
 }
 
-/* Each gather is built twice: for the baseline x86-64 (SSE2) and for AVX2, chosen at run time. The AVX2
-   build holds a lane vector in one register (16 of them, where SSE2 needs two registers per vector and
-   spills); it adds no fused multiply-add (no "fma" target, and -ffp-contract=off), so both builds do the
-   same IEEE operations in the same order and give the same bits. */
+/* Each gather is built for SSE2 and for AVX2 (same bits; see V4). */
 #define GATHER_FN(name, K, D3) \
     static void name(long begin, long end, void *c) { gather_range(c, begin, end, K, D3); } \
     __attribute__((target("avx2"))) static void name##_avx2(long begin, long end, void *c) \
@@ -808,8 +817,6 @@ static const DrRangeFn gather_table[2][3][2] = {
     {{gather_l2, gather_l3}, {gather_q2, gather_q3}, {gather_c2, gather_c3}},
     {{gather_l2_avx2, gather_l3_avx2}, {gather_q2_avx2, gather_q3_avx2}, {gather_c2_avx2, gather_c3_avx2}},
 };
-
-static bool cpu_avx2(void) { return __builtin_cpu_supports("avx2"); }
 
 static void gather(GatherCtx *c)
 {
