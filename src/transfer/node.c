@@ -18,6 +18,16 @@
    accumulators live in registers instead of memory. */
 #define UNROLL _Pragma("GCC unroll 16")
 
+/* The scatters and gathers work on lane vectors of 4 doubles: a node's velocity components (x, y, z and a
+   zero pad lane), or P2G's (mass, momentum x, y, z). Every lane does the scalar arithmetic of its component
+   in the order of a loop over the components, so results are those of that loop bit for bit, whatever width
+   the compiler gives the vector operations: two SSE2 halves in the baseline x86-64 build, one AVX register
+   in the AVX2 build of each kernel, chosen at run time (cpu_avx2). The AVX2 build holds a vector in one of
+   16 registers, where SSE2 needs two and spills; it adds no fused multiply-add (no "fma" target, and
+   -ffp-contract=off), so both builds do the same IEEE operations and give the same bits. */
+typedef double V4 __attribute__((vector_size(4 * sizeof(double))));
+static bool cpu_avx2(void) { return __builtin_cpu_supports("avx2"); }
+
 /* ==== kernels ==================================================================================== */
 
 static int kernel_nodes(DrKernel k) { return k == DR_KERNEL_LINEAR ? 2 : (k == DR_KERNEL_QUADRATIC ? 3 : 4); }
@@ -304,9 +314,10 @@ typedef struct ScatterCtx {
     void (*bin_fn)(const struct ScatterCtx *, long);
 } ScatterCtx;
 
-/* One bin: its particles are summed into a local K^dim block of nodes (4 accumulators each), which is
-   then added to the grid once: every grid value is read and written once per bin instead of once per
-   particle. The block's order of summation depends on the particle data only. */
+/* One bin: its particles are summed into a local K^dim block of nodes (one lane vector of 4 accumulators
+   each), which is then added to the grid once: every grid value is read and written once per bin instead
+   of once per particle. The block's order of summation depends on the particle data only, and every lane
+   does the scalar arithmetic of its accumulator in the order of a loop over them (see V4). */
 DR_INLINE void scatter_bin(const ScatterCtx *c, long bin, int K, int D3, ScatterOp op)
 {
     const DrNodeBins *b = c->b;
@@ -316,8 +327,10 @@ DR_INLINE void scatter_bin(const ScatterCtx *c, long bin, int K, int D3, Scatter
     const double ox = g->origin.x, oy = g->origin.y, oz = g->origin.z;
     const int bx = (int)(bin % b->nb[0]), by = (int)((bin / b->nb[0]) % b->nb[1]),
               bz = (int)(bin / ((long)b->nb[0] * b->nb[1]));
-    double blk[64][4];
-    memset(blk, 0, sizeof(double) * 4 * (size_t)(K * K * KZ));
+    const V4 zero = {0, 0, 0, 0};
+    V4 blk[64];
+    UNROLL
+    for (int q = 0; q < K * K * KZ; q++) blk[q] = zero;
     for (long q = b->start[bin]; q < b->start[bin + 1]; q++) {
         long p = b->order[q];
         const double *xp = c->x + 3 * p;
@@ -333,76 +346,68 @@ DR_INLINE void scatter_bin(const ScatterCtx *c, long bin, int K, int D3, Scatter
         (void)ax, (void)ay, (void)az;
         if (op == OP_P2G) {
             /* eqs. (24)–(26) with C_p = B_p D_p⁻¹ (or the lagged C of §5.9): node momentum
-               w m (v_p + C_p (x_i − x_p)); the affine part is separable along the axes */
+               w m (v_p + C_p (x_i − x_p)); the affine part is separable along the axes. Lanes (mass,
+               momentum x, y, z): lane 0 carries 1 through the sums, so it adds w m. */
             const double m = c->mass[p];
-            double vp[3] = {c->v[3 * p], c->v[3 * p + 1], D3 ? c->v[3 * p + 2] : 0.0};
-            double Cp[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
-            if (c->C) memcpy(Cp, c->C + 9 * p, sizeof Cp);
-            double cx[3][4], ry[4], rz[4];
+            const double *vp = c->v + 3 * p;
+            V4 c0 = zero, c1 = zero, c2 = zero; /* columns of C_p in lanes 1–3 */
+            if (c->C) {
+                const double *Cp = c->C + 9 * p;
+                c0 = (V4){0, Cp[0], Cp[3], Cp[6]};
+                c1 = (V4){0, Cp[1], Cp[4], Cp[7]};
+                c2 = (V4){0, Cp[2], Cp[5], Cp[8]};
+            }
+            const V4 v1 = {1, vp[0], vp[1], D3 ? vp[2] : 0.0};
+            V4 cx[4];
+            double ry[4], rz[4];
             UNROLL
             for (int i = 0; i < K; i++) {
                 double rx = dx * ((double)i - (sx - bx));
                 ry[i] = dx * ((double)i - (sy - by));
                 rz[i] = D3 ? dx * ((double)i - (sz - bz)) : 0.0;
-                UNROLL
-                for (int a = 0; a < 3; a++) cx[a][i] = Cp[3 * a] * rx;
+                cx[i] = c0 * rx;
             }
             UNROLL
             for (int kk = 0; kk < KZ; kk++) {
-                double wzm = wz[kk] * m, vz[3];
-                UNROLL
-                for (int a = 0; a < 3; a++) vz[a] = D3 ? vp[a] + Cp[3 * a + 2] * rz[kk] : vp[a];
+                double wzm = wz[kk] * m;
+                V4 vz = D3 ? v1 + c2 * rz[kk] : v1;
                 UNROLL
                 for (int jj = 0; jj < K; jj++) {
-                    double wyz = wy[jj] * wzm, vyz[3];
+                    double wyz = wy[jj] * wzm;
+                    V4 vyz = vz + c1 * ry[jj];
+                    V4 *row = blk + K * (jj + K * kk);
                     UNROLL
-                    for (int a = 0; a < 3; a++) vyz[a] = vz[a] + Cp[3 * a + 1] * ry[jj];
-                    double (*row)[4] = blk + K * (jj + K * kk);
-                    UNROLL
-                    for (int ii = 0; ii < K; ii++) {
-                        double wm = wx[ii] * wyz;
-                        row[ii][0] += wm;
-                        row[ii][1] += wm * (vyz[0] + cx[0][ii]);
-                        row[ii][2] += wm * (vyz[1] + cx[1][ii]);
-                        if (D3) row[ii][3] += wm * (vyz[2] + cx[2][ii]);
-                    }
+                    for (int ii = 0; ii < K; ii++) row[ii] += (wx[ii] * wyz) * (vyz + cx[ii]);
                 }
             }
         } else if (op == OP_GRADIENT) {
             /* out_i += M_p ∇w_ip, ∇w = (w'_x w_y w_z, w_x w'_y w_z, w_x w_y w'_z)/Δx: per row of nodes along
-               x, M ∇w = α_r w'_x + β_r w_x */
+               x, M ∇w = α_r w'_x + β_r w_x (lanes: the rows r of M) */
             const double *M = c->in + 9 * p;
+            const V4 m0 = {M[0], M[3], D3 ? M[6] : 0.0, 0}, m1 = {M[1], M[4], D3 ? M[7] : 0.0, 0},
+                     m2 = {M[2], M[5], D3 ? M[8] : 0.0, 0};
             UNROLL
             for (int kk = 0; kk < KZ; kk++)
                 UNROLL
                 for (int jj = 0; jj < K; jj++) {
-                    double wyz = wy[jj] * wz[kk] * inv, al[3], be[3];
+                    double wyz = wy[jj] * wz[kk] * inv;
                     double dy = dwy[jj] * wz[kk] * inv, dz = wy[jj] * dwz[kk] * inv;
+                    V4 al = m0 * wyz, be = D3 ? m1 * dy + m2 * dz : m1 * dy;
+                    V4 *row = blk + K * (jj + K * kk);
                     UNROLL
-                    for (int r = 0; r < NA; r++) {
-                        al[r] = M[3 * r] * wyz;
-                        be[r] = D3 ? M[3 * r + 1] * dy + M[3 * r + 2] * dz : M[3 * r + 1] * dy;
-                    }
-                    double (*row)[4] = blk + K * (jj + K * kk);
-                    UNROLL
-                    for (int ii = 0; ii < K; ii++)
-                        UNROLL
-                        for (int r = 0; r < NA; r++) row[ii][r] += al[r] * dwx[ii] + be[r] * wx[ii];
+                    for (int ii = 0; ii < K; ii++) row[ii] += al * dwx[ii] + be * wx[ii];
                 }
         } else {
             const double *f = c->in + 3 * p;
+            const V4 fv = {f[0], f[1], D3 ? f[2] : 0.0, 0};
             UNROLL
             for (int kk = 0; kk < KZ; kk++)
                 UNROLL
                 for (int jj = 0; jj < K; jj++) {
                     double wyz = wy[jj] * wz[kk];
-                    double (*row)[4] = blk + K * (jj + K * kk);
+                    V4 *row = blk + K * (jj + K * kk);
                     UNROLL
-                    for (int ii = 0; ii < K; ii++) {
-                        double w = wx[ii] * wyz;
-                        UNROLL
-                        for (int a = 0; a < NA; a++) row[ii][a] += w * f[a];
-                    }
+                    for (int ii = 0; ii < K; ii++) row[ii] += (wx[ii] * wyz) * fv;
                 }
         }
     }
@@ -413,7 +418,7 @@ DR_INLINE void scatter_bin(const ScatterCtx *c, long bin, int K, int D3, Scatter
         UNROLL
         for (int jj = 0; jj < K; jj++) {
             long node = bx + n0 * ((long)(by + jj) + n1 * (long)(bz + kk));
-            const double (*row)[4] = blk + K * (jj + K * kk);
+            const V4 *row = blk + K * (jj + K * kk);
             if (op == OP_P2G) {
                 double *m = c->acc0 + node, *mv = c->acc3 + 3 * node;
                 UNROLL
@@ -432,8 +437,13 @@ DR_INLINE void scatter_bin(const ScatterCtx *c, long bin, int K, int D3, Scatter
         }
 }
 
+/* Each scatter is built for SSE2 and for AVX2 (same bits; see V4). */
 #define SCATTER_FN(name, K, D3, OP) \
-    static void name(const ScatterCtx *c, long bin) { scatter_bin(c, bin, K, D3, OP); }
+    static void name(const ScatterCtx *c, long bin) { scatter_bin(c, bin, K, D3, OP); } \
+    __attribute__((target("avx2"))) static void name##_avx2(const ScatterCtx *c, long bin) \
+    { \
+        scatter_bin(c, bin, K, D3, OP); \
+    }
 SCATTER_FN(p2g_l2, 2, 0, OP_P2G)
 SCATTER_FN(p2g_l3, 2, 1, OP_P2G)
 SCATTER_FN(p2g_q2, 3, 0, OP_P2G)
@@ -453,10 +463,17 @@ SCATTER_FN(vec_q3, 3, 1, OP_VECTOR)
 SCATTER_FN(vec_c2, 4, 0, OP_VECTOR)
 SCATTER_FN(vec_c3, 4, 1, OP_VECTOR)
 
-static void (*const scatter_table[3][3][2])(const ScatterCtx *, long) = {
-    {{p2g_l2, p2g_l3}, {p2g_q2, p2g_q3}, {p2g_c2, p2g_c3}},
-    {{grad_l2, grad_l3}, {grad_q2, grad_q3}, {grad_c2, grad_c3}},
-    {{vec_l2, vec_l3}, {vec_q2, vec_q3}, {vec_c2, vec_c3}},
+static void (*const scatter_table[2][3][3][2])(const ScatterCtx *, long) = {
+    {
+        {{p2g_l2, p2g_l3}, {p2g_q2, p2g_q3}, {p2g_c2, p2g_c3}},
+        {{grad_l2, grad_l3}, {grad_q2, grad_q3}, {grad_c2, grad_c3}},
+        {{vec_l2, vec_l3}, {vec_q2, vec_q3}, {vec_c2, vec_c3}},
+    },
+    {
+        {{p2g_l2_avx2, p2g_l3_avx2}, {p2g_q2_avx2, p2g_q3_avx2}, {p2g_c2_avx2, p2g_c3_avx2}},
+        {{grad_l2_avx2, grad_l3_avx2}, {grad_q2_avx2, grad_q3_avx2}, {grad_c2_avx2, grad_c3_avx2}},
+        {{vec_l2_avx2, vec_l3_avx2}, {vec_q2_avx2, vec_q3_avx2}, {vec_c2_avx2, vec_c3_avx2}},
+    },
 };
 
 static void scatter_slabs(long begin, long end, void *vctx)
@@ -501,7 +518,7 @@ static void scatter(ScatterCtx *c, ScatterOp op)
     long ngrain = g->nnodes >= 4 * NODE_PAR_MIN ? NODE_PAR_MIN : g->nnodes;
     NodeCtx z = {c->acc0, c->acc3, c->acc0};
     dr_parallel_for(g->nnodes, ngrain, zero_range, &z);
-    c->bin_fn = scatter_table[op][b->K - 2][b->dim == 3];
+    c->bin_fn = scatter_table[cpu_avx2()][op][b->K - 2][b->dim == 3];
     long nslab_axis = b->nb[b->dim - 1];
     long nslabs = (nslab_axis + NODE_SLAB - 1) / NODE_SLAB;
     for (int parity = 0; parity < 2; parity++) {
@@ -542,7 +559,9 @@ enum {
     G_GO = 8, /* Σ O ŵ'ᵀ */
     G_T = 16, /* T = Σ w A Oᵀ */
 };
-typedef struct Sums { double vA[3], vO[3], B[9], gA[9], gO[9], T[9]; } Sums;
+/* Sums over the stencil, as columns: B[c] holds B[3a + c] in lane a, likewise gA, gO, and T[e] holds
+   T[3a + e] (T = Σ w A Oᵀ). */
+typedef struct Sums { V4 vA, vO, B[3], gA[3], gO[3], T[3]; } Sums;
 
 typedef struct GatherCtx {
     const DrNodeGrid *g;
@@ -558,18 +577,52 @@ typedef struct GatherCtx {
     int mode; /* 0 G2P, 1 gather_gradient, 2 gather_vector */
 } GatherCtx;
 
-DR_INLINE void gather_sums(const GatherCtx *c, const double *xp, int K, int D3, Sums *S)
+/* The K^dim node values of one stencil, copied into lane form (z lane 0 in 2-D, pad lane 0). Consecutive
+   particles of one bin (particles stored in bin order) reach the same nodes and reuse the copy. */
+typedef struct Block {
+    long base; /* node index of the stencil's low corner, −1 = empty */
+    V4 A[64], O[64];
+} Block;
+
+DR_INLINE void block_load(const GatherCtx *c, long base, int K, int D3, Block *blk)
 {
     const DrNodeGrid *g = c->g;
-    const int KZ = D3 ? K : 1, NA = D3 ? 3 : 2, fl = c->flags;
+    const int KZ = D3 ? K : 1;
+    const long n0 = g->n[0], n01 = (long)g->n[0] * g->n[1];
+    const bool two = c->O && (c->flags & (G_O | G_GO | G_T));
+    UNROLL
+    for (int kk = 0; kk < KZ; kk++)
+        UNROLL
+        for (int jj = 0; jj < K; jj++) {
+            long node = base + n0 * jj + n01 * kk;
+            const double *a = c->A + 3 * node;
+            V4 *ra = blk->A + K * (jj + K * kk);
+            UNROLL
+            for (int ii = 0; ii < K; ii++) ra[ii] = (V4){a[3 * ii], a[3 * ii + 1], D3 ? a[3 * ii + 2] : 0.0, 0.0};
+            if (two) {
+                const double *o = c->O + 3 * node;
+                V4 *ro = blk->O + K * (jj + K * kk);
+                UNROLL
+                for (int ii = 0; ii < K; ii++) ro[ii] = (V4){o[3 * ii], o[3 * ii + 1], D3 ? o[3 * ii + 2] : 0.0, 0.0};
+            }
+        }
+    blk->base = base;
+}
+
+/* The sums of one particle. Order of every lane's arithmetic (kept from the scalar form, so results do not
+   change): per row of K nodes along x, r = Σ_i w_x,i A_i summed from i = 0, then S += (w_y w_z) r row by row,
+   z outer, y inner. */
+DR_INLINE void gather_sums(const GatherCtx *c, const double *xp, int K, int D3, Block *blk, Sums *S)
+{
+    const DrNodeGrid *g = c->g;
+    const int KZ = D3 ? K : 1, fl = c->flags;
     const double inv = 1.0 / g->dx;
-    /* only what the flags ask for is zeroed and summed (this runs once per particle) */
-    memset(S->vA, 0, sizeof S->vA);
-    if (fl & G_B) memset(S->B, 0, sizeof S->B);
-    if (fl & G_GA) memset(S->gA, 0, sizeof S->gA);
-    if (fl & (G_O | G_GO | G_T)) memset(S->vO, 0, sizeof S->vO);
-    if (fl & G_GO) memset(S->gO, 0, sizeof S->gO);
-    if (fl & G_T) memset(S->T, 0, sizeof S->T);
+    const V4 zero = {0, 0, 0, 0};
+    /* only what the flags ask for is summed; everything is zeroed (vector stores the compiler drops where
+       the sums overwrite them) */
+    S->vA = S->vO = zero;
+    UNROLL
+    for (int q = 0; q < 3; q++) S->B[q] = S->gA[q] = S->gO[q] = S->T[q] = zero;
     double wx[4], dwx[4], wy[4], dwy[4], wz[4] = {1, 0, 0, 0}, dwz[4] = {0, 0, 0, 0};
     double sx = (xp[0] - g->origin.x) * inv, sy = (xp[1] - g->origin.y) * inv, sz = 0.0;
     int bx = axis_stencil(K, sx, wx, dwx), by = axis_stencil(K, sy, wy, dwy), bz = 0;
@@ -579,6 +632,8 @@ DR_INLINE void gather_sums(const GatherCtx *c, const double *xp, int K, int D3, 
     }
     /* positions must be those the bins accepted (transfer.h): stencil inside the grid */
     assert(bx >= 0 && by >= 0 && bz >= 0 && bx + K <= g->n[0] && by + K <= g->n[1] && bz + KZ <= g->n[2]);
+    long base = bx + (long)g->n[0] * ((long)by + (long)g->n[1] * (long)bz);
+    if (base != blk->base) block_load(c, base, K, D3, blk);
     double wdx[4], wdy[4], wdz[4] = {0, 0, 0, 0};
     UNROLL
     for (int i = 0; i < K; i++) {
@@ -586,76 +641,61 @@ DR_INLINE void gather_sums(const GatherCtx *c, const double *xp, int K, int D3, 
         wdy[i] = wy[i] * ((double)(by + i) - sy);
         if (D3) wdz[i] = wz[i] * ((double)(bz + i) - sz);
     }
-    const long n0 = g->n[0], n1 = g->n[1];
     UNROLL
     for (int kk = 0; kk < KZ; kk++)
         UNROLL
         for (int jj = 0; jj < K; jj++) {
-            long node = bx + n0 * ((long)(by + jj) + n1 * (long)(bz + kk));
-            const double *A = c->A + 3 * node;
+            const V4 *A = blk->A + K * (jj + K * kk);
             /* sums along the row of K nodes in x, then weighted by the row's y, z factors */
-            double r0[3] = {0, 0, 0}, r1[3] = {0, 0, 0}, rd[3] = {0, 0, 0};
+            V4 r0 = wx[0] * A[0], r1 = zero, rd = zero;
             UNROLL
-            for (int ii = 0; ii < K; ii++)
+            for (int ii = 1; ii < K; ii++) r0 += wx[ii] * A[ii];
+            if (fl & G_B) {
+                r1 = wdx[0] * A[0];
                 UNROLL
-                for (int a = 0; a < NA; a++) r0[a] += wx[ii] * A[3 * ii + a];
-            if (fl & G_B)
+                for (int ii = 1; ii < K; ii++) r1 += wdx[ii] * A[ii];
+            }
+            if (fl & G_GA) {
+                rd = dwx[0] * A[0];
                 UNROLL
-                for (int ii = 0; ii < K; ii++)
-                    UNROLL
-                    for (int a = 0; a < NA; a++) r1[a] += wdx[ii] * A[3 * ii + a];
-            if (fl & G_GA)
-                UNROLL
-                for (int ii = 0; ii < K; ii++)
-                    UNROLL
-                    for (int a = 0; a < NA; a++) rd[a] += dwx[ii] * A[3 * ii + a];
+                for (int ii = 1; ii < K; ii++) rd += dwx[ii] * A[ii];
+            }
             double wyz = wy[jj] * wz[kk];
-            UNROLL
-            for (int a = 0; a < NA; a++) S->vA[a] += wyz * r0[a];
-            if (fl & G_B)
-                UNROLL
-                for (int a = 0; a < NA; a++) {
-                    S->B[3 * a] += wyz * r1[a];
-                    S->B[3 * a + 1] += wdy[jj] * wz[kk] * r0[a];
-                    if (D3) S->B[3 * a + 2] += wy[jj] * wdz[kk] * r0[a];
-                }
-            if (fl & G_GA)
-                UNROLL
-                for (int a = 0; a < NA; a++) {
-                    S->gA[3 * a] += wyz * rd[a];
-                    S->gA[3 * a + 1] += dwy[jj] * wz[kk] * r0[a];
-                    if (D3) S->gA[3 * a + 2] += wy[jj] * dwz[kk] * r0[a];
-                }
+            S->vA += wyz * r0;
+            if (fl & G_B) {
+                S->B[0] += wyz * r1;
+                S->B[1] += wdy[jj] * wz[kk] * r0;
+                if (D3) S->B[2] += wy[jj] * wdz[kk] * r0;
+            }
+            if (fl & G_GA) {
+                S->gA[0] += wyz * rd;
+                S->gA[1] += dwy[jj] * wz[kk] * r0;
+                if (D3) S->gA[2] += wy[jj] * dwz[kk] * r0;
+            }
             if (fl & (G_O | G_GO | G_T)) {
-                const double *O = c->O + 3 * node;
-                double o0[3] = {0, 0, 0}, od[3] = {0, 0, 0}, rt[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
+                const V4 *O = blk->O + K * (jj + K * kk);
+                V4 o0 = wx[0] * O[0];
                 UNROLL
-                for (int ii = 0; ii < K; ii++)
-                    UNROLL
-                    for (int a = 0; a < NA; a++) o0[a] += wx[ii] * O[3 * ii + a];
-                UNROLL
-                for (int a = 0; a < NA; a++) S->vO[a] += wyz * o0[a];
+                for (int ii = 1; ii < K; ii++) o0 += wx[ii] * O[ii];
+                S->vO += wyz * o0;
                 if (fl & G_GO) {
+                    V4 od = dwx[0] * O[0];
                     UNROLL
-                    for (int ii = 0; ii < K; ii++)
-                        UNROLL
-                        for (int a = 0; a < NA; a++) od[a] += dwx[ii] * O[3 * ii + a];
-                    UNROLL
-                    for (int a = 0; a < NA; a++) {
-                        S->gO[3 * a] += wyz * od[a];
-                        S->gO[3 * a + 1] += dwy[jj] * wz[kk] * o0[a];
-                        if (D3) S->gO[3 * a + 2] += wy[jj] * dwz[kk] * o0[a];
-                    }
+                    for (int ii = 1; ii < K; ii++) od += dwx[ii] * O[ii];
+                    S->gO[0] += wyz * od;
+                    S->gO[1] += dwy[jj] * wz[kk] * o0;
+                    if (D3) S->gO[2] += wy[jj] * dwz[kk] * o0;
                 }
                 if (fl & G_T) {
+                    /* rt[e] lane a = Σ_i (w_x,i A_i,a) O_i,e */
+                    const int NE = D3 ? 3 : 2;
                     UNROLL
-                    for (int ii = 0; ii < K; ii++)
+                    for (int e = 0; e < NE; e++) {
+                        V4 rt = (wx[0] * A[0]) * O[0][e];
                         UNROLL
-                        for (int a = 0; a < NA; a++)
-                            UNROLL
-                            for (int e = 0; e < NA; e++) rt[3 * a + e] += wx[ii] * A[3 * ii + a] * O[3 * ii + e];
-                    UNROLL
-                    for (int q = 0; q < 9; q++) S->T[q] += wyz * rt[q];
+                        for (int ii = 1; ii < K; ii++) rt += (wx[ii] * A[ii]) * O[ii][e];
+                        S->T[e] += wyz * rt;
+                    }
                 }
             }
         }
@@ -666,13 +706,13 @@ DR_INLINE void gather_sums(const GatherCtx *c, const double *xp, int K, int D3, 
    to B = Σ w ṽ r_iᵀ + (Δt/2) Σ w [ṽ (u_i − ū)ᵀ − (u_i − ū) ṽᵀ], ū = Σ w u_i. The second term, written
    with T = Σ w ṽ v^nᵀ, v_p = Σ w ṽ and v_o = Σ w v^n, is (λΔt/2)(T − Tᵀ + v_o v_pᵀ − v_p v_oᵀ): the
    ṽṽᵀ parts are symmetric and cancel, so it vanishes for λ = 0 (the original APIC, §5.7). */
-DR_INLINE void g2p_particle(const GatherCtx *c, long p, int K, int D3)
+DR_INLINE void g2p_particle(const GatherCtx *c, long p, int K, int D3, Block *blk)
 {
     const DrNodeGrid *g = c->g;
     const int NA = D3 ? 3 : 2;
     const double inv = 1.0 / g->dx, lam = c->lambda, dt = c->dt;
     Sums S;
-    gather_sums(c, c->x + 3 * p, K, D3, &S);
+    gather_sums(c, c->x + 3 * p, K, D3, blk, &S);
     double *vp = c->v + 3 * p, *xp = c->x + 3 * p;
     /* ū (eq. 39) and grad u */
     double ubar[3], gu[9];
@@ -681,7 +721,10 @@ DR_INLINE void g2p_particle(const GatherCtx *c, long p, int K, int D3)
     for (int a = 0; a < 3; a++) ubar[a] = lam == 0.0 || !(c->flags & G_O) ? S.vA[a] : lam * S.vO[a] + (1.0 - lam) * S.vA[a];
     if (c->grad_u)
         UNROLL
-        for (int q = 0; q < 9; q++) gu[q] = (lam == 0.0 ? S.gA[q] : lam * S.gO[q] + (1.0 - lam) * S.gA[q]) * inv;
+        for (int a = 0; a < 3; a++)
+            UNROLL
+            for (int e = 0; e < 3; e++)
+                gu[3 * a + e] = (lam == 0.0 ? S.gA[e][a] : lam * S.gO[e][a] + (1.0 - lam) * S.gA[e][a]) * inv;
     /* C */
     if (c->C) {
         double *Cp = c->C + 9 * p;
@@ -689,19 +732,23 @@ DR_INLINE void g2p_particle(const GatherCtx *c, long p, int K, int D3)
             if (K == 2) {
                 /* lagged C for the multilinear kernel (§5.9): C = Σ ṽ ∇wᵀ */
                 UNROLL
-                for (int q = 0; q < 9; q++) Cp[q] = S.gA[q] * inv;
+                for (int a = 0; a < 3; a++)
+                    UNROLL
+                    for (int e = 0; e < 3; e++) Cp[3 * a + e] = S.gA[e][a] * inv;
             } else {
                 /* C = B D⁻¹, D⁻¹ = dinv; δ in grid units, so Σ w ṽ rᵀ = Δx·S.B */
                 double dinv = dr_kernel_dinv(g->kernel, g->dx), sb = dinv * g->dx;
                 UNROLL
-                for (int q = 0; q < 9; q++) Cp[q] = sb * S.B[q];
+                for (int a = 0; a < 3; a++)
+                    UNROLL
+                    for (int e = 0; e < 3; e++) Cp[3 * a + e] = sb * S.B[e][a];
                 if (c->flags & G_T) {
                     double h = 0.5 * lam * dt * dinv;
                     UNROLL
                     for (int a = 0; a < 3; a++)
                         UNROLL
                         for (int e = 0; e < 3; e++)
-                            Cp[3 * a + e] += h * (S.T[3 * a + e] - S.T[3 * e + a] + S.vO[a] * S.vA[e] - S.vA[a] * S.vO[e]);
+                            Cp[3 * a + e] += h * (S.T[e][a] - S.T[a][e] + S.vO[a] * S.vA[e] - S.vA[a] * S.vO[e]);
                 }
             }
             if (c->scheme == DR_TRANSFER_RPIC) {
@@ -737,34 +784,44 @@ DR_INLINE void g2p_particle(const GatherCtx *c, long p, int K, int D3)
 
 DR_INLINE void gather_range(const GatherCtx *c, long begin, long end, int K, int D3)
 {
+    Block blk = {.base = -1}; /* zeroed whole: 4 KB once per range of particles */
     for (long p = begin; p < end; p++) {
         if (c->mode == 0) {
-            g2p_particle(c, p, K, D3);
+            g2p_particle(c, p, K, D3, &blk);
         } else {
             Sums S;
-            gather_sums(c, c->xin + 3 * p, K, D3, &S);
+            gather_sums(c, c->xin + 3 * p, K, D3, &blk, &S);
             if (c->mode == 1)
-                for (int q = 0; q < 9; q++) c->out[9 * p + q] = S.gA[q] / c->g->dx;
+                for (int a = 0; a < 3; a++)
+                    for (int e = 0; e < 3; e++) c->out[9 * p + 3 * a + e] = S.gA[e][a] / c->g->dx;
             else
                 for (int a = 0; a < 3; a++) c->out[3 * p + a] = S.vA[a];
         }
     }
 }
 
+/* Each gather is built for SSE2 and for AVX2 (same bits; see V4). */
 #define GATHER_FN(name, K, D3) \
-    static void name(long begin, long end, void *c) { gather_range(c, begin, end, K, D3); }
+    static void name(long begin, long end, void *c) { gather_range(c, begin, end, K, D3); } \
+    __attribute__((target("avx2"))) static void name##_avx2(long begin, long end, void *c) \
+    { \
+        gather_range(c, begin, end, K, D3); \
+    }
 GATHER_FN(gather_l2, 2, 0)
 GATHER_FN(gather_l3, 2, 1)
 GATHER_FN(gather_q2, 3, 0)
 GATHER_FN(gather_q3, 3, 1)
 GATHER_FN(gather_c2, 4, 0)
 GATHER_FN(gather_c3, 4, 1)
-static const DrRangeFn gather_table[3][2] = {{gather_l2, gather_l3}, {gather_q2, gather_q3}, {gather_c2, gather_c3}};
+static const DrRangeFn gather_table[2][3][2] = {
+    {{gather_l2, gather_l3}, {gather_q2, gather_q3}, {gather_c2, gather_c3}},
+    {{gather_l2_avx2, gather_l3_avx2}, {gather_q2_avx2, gather_q3_avx2}, {gather_c2_avx2, gather_c3_avx2}},
+};
 
 static void gather(GatherCtx *c)
 {
     int K = kernel_nodes(c->g->kernel);
-    dr_parallel_for(c->n, NODE_PAR_MIN / 4, gather_table[K - 2][c->g->dim == 3], c);
+    dr_parallel_for(c->n, NODE_PAR_MIN / 4, gather_table[cpu_avx2()][K - 2][c->g->dim == 3], c);
 }
 
 void dr_node_g2p(const DrNodeGrid *g, const double *vel_new, const double *vel_old, double lambda, double dt,

@@ -1,9 +1,12 @@
 /* Transfer benchmark: throughput of the collocated-grid (MPM) transfers, one particle-step being one P2G
  * (bins build included) plus one G2P of that particle (APIC, λ = 0, with the velocity gradient an MPM step
- * needs for its F update). 3-D, 1,048,576 particles: 8 per cell (2×2×2 jittered) in a block of
+ * needs for its F update; one row with λ = ½, the midpoint rule MPM uses by default, whose G2P also gathers
+ * v^n for the grid motion and the affine correction of eq. 38). 3-D, 1,048,576 particles: 8 per cell (2×2×2 jittered) in a block of
  * 64×64×32 cells, for the quadratic, cubic and linear kernels, with the particle arrays in bin order
- * ("sorted", as a solver gets by permuting with dr_node_bins_order) and, for the quadratic kernel, in a
- * random order ("unsorted"), each with 1 and 2 threads (dr_set_threads).
+ * ("sorted", as a solver gets by permuting with dr_node_bins_order) and, for the quadratic kernel, in the
+ * order of the particle lattice, x fastest ("lattice": how dr_mpm_sample_body stores a body, and how an
+ * elastic body's particles stay, neighbours remaining neighbours) and in a random order ("unsorted"), each
+ * with 1 and 2 threads (dr_set_threads).
  * Each configuration runs a warm-up step and REPEATS timed steps; the fastest is kept (another process
  * taking a core for a while must not distort the table). Rates are particle-steps per second per core
  * (threads used). Writes the CSV given as argv[1] (default out/bench/transfer.csv) and a markdown table. */
@@ -53,7 +56,9 @@ static void permute(long n, const long *perm, double *x, double *v, double *C, d
     free(tx), free(tv), free(tc), free(tm);
 }
 
-static Times run(DrKernel k, bool sorted, int threads, long *np_out)
+typedef enum Order { ORDER_BINS, ORDER_LATTICE, ORDER_RANDOM } Order;
+
+static Times run(DrKernel k, Order order, double lambda, int threads, long *np_out)
 {
     const double dx = 1.0 / NX;
     int reach = dr_kernel_reach(k);
@@ -83,9 +88,19 @@ static Times run(DrKernel k, bool sorted, int threads, long *np_out)
     DrNodeBins *b = NULL;
     if (dr_node_bins_create(g, np, &b, &err) != DR_OK) die(NULL, &err);
     long *perm = xmalloc(sizeof(long) * (size_t)np);
-    if (sorted) {
+    if (order == ORDER_BINS) {
         if (dr_node_bins_build(g, np, x, b, &err) != DR_OK) die(NULL, &err);
         memcpy(perm, dr_node_bins_order(b, NULL), sizeof(long) * (size_t)np);
+    } else if (order == ORDER_LATTICE) {
+        /* particle s of cell (ix, jy, kz) is lattice point (2ix + s₀, 2jy + s₁, 2kz + s₂); x fastest */
+        p = 0;
+        for (int kz = 0; kz < NZ; kz++)
+            for (int jy = 0; jy < NY; jy++)
+                for (int ix = 0; ix < NX; ix++)
+                    for (int s = 0; s < 8; s++, p++) {
+                        long i2 = 2 * ix + (s & 1), j2 = 2 * jy + ((s >> 1) & 1), k2 = 2 * kz + ((s >> 2) & 1);
+                        perm[(k2 * 2 * NY + j2) * 2 * NX + i2] = p;
+                    }
     } else {
         for (long q = 0; q < np; q++) perm[q] = q;
         for (long q = np - 1; q > 0; q--) {
@@ -108,7 +123,7 @@ static Times run(DrKernel k, bool sorted, int threads, long *np_out)
         double t2 = dr_time_now();
         memcpy(vold, g->vel, sizeof(double) * 3 * (size_t)g->nnodes); /* the grid update would go here */
         double t3 = dr_time_now();
-        dr_node_g2p(g, g->vel, vold, 0.0, 1e-4, DR_TRANSFER_APIC, 0.0, np, x, v, C, gu);
+        dr_node_g2p(g, g->vel, vold, lambda, 1e-4, DR_TRANSFER_APIC, 0.0, np, x, v, C, gu);
         double t4 = dr_time_now();
         Times t = {t1 - t0, t2 - t1, t4 - t3};
         if (rep > 0 && t.bins + t.p2g + t.g2p < best_total) {
@@ -131,22 +146,24 @@ int main(int argc, char **argv)
     mkdir("out/bench", 0755);
     FILE *f = fopen(csv, "w");
     if (!f) die("cannot write the csv", NULL);
-    struct { DrKernel k; bool sorted; const char *name; } cfg[4] = {
-        {DR_KERNEL_QUADRATIC, true, "quadratic sorted"},
-        {DR_KERNEL_QUADRATIC, false, "quadratic unsorted"},
-        {DR_KERNEL_CUBIC, true, "cubic sorted"},
-        {DR_KERNEL_LINEAR, true, "linear sorted"},
+    struct { DrKernel k; Order order; double lambda; const char *name; } cfg[6] = {
+        {DR_KERNEL_QUADRATIC, ORDER_BINS, 0.0, "quadratic sorted"},
+        {DR_KERNEL_QUADRATIC, ORDER_LATTICE, 0.0, "quadratic lattice"},
+        {DR_KERNEL_QUADRATIC, ORDER_RANDOM, 0.0, "quadratic unsorted"},
+        {DR_KERNEL_QUADRATIC, ORDER_BINS, 0.5, "quadratic sorted midpoint"},
+        {DR_KERNEL_CUBIC, ORDER_BINS, 0.0, "cubic sorted"},
+        {DR_KERNEL_LINEAR, ORDER_BINS, 0.0, "linear sorted"},
     };
     fprintf(f, "config,particles,t1_bins,t1_p2g,t1_g2p,t1_msteps_per_core,t2_bins,t2_p2g,t2_g2p,t2_msteps_per_core\n");
-    printf("threads available: %d; 3-D APIC, λ = 0, with grad_u; %d×%d×%d cells, 8 particles per cell\n\n", dr_threads(), NX,
+    printf("threads available: %d; 3-D APIC, λ = 0 unless named, with grad_u; %d×%d×%d cells, 8 particles per cell\n\n", dr_threads(), NX,
            NY, NZ);
     printf("| kernel, particle order | threads | particles | bins (s) | P2G (s) | G2P (s) | M particle-steps/s | per core |\n");
     printf("|---|---|---|---|---|---|---|---|\n");
-    for (int c = 0; c < 4; c++) {
+    for (int c = 0; c < 6; c++) {
         fprintf(f, "\"%s\"", cfg[c].name);
         for (int th = 1; th <= 2; th++) {
             long np;
-            Times t = run(cfg[c].k, cfg[c].sorted, th, &np);
+            Times t = run(cfg[c].k, cfg[c].order, cfg[c].lambda, th, &np);
             double rate = np / (t.bins + t.p2g + t.g2p) / 1e6;
             if (th == 1) fprintf(f, ",%ld", np);
             fprintf(f, ",%.4f,%.4f,%.4f,%.3f", t.bins, t.p2g, t.g2p, rate / th);
