@@ -95,8 +95,10 @@ void world_kinematics_liquid_bodies_done(WorldKinematics *k, const DrLiquid *liq
 /* At the end of body i's step of dt: the traction (3N, body axes at the step's start, Pa) the liquid gave over the
    step, whose resultant force and moment are exactly the gathered impulses over dt, and those (impulse, N s). */
 void world_kinematics_body_load(WorldKinematics *k, int i, double dt, double *traction, DrVec3 *impulse);
-/* After body i's step ending at t1: its proxy from the body, nothing gathered, its SDF rebuilt if it deformed. */
-DR_NODISCARD DrStatus world_kinematics_body_synced(WorldKinematics *k, int i, double t1, DrError *err);
+/* After body i's step ending at t1: its proxy from the body, nothing gathered, its SDF rebuilt if it deformed by more
+   than a quarter of an SDF cell since the last build, or if `rebuild` (at every frame end and on resume: the SDF then
+   depends on the frame's state alone, so a resumed bake sees the same surface). */
+DR_NODISCARD DrStatus world_kinematics_body_synced(WorldKinematics *k, int i, double t1, bool rebuild, DrError *err);
 /* The frame cache's collider groups: rotation and translation of each live collider at t. */
 DR_NODISCARD DrStatus world_kinematics_write(const WorldKinematics *k, DrH5 *h, double t, DrError *err);
 

@@ -848,7 +848,8 @@ static DrStatus bem_step_last(void *self, const WorldCtx *c, double t, double t_
             for (int k = 0; k < gr->count; k++) b->bodies[gr->members[k]].last_steps++;
         }
         gr->done++;
-        for (int k = 0; k < gr->count; k++) DR_TRY(world_kinematics_body_synced(c->kin, gr->members[k], t_next, err));
+        for (int k = 0; k < gr->count; k++)
+            DR_TRY(world_kinematics_body_synced(c->kin, gr->members[k], t_next, gr->done == gr->steps_per_frame, err));
     }
     return DR_OK;
 }
@@ -1025,6 +1026,9 @@ static DrStatus write_frame(const WorldBem *b, DrH5 *h, DrError *err)
     DR_TRY(dr_h5_write_scalar(h, g, "bem_total_energy", tot.kinetic + tot.potential, "J", err));
     DR_TRY(dr_h5_write_scalar(h, g, "bem_volume", tot.volume, "m^3", err));
     DR_TRY(dr_h5_write_scalar(h, g, "bem_max_displacement", tot.max_displacement, "m", err));
+    /* the momentum ledger of the two-way bodies: what the liquid gave them over the frame (its pressure, and what
+       setting their velocity on its faces and pushing its particles out of them took from it) */
+    DR_TRY(dr_h5_write_vec3(h, g, "bem_liquid_impulse", b->last_liquid_impulse, "N*s", err));
     /* constraints (BEM §3.4): counts of the frame's last step, sweeps and passes of all its steps, the largest
        residual; the seconds per phase are wall clock and stay out */
     const DrBemConstraintStats *c = &b->last_contact;
@@ -1100,7 +1104,7 @@ static DrStatus bem_read(void *self, const WorldCtx *w, DrH5 *h, const char *fil
     for (int g = 0; g < b->ngroups; g++)
         if (b->groups[g].coupled)
             for (int k = 0; k < b->groups[g].count; k++)
-                DR_TRY(world_kinematics_body_synced(w->kin, b->groups[g].members[k], w->t1, err));
+                DR_TRY(world_kinematics_body_synced(w->kin, b->groups[g].members[k], w->t1, true, err));
     WorldEnergy e = bem_energy(b);
     world_watch_start(&b->watch, frame + 1, &e);
     return DR_OK;

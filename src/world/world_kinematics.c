@@ -448,7 +448,7 @@ static DrStatus proxy_keys(WorldBodyCollider *bc, double t, DrMat3 R0, DrVec3 T0
                            DrVec3 V1, DrVec3 W1, DrError *err)
 {
     double h = t1 - t;
-    DrVec3 e0 = euler_near(R0, bc->nkeys > 0 ? dr_v3(bc->keys[4], bc->keys[5], bc->keys[6]) : dr_v3(0, 0, 0));
+    DrVec3 e0 = euler_near(R0, dr_v3(0, 0, 0)); /* a function of the pose alone: a resumed bake keys the same bits */
     DrVec3 e1 = euler_near(R1, e0);
     DrVec3 e2 = euler_near(dr_m3_mul(dr_m3_rotation_exp(dr_v3_scale(W1, h)), R1), e1);
     if (bc->cap_keys < 3) {
@@ -492,6 +492,38 @@ DrStatus world_kinematics_body_couple(WorldKinematics *k, int i, DrError *err)
 
 bool world_kinematics_body_coupled(const WorldKinematics *k, int i) { return i < k->nbodies && k->bodies[i].coupled; }
 
+/* The proxy's contact with the scene's colliders (posed at the clock step's end): a vertex within an SDF cell of a
+   collider does not move into it, by sequential normal impulses on the rigid proxy (a few sweeps). The body's own BEM
+   step solves its contact exactly; this keeps the proxy, which gravity pulls down between two BEM steps, from
+   squeezing the liquid between a resting body and the floor into a pressure spike. */
+static void proxy_contact(WorldKinematics *k, WorldBodyCollider *bc, DrVec3 *V, DrVec3 *W)
+{
+    if (k->nlive == 0) return;
+    const DrBemMatrices *m = dr_bem_solid_matrices(bc->solid);
+    const double *ref = dr_bem_solid_reference(bc->solid), *u = dr_bem_solid_displacement(bc->solid);
+    DrMat3 Iw = dr_m3_mul(dr_m3_mul(bc->R, bc->Ib_inv), dr_m3_transpose(bc->R));
+    double reach = 2.0 * k->dx;
+    for (int sweep = 0; sweep < 4; sweep++)
+        for (int v = 0; v < m->nv; v++) {
+            DrVec3 r = dr_m3_apply(bc->R, dr_v3(ref[3 * v] + u[3 * v], ref[3 * v + 1] + u[3 * v + 1], ref[3 * v + 2] + u[3 * v + 2]));
+            DrVec3 x = dr_v3_add(bc->T, r);
+            for (int c = 0; c < k->nlive; c++) {
+                const DrColliderFrame *fr = &k->posed[c].frame;
+                if (dr_collider_frame_phi(fr, x, NULL) > reach) continue;
+                DrVec3 n;
+                (void)dr_collider_frame_phi(fr, x, &n);
+                DrVec3 vrel = dr_v3_sub(dr_v3_add(*V, dr_v3_cross(*W, r)), dr_collider_frame_velocity(fr, x));
+                double vn = dr_v3_dot(vrel, n);
+                if (!(vn < 0.0)) continue;
+                DrVec3 rn = dr_v3_cross(r, n);
+                double inv = 1.0 / bc->mass + dr_v3_dot(rn, dr_m3_apply(Iw, rn));
+                double j = -vn / inv;
+                *V = dr_v3_add(*V, dr_v3_scale(n, j / bc->mass));
+                *W = dr_v3_add(*W, dr_m3_apply(Iw, dr_v3_scale(rn, j)));
+            }
+        }
+}
+
 int world_kinematics_liquid_bodies(WorldKinematics *k, double t, double h, DrLiquidBody **out, DrError *err)
 {
     k->nlb = 0;
@@ -500,6 +532,7 @@ int world_kinematics_liquid_bodies(WorldKinematics *k, double t, double h, DrLiq
         WorldBodyCollider *bc = &k->bodies[i];
         if (!bc->coupled) continue;
         DrVec3 V = dr_v3_add(bc->V, dr_v3_scale(k->gravity, h)), W = bc->W;
+        proxy_contact(k, bc, &V, &W);
         DrVec3 T1 = dr_v3_add(bc->T, dr_v3_scale(V, h));
         DrMat3 R1 = dr_m3_mul(dr_m3_rotation_exp(dr_v3_scale(W, h)), bc->R);
         DrStatus s = proxy_keys(bc, t, bc->R, bc->T, t + h, R1, T1, V, W, err);
@@ -615,14 +648,15 @@ void world_kinematics_body_load(WorldKinematics *k, int i, double dt, double *tr
     DrVec3 alpha = dr_m3_apply(bc->Ib_inv, tau);
     double want[6] = {F.x / bc->mass, F.y / bc->mass, F.z / bc->mass, alpha.x, alpha.y, alpha.z}, have[6];
     frame_load(m, traction, have);
-    /* the least rigid field c + d × r over the wet vertices (all of them if none was wet) closing the difference */
+    /* the rigid field c + d × r closing the difference, weighted towards the vertices that were wet over the step
+       (weight 0.1 + the fraction of the step they were wet: never singular, even when one vertex is wet) */
     double wsum = 0.0;
     for (int v = 0; v < nv; v++) wsum += bc->wdt[v];
     double a[36], rhs[6];
     double *basis = bc->pts; /* 3N scratch */
     for (int q = 0; q < 6; q++) {
         for (int v = 0; v < nv; v++) {
-            double wt = wsum > 0.0 ? bc->wdt[v] / dt : 1.0;
+            double wt = 0.1 + bc->wdt[v] / dt;
             double r[3] = {ref[3 * v], ref[3 * v + 1], ref[3 * v + 2]}, e[3] = {0, 0, 0}, f[3];
             e[q % 3] = 1.0;
             if (q < 3) memcpy(f, e, sizeof f);
@@ -640,7 +674,7 @@ void world_kinematics_body_load(WorldKinematics *k, int i, double dt, double *tr
     for (int r = 0; r < 6; r++) rhs[r] = want[r] - have[r];
     if (solve6(a, rhs))
         for (int v = 0; v < nv; v++) {
-            double wt = wsum > 0.0 ? bc->wdt[v] / dt : 1.0;
+            double wt = 0.1 + bc->wdt[v] / dt;
             double r[3] = {ref[3 * v], ref[3 * v + 1], ref[3 * v + 2]};
             double d[3] = {rhs[3], rhs[4], rhs[5]};
             double f[3] = {rhs[0] + d[1] * r[2] - d[2] * r[1], rhs[1] + d[2] * r[0] - d[0] * r[2],
@@ -650,10 +684,10 @@ void world_kinematics_body_load(WorldKinematics *k, int i, double dt, double *tr
     (void)n;
 }
 
-DrStatus world_kinematics_body_synced(WorldKinematics *k, int i, double t1, DrError *err)
+DrStatus world_kinematics_body_synced(WorldKinematics *k, int i, double t1, bool rebuild, DrError *err)
 {
     WorldBodyCollider *bc = &k->bodies[i];
-    if (deformed_since_built(bc)) {
+    if (rebuild || deformed_since_built(bc)) {
         DR_TRY(build_body_sdf(bc, k->dx, err));
         DR_TRY(pose_body_collider(bc, err));
         k->rebuilds++;
