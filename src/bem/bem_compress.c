@@ -881,11 +881,12 @@ static int64_t cmatq_cost(const BemCMatQ *const *mats, int count, const bool *sk
 /* Products in a sum with more matrices than this all go by rows. */
 #define CMATQ_SUM_MAX 64
 
-/* Row ranges of a sum's row-form products, of equal cost, that the threads take one at a time. The machine is shared:
- * a thread that starts late (its core busy with other work) or is interrupted leaves its share to the others instead
- * of holding back the step by a whole share. With one fixed range per thread, the 2,906-vertex box's dense-traction
- * step on 2 threads of a busy 2-core machine took a median 14 ms while its fastest steps took 6.4 ms. A range is
- * 1/CMATQ_CHUNKS of the sum (0.1 ms at 2,906 vertices), so taking one costs nothing by comparison. */
+/* Row ranges of a sum's row-form products, of equal cost, that the threads take one at a time. The machine may be
+ * shared: a thread that starts late (its core busy with other work) or is interrupted leaves its share to the others
+ * instead of holding back the step by a whole share. The 2,906-vertex box's dense-traction step on 2 threads of a
+ * busy 2-core machine, 6 rounds interleaved: a median 32 ms against 50 ms with one fixed range per thread (idle:
+ * 5.5 ms either way). A range is 1/CMATQ_CHUNKS of the sum (0.1 ms at 2,906 vertices), so taking one costs nothing by
+ * comparison (8 ranges measured the same). */
 #define CMATQ_CHUNKS 32
 
 /* y += Σ_j sign_j·M̃_j x̃_j in the coefficient domain, for matrices of one size. The row-form products come first:
