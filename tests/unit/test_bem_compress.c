@@ -630,8 +630,8 @@ static void test_compact_copy(void **state)
         assert_null(q.val);
         dr_bem_cmat_free(&c);
     }
-    /* a sum over several matrices in one pass equals the products one after the other, bit for bit, on 1 and 2
-       threads (each row is summed by one thread, matrix after matrix) */
+    /* a sum over several matrices in one pass equals the products one after the other, bit for bit, on 1 to 4
+       threads (each row is summed by one thread, matrix after matrix, whichever thread takes its range) */
     {
         DrBemCMat c[2];
         BemCMatQ q[2];
@@ -646,7 +646,7 @@ static void test_compact_copy(void **state)
         const BemCMatQ *mats[2] = {&q[0], &q[1]};
         const double *xs[2] = {xt, x2};
         const double signs[2] = {1.0, -0.5};
-        for (int t = 1; t <= 2; t++) {
+        for (int t = 1; t <= 4; t++) {
             dr_set_threads(t);
             memset(ysum, 0, n * sizeof *x);
             bem_cmatq_sum(mats, xs, signs, 2, ysum, NULL);
@@ -765,22 +765,22 @@ static void test_column_products(void **state)
     memcpy(yd2, yd, n * sizeof *p);
     assert_int_equal(bem_cmatq_sum(one, xz, sg, 1, yd2, work), 1);
     assert_memory_equal(yd, yd2, n * sizeof *p);
-    /* a sum of row and column products: the same bits on 1 and 2 threads, and within round-off of the products one
-       after the other */
+    /* a sum of row and column products: the same bits on 1 to 4 threads (whichever thread takes which row range or
+       column group), and within round-off of the products one after the other */
     {
         BemCMatQ r;
         assert_true(bem_cmat_compact(&c, &r)); /* no column form */
         const BemCMatQ *mats[3] = {&q, &r, &q};
         const double *vx[3] = {pt, dense, pt};
         const double signs[3] = {1.0, -0.5, 2.0};
-        double *ys[2], *yseq = calloc(n, sizeof *p);
-        for (int t = 1; t <= 2; t++) {
+        double *ys[4], *yseq = calloc(n, sizeof *p);
+        for (int t = 1; t <= 4; t++) {
             dr_set_threads(t);
             ys[t - 1] = calloc(n, sizeof *p);
             assert_int_equal(bem_cmatq_sum(mats, vx, signs, 3, ys[t - 1], work), 2);
         }
         dr_set_threads(saved);
-        assert_memory_equal(ys[0], ys[1], n * sizeof *p);
+        for (int t = 1; t < 4; t++) assert_memory_equal(ys[0], ys[t], n * sizeof *p);
         for (int j = 0; j < 3; j++) bem_cmatq_matvec_acc(mats[j], vx[j], signs[j], yseq, NULL);
         assert_true(diff_norm2(ys[0], yseq, n) <= 1e-13 * norm2(yseq, n));
         /* the natural-order product takes its work from the scratch */
@@ -790,7 +790,7 @@ static void test_column_products(void **state)
         assert_true(diff_norm2(y1, y2, n) <= 1e-13 * norm2(y2, n));
         free(y1);
         free(y2);
-        for (int t = 0; t < 2; t++) free(ys[t]);
+        for (int t = 0; t < 4; t++) free(ys[t]);
         free(yseq);
         bem_cmatq_free(&r);
     }
