@@ -57,6 +57,26 @@ deflects() {
 }
 check "the jelly deflects the flow (the water differs from the one-way bake's)" deflects
 
+# two bodies stepped together (one time_step) must share one liquid_coupling: exit 2 naming both fields, no frame
+python3 - "$scene" "$S/mixed.json" "$ROOT" <<'PY'
+import json, sys
+sc = json.load(open(sys.argv[1]))
+root = sys.argv[3]
+for e in sc["elements"]:
+    if e["name"] == "floor": e["components"]["Mesh"]["file"] = root + "/assets/meshes/ground.obj"
+    if e["name"] == "jelly": e["components"]["Mesh"]["file"] = root + "/tests/data/bem_ico1.obj"
+j = json.loads(json.dumps([e for e in sc["elements"] if e["name"] == "jelly"][0]))
+j["name"] = "jelly2"; j["components"]["Transform"]["translate"] = [0.7, 0.102, 0.15]
+j["components"]["BemSolver"]["liquid_coupling"] = "one_way"
+sc["elements"].append(j); sc["shot"]["name"] = "mixed"
+json.dump(sc, open(sys.argv[2], "w"))
+PY
+"$BIN/precompute" "$S/mixed.json" -j 2 >/dev/null 2>&1
+expect_exit "bodies stepped together with different liquid_coupling" 2 \
+  "jelly2\.BemSolver\.liquid_coupling = \"one_way\" but jelly\.BemSolver\.liquid_coupling = \"two_way\"" \
+  "$BIN/bake" "$S/mixed.json" --out "$WORK/mixed"
+check "and writes no frame" bash -c "! ls '$WORK'/mixed/mixed/bake/frame.*.h5 >/dev/null 2>&1"
+
 # no particle more than half a cell inside the jelly's deformed surface (planes of its posed triangles: the icosphere
 # stays convex under these displacements)
 deepest() {

@@ -75,17 +75,30 @@ static double held_force_ratio(DrPressureFormulation form, double dx, double r, 
     return sum / span / want;
 }
 
+/* Archimedes: a sphere of radius 0.08 m held (zero inverse mass) 0.09 m under the surface of still water feels the
+   force ρgV, V its volume, to within 1 % at 8 cells per radius, and closer at finer cells: the pressure is sampled at
+   the centres of the cut cells around it, a first-order offset from its surface that averages out over a curved body
+   (measured ghost fluid: 0.9867 / 0.9914 / 0.9978 at 4 / 8 / 16 cells per radius; 16 cells is left out here for
+   time). */
 static void test_held_hydrostatic(void **state)
 {
     (void)state;
-    for (int form = 0; form < 2; form++)
-        for (int res = 0; res < 3; res++) {
+    for (int form = 0; form < 2; form++) {
+        double err[2];
+        for (int res = 0; res < 2; res++) {
             double dx = 0.02 / (1 << res);
             double ratio = held_force_ratio(form ? DR_PRESSURE_MASS_WEIGHTED : DR_PRESSURE_GHOST_FLUID, dx, 0.08,
                                             dr_v3(0.2, 0.15, 0.2), 0.32);
+            err[res] = fabs(ratio - 1.0);
             printf("held sphere r = 0.08 m, dx = %.4f (%s): force / (rho g V) = %.5f\n", dx,
                    form ? "mass weighted" : "ghost fluid", ratio);
         }
+        /* ghost fluid (the default) within 1 % at 8 cells a radius; mass-weighted the body also takes the pressure
+           on the virtual liquid inside it (its momentum ledger closes with it): measured 1.118 and 1.059, first
+           order, converging */
+        if (form == 0) assert_true(err[1] <= 0.01);
+        assert_true(err[1] < err[0]);
+    }
 }
 
 int main(void)
