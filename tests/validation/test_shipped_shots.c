@@ -15,7 +15,8 @@
 
 static const char *const SHOTS[] = {"assets/scenes/default.json",    "assets/scenes/small_dam.json",
                                     "assets/scenes/jelly_drop.json", "assets/scenes/hair_shake.json",
-                                    "assets/scenes/box_test.json",   "assets/scenes/dragging_test.json"};
+                                    "assets/scenes/box_test.json",   "assets/scenes/dragging_test.json",
+                                    "assets/scenes/bodies_tank.json"};
 
 static void test_bem_compression_per_row(void **state)
 {
