@@ -2922,13 +2922,12 @@ DrStatus dr_liquid_end(DrLiquid *liq, DrLiquidStats *stats, DrError *err)
     return step_end(liq, stats, true, err);
 }
 
-/* Trilinear interpolation at world position x of the cell-centred pressure (p = ρq/Δt on pressure cells,
-   0 elsewhere), clamped to the lattice of cell centres like dr_mac_sample_face. */
-static double sample_pressure(const DrLiquid *L, DrVec3 x)
+/* The trilinear stencil at world position x on the lattice of cell centres, clamped to it: cells idx[axis][0..1] with
+   weights w[axis][0..1]. */
+static void cell_stencil(const DrLiquid *L, DrVec3 x, int idx[3][2], double w[3][2])
 {
     const DrMacGrid *g = L->g;
-    int n[3] = {g->nx, g->ny, g->nz}, idx[3][2];
-    double w[3][2];
+    int n[3] = {g->nx, g->ny, g->nz};
     for (int d = 0; d < 3; d++) {
         double s = (dr_v3_get(x, d) - dr_v3_get(g->origin, d)) / g->dx - 0.5;
         int hi = n[d] - 1;
@@ -2940,6 +2939,16 @@ static double sample_pressure(const DrLiquid *L, DrVec3 x)
         w[d][0] = st.w[0];
         w[d][1] = st.w[1];
     }
+}
+
+/* Trilinear interpolation at world position x of the cell-centred pressure (p = ρq/Δt on pressure cells,
+   0 elsewhere), clamped to the lattice of cell centres like dr_mac_sample_face. */
+static double sample_pressure(const DrLiquid *L, DrVec3 x)
+{
+    const DrMacGrid *g = L->g;
+    int idx[3][2];
+    double w[3][2];
+    cell_stencil(L, x, idx, w);
     double sum = 0.0;
     for (int kk = 0; kk < 2; kk++)
         for (int jj = 0; jj < 2; jj++)
@@ -2954,19 +2963,9 @@ static double sample_pressure(const DrLiquid *L, DrVec3 x)
 static double sample_wet_pressure(const DrLiquid *L, DrVec3 x, double *wet)
 {
     const DrMacGrid *g = L->g;
-    int n[3] = {g->nx, g->ny, g->nz}, idx[3][2];
+    int idx[3][2];
     double w[3][2];
-    for (int d = 0; d < 3; d++) {
-        double s = (dr_v3_get(x, d) - dr_v3_get(g->origin, d)) / g->dx - 0.5;
-        int hi = n[d] - 1;
-        if (s < 0.0) s = 0.0;
-        if (s > hi) s = hi;
-        DrStencil2 st = dr_kernel_linear(s);
-        idx[d][0] = st.base;
-        idx[d][1] = st.base + 1 > hi ? hi : st.base + 1;
-        w[d][0] = st.w[0];
-        w[d][1] = st.w[1];
-    }
+    cell_stencil(L, x, idx, w);
     double sum = 0.0, wsum = 0.0;
     for (int kk = 0; kk < 2; kk++)
         for (int jj = 0; jj < 2; jj++)

@@ -629,13 +629,56 @@ static void group_names(const WorldBem *b, const WorldBemGroup *g, char *buf, si
     }
 }
 
+/* A member's step figures added to its frame's. */
+static void body_step_done(WorldBemBody *wb, const DrBemStepStats *st)
+{
+    DrBemStepStats *sum = &wb->frame;
+    sum->seconds_history += st->seconds_history;
+    sum->seconds_solve += st->seconds_solve;
+    sum->seconds_correction += st->seconds_correction;
+    sum->translation_error = fmax(sum->translation_error, st->translation_error);
+    sum->rotation_error = fmax(sum->rotation_error, st->rotation_error);
+    wb->last_steps++;
+}
+
+/* Step n (from 0) of a group taken with its constraints: a warning when it stopped above the tolerance (status s > 0,
+   the step kept), and its figures added to the frame's (counts: of the frame's last step). */
+static void group_step_done(WorldBem *b, WorldBemGroup *g, int n, int frame, DrStatus s,
+                            const DrBemConstraintStats *st, const DrError *err)
+{
+    if (s > 0) {
+        char names[256];
+        group_names(b, g, names, sizeof names);
+        dr_log_warn("bem: %s: frame %d, step %d: constraints not converged (residual %.3g m after %d passes, %d "
+                    "sweeps); the step is kept: %s", names, frame, n + 1, st->residual, st->passes, st->iterations,
+                    err->message);
+        b->not_converged++;
+    }
+    DrBemConstraintStats *sum = &b->contact;
+    if (n + 1 == g->steps_per_frame) {
+        sum->fixed += st->fixed;
+        sum->contacts += st->contacts;
+        sum->joints += st->joints;
+        sum->body_contacts += st->body_contacts;
+        sum->sticking += st->sticking;
+    }
+    sum->iterations += st->iterations;
+    sum->passes += st->passes;
+    sum->residual = fmax(sum->residual, st->residual);
+    sum->seconds_trial += st->seconds_trial;
+    sum->seconds_detect += st->seconds_detect;
+    sum->seconds_assembly += st->seconds_assembly;
+    sum->seconds_pgs += st->seconds_pgs;
+    sum->seconds_final += st->seconds_final;
+    for (int k = 0; k < g->count; k++) b->bodies[g->members[k]].last_steps++;
+}
+
 /* One step of a group without anything to solve: each member alone, with its step figures. */
 static DrStatus step_alone(WorldBem *b, WorldBemGroup *g, int frame, DrError *err)
 {
     for (int k = 0; k < g->count; k++) {
         WorldBemBody *wb = &b->bodies[g->members[k]];
         const char *name = wb->element->name;
-        DrBemStepStats *sum = &wb->frame;
         DrBemStepStats st;
         DrStatus s = dr_bem_solid_step(wb->solid, NULL, &st, err);
         if (s < 0) {
@@ -644,12 +687,7 @@ static DrStatus step_alone(WorldBem *b, WorldBemGroup *g, int frame, DrError *er
             return body_context(s, name, what, err);
         }
         if (s > 0) dr_log_warn("bem: %s: frame %d: %s", name, frame, err->message);
-        sum->seconds_history += st.seconds_history;
-        sum->seconds_solve += st.seconds_solve;
-        sum->seconds_correction += st.seconds_correction;
-        sum->translation_error = fmax(sum->translation_error, st.translation_error);
-        sum->rotation_error = fmax(sum->rotation_error, st.rotation_error);
-        wb->last_steps++;
+        body_step_done(wb, &st);
     }
     return DR_OK;
 }
@@ -670,31 +708,7 @@ static DrStatus step_together(WorldBem *b, WorldBemGroup *g, double t0, int n, i
         return dr_error_prefix(s, err, "bem_solid %s failed with contact in frame %d (step %d of %d)", names, frame,
                                n + 1, g->steps_per_frame);
     }
-    if (s > 0) {
-        char names[256];
-        group_names(b, g, names, sizeof names);
-        dr_log_warn("bem: %s: frame %d, step %d: constraints not converged (residual %.3g m after %d passes, %d "
-                    "sweeps); the step is kept: %s", names, frame, n + 1, st.residual, st.passes, st.iterations,
-                    err->message);
-        b->not_converged++;
-    }
-    DrBemConstraintStats *sum = &b->contact;
-    if (n + 1 == g->steps_per_frame) { /* counts: of the frame's last step */
-        sum->fixed += st.fixed;
-        sum->contacts += st.contacts;
-        sum->joints += st.joints;
-        sum->body_contacts += st.body_contacts;
-        sum->sticking += st.sticking;
-    }
-    sum->iterations += st.iterations;
-    sum->passes += st.passes;
-    sum->residual = fmax(sum->residual, st.residual);
-    sum->seconds_trial += st.seconds_trial;
-    sum->seconds_detect += st.seconds_detect;
-    sum->seconds_assembly += st.seconds_assembly;
-    sum->seconds_pgs += st.seconds_pgs;
-    sum->seconds_final += st.seconds_final;
-    for (int k = 0; k < g->count; k++) b->bodies[g->members[k]].last_steps++;
+    group_step_done(b, g, n, frame, s, &st, err);
     return DR_OK;
 }
 
@@ -785,13 +799,7 @@ static DrStatus bem_step_last(void *self, const WorldCtx *c, double t, double t_
                     return body_context(s, wb->element->name, what, err);
                 }
                 dr_bem_solid_commit(wb->solid, &st);
-                DrBemStepStats *sum = &wb->frame;
-                sum->seconds_history += st.seconds_history;
-                sum->seconds_solve += st.seconds_solve;
-                sum->seconds_correction += st.seconds_correction;
-                sum->translation_error = fmax(sum->translation_error, st.translation_error);
-                sum->rotation_error = fmax(sum->rotation_error, st.rotation_error);
-                wb->last_steps++;
+                body_step_done(wb, &st);
             }
         } else {
             /* the constraints in world forces: f = R (p area) with R at the step's start */
@@ -824,31 +832,8 @@ static DrStatus bem_step_last(void *self, const WorldCtx *c, double t, double t_
                 return dr_error_prefix(s, err, "bem_solid %s failed with contact in frame %d (step %d of %d)", names,
                                        c->frame, n + 1, gr->steps_per_frame);
             }
-            if (s > 0) {
-                char names[256];
-                group_names(b, gr, names, sizeof names);
-                dr_log_warn("bem: %s: frame %d, step %d: constraints not converged (residual %.3g m after %d passes); "
-                            "the step is kept: %s", names, c->frame, n + 1, st.residual, st.passes, err->message);
-                b->not_converged++;
-            }
             dr_bem_solids_commit(gr->solids, gr->count, &st);
-            DrBemConstraintStats *sum = &b->contact;
-            if (n + 1 == gr->steps_per_frame) {
-                sum->fixed += st.fixed;
-                sum->contacts += st.contacts;
-                sum->joints += st.joints;
-                sum->body_contacts += st.body_contacts;
-                sum->sticking += st.sticking;
-            }
-            sum->iterations += st.iterations;
-            sum->passes += st.passes;
-            sum->residual = fmax(sum->residual, st.residual);
-            sum->seconds_trial += st.seconds_trial;
-            sum->seconds_detect += st.seconds_detect;
-            sum->seconds_assembly += st.seconds_assembly;
-            sum->seconds_pgs += st.seconds_pgs;
-            sum->seconds_final += st.seconds_final;
-            for (int k = 0; k < gr->count; k++) b->bodies[gr->members[k]].last_steps++;
+            group_step_done(b, gr, n, c->frame, s, &st, err);
         }
         gr->done++;
         for (int k = 0; k < gr->count; k++)
