@@ -96,7 +96,7 @@ static const Golden GOLDEN[] = {
     {DATA "mpm_drop.json", 4, "f82e4206818696d3b77be6c0e58924ff"},
     {DATA "hair_small.json", 3, "458492c98ec6b9957556c7708f76c97f"},
     {DATA "bem_pair.json", 2, "c1e076eea5909a3afe407387da37cfa1"},
-    {DATA "golden_mix.json", 3, "f075164f58a8bcaaf4d84b58e34d2b77"},
+    {DATA "golden_mix.json", 3, "f0dba8f756f16492ba660e477d447e8e"},
     {DATA "bem_floor.json", 12, "5c8756117acc72e3a8ae2d5e18c054cb"},
 };
 
