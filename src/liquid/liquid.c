@@ -1505,6 +1505,19 @@ static inline double body_face_velocity(const BodyFace *bf, const double v[3], c
     return bf->J[0] * v[0] + bf->J[1] * v[1] + bf->J[2] * v[2] + bf->J[3] * w[0] + bf->J[4] * w[1] + bf->J[5] * w[2];
 }
 
+/* J_f = (e_a, r × e_a): the row of a face of component a at r from the body's centre. */
+static void face_row(int a, const double r[3], double J[6])
+{
+    J[0] = a == 0, J[1] = a == 1, J[2] = a == 2;
+    J[3] = a == 0 ? 0.0 : (a == 1 ? -r[2] : r[1]);
+    J[4] = a == 0 ? r[2] : (a == 1 ? 0.0 : -r[0]);
+    J[5] = a == 0 ? -r[1] : (a == 1 ? r[0] : 0.0);
+}
+
+/* The body loses the generalised momentum J (N s, N m s about its centre) the liquid gained: from its impulse, and from
+   its velocity unless it is held. */
+static void body_take(DrLiquidBody *B, const double J[6]);
+
 /* The faces each body owns with a solid share σ > 0, body by body in face order, with their rows and J; their solid
    velocity becomes the body's rigid velocity before the pressure (so the right-hand side carries σ J V). After the
    rows and shut_slices. */
@@ -1546,12 +1559,7 @@ static DrStatus body_faces(DrLiquid *L, DrError *err)
                         bf->sigma = sigma;
                         DrVec3 x = dr_mac_face_position(g, a, i, j, k);
                         double r[3] = {x.x - B->center[0], x.y - B->center[1], x.z - B->center[2]};
-                        double J[6] = {a == 0, a == 1, a == 2, 0, 0, 0};
-                        /* (r × e_a) */
-                        J[3] = a == 0 ? 0.0 : (a == 1 ? -r[2] : r[1]);
-                        J[4] = a == 0 ? r[2] : (a == 1 ? 0.0 : -r[0]);
-                        J[5] = a == 0 ? -r[1] : (a == 1 ? r[0] : 0.0);
-                        memcpy(bf->J, J, sizeof J);
+                        face_row(a, r, bf->J);
                         vel[f] = body_face_velocity(bf, B->velocity, B->angular_velocity);
                     }
         }
@@ -1591,6 +1599,20 @@ static bool body_free(const DrLiquidBody *b)
     for (int i = 0; i < 9; i++)
         if (b->inv_inertia[i] != 0.0) return true;
     return false;
+}
+
+static void body_take(DrLiquidBody *B, const double J[6])
+{
+    for (int i = 0; i < 3; i++) {
+        B->impulse[i] -= J[i];
+        B->angular_impulse[i] -= J[3 + i];
+    }
+    if (!body_free(B)) return;
+    for (int i = 0; i < 3; i++) {
+        B->velocity_out[i] -= B->inv_mass * J[i];
+        B->angular_velocity_out[i] -= B->inv_inertia[3 * i] * J[3] + B->inv_inertia[3 * i + 1] * J[4] +
+                                      B->inv_inertia[3 * i + 2] * J[5];
+    }
 }
 
 /* Whether any body moves with the pressure (a held one adds nothing to the system). */
@@ -2538,8 +2560,6 @@ static DrStatus grid_begin(DrLiquid *L, const DrCollider *const *colliders, int 
 static void body_constraint_impulses(DrLiquid *L)
 {
     const DrMacGrid *g = L->g;
-    double s = 0.0;
-    (void)s;
     for (int b = 0; b < L->nbodies; b++) {
         DrLiquidBody *B = &L->bodies[b];
         double J[6] = {0};
@@ -2552,24 +2572,12 @@ static void body_constraint_impulses(DrLiquid *L)
                         if (L->bwho[a][f] != b || L->bimp[a][f] == 0.0) continue;
                         DrVec3 x = dr_mac_face_position(g, a, i, j, k);
                         double r[3] = {x.x - B->center[0], x.y - B->center[1], x.z - B->center[2]};
-                        double m = L->bimp[a][f];
-                        J[a] += m;
-                        /* (r × e_a) m */
-                        J[3] += m * (a == 0 ? 0.0 : (a == 1 ? -r[2] : r[1]));
-                        J[4] += m * (a == 0 ? r[2] : (a == 1 ? 0.0 : -r[0]));
-                        J[5] += m * (a == 0 ? -r[1] : (a == 1 ? r[0] : 0.0));
+                        double row[6];
+                        face_row(a, r, row);
+                        for (int q = 0; q < 6; q++) J[q] += L->bimp[a][f] * row[q];
                     }
         }
-        for (int i = 0; i < 3; i++) {
-            B->impulse[i] -= J[i];
-            B->angular_impulse[i] -= J[3 + i];
-        }
-        if (!body_free(B)) continue;
-        for (int i = 0; i < 3; i++) {
-            B->velocity_out[i] -= B->inv_mass * J[i];
-            B->angular_velocity_out[i] -= B->inv_inertia[3 * i] * J[3] + B->inv_inertia[3 * i + 1] * J[4] +
-                                          B->inv_inertia[3 * i + 2] * J[5];
-        }
+        body_take(B, J);
     }
 }
 
@@ -2604,16 +2612,7 @@ static void body_pushout_impulses(DrLiquid *L)
             J[4] += r[2] * m[0] - r[0] * m[2];
             J[5] += r[0] * m[1] - r[1] * m[0];
         }
-        for (int i = 0; i < 3; i++) {
-            B->impulse[i] -= J[i];
-            B->angular_impulse[i] -= J[3 + i];
-        }
-        if (!body_free(B)) continue;
-        for (int i = 0; i < 3; i++) {
-            B->velocity_out[i] -= B->inv_mass * J[i];
-            B->angular_velocity_out[i] -= B->inv_inertia[3 * i] * J[3] + B->inv_inertia[3 * i + 1] * J[4] +
-                                          B->inv_inertia[3 * i + 2] * J[5];
-        }
+        body_take(B, J);
     }
 }
 

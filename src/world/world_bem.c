@@ -48,6 +48,7 @@ typedef struct WorldBemGroup {
     bool constrained;        /* anything to solve; else each member is stepped alone, as without contact */
     bool coupled;            /* two-way with the liquid: each step is taken at its end, loaded with the liquid's
                                 pressure gathered over it (world_kinematics.c); else at its start, one-way */
+    const double **force;    /* coupled and constrained: the members' forces (WorldBem.forces) in member order */
 } WorldBemGroup;
 
 typedef struct WorldBem {
@@ -94,6 +95,7 @@ static void bem_destroy(void *self)
         free(gr->colliders);
         free(gr->fixed);
         free(gr->joints);
+        free(gr->force);
     }
     free(b->groups);
     free(b->traction);
@@ -586,12 +588,16 @@ static DrStatus build_bem(const WorldCtx *w, WorldBem *b, int n, const char *cac
     }
     DR_TRY(dr_calloc((size_t)nmax, sizeof(double), &b->traction, err));
     for (int g = 0; g < b->ngroups; g++)
-        if (b->groups[g].coupled && b->groups[g].constrained)
-            for (int k = 0; k < b->groups[g].count; k++) {
-                int i = b->groups[g].members[k];
+        if (b->groups[g].coupled && b->groups[g].constrained) {
+            WorldBemGroup *gr = &b->groups[g];
+            DR_TRY(dr_calloc((size_t)gr->count, sizeof *gr->force, &gr->force, err));
+            for (int k = 0; k < gr->count; k++) {
+                int i = gr->members[k];
                 DR_TRY(dr_calloc((size_t)dr_bem_solid_matrices(b->bodies[i].solid)->n, sizeof(double), &b->forces[i],
                                  err));
+                gr->force[k] = b->forces[i];
             }
+        }
     world_watch_init(&b->watch, w->scene);
     b->watch.cumulative_only = true;
     b->watched = true;
@@ -803,8 +809,6 @@ static DrStatus bem_step_last(void *self, const WorldCtx *c, double t, double t_
             }
         } else {
             /* the constraints in world forces: f = R (p area) with R at the step's start */
-            const double *force[64];
-            assert(gr->count <= 64);
             for (int k = 0; k < gr->count; k++) {
                 int i = gr->members[k];
                 WorldBemBody *wb = &b->bodies[i];
@@ -819,13 +823,12 @@ static DrStatus bem_step_last(void *self, const WorldCtx *c, double t, double t_
                                     b->traction[3 * v + 2] * m->area[v]};
                     dr_m3a_apply(R, pa, b->forces[i] + 3 * v);
                 }
-                force[k] = b->forces[i];
             }
             for (int q = 0; q < b->ncolliders; q++)
                 if (b->posed[q].moving) b->posed[q].frame = dr_collider_frame(b->posed[q].collider, t_next);
             DrBemConstraintStats st;
             DrStatus s = dr_bem_solids_predict(gr->solids, gr->count, &gr->constraints, &st, err);
-            if (s >= 0) s = dr_bem_solids_solve(gr->solids, gr->count, force, &st, err);
+            if (s >= 0) s = dr_bem_solids_solve(gr->solids, gr->count, gr->force, &st, err);
             if (s < 0) {
                 char names[256];
                 group_names(b, gr, names, sizeof names);

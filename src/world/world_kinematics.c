@@ -634,7 +634,7 @@ void world_kinematics_body_load(WorldKinematics *k, int i, double dt, double *tr
     WorldBodyCollider *bc = &k->bodies[i];
     const DrBemMatrices *m = dr_bem_solid_matrices(bc->solid);
     const double *ref = dr_bem_solid_reference(bc->solid);
-    int nv = m->nv, n = m->n;
+    int nv = m->nv;
     *impulse = bc->impulse;
     /* the mean pressure as traction −p̄ n */
     for (int v = 0; v < nv; v++)
@@ -681,7 +681,6 @@ void world_kinematics_body_load(WorldKinematics *k, int i, double dt, double *tr
                            rhs[2] + d[0] * r[1] - d[1] * r[0]};
             for (int c = 0; c < 3; c++) traction[3 * v + c] += wt * f[c];
         }
-    (void)n;
 }
 
 DrStatus world_kinematics_body_synced(WorldKinematics *k, int i, double t1, bool rebuild, DrError *err)

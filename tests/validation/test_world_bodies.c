@@ -138,7 +138,6 @@ static void test_float(void **state)
         body_state(&r, T, V);
         lo = fmin(lo, T[1]);
         hi = fmax(hi, T[1]);
-        if (getenv("DR_TRACE")) printf("frame %d: %.5f %.5f\n", f, T[1], V[1]);
         if (f >= 9) {
             dr_liquid_sample(dr_world_liquid(r.world, 0), 4, probes, NULL, p);
             for (int q = 0; q < 4; q++) level += 0.25 * (probes[3 * q + 1] + p[q] / (1000.0 * 9.81));
@@ -216,7 +215,7 @@ static void test_momentum(void **state)
     run_open(&r, json);
     const DrBemMatrices *m = dr_bem_solid_matrices(dr_world_bem_solid(r.world, 0));
     double mass = m->body.mass, worst = 0.0, worst_ledger = 0.0;
-    DrVec3 P0 = {0};
+    DrVec3 P0 = {0}, Vb_prev = {0}; /* the ball's velocity at the previous frame */
     for (int f = 0; f <= 6; f++) {
         DrFrameStats st;
         if (f > 0) step(&r, &st);
@@ -225,7 +224,6 @@ static void test_momentum(void **state)
         dr_liquid_totals(dr_world_liquid(r.world, 0), &lm, &lp, &la, &ke);
         body_state(&r, T, V);
         DrVec3 P = dr_v3_add(lp, dr_v3(mass * V[0], mass * V[1], mass * V[2]));
-        static DrVec3 Vb_prev; /* the ball's velocity at the previous frame */
         if (f == 0) P0 = P;
         else {
             double rel = dr_v3_norm(dr_v3_sub(P, P0)) / dr_v3_norm(P0);
