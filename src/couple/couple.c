@@ -681,3 +681,201 @@ DrStatus dr_couple_step(DrCouple *c, const DrCoupleDesc *desc, const DrCoupleFlu
     }
     return DR_OK;
 }
+
+/* ---- deformable solids lumped onto the faces (couple.h) ------------------------------------------------------- */
+
+/* The quadratic stencil of point x on the lattice of face component a (a = 3: cell centres): base node and weights
+   per axis. */
+static void lattice_stencil(const DrMacGrid *g, int a, const double *x, DrStencil3 st[3])
+{
+    double o[3] = {g->origin.x, g->origin.y, g->origin.z};
+    for (int d = 0; d < 3; d++) {
+        double off = a == 3 ? 0.5 : dr_mac_face_offset(a, d);
+        st[d] = dr_kernel_quadratic((x[d] - o[d]) / g->dx - off);
+    }
+}
+
+static void lattice_dims(const DrMacGrid *g, int a, int dim[3])
+{
+    if (a == 3) {
+        dim[0] = g->nx, dim[1] = g->ny, dim[2] = g->nz;
+        return;
+    }
+    for (int d = 0; d < 3; d++) dim[d] = g->fdim[a][d];
+}
+
+void dr_couple_particles_to_faces(const DrMacGrid *g, long n, const double *x, const double *v, const double *mass,
+                                  const double *volume, DrFaceCoupling *fc)
+{
+    double cell = g->dx * g->dx * g->dx;
+    for (int a = 0; a < 3; a++) {
+        double *open = fc->open[a], *vel = fc->velocity[a], *ms = fc->solid_mass[a];
+        for (long f = 0; f < g->nfaces[a]; f++) {
+            open[f] = 0.0; /* the volume sum first */
+            vel[f] = 0.0;
+            ms[f] = 0.0;
+            if (fc->impulse[a]) fc->impulse[a][f] = 0.0;
+            if (fc->drag[a]) fc->drag[a][f] = 0.0;
+        }
+        int dim[3];
+        lattice_dims(g, a, dim);
+        for (long p = 0; p < n; p++) {
+            DrStencil3 st[3];
+            lattice_stencil(g, a, x + 3 * p, st);
+            double mv = mass[p] * v[3 * p + a];
+            for (int k = 0; k < 3; k++) {
+                int kk = st[2].base + k;
+                if (kk < 0 || kk >= dim[2]) continue;
+                for (int j = 0; j < 3; j++) {
+                    int jj = st[1].base + j;
+                    if (jj < 0 || jj >= dim[1]) continue;
+                    double wjk = st[1].w[j] * st[2].w[k];
+                    for (int i = 0; i < 3; i++) {
+                        int ii = st[0].base + i;
+                        if (ii < 0 || ii >= dim[0]) continue;
+                        double w = st[0].w[i] * wjk;
+                        long f = dr_mac_face_index(g, a, ii, jj, kk);
+                        open[f] += w * volume[p];
+                        vel[f] += w * mv;
+                        ms[f] += w * mass[p];
+                    }
+                }
+            }
+        }
+        for (long f = 0; f < g->nfaces[a]; f++) {
+            double sigma = open[f] / cell;
+            open[f] = sigma >= 1.0 ? 0.0 : 1.0 - sigma;
+            vel[f] = ms[f] > 0.0 ? vel[f] / ms[f] : 0.0;
+        }
+    }
+}
+
+void dr_couple_faces_to_particles(const DrMacGrid *g, long n, const double *x, const double *const momentum[3],
+                                  const DrFaceCoupling *fc, double *dv)
+{
+    for (long p = 0; p < 3 * n; p++) dv[p] = 0.0;
+    for (int a = 0; a < 3; a++) {
+        if (!momentum[a]) continue;
+        const double *P = momentum[a], *ms = fc->solid_mass[a];
+        int dim[3];
+        lattice_dims(g, a, dim);
+        for (long p = 0; p < n; p++) {
+            DrStencil3 st[3];
+            lattice_stencil(g, a, x + 3 * p, st);
+            double sum = 0.0;
+            for (int k = 0; k < 3; k++) {
+                int kk = st[2].base + k;
+                if (kk < 0 || kk >= dim[2]) continue;
+                for (int j = 0; j < 3; j++) {
+                    int jj = st[1].base + j;
+                    if (jj < 0 || jj >= dim[1]) continue;
+                    double wjk = st[1].w[j] * st[2].w[k];
+                    for (int i = 0; i < 3; i++) {
+                        int ii = st[0].base + i;
+                        if (ii < 0 || ii >= dim[0]) continue;
+                        long f = dr_mac_face_index(g, a, ii, jj, kk);
+                        if (ms[f] > 0.0 && P[f] != 0.0) sum += st[0].w[i] * wjk * P[f] / ms[f];
+                    }
+                }
+            }
+            dv[3 * p + a] = sum;
+        }
+    }
+}
+
+void dr_couple_particle_fraction(const DrMacGrid *g, long n, const double *x, const double *volume, double *frac)
+{
+    long nc = (long)g->nx * g->ny * g->nz;
+    double cell = g->dx * g->dx * g->dx;
+    for (long c = 0; c < nc; c++) frac[c] = 0.0;
+    for (long p = 0; p < n; p++) {
+        DrStencil3 st[3];
+        lattice_stencil(g, 3, x + 3 * p, st);
+        for (int k = 0; k < 3; k++) {
+            int kk = st[2].base + k;
+            if (kk < 0 || kk >= g->nz) continue;
+            for (int j = 0; j < 3; j++) {
+                int jj = st[1].base + j;
+                if (jj < 0 || jj >= g->ny) continue;
+                for (int i = 0; i < 3; i++) {
+                    int ii = st[0].base + i;
+                    if (ii < 0 || ii >= g->nx) continue;
+                    frac[dr_mac_cell_index(g, ii, jj, kk)] += st[0].w[i] * st[1].w[j] * st[2].w[k] * volume[p] / cell;
+                }
+            }
+        }
+    }
+    for (long c = 0; c < nc; c++)
+        if (frac[c] > 1.0) frac[c] = 1.0;
+}
+
+/* Trilinear fraction at x on the cell-centre lattice (clamped to it) and its gradient (per m). */
+static double fraction_at(const DrMacGrid *g, const double *frac, const double *x, double grad[3])
+{
+    double o[3] = {g->origin.x, g->origin.y, g->origin.z};
+    int n[3] = {g->nx, g->ny, g->nz}, b[3];
+    double t[3];
+    for (int d = 0; d < 3; d++) {
+        double s = (x[d] - o[d]) / g->dx - 0.5;
+        if (s < 0.0) s = 0.0;
+        if (s > n[d] - 1) s = n[d] - 1;
+        b[d] = (int)floor(s);
+        if (b[d] > n[d] - 2) b[d] = n[d] - 2;
+        if (b[d] < 0) b[d] = 0;
+        t[d] = s - b[d];
+    }
+    double c[2][2][2];
+    for (int k = 0; k < 2; k++)
+        for (int j = 0; j < 2; j++)
+            for (int i = 0; i < 2; i++) {
+                int ii = b[0] + i < n[0] ? b[0] + i : n[0] - 1, jj = b[1] + j < n[1] ? b[1] + j : n[1] - 1;
+                int kk = b[2] + k < n[2] ? b[2] + k : n[2] - 1;
+                c[k][j][i] = frac[dr_mac_cell_index(g, ii, jj, kk)];
+            }
+    double val = 0.0;
+    for (int d = 0; d < 3; d++) grad[d] = 0.0;
+    for (int k = 0; k < 2; k++)
+        for (int j = 0; j < 2; j++)
+            for (int i = 0; i < 2; i++) {
+                double wx = i ? t[0] : 1.0 - t[0], wy = j ? t[1] : 1.0 - t[1], wz = k ? t[2] : 1.0 - t[2];
+                double cv = c[k][j][i];
+                val += wx * wy * wz * cv;
+                grad[0] += (i ? 1.0 : -1.0) * wy * wz * cv / g->dx;
+                grad[1] += (j ? 1.0 : -1.0) * wx * wz * cv / g->dx;
+                grad[2] += (k ? 1.0 : -1.0) * wx * wy * cv / g->dx;
+            }
+    return val;
+}
+
+long dr_couple_push_out(const DrMacGrid *g, const double *frac, long n, double *x)
+{
+    long moved = 0;
+    for (long p = 0; p < n; p++) {
+        double *xp = x + 3 * p, grad[3];
+        double f = fraction_at(g, frac, xp, grad);
+        if (!(f > 0.5)) continue;
+        double travelled = 0.0;
+        for (int it = 0; it < 6 && f > 0.5; it++) {
+            double gn = sqrt(grad[0] * grad[0] + grad[1] * grad[1] + grad[2] * grad[2]);
+            if (!(gn > 1e-9 / g->dx)) break;
+            /* a step to the ½ level along −∇f, at least a tenth of a cell, at most what is left of 2Δx */
+            double step = (f - 0.5) / gn + 1e-6 * g->dx;
+            if (step < 0.1 * g->dx) step = 0.1 * g->dx;
+            if (step > 2.0 * g->dx - travelled) step = 2.0 * g->dx - travelled;
+            if (!(step > 0.0)) break;
+            for (int d = 0; d < 3; d++) xp[d] -= step * grad[d] / gn;
+            travelled += step;
+            f = fraction_at(g, frac, xp, grad);
+        }
+        moved++;
+    }
+    return moved;
+}
+
+double dr_couple_fraction_at(const DrMacGrid *g, const double *frac, const double *x, double grad_out[3])
+{
+    double grad[3];
+    double f = fraction_at(g, frac, x, grad);
+    if (grad_out) memcpy(grad_out, grad, sizeof grad);
+    return f;
+}

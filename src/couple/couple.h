@@ -191,4 +191,31 @@ void dr_couple_last_ledger(const DrCouple *c, DrVec3 *solid, DrVec3 *fluid);
 int dr_couple_last_changes(const DrCouple *c, double *out, int max);
 double dr_couple_last_residual(const DrCouple *c);
 
+/* ---- deformable solids lumped onto the faces (the MPM solids' two-way coupling with the liquid) ---------------------
+ * A solid given as particles (position, velocity, mass, volume) becomes a moving solid of a fluid's projection
+ * (DrFaceCoupling.solid_mass, grid.h; dr_liquid_solid_momentum): with the quadratic B-spline weights w_pf of each face
+ * component's lattice (the liquid's P2G kernel), the face's solid mass m^s_f = Σ_p w_pf m_p, its velocity
+ * V_f = Σ_p w_pf m_p v_p / m^s_f and its blocked share σ_f = min(1, Σ_p w_pf V_p/Δx³) (open = 1 − σ_f): a filled region
+ * reads σ = 1, its flat surface σ = ½ on the surface. Stencil nodes outside the face lattice are skipped (their
+ * weight is lost from both sums alike). The momentum P_f (N s) the projection gave face f goes back to the particles
+ * with the same weights, δv_p = Σ_f w_pf P_f/m^s_f e_a, so Σ_p m_p δv_p = Σ_f P_f exactly (to round-off), whatever
+ * the P_f. Serial, in particle order: the same bits for any thread count. */
+/* Sets fc's open, velocity and solid_mass (allocated by dr_face_coupling_add_solid_mass) from the n particles and
+   clears its impulse and drag; faces no particle reaches are open with no mass. */
+void dr_couple_particles_to_faces(const DrMacGrid *g, long n, const double *x, const double *v, const double *mass,
+                                  const double *volume, DrFaceCoupling *fc);
+/* dv (3n) = Σ_f w_pf P_f/m^s_f e_a over the faces with m^s_f > 0, P = momentum[a] (NULL: none on component a), with
+   fc the coupling dr_couple_particles_to_faces made from the same positions x. */
+void dr_couple_faces_to_particles(const DrMacGrid *g, long n, const double *x, const double *const momentum[3],
+                                  const DrFaceCoupling *fc, double *dv);
+/* The solid fraction of each cell (ncells, cell order, in [0, 1]): Σ_p w_pc V_p/Δx³ on the cell-centre lattice, clamped.
+   For the push-out of fluid particles (dr_couple_push_out). */
+void dr_couple_particle_fraction(const DrMacGrid *g, long n, const double *x, const double *volume, double *frac);
+/* Moves each of the n points (3n, m) whose trilinear solid fraction exceeds ½ along the fraction's falling gradient
+   until it reads ½ (a few secant steps, at most 2Δx in all): out of the solid's surface σ = ½. Returns how many
+   points moved. */
+long dr_couple_push_out(const DrMacGrid *g, const double *frac, long n, double *x);
+/* The trilinear solid fraction at x (cell-centre lattice, clamped to it) and its gradient (1/m; grad may be NULL). */
+double dr_couple_fraction_at(const DrMacGrid *g, const double *frac, const double *x, double grad[3]);
+
 #endif

@@ -61,7 +61,13 @@ DrStatus dr_face_coupling_create(const DrMacGrid *g, DrFaceCoupling **out, DrErr
 void dr_face_coupling_destroy(DrFaceCoupling **fc)
 {
     if (!fc || !*fc) return;
-    for (int a = 0; a < 3; a++) { free((*fc)->open[a]); free((*fc)->velocity[a]); free((*fc)->impulse[a]); free((*fc)->drag[a]); }
+    for (int a = 0; a < 3; a++) {
+        free((*fc)->open[a]);
+        free((*fc)->velocity[a]);
+        free((*fc)->impulse[a]);
+        free((*fc)->drag[a]);
+        free((*fc)->solid_mass[a]);
+    }
     free(*fc);
     *fc = NULL;
 }
@@ -74,7 +80,15 @@ void dr_face_coupling_clear(DrFaceCoupling *fc)
             fc->velocity[a][f] = 0.0;
             if (fc->impulse[a]) fc->impulse[a][f] = 0.0;
             if (fc->drag[a]) fc->drag[a][f] = 0.0;
+            if (fc->solid_mass[a]) fc->solid_mass[a][f] = 0.0;
         }
+}
+
+DrStatus dr_face_coupling_add_solid_mass(DrFaceCoupling *fc, DrError *err)
+{
+    for (int a = 0; a < 3; a++)
+        if (!fc->solid_mass[a]) DR_TRY(dr_calloc((size_t)fc->nfaces[a], sizeof(double), &fc->solid_mass[a], err));
+    return DR_OK;
 }
 
 DrVec3 dr_mac_face_position(const DrMacGrid *g, int a, int i, int j, int k)

@@ -67,6 +67,10 @@ DrVec3 dr_mac_cell_center(const DrMacGrid *g, int i, int j, int k);
  *                   (m_f u*_f + J_f + β_f velocity_f)/(m_f + β_f) and its pressure coefficient is scaled by
  *                   m_f/(m_f + β_f) (a porous face). The momentum it gives the liquid, β_f (velocity_f − u_f)
  *                   with the projected u_f, is not part of the impulse sum (the liquid reports it apart).
+ *   solid_mass[a][f] kg (≥ 0; NULL for none; the liquid reads it, the air ignores it): the blocked share
+ *                   σ_f = 1 − open of the face is a solid that moves with the pressure, a point mass m^s_f
+ *                   along e_a at velocity[a][f] before the projection (a deformable solid lumped onto the faces
+ *                   it covers). 0 keeps the face's solid velocity prescribed, as without the array.
  * A participant writing into one owns its arrays; nothing here is thread-safe against a concurrent writer. */
 typedef struct DrFaceCoupling {
     long nfaces[3];
@@ -74,11 +78,15 @@ typedef struct DrFaceCoupling {
     double *velocity[3];
     double *impulse[3];
     double *drag[3];
+    double *solid_mass[3];
 } DrFaceCoupling;
-/* Allocates the four arrays for grid g and clears them (dr_face_coupling_clear). DR_ERR_NOMEM. */
+/* Allocates the four arrays for grid g (solid_mass stays NULL: dr_face_coupling_add_solid_mass) and clears them
+   (dr_face_coupling_clear). DR_ERR_NOMEM. */
 DR_NODISCARD DrStatus dr_face_coupling_create(const DrMacGrid *g, DrFaceCoupling **out, DrError *err);
 void dr_face_coupling_destroy(DrFaceCoupling **fc);
-/* No solid: open 1, velocity 0, impulse 0, drag 0 on every face. */
+/* Allocates solid_mass (zeroed) when it is NULL. DR_ERR_NOMEM. */
+DR_NODISCARD DrStatus dr_face_coupling_add_solid_mass(DrFaceCoupling *fc, DrError *err);
+/* No solid: open 1, velocity 0, impulse 0, drag 0, solid mass 0 on every face. */
 void dr_face_coupling_clear(DrFaceCoupling *fc);
 /* One face of two disjoint solids' couplings together (the colliders' own and another participant's): the solid shares
    add, open = 1 − (1 − w_own) − (1 − w_extra) (at least 0), and the solid velocity is their share-weighted mean. A face

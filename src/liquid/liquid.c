@@ -127,6 +127,13 @@ struct DrLiquid {
     unsigned char *take[3];  /* faces that took the extra coupling's impulse and drag in the last projection */
     double *porous[3];       /* m_f/(m_f + β_f) on faces taking a drag mass, 1 elsewhere (porous_on) */
     bool porous_on;          /* the last projection's extra coupling had a drag mass */
+    /* the extra coupling's moving solid (DrFaceCoupling.solid_mass; soft_faces), allocated on first use */
+    bool soft_on;            /* the projection in progress has one */
+    const DrFaceCoupling *soft; /* that coupling */
+    double *smul[3];         /* per face: s_f, the weight of the solid's velocity in the face's flux (0: none) */
+    double *sshare[3];       /* per face: the solid's part of the mixed solid velocity, σ_e/(σ_own + σ_e) */
+    double *sdp[3];          /* per face: the momentum the solid gained in the last projection, N s */
+    DrVec3 soft_gain;        /* Σ sdp of the last projection (face order), N s */
     double pend_p2g, pend_other; /* seconds spent before the stats of dr_liquid_end can take them */
     long pend_visc_iterations;   /* the implicit viscosity solve's figures, likewise */
     int pend_visc_not_converged;
@@ -448,6 +455,7 @@ void dr_liquid_destroy(DrLiquid **liq)
         free(L->mix.open[a]); free(L->mix.velocity[a]); free(L->ustar[a]);
         free(L->tmp[a]); free(L->tmp2[a]); free(L->valid[a]); free(L->valid2[a]); free(L->valid3[a]); free(L->shut[a]);
         free(L->take[a]); free(L->porous[a]);
+        free(L->smul[a]); free(L->sshare[a]); free(L->sdp[a]);
     }
     for (int a = 0; a < 3; a++) free(L->dsum[a]);
     free(L->nphi); free(L->nphi_static); free(L->open); free(L->near); free(L->cphi); free(L->dens);
@@ -840,6 +848,14 @@ static inline int face_body(const DrLiquid *L, int a, long f)
     return o < 0 ? -1 : L->frame_body[o];
 }
 
+/* The Poisson coefficient the extra coupling's moving solid adds on face f: s_f² ρΔx³/m^s_f (soft_faces), 0 without. */
+static inline double soft_coef(const DrLiquid *L, int a, long f)
+{
+    if (!L->soft_on) return 0.0;
+    double s = L->smul[a][f];
+    return s > 0.0 ? s * s * L->vol_density / L->soft->solid_mass[a][f] : 0.0;
+}
+
 static inline double porous_scale(const DrLiquid *L, int a, long f)
 {
     return L->porous_on ? L->porous[a][f] : 1.0;
@@ -1053,6 +1069,116 @@ static void drag_sum(DrLiquid *L, const DrFaceCoupling *x)
     L->drag_added = dr_v3(tot[0], tot[1], tot[2]);
 }
 
+/* ---- the extra coupling's moving solid (DrFaceCoupling.solid_mass) ---------------------------------------------
+ * A face's blocked share mixes the colliders' σ_o = 1 − w_own and the extra solid's σ_e = 1 − w_extra (mix_coupling:
+ * open w = 1 − σ_o − σ_e, the solid velocity their share-weighted mean), so the extra solid's velocity V enters the
+ * face's flux (face_flux) with the weight s = (1 − w) σ_e/(σ_o + σ_e), or σ_e/(σ_o + σ_e) on a shut face (closed at
+ * the solid velocity). With V a point mass m^s along e_a that the pressure moves, V⁺ = V + s ρΔx² (q_lo − q_hi)/m^s
+ * (q = 0 outside the pressure cells), eliminating V⁺ adds s² ρΔx³/m^s to the face's Poisson coefficient (soft_coef):
+ * a diagonal term per face, so the matrix keeps its 7-point stencil and the multigrid sees the whole operator. */
+typedef struct SoftCtx { DrLiquid *L; int a; } SoftCtx;
+
+static void soft_faces_slices(long begin, long end, void *vctx)
+{
+    SoftCtx *ctx = vctx;
+    DrLiquid *L = ctx->L;
+    const DrMacGrid *g = L->g;
+    int a = ctx->a;
+    const int *dim = g->fdim[a];
+    const DrFaceCoupling *x = L->soft;
+    for (long k = begin; k < end; k++)
+        for (int j = 0; j < dim[1]; j++)
+            for (int i = 0; i < dim[0]; i++) {
+                long f = dr_mac_face_index(g, a, i, j, (int)k);
+                int ijk[3] = {i, j, (int)k};
+                double s = 0.0, share = 0.0;
+                double se = 1.0 - x->open[a][f], ms = x->solid_mass[a][f];
+                if (ijk[a] > 0 && ijk[a] < dim[a] - 1 && se > 0.0 && ms > 0.0) {
+                    double so = 1.0 - L->own.open[a][f];
+                    share = se / (so + se);
+                    s = (L->shut[a][f] ? 1.0 : 1.0 - L->mix.open[a][f]) * share;
+                }
+                L->smul[a][f] = s;
+                L->sshare[a][f] = share;
+                L->sdp[a][f] = 0.0;
+            }
+}
+
+/* After shut_slices, before the rows are assembled: s_f and the share on every face (soft_on), or nothing. */
+static DrStatus soft_faces(DrLiquid *L, const DrFaceCoupling *x, DrError *err)
+{
+    const DrMacGrid *g = L->g;
+    L->soft_on = false;
+    L->soft = NULL;
+    L->soft_gain = dr_v3(0, 0, 0);
+    if (!x || !x->solid_mass[0] || !x->solid_mass[1] || !x->solid_mass[2]) return DR_OK;
+    for (int a = 0; a < 3; a++) {
+        for (long f = 0; f < g->nfaces[a]; f++)
+            if (!(x->solid_mass[a][f] >= 0.0 && isfinite(x->solid_mass[a][f])))
+                return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "liquid project: the face coupling's solid mass of "
+                                    "component %d is negative or not finite at face %ld.", a, f);
+        if (!L->smul[a]) {
+            DR_TRY(dr_calloc((size_t)g->nfaces[a], sizeof(double), &L->smul[a], err));
+            DR_TRY(dr_calloc((size_t)g->nfaces[a], sizeof(double), &L->sshare[a], err));
+            DR_TRY(dr_calloc((size_t)g->nfaces[a], sizeof(double), &L->sdp[a], err));
+        }
+    }
+    L->soft = x;
+    L->soft_on = true;
+    for (int a = 0; a < 3; a++) {
+        SoftCtx ctx = {L, a};
+        dr_parallel_for(g->fdim[a][2], slice_grain(g, a), soft_faces_slices, &ctx);
+    }
+    return DR_OK;
+}
+
+/* After the solve (before project_slices, which sets the blocked faces to the solid velocity): the solid's momentum
+   gain m^s ΔV = s ρΔx² (q_lo − q_hi) on each face, and the mixed solid velocity moved by share·ΔV. */
+static void soft_results_slices(long begin, long end, void *vctx)
+{
+    SoftCtx *ctx = vctx;
+    DrLiquid *L = ctx->L;
+    const DrMacGrid *g = L->g;
+    int a = ctx->a;
+    const int *dim = g->fdim[a];
+    long cstride[3] = {1, g->nx, (long)g->nx * g->ny};
+    double scale = L->vol_density / g->dx; /* ρΔx² */
+    for (long k = begin; k < end; k++)
+        for (int j = 0; j < dim[1]; j++)
+            for (int i = 0; i < dim[0]; i++) {
+                long f = dr_mac_face_index(g, a, i, j, (int)k);
+                double s = L->smul[a][f];
+                if (!(s > 0.0) || L->nrow == 0) continue;
+                long chi = dr_mac_cell_index(g, i, j, (int)k), clo = chi - cstride[a];
+                double qlo = L->row[clo] >= 0 ? L->q[L->row[clo]] : 0.0, qhi = L->row[chi] >= 0 ? L->q[L->row[chi]] : 0.0;
+                double gain = s * scale * (qlo - qhi);
+                L->sdp[a][f] = gain;
+                L->mix.velocity[a][f] += L->sshare[a][f] * gain / L->soft->solid_mass[a][f];
+            }
+}
+
+static void soft_results(DrLiquid *L)
+{
+    for (int a = 0; a < 3; a++) {
+        SoftCtx ctx = {L, a};
+        dr_parallel_for(L->g->fdim[a][2], slice_grain(L->g, a), soft_results_slices, &ctx);
+    }
+}
+
+/* After project_slices: Σ sdp in face order. */
+static void soft_sum(DrLiquid *L)
+{
+    double tot[3] = {0.0, 0.0, 0.0};
+    for (int a = 0; a < 3; a++)
+        for (long f = 0; f < L->g->nfaces[a]; f++) tot[a] += L->sdp[a][f];
+    L->soft_gain = dr_v3(tot[0], tot[1], tot[2]);
+}
+
+const double *dr_liquid_solid_momentum(const DrLiquid *liq, int a)
+{
+    return liq->soft_on ? liq->sdp[a] : NULL;
+}
+
 /* Volume correction (liquid.h): Δx·D for cell c, D = κ·(ρ̃ − 1 − band)/T where the smoothed density ρ̃
    exceeds 1 + band and T is the advance interval (a frame), not the substep: a rate tied to the substep
    would grow as the CFL condition shortens it and speed the flow up further. A q = −Δx²(div u* − D), so
@@ -1106,23 +1232,29 @@ static int pressure_row(const DrLiquid *L, int r, int col[7], double val[7], dou
             double w = L->cpl->open[a][f];
             int slot = side ? 3 + a : 2 - a; /* -z,-y,-x | +x,+y,+z: ascending cell index */
             offcol[slot] = -1;
-            if (w <= 0.0) continue;
             int nbi = idx[a] + (side ? 1 : -1);
             if (nbi < 0 || nbi >= n[a]) continue;
             long nb = c + (side ? cstride[a] : -cstride[a]);
-            /* mass-weighted, a body's face takes the variational form: the liquid on it moves by w of the pressure
-               impulse and the body by the rest (1 − w), so the two add up to the face's whole impulse */
-            if (!gf && face_body(L, a, f) >= 0) w *= w;
-            w *= face_inv_density(L, a, f);
-            if (w <= 0.0) continue;
+            /* the extra coupling's moving solid on the face: its own coefficient, p = 0 (not the ghost value) in
+               a cell without pressure */
+            double cs = soft_coef(L, a, f);
+            if (w > 0.0) {
+                /* mass-weighted, a body's face takes the variational form: the liquid on it moves by w of the
+                   pressure impulse and the body by the rest (1 − w), so the two add up to the face's whole impulse */
+                if (!gf && (face_body(L, a, f) >= 0 || cs > 0.0)) w *= w;
+                w *= face_inv_density(L, a, f);
+            } else {
+                w = 0.0;
+            }
+            if (w <= 0.0 && cs <= 0.0) continue;
             if (L->row[nb] >= 0) {
-                diag += w;
-                off[slot] = -w;
+                diag += w + cs;
+                off[slot] = -(w + cs);
                 offcol[slot] = L->row[nb];
             } else if (gf) {
-                diag += w / cell_theta(L, c, nb); /* ghost fluid: p_air = p_F (1 − 1/θ) */
+                diag += w / cell_theta(L, c, nb) + cs; /* ghost fluid: p_air = p_F (1 − 1/θ) */
             } else {
-                diag += w; /* mass-weighted: p = 0 at the air cell's centre */
+                diag += w + cs; /* mass-weighted: p = 0 at the air cell's centre */
             }
         }
     }
@@ -1724,11 +1856,28 @@ static DrStatus pressure_solve(DrLiquid *L, const DrFaceCoupling *extra, DrLiqui
     L->vn = 0;
     if (!gf && L->nframes > 0) DR_TRY(virtual_mass(L, err));
     int nrow = 0;
+    const DrFaceCoupling *sx = extra && extra->solid_mass[0] && extra->solid_mass[1] && extra->solid_mass[2] ? extra
+                                                                                                               : NULL;
     for (long c = 0; c < L->ncells; c++) {
         L->row[c] = -1;
         bool has = cs[c + 1] > cs[c] || L->cphi[c] < 0.0;
-        if (!has && gf) continue;
         int i = (int)(c % g->nx), j = (int)((c / g->nx) % g->ny), k = (int)(c / cstride[2]);
+        /* the extra coupling's moving solid fills more than half of the cell (its faces' mean blocked share): a
+           pressure cell too, so that the pressure continues through the solid (it feels the pressure's gradient over
+           its volume, not a jump to 0 at its surface) and the solid moves with the liquid as one incompressible
+           mixture there */
+        bool solid = false;
+        if (sx) {
+            double sum = 0.0;
+            for (int a = 0; a < 3; a++)
+                for (int side = 0; side < 2; side++) {
+                    long f = low_face(g, a, i, j, k) + (side ? face_stride(g, a) : 0);
+                    if (sx->solid_mass[a][f] > 0.0) sum += 1.0 - sx->open[a][f];
+                }
+            solid = sum > 3.0;
+        }
+        has = has || solid;
+        if (!has && gf) continue;
         bool open = false, massive = true;
         double tiny = TINY_MASS * L->vol_density;
         for (int a = 0; a < 3; a++)
@@ -1738,7 +1887,7 @@ static DrStatus pressure_solve(DrLiquid *L, const DrFaceCoupling *extra, DrLiqui
                 if (L->fm[a][f] > tiny) open = true; /* a face no shut_faces can shut: the row is not empty */
                 if (!(face_mass(L, a, f) > tiny)) massive = false;
             }
-        if (!open) continue;
+        if (!open && !solid) continue;
         /* mass-weighted: a cell whose every open face carries mass (with the virtual liquid's next to
            colliders; more than TINY_MASS) is constrained too (liquid.h) */
         bool liquid = has || (!gf && massive);
@@ -1752,6 +1901,7 @@ static DrStatus pressure_solve(DrLiquid *L, const DrFaceCoupling *extra, DrLiqui
     for (int a = 0; a < 3; a++) run_faces(L, shut_slices, a);
     L->porous_on = false;
     if (extra) DR_TRY(add_impulse(L, extra, err));
+    DR_TRY(soft_faces(L, extra, err));
     if (L->nbodies > 0) DR_TRY(body_faces(L, err));
     if (nrow == 0) {
         body_results(L);
@@ -1806,6 +1956,7 @@ static DrStatus pressure_solve(DrLiquid *L, const DrFaceCoupling *extra, DrLiqui
     DrStatus s = dr_pcg_solve(&Aop, &Mop, L->rhs, L->q, &pd, L->work, &ps, err);
     if (s < 0) return s;
     if (L->nbodies > 0) body_results(L);
+    if (L->soft_on) soft_results(L);
     if (ps.iterations > stats->pressure_iterations_max) stats->pressure_iterations_max = ps.iterations;
     stats->pressure_iterations_total += ps.iterations;
     if (ps.rel_residual > stats->pressure_residual_max) stats->pressure_residual_max = ps.rel_residual;
@@ -1865,7 +2016,7 @@ static void project_slices(long begin, long end, void *vctx)
                     /* every face with mass: u −= (ρ/ρ_f) Δq/Δx with q = 0 in air cells (air–air: no change); on a
                        body's face the liquid's share w of it (pressure_row) */
                     double qlo = flo ? L->q[L->row[clo]] : 0.0, qhi = fhi ? L->q[L->row[chi]] : 0.0;
-                    double share = body >= 0 ? L->cpl->open[a][f] : 1.0;
+                    double share = body >= 0 || (L->soft_on && L->smul[a][f] > 0.0) ? L->cpl->open[a][f] : 1.0;
                     g->f[a][f] -= share * face_inv_density(L, a, f) * (qhi - qlo) * inv;
                     val = 1;
                     if (body >= 0) {
@@ -1881,6 +2032,10 @@ static void project_slices(long begin, long end, void *vctx)
                     val = 1;
                 }
                 L->valid[a][f] = val;
+                if (val && L->soft_on && L->smul[a][f] > 0.0 && (L->cpl->open[a][f] <= 0.0 || L->shut[a][f]))
+                    /* setting the face to the mixed solid velocity gave its liquid m_f (u_s − u) (as for a body,
+                       below): the extra solid gives its share of it */
+                    L->sdp[a][f] -= L->sshare[a][f] * L->fm[a][f] * (g->f[a][f] - (mw ? before : L->uold[a][f]));
                 if (body >= 0 && (L->cpl->open[a][f] <= 0.0 || L->shut[a][f])) {
                     /* a face the body blocks takes its velocity: the liquid mass the kernel put there (particles
                        just outside the surface) changes momentum by m_f (u_s − u), which the body gives. Ghost
@@ -2626,6 +2781,8 @@ static DrStatus grid_project(DrLiquid *L, const DrFaceCoupling *extra, DrLiquidS
     L->added = dr_v3(0, 0, 0);
     L->drag_added = dr_v3(0, 0, 0);
     L->porous_on = false;
+    L->soft_on = false;
+    L->soft_gain = dr_v3(0, 0, 0);
     L->sample_ok = false;
     L->cpl = &L->own;
     if (extra) {
@@ -2647,6 +2804,7 @@ static DrStatus grid_project(DrLiquid *L, const DrFaceCoupling *extra, DrLiquidS
     DR_TRY(pressure_solve(L, extra, stats, err));
     for (int a = 0; a < 3; a++) run_faces(L, project_slices, a);
     if (extra && L->porous_on) drag_sum(L, extra);
+    if (L->soft_on) soft_sum(L);
     stats->divergence_mean = divergence_mean(L, stats->liquid_cells);
     double t_3 = dr_time_now();
     stats->seconds_pressure += t_3 - t_2;
@@ -2800,6 +2958,7 @@ static DrStatus step_end(DrLiquid *L, DrLiquidStats *stats, bool report, DrError
     grid_impulse(L, L->h_step, stats);
     stats->added_impulse = dr_v3_add(stats->added_impulse, L->added);
     stats->drag_impulse = dr_v3_add(stats->drag_impulse, L->drag_added);
+    stats->solid_gain = dr_v3_add(stats->solid_gain, L->soft_gain);
     stats->seconds_p2g += L->pend_p2g;
     stats->seconds_other += L->pend_other;
     stats->viscosity_iterations += L->pend_visc_iterations;

@@ -159,6 +159,9 @@ typedef struct DrLiquidStats {
     /* Σ over substeps of the momentum the extra face coupling's drag masses gave the liquid in the substep's last
        dr_liquid_project, β_f (V_f − u_f) with the projected u_f (N·s; grid.h); part of the grid impulse too. */
     DrVec3 drag_impulse;
+    /* Σ over substeps of the momentum the extra coupling's moving solid (DrFaceCoupling.solid_mass) gained in the
+       substep's last dr_liquid_project (N·s; Σ of dr_liquid_solid_momentum). */
+    DrVec3 solid_gain;
     /* The energy ledger (J), for a caller watching the liquid's energy E = Σ ½m|v|² − m g·x (dr_liquid_totals'
        kinetic plus the potential): what entered and left it besides gravity. source_work: Σ over substeps of the
        work of the last projection's sources, the moving solids (each face's blocked part, (1 − w) u_solid Δx²,
@@ -300,6 +303,17 @@ const double *dr_liquid_face_mass(const DrLiquid *liq, int a);
    dr_liquid_stable_dt; NULL before any. A participant that spreads a reaction over faces with these alone gives the
    liquid exactly the momentum it meant to (an impulse elsewhere is dropped). */
 const unsigned char *dr_liquid_coupled_faces(const DrLiquid *liq, int a);
+/* The extra coupling's moving solid (DrFaceCoupling.solid_mass, grid.h): per face of component a, the momentum along
+   e_a (N·s) it gained in the last dr_liquid_project: the pressure's impulse on its share s_f of the face (s_f the
+   weight of its velocity in the face's flux: (1 − w_f) σ_e/(σ_own + σ_e) on an open face, σ_e/(σ_own + σ_e) on one
+   the projection shuts; σ_e = 1 − its open fraction, σ_own the colliders' share), s_f ρΔx² (q_lo − q_hi), less its
+   share of what setting a blocked face's liquid to the solid velocity gave that liquid. The projection takes the
+   solid's velocity V_f after the pressure as V_f + s_f ρΔx² (q_lo − q_hi)/m^s_f (eliminated into the pressure system,
+   which gains s_f² ρΔx³/m^s_f on the face's coefficient: implicit in the solid's inertia, so a light solid cannot
+   take more than the pressure gives it). NULL when the last projection had no solid mass. Valid until the next
+   dr_liquid_stable_dt. A participant spreading these over its particles with the weights that made m^s gives them
+   exactly the momentum (Σ over faces) the liquid reports in stats->solid_gain. */
+const double *dr_liquid_solid_momentum(const DrLiquid *liq, int a);
 /* end: the grid impulse (and a⁺ of the next CFL step) of the last projection, G2P, advection, push-out out
    of the colliders, the domain clamp, emitters and kill boxes; adds the substep to *stats (substeps,
    impulses, seconds of every phase) and sets particles and max_speed. DR_ERR_NOMEM if growing for emitters

@@ -248,6 +248,11 @@ static const DrFieldSpec integrator_fields[] = {
      .doc = "iteration limit of each conjugate-gradient solve"},
     {.name = "f_update_order", .kind = DR_FIELD_INT, .unit = "", .def = {1}, RANGE(1, 2),
      .doc = "deformation gradient update: 1 first order (F <- (I + dt grad v) F), 2 second order"},
+    {.name = "liquid_coupling", .kind = DR_FIELD_ENUM, .unit = "", .def_str = "two_way", .choices = "two_way|none",
+     .doc = "with a liquid in the scene: two_way, the bodies and the liquid push each other (buoyancy, drag, splash): "
+            "the bodies' particles are lumped onto the liquid's faces as a solid that its pressure moves, within the "
+            "pressure solve, at every liquid substep, and the liquid is kept out of them; none, they pass through each "
+            "other. The same for every mpm_solid of a scene"},
 };
 
 static const DrFieldSpec mesh_file_fields[] = {

@@ -50,6 +50,7 @@ int dr_world_live_collider_count(const DrWorld *w)
     const DrCollider *const *c = NULL;
     return world_kinematics_colliders(w->kin, &c);
 }
+const DrMpm *dr_world_mpm(const DrWorld *w) { return w->mpm ? world_mpm_solver(w->mpm) : NULL; }
 long dr_world_mpm_particle_count(const DrWorld *w) { return w->mpm ? world_mpm_particles(w->mpm) : 0; }
 long dr_world_hair_vertex_count(const DrWorld *w)
 {
@@ -209,6 +210,8 @@ static DrStatus build(DrWorld *w, const DrWorldDesc *desc, DrError *err)
             BUILD_TRY(DR_ELEMENT_BEM_SOLID, elements[i], world_kinematics_body_couple(w->kin, i, err));
             if (w->nliquids > 0) w->solvers[0].lockstep = true;
         }
+    /* MPM solids two-way with the first liquid: its substep hands them the pressure's impulse at every clock step */
+    if (world_kinematics_mpm_coupled(w->kin) && w->nliquids > 0) w->solvers[0].lockstep = true;
     if (w->bem_built.self) {
         w->solvers[w->nsolvers] = w->bem_built;
         w->bem = &w->solvers[w->nsolvers++];
@@ -223,6 +226,11 @@ static DrStatus build(DrWorld *w, const DrWorldDesc *desc, DrError *err)
     }
     if (w->couple_fluid < 0 || w->couple_solid < 0) {
         w->couple_fluid = w->couple_solid = -1;
+    } else if (world_kinematics_mpm_coupled(w->kin)) {
+        return dr_error_set(err, DR_ERR_INPUT, dr_scene_path(scene), 0, 0,
+                            "the scene couples hair (Drag) and MPM solids (Integrator.liquid_coupling \"two_way\") "
+                            "with the liquid; both in one scene is not supported yet: set the mpm_solids' "
+                            "Integrator.liquid_coupling to \"none\" or remove the hair's Drag");
     } else {
         const DrComponent *solver = dr_scene_section(scene, "solver");
         dr_couple_desc_default(&w->couple_desc);

@@ -140,6 +140,8 @@ double dr_world_frame_time(const DrWorld *w, int frame);
 int dr_world_liquid_count(const DrWorld *w);
 long dr_world_hair_vertex_count(const DrWorld *w); /* 0 when the scene has no hair */
 long dr_world_mpm_particle_count(const DrWorld *w); /* 0 when the scene has no MPM solver */
+typedef struct DrMpm DrMpm;
+const DrMpm *dr_world_mpm(const DrWorld *w);        /* the MPM solver, NULL when there is none */
 /* The i-th liquid solver (element order) and its element, for diagnostics and tests. */
 typedef struct DrLiquid DrLiquid;
 const DrLiquid *dr_world_liquid(const DrWorld *w, int i);

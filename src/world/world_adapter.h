@@ -73,6 +73,26 @@ DR_NODISCARD DrStatus world_kinematics_set_mpm_surface(WorldKinematics *k, long 
                                                        const double *volume, DrError *err);
 bool world_kinematics_mpm_surface(WorldKinematics *k, double (**sdf)(DrVec3, DrVec3 *, void *),
                                   DrVec3 (**velocity)(DrVec3, void *), void **ctx);
+/* The MPM solids two-way with the first liquid (Integrator.liquid_coupling; world_liquid.c explains the scheme). The
+   MPM adapter turns it on when it builds, hands its particles after building, restoring and each of its steps, and
+   before each step adds the velocity changes the liquid left (pending); the liquid's substep, which comes first in
+   the clock step, lumps the particles onto its faces and leaves them dv. */
+typedef struct WorldMpmParticles {
+    bool on;
+    long n, cap;
+    double *x, *v;           /* 3n: where the MPM's last step left them */
+    double *mass, *volume;   /* n: kg, m³ (V₀ det F) */
+    double *dv;              /* 3n: the velocity change the liquid's pressure gave them since, when pending */
+    bool pending;
+} WorldMpmParticles;
+void world_kinematics_mpm_couple(WorldKinematics *k);
+bool world_kinematics_mpm_coupled(const WorldKinematics *k);
+/* Copies the particles (a no-op when not coupled) and clears pending. DR_ERR_NOMEM. */
+DR_NODISCARD DrStatus world_kinematics_set_mpm_particles(WorldKinematics *k, long n, const double *x, const double *v,
+                                                         const double *mass, const double *vol0, const double *F,
+                                                         DrError *err);
+/* The coupled particles, NULL when not coupled. */
+WorldMpmParticles *world_kinematics_mpm_particles(WorldKinematics *k);
 /* Before body i (in the order given to world_kinematics_add_bodies) takes a step from t0: its frame there. After it
    (to t1): its collider carries it through the frame so far, keyed from the frame's start t_frame to t1 (and one key
    past t1 along its velocity), so a solver's step may span several BEM steps; its SDF follows the deformed surface
@@ -211,6 +231,7 @@ DR_NODISCARD DrStatus world_liquid_adapter(const WorldCtx *c, const DrElement *e
 const DrLiquid *world_liquid_solver(const WorldSolver *s);
 DR_NODISCARD DrStatus world_mpm_adapter(const WorldCtx *c, WorldSolver *out, DrError *err);
 long world_mpm_particles(const WorldSolver *s);
+const DrMpm *world_mpm_solver(const WorldSolver *s);
 int world_mpm_bodies(const WorldSolver *s);
 DR_NODISCARD DrStatus world_lagrangian_adapter(const WorldCtx *c, const char *cache_root, WorldSolver *out,
                                                 DrError *err);

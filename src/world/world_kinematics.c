@@ -61,6 +61,7 @@ struct WorldKinematics {
     int nliquid;
     WorldPosedCollider *body_posed; /* the bodies posed at the clock step's end, as the hair sees them */
     DrPointField *mpm_surface; /* the MPM particles as a surface for the hair, NULL without hair or MPM */
+    WorldMpmParticles mpm;   /* the MPM particles two-way with the first liquid (world_kinematics_mpm_couple) */
     DrVec3 gravity;          /* the shot's, m/s² (the bodies' proxies) */
     DrLiquidBody *lbodies;   /* the two-way bodies as the liquid's substep takes them, and their body indices */
     int *lb_body;
@@ -738,6 +739,7 @@ void world_kinematics_destroy(WorldKinematics **kp)
     free(k->bodies);
     free(k->body_posed);
     dr_point_field_destroy(&k->mpm_surface);
+    free(k->mpm.x), free(k->mpm.v), free(k->mpm.mass), free(k->mpm.volume), free(k->mpm.dv);
     free(k->liquid);
     for (int i = 0; i < k->ncolliders; i++) dr_collider_destroy(&k->colliders[i].collider);
     free(k->colliders);
@@ -826,3 +828,38 @@ bool world_kinematics_mpm_surface(WorldKinematics *k, double (**sdf)(DrVec3, DrV
     *ctx = k->mpm_surface;
     return k->mpm_surface != NULL;
 }
+
+/* ---- the MPM solids two-way with the first liquid ---- */
+
+void world_kinematics_mpm_couple(WorldKinematics *k) { k->mpm.on = true; }
+
+bool world_kinematics_mpm_coupled(const WorldKinematics *k) { return k->mpm.on; }
+
+DrStatus world_kinematics_set_mpm_particles(WorldKinematics *k, long n, const double *x, const double *v,
+                                            const double *mass, const double *vol0, const double *F, DrError *err)
+{
+    WorldMpmParticles *m = &k->mpm;
+    if (!m->on) return DR_OK;
+    if (n > m->cap) {
+        DR_TRY(dr_realloc((size_t)(3 * n), sizeof(double), &m->x, err));
+        DR_TRY(dr_realloc((size_t)(3 * n), sizeof(double), &m->v, err));
+        DR_TRY(dr_realloc((size_t)(3 * n), sizeof(double), &m->dv, err));
+        DR_TRY(dr_realloc((size_t)n, sizeof(double), &m->mass, err));
+        DR_TRY(dr_realloc((size_t)n, sizeof(double), &m->volume, err));
+        m->cap = n;
+    }
+    m->n = n;
+    memcpy(m->x, x, 3 * (size_t)n * sizeof(double));
+    memcpy(m->v, v, 3 * (size_t)n * sizeof(double));
+    memcpy(m->mass, mass, (size_t)n * sizeof(double));
+    for (long p = 0; p < n; p++) { /* the current volume V₀ det F */
+        const double *f = F + 9 * p;
+        double det = f[0] * (f[4] * f[8] - f[5] * f[7]) - f[1] * (f[3] * f[8] - f[5] * f[6]) +
+                     f[2] * (f[3] * f[7] - f[4] * f[6]);
+        m->volume[p] = vol0[p] * fabs(det);
+    }
+    m->pending = false;
+    return DR_OK;
+}
+
+WorldMpmParticles *world_kinematics_mpm_particles(WorldKinematics *k) { return k->mpm.on ? &k->mpm : NULL; }

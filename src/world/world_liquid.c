@@ -26,6 +26,17 @@ typedef struct WorldLiquid {
     double volume, nominal;  /* m³: dr_liquid_particle_volume at the end of the last frame (diagnostics) */
     double density, viscosity; /* kg/m³, Pa·s: what the coupled loop's laws read */
     bool bodies;             /* the first liquid: the two-way BEM bodies take part in its projections */
+    double h_cur;            /* the length of the substep begun */
+    /* the MPM solids two-way with the first liquid (mpm_project): their particles on the faces, where they stand at
+       the substep's end, the solid fraction of the cells for the push-out; allocated on first use */
+    DrFaceCoupling *mfc;
+    double *mx, *mv;         /* 3n */
+    long mcap;
+    double *mfrac;           /* per cell */
+    DrVec3 mpm_gain;         /* N s, the frame's momentum the MPM solids gained from the liquid */
+    long mpm_pushed;         /* the frame's liquid particles pushed out of them */
+    bool carved;             /* the liquid seeded inside them was removed (at the first substep of a bake; a
+                                resumed bake restores particles that never held it) */
 } WorldLiquid;
 
 static void box_of(const DrComponent *c, const char *field, DrVec3 *lo, DrVec3 *hi) { dr_component_box(c, field, lo, hi); }
@@ -203,9 +214,13 @@ static DrStatus build_liquid(const WorldCtx *c, const DrElement *e, WorldLiquid 
     return watch_start(wl, c, c->frame, err);
 }
 
+static DrStatus mpm_carve(WorldLiquid *wl, const WorldMpmParticles *mp, DrError *err);
+
 static DrStatus liquid_next_time(void *self, const WorldCtx *c, double t, double *t_next, DrError *err)
 {
     WorldLiquid *wl = self;
+    WorldMpmParticles *mp = wl->bodies ? world_kinematics_mpm_particles(c->kin) : NULL;
+    if (mp && mp->n > 0 && !wl->carved) DR_TRY(mpm_carve(wl, mp, err));
     const DrCollider *const *cols = NULL;
     int n = world_kinematics_liquid_colliders(c->kin, &cols);
     DR_TRY(dr_liquid_stable_dt(wl->liquid, cols, n, t, c->t1, &wl->h, err));
@@ -225,6 +240,7 @@ static DrStatus begin_substep(WorldLiquid *wl, const WorldCtx *c, double t, doub
     if (nb < 0) return nb;
     const DrCollider *const *cols = NULL;
     int n = world_kinematics_liquid_colliders(c->kin, &cols);
+    wl->h_cur = h;
     DR_TRY(dr_liquid_begin(wl->liquid, cols, n, t, h, err));
     return nb > 0 ? dr_liquid_set_bodies(wl->liquid, lb, nb, err) : DR_OK;
 }
@@ -238,12 +254,104 @@ static DrStatus end_substep(WorldLiquid *wl, const WorldCtx *c, DrError *err)
     return DR_OK;
 }
 
+/* ---- the MPM solids two-way with the first liquid ----------------------------------------------------------------
+ * A shared-grid mixture on the liquid's faces, chosen over a coupling on the MPM's own grid because the liquid's
+ * pressure solve can then take the solids' inertia implicitly while keeping its 7-point matrix and multigrid:
+ *   1. the liquid's substep [t, t + h] comes first in the clock step; the MPM particles where their last step left
+ *      them are predicted to its end (x + h v, v + h g) and lumped onto the liquid's faces (dr_couple_particles_to_
+ *      faces: blocked share, velocity, solid mass);
+ *   2. the projection moves that solid with the pressure (dr_liquid_solid_momentum: each face's solid a point mass
+ *      within the solve, so a light body cannot be given more than the pressure gives it: no added-mass
+ *      instability) and the momentum each face's solid gained goes back to the particles with the same weights
+ *      (dr_couple_faces_to_particles: exactly what the liquid reports in solid_gain);
+ *   3. the liquid ends its substep and its particles are pushed out of the solid (fraction above ½, from the
+ *      predicted positions);
+ *   4. the MPM then steps over the same [t, t + h] (both step at every clock step), starting from its velocities plus
+ *      that change (world_mpm.c): the elastic forces and gravity of the step act after the pressure's impulse.
+ * The bodies' elasticity stays explicit against the pressure within a substep (lagged by one substep); their
+ * interiors are not pressure cells, so the pressure acts on their surface only, as on a rigid body. */
+static DrStatus mpm_project(WorldLiquid *wl, const WorldCtx *c, WorldMpmParticles *mp, DrError *err)
+{
+    const DrMacGrid *g = dr_liquid_grid(wl->liquid);
+    if (!wl->mfc) {
+        DR_TRY(dr_face_coupling_create(g, &wl->mfc, err));
+        DR_TRY(dr_face_coupling_add_solid_mass(wl->mfc, err));
+        DR_TRY(dr_calloc((size_t)g->nx * g->ny * g->nz, sizeof(double), &wl->mfrac, err));
+    }
+    if (mp->n > wl->mcap) {
+        DR_TRY(dr_realloc((size_t)(3 * mp->n), sizeof(double), &wl->mx, err));
+        DR_TRY(dr_realloc((size_t)(3 * mp->n), sizeof(double), &wl->mv, err));
+        wl->mcap = mp->n;
+    }
+    double h = wl->h_cur, gv[3] = {c->gravity.x, c->gravity.y, c->gravity.z};
+    for (long i = 0; i < 3 * mp->n; i++) {
+        wl->mv[i] = mp->v[i] + h * gv[i % 3];
+        wl->mx[i] = mp->x[i] + h * mp->v[i];
+    }
+    dr_couple_particles_to_faces(g, mp->n, wl->mx, wl->mv, mp->mass, mp->volume, wl->mfc);
+    DR_TRY(dr_liquid_project(wl->liquid, wl->mfc, &wl->frame, err));
+    const double *mom[3];
+    for (int a = 0; a < 3; a++) mom[a] = dr_liquid_solid_momentum(wl->liquid, a);
+    dr_couple_faces_to_particles(g, mp->n, wl->mx, mom, wl->mfc, mp->dv);
+    mp->pending = true;
+    return DR_OK;
+}
+
+/* After the substep's end: the liquid's particles out of the solids where the substep left them. */
+static void mpm_push_out(WorldLiquid *wl, const WorldMpmParticles *mp)
+{
+    const DrMacGrid *g = dr_liquid_grid(wl->liquid);
+    dr_couple_particle_fraction(g, mp->n, wl->mx, mp->volume, wl->mfrac);
+    DrLiquidState *st = dr_liquid_state_mut(wl->liquid);
+    wl->mpm_pushed += dr_couple_push_out(g, wl->mfrac, st->n, st->x);
+}
+
+/* The liquid seeded where the MPM solids stand (a LiquidSource box around a body) removed before the first substep:
+   the particles whose cell-centre solid fraction reads more than ½, as the push-out sees them. */
+static DrStatus mpm_carve(WorldLiquid *wl, const WorldMpmParticles *mp, DrError *err)
+{
+    wl->carved = true;
+    const DrMacGrid *g = dr_liquid_grid(wl->liquid);
+    double *frac = NULL;
+    DR_TRY(dr_calloc((size_t)g->nx * g->ny * g->nz, sizeof(double), &frac, err));
+    dr_couple_particle_fraction(g, mp->n, mp->x, mp->volume, frac);
+    const DrLiquidState *st = dr_liquid_state(wl->liquid);
+    long n = st->n, kept = 0;
+    double *x = NULL, *v = NULL, *cc = NULL;
+    int64_t *id = NULL;
+    DrStatus s = dr_calloc((size_t)(3 * n + 1), sizeof(double), &x, err);
+    if (s == DR_OK) s = dr_calloc((size_t)(3 * n + 1), sizeof(double), &v, err);
+    if (s == DR_OK) s = dr_calloc((size_t)(9 * n + 1), sizeof(double), &cc, err);
+    if (s == DR_OK) s = dr_calloc((size_t)(n + 1), sizeof(int64_t), &id, err);
+    for (long p = 0; s == DR_OK && p < n; p++) {
+        double xp[3] = {st->x[3 * p], st->x[3 * p + 1], st->x[3 * p + 2]};
+        if (dr_couple_fraction_at(g, frac, xp, NULL) > 0.5) continue;
+        memcpy(x + 3 * kept, st->x + 3 * p, 3 * sizeof(double));
+        memcpy(v + 3 * kept, st->v + 3 * p, 3 * sizeof(double));
+        memcpy(cc + 9 * kept, st->c + 9 * p, 9 * sizeof(double));
+        id[kept++] = st->id[p];
+    }
+    if (s == DR_OK && kept < n) {
+        DrLiquidResume rs;
+        dr_liquid_resume_state(wl->liquid, &rs);
+        s = dr_liquid_restore(wl->liquid, kept, x, v, cc, id, &rs, err);
+        if (s == DR_OK)
+            dr_log_info("liquid '%s': %ld particles seeded inside the MPM solids removed", wl->element->name, n - kept);
+    }
+    free(x), free(v), free(cc), free(id), free(frac);
+    return s;
+}
+
 static DrStatus liquid_step(void *self, const WorldCtx *c, double t, double t_next, DrError *err)
 {
     WorldLiquid *wl = self;
     DR_TRY(begin_substep(wl, c, t, t_next, err));
-    DR_TRY(dr_liquid_project(wl->liquid, NULL, &wl->frame, err));
-    return end_substep(wl, c, err);
+    WorldMpmParticles *mp = wl->bodies ? world_kinematics_mpm_particles(c->kin) : NULL;
+    if (mp && mp->n > 0) DR_TRY(mpm_project(wl, c, mp, err));
+    else DR_TRY(dr_liquid_project(wl->liquid, NULL, &wl->frame, err));
+    DR_TRY(end_substep(wl, c, err));
+    if (mp && mp->n > 0) mpm_push_out(wl, mp);
+    return DR_OK;
 }
 
 /* ---- the coupled step: the liquid as the fluid of the loop (src/couple) ---- */
@@ -451,6 +559,7 @@ static DrStatus read_liquid(DrH5 *h, const char *path, WorldLiquid *wl, const Wo
 
 static DrStatus liquid_read(void *self, const WorldCtx *c, DrH5 *h, const char *path, int frame, DrError *err)
 {
+    ((WorldLiquid *)self)->carved = true;
     return read_liquid(h, path, self, c, frame, err);
 }
 
@@ -473,6 +582,8 @@ static void liquid_destroy(void *self)
     WorldLiquid *wl = self;
     if (!wl) return;
     dr_liquid_destroy(&wl->liquid);
+    dr_face_coupling_destroy(&wl->mfc);
+    free(wl->mx), free(wl->mv), free(wl->mfrac);
     for (int k = 0; k < wl->nshapes; k++) dr_collider_destroy(&wl->shapes[k]);
     free(wl->shapes);
     free(wl);

@@ -38,7 +38,16 @@ typedef struct WorldMpm {
     DrVec3 lo, hi;           /* the grid box: the lowest point the bodies reach along gravity is one of its corners */
     double dx;
     DrVec3 gravity;
+    bool liquid;             /* two-way with the first liquid (Integrator.liquid_coupling, a liquid present) */
 } WorldMpm;
+
+/* The particles as the liquid takes them (world_kinematics_set_mpm_particles; a no-op when not two-way). */
+static DrStatus publish(const WorldMpm *m, const WorldCtx *c, DrError *err)
+{
+    if (!m->liquid) return DR_OK;
+    DrMpmState st = dr_mpm_state(m->mpm);
+    return world_kinematics_set_mpm_particles(c->kin, st.n, st.x, st.v, st.mass, st.vol0, st.F, err);
+}
 
 /* ---- shapes ------------------------------------------------------------------------------------------ */
 
@@ -346,6 +355,10 @@ static DrStatus build_mpm(const WorldCtx *c, WorldMpm *m, int n, DrError *err)
         if (e->kind != DR_ELEMENT_MPM_SOLID) continue;
         DR_TRY(add_body(c, m, e, d.dx, &m->bodies[m->nbodies++], err));
     }
+    m->liquid = dr_scene_count_kind(scene, DR_ELEMENT_LIQUID) > 0 &&
+                strcmp(dr_component_str(in, "liquid_coupling"), "two_way") == 0;
+    if (m->liquid) world_kinematics_mpm_couple(c->kin);
+    DR_TRY(publish(m, c, err));
     watch_start(m, c->frame);
     return DR_OK;
 }
@@ -400,6 +413,13 @@ static DrStatus mpm_step(void *self, const WorldCtx *c, double t, double t_next,
     double proposed_end = m->last ? c->t1 : t + m->dt;
     bool as_proposed = t_next == proposed_end;
     double dt = as_proposed ? m->dt : t_next - t;
+    /* the liquid's substep over this clock step came first: its pressure's impulse, then this step */
+    WorldMpmParticles *lp = m->liquid ? world_kinematics_mpm_particles(c->kin) : NULL;
+    if (lp && lp->pending) {
+        DrStatus a = dr_mpm_add_velocity(m->mpm, lp->dv, err);
+        if (a < 0) return step_failed(DR_ERR_RUNTIME, c->frame, err);
+        lp->pending = false;
+    }
     DrMpmStats st;
     DrStatus s = dr_mpm_step(m->mpm, dt, &st, err);
     m->frame.newton_iterations += st.newton_iterations;
@@ -415,6 +435,7 @@ static DrStatus mpm_step(void *self, const WorldCtx *c, double t, double t_next,
     if (as_proposed) m->left = m->last ? 0.0 : m->left - dt;
     else m->left = c->t1 - t_next;
     m->from = t_next;
+    DR_TRY(publish(m, c, err));
     if (!world_kinematics_wants_mpm_surface(c->kin)) return DR_OK;
     DrMpmState sm = dr_mpm_state(m->mpm); /* the hair meets the particles where this step left them */
     return world_kinematics_set_mpm_surface(c->kin, sm.n, sm.x, sm.v, sm.vol0, err);
@@ -610,7 +631,6 @@ static DrStatus read_rows(DrH5 *h, const char *file, const char *name, const cha
 
 static DrStatus mpm_read(void *self, const WorldCtx *c, DrH5 *h, const char *path, int frame, DrError *err)
 {
-    (void)c;
     WorldMpm *m = self;
     DrMpmState st = dr_mpm_state(m->mpm);
     BodyArrays all = {0};
@@ -638,6 +658,7 @@ static DrStatus mpm_read(void *self, const WorldCtx *c, DrH5 *h, const char *pat
     if (s == DR_OK) s = dr_mpm_restore(m->mpm, st.n, all.x, all.v, all.C, all.F, err);
     body_arrays_free(&all);
     if (s == DR_OK) watch_start(m, frame + 1);
+    if (s == DR_OK) s = publish(m, c, err);
     return s;
 }
 
@@ -674,9 +695,11 @@ DrStatus world_mpm_adapter(const WorldCtx *c, WorldSolver *out, DrError *err)
                          .write = mpm_write,
                          .read = mpm_read,
                          .hash = mpm_hash,
-                         .destroy = mpm_destroy};
+                         .destroy = mpm_destroy,
+                         .lockstep = m->liquid};
     return DR_OK;
 }
 
+const DrMpm *world_mpm_solver(const WorldSolver *s) { return s->self ? ((const WorldMpm *)s->self)->mpm : NULL; }
 long world_mpm_particles(const WorldSolver *s) { return s->self ? dr_mpm_state(((const WorldMpm *)s->self)->mpm).n : 0; }
 int world_mpm_bodies(const WorldSolver *s) { return s->self ? ((const WorldMpm *)s->self)->nbodies : 0; }
