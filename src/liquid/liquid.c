@@ -607,7 +607,10 @@ static void gravity_slices(long begin, long end, void *vctx)
 
 /* Explicit ν∇²u (7-point Laplacian per component) among faces holding liquid mass; a neighbour without
    mass (or beyond the domain) counts as the face itself (zero flux). α = νΔt/Δx² ≤ 1/6 makes the update
-   a convex combination, hence stable in the max norm. */
+   a convex combination, hence stable in the max norm. Mass-weighted, each pair of faces f, g exchanges the momentum
+   α min(m_f, m_g) (u_g − u_f) (the same where the masses agree, as inside the liquid), so that the faces at the
+   surface, whose masses differ, lose to their neighbours exactly what these gain: the liquid's momentum is kept
+   (Δu_f = α Σ_g (u_g − u_f) would change it by α Σ_pairs (u_g − u_f)(m_f − m_g)); still a convex combination. */
 static void viscosity_slices(long begin, long end, void *vctx)
 {
     FaceCtx *ctx = vctx;
@@ -617,6 +620,7 @@ static void viscosity_slices(long begin, long end, void *vctx)
     const int *dim = g->fdim[a];
     const double *u = L->tmp[a], *m = L->fm[a];
     double *out = g->f[a];
+    bool mw = L->d.pressure == DR_PRESSURE_MASS_WEIGHTED;
     long sx = 1, sy = dim[0], sz = (long)dim[0] * dim[1];
     for (long k = begin; k < end; k++)
         for (int j = 0; j < dim[1]; j++)
@@ -626,8 +630,11 @@ static void viscosity_slices(long begin, long end, void *vctx)
                 double c = u[f], lap = 0.0;
                 long nb[6] = {i > 0 ? f - sx : -1, i < dim[0] - 1 ? f + sx : -1, j > 0 ? f - sy : -1,
                               j < dim[1] - 1 ? f + sy : -1, k > 0 ? f - sz : -1, k < dim[2] - 1 ? f + sz : -1};
-                for (int q = 0; q < 6; q++)
-                    if (nb[q] >= 0 && m[nb[q]] > 0.0) lap += u[nb[q]] - c;
+                for (int q = 0; q < 6; q++) {
+                    if (nb[q] < 0 || !(m[nb[q]] > 0.0)) continue;
+                    if (mw && m[nb[q]] < m[f]) lap += (u[nb[q]] - c) * (m[nb[q]] / m[f]);
+                    else lap += u[nb[q]] - c;
+                }
                 out[f] = c + ctx->alpha * lap;
             }
 }

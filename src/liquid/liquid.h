@@ -68,7 +68,8 @@
  *   mass: zero for every cell with six such faces, and p = 0 on the others. So, away from walls and
  *   colliders (w_f = 1), the projection conserves linear and angular momentum exactly whatever p (an
  *   unconverged solve included); with APIC and no gravity or viscosity a whole step conserves angular
- *   momentum to round-off (the rotating blob: ~4e-15 of |L| per 100 steps). The price: the face densities
+ *   momentum to round-off (the rotating blob: ~4e-15 of |L| per 100 steps), and with viscosity linear momentum
+ *   (the explicit viscosity exchanges it between faces in pairs, weighted by the smaller face mass). The price: the face densities
  *   follow the particle distribution, and a face density varying sideways is a horizontal density
  *   gradient that gravity turns into flow. Unjittered seeding (jitter 0) gives uniform face masses (walls
  *   fold the kernel back, transfer.h) and still water stays still (~5e-8 m/s, next to colliders ~5e-6

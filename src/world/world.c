@@ -450,6 +450,11 @@ static DrStatus write_frame_body(const DrWorld *w, const DrFrameStats *stats, Dr
     const char *g = "/diagnostics";
     DR_TRY(dr_h5_write_scalar(h, g, "substeps", stats->substeps, "1", err));
     DR_TRY(dr_h5_write_scalar(h, g, "liquid_volume_cells", stats->liquid.volume, "m^3", err));
+    if (world_kinematics_mpm_coupled(w->kin) && w->nliquids > 0) {
+        /* the MPM solids two-way with the liquid: what they gained from it (their particles received exactly this) */
+        DR_TRY(dr_h5_write_vec3(h, g, "mpm_liquid_impulse", stats->liquid.mpm_impulse, "N*s", err));
+        DR_TRY(dr_h5_write_scalar(h, g, "mpm_liquid_pushed_out", (double)stats->liquid.mpm_pushed, "1", err));
+    }
     if (w->couple) {
         /* the coupled loop's figures and its momentum ledger (hair received + liquid given = 0) */
         DR_TRY(dr_h5_write_scalar(h, g, "coupling_steps", stats->coupling.steps, "1", err));

@@ -30,6 +30,12 @@ typedef struct DrLiquidFrameStats {
                                 liquid's volume as the particles carry it, which emitters and kill boxes change */
     double kinetic_energy;   /* J */
     double seconds_p2g, seconds_pressure, seconds_g2p, seconds_advect, seconds_other;
+    /* the MPM solids two-way with the first liquid: the momentum they gained from it in the frame (N·s, the ledger:
+       what their particles received), the momentum the liquid's grid phases gave the liquid (DrLiquidStats'
+       grid_linear_impulse; with no gravity, walls or colliders the two add to the projection's residual), and the
+       liquid particles pushed out of the solids */
+    DrVec3 mpm_impulse, grid_impulse;
+    long mpm_pushed;
 } DrLiquidFrameStats;
 
 typedef struct DrMpmFrameStats {

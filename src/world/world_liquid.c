@@ -434,6 +434,12 @@ static DrStatus liquid_end_frame(void *self, const WorldCtx *c, DrFrameStats *st
     b->particle_volume += (double)ls->particles * dx * dx * dx /
                           dr_component_int(dr_element_component(wl->element, "Particles"), "per_cell");
     b->kinetic_energy += ke;
+    b->grid_impulse = dr_v3_add(b->grid_impulse, ls->grid_linear_impulse);
+    if (wl->mfc) {
+        b->mpm_impulse = dr_v3_add(b->mpm_impulse, ls->solid_gain);
+        b->mpm_pushed += wl->mpm_pushed;
+    }
+    wl->mpm_pushed = 0;
     if (ls->substeps > b->substeps) b->substeps = ls->substeps;
     b->particles += ls->particles;
     if (ls->pressure_iterations_max > b->pressure_iterations_max) b->pressure_iterations_max = ls->pressure_iterations_max;
