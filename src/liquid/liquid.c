@@ -918,6 +918,16 @@ static void shut_slices(long begin, long end, void *vctx)
    an open fraction outside [0, 1] or a non-finite velocity or impulse. */
 typedef struct MixCtx { DrLiquid *L; int a; const DrFaceCoupling *x; } MixCtx;
 
+/* Where the extra coupling's moving solid (solid mass > 0) and a collider both claim a face, the solid keeps its share
+   and the collider's shrinks to what is left, σ_own ≤ 1 − σ_e: the bodies' own contact (the MPM grid's) settles how a
+   solid meets a collider, and the projection must not do it again (a body resting on a collider, its cells pressure
+   cells, would else be held up by the pressure as well as by its contact). The colliders' open fraction so taken. */
+static inline double soft_own_open(double w_own, double w_extra, double solid_mass)
+{
+    if (!(solid_mass > 0.0) || !(w_extra < 1.0)) return w_own;
+    return w_own > w_extra ? w_own : w_extra; /* 1 − min(σ_own, 1 − σ_e) */
+}
+
 static void mix_slices(long begin, long end, void *vctx)
 {
     MixCtx *ctx = vctx;
@@ -927,6 +937,7 @@ static void mix_slices(long begin, long end, void *vctx)
     const int *dim = g->fdim[a];
     const double *wo = L->own.open[a], *vo = L->own.velocity[a], *we = ctx->x->open[a], *ve = ctx->x->velocity[a];
     const double *J = ctx->x->impulse[a];
+    const double *ms = ctx->x->solid_mass[a];
     double *wm = L->mix.open[a], *vm = L->mix.velocity[a];
     for (long k = begin; k < end; k++) {
         bool bad = false;
@@ -940,7 +951,7 @@ static void mix_slices(long begin, long end, void *vctx)
                     vm[f] = vo[f];
                     continue;
                 }
-                dr_face_mix(wo[f], vo[f], we[f], ve[f], &wm[f], &vm[f]);
+                dr_face_mix(soft_own_open(wo[f], we[f], ms ? ms[f] : 0.0), vo[f], we[f], ve[f], &wm[f], &vm[f]);
             }
         L->impulse_partial[IMPULSE_PARTS * k + 5] = bad;
     }
@@ -1101,7 +1112,7 @@ static void soft_faces_slices(long begin, long end, void *vctx)
                 double s = 0.0, share = 0.0;
                 double se = 1.0 - x->open[a][f], ms = x->solid_mass[a][f];
                 if (ijk[a] > 0 && ijk[a] < dim[a] - 1 && se > 0.0 && ms > 0.0) {
-                    double so = 1.0 - L->own.open[a][f];
+                    double so = 1.0 - soft_own_open(L->own.open[a][f], x->open[a][f], ms);
                     share = se / (so + se);
                     s = (L->shut[a][f] ? 1.0 : 1.0 - L->mix.open[a][f]) * share;
                 }

@@ -483,18 +483,6 @@ DrStatus dr_mpm_restore(DrMpm *mpm, long n, const double *x, const double *v, co
     return DR_OK;
 }
 
-DrStatus dr_mpm_add_velocity(DrMpm *mpm, const double *dv, DrError *err)
-{
-    assert(mpm);
-    for (long i = 0; i < 3 * mpm->n; i++)
-        if (!isfinite(dv[i]))
-            return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "mpm: velocity change of particle %ld is not finite",
-                                i / 3);
-    mpm->phase = PHASE_NONE;
-    for (long i = 0; i < 3 * mpm->n; i++) mpm->v[i] += dv[i];
-    return DR_OK;
-}
-
 /* ---- diagnostics -------------------------------------------------------------------------- */
 
 static double kernel_d(DrKernel k, double dx)

@@ -226,11 +226,6 @@ DrMpmState dr_mpm_state(const DrMpm *mpm);
 DR_NODISCARD DrStatus dr_mpm_restore(DrMpm *mpm, long n, const double *x, const double *v, const double *C,
                                      const double *F, DrError *err);
 
-/* Adds dv (3n, m/s) to the particles' velocities between steps (an impulse m_p dv_p on each: another solver's force
-   over its step, e.g. the liquid's pressure); drops a prediction. DR_ERR_INPUT for a non-finite value (nothing
-   changed). */
-DR_NODISCARD DrStatus dr_mpm_add_velocity(DrMpm *mpm, const double *dv, DrError *err);
-
 typedef struct DrMpmTotals {
     DrVec3 momentum, angular;   /* particles, about the origin, angular including the affine part */
     double kinetic, elastic;    /* ½Σ m v², Σ V₀ Ψ(F) */

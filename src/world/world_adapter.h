@@ -75,8 +75,8 @@ bool world_kinematics_mpm_surface(WorldKinematics *k, double (**sdf)(DrVec3, DrV
                                   DrVec3 (**velocity)(DrVec3, void *), void **ctx);
 /* The MPM solids two-way with the first liquid (Integrator.liquid_coupling; world_liquid.c explains the scheme). The
    MPM adapter turns it on when it builds, hands its particles after building, restoring and each of its steps, and
-   before each step adds the velocity changes the liquid left (pending); the liquid's substep, which comes first in
-   the clock step, lumps the particles onto its faces and leaves them dv. */
+   takes the velocity changes the liquid left (pending) as forces m_p dv_p / Δt over its next step; the liquid's
+   substep, which comes first in the clock step, lumps the particles onto its faces and leaves them dv. */
 typedef struct WorldMpmParticles {
     bool on;
     long n, cap;

@@ -266,8 +266,8 @@ static DrStatus end_substep(WorldLiquid *wl, const WorldCtx *c, DrError *err)
  *      (dr_couple_faces_to_particles: exactly what the liquid reports in solid_gain);
  *   3. the liquid ends its substep and its particles are pushed out of the solid (fraction above ½, from the
  *      predicted positions);
- *   4. the MPM then steps over the same [t, t + h] (both step at every clock step), starting from its velocities plus
- *      that change (world_mpm.c): the elastic forces and gravity of the step act after the pressure's impulse.
+ *   4. the MPM then steps over the same [t, t + h] (both step at every clock step) with that change as a force
+ *      m_p δv_p / h on each particle within its step's solve (world_mpm.c), beside gravity and its contacts.
  * The bodies' elasticity stays explicit against the pressure within a substep (lagged by one substep); their
  * interiors are not pressure cells, so the pressure acts on their surface only, as on a rigid body. */
 static DrStatus mpm_project(WorldLiquid *wl, const WorldCtx *c, WorldMpmParticles *mp, DrError *err)

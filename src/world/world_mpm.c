@@ -413,15 +413,27 @@ static DrStatus mpm_step(void *self, const WorldCtx *c, double t, double t_next,
     double proposed_end = m->last ? c->t1 : t + m->dt;
     bool as_proposed = t_next == proposed_end;
     double dt = as_proposed ? m->dt : t_next - t;
-    /* the liquid's substep over this clock step came first: its pressure's impulse, then this step */
+    /* the liquid's substep over this clock step came first: its pressure's impulse m_p dv_p acts as a force over this
+       step, within the step's solve (its contacts see it with gravity: an impulse added to the velocities before the
+       step made a body resting on a collider creep up, the contact letting the lift through and taking the weight) */
     WorldMpmParticles *lp = m->liquid ? world_kinematics_mpm_particles(c->kin) : NULL;
-    if (lp && lp->pending) {
-        DrStatus a = dr_mpm_add_velocity(m->mpm, lp->dv, err);
-        if (a < 0) return step_failed(DR_ERR_RUNTIME, c->frame, err);
-        lp->pending = false;
-    }
     DrMpmStats st;
-    DrStatus s = dr_mpm_step(m->mpm, dt, &st, err);
+    DrStatus s;
+    if (lp && lp->pending) {
+        for (long p = 0; p < lp->n; p++)
+            for (int a = 0; a < 3; a++) lp->dv[3 * p + a] *= lp->mass[p] / dt; /* now the force, N */
+        lp->pending = false;
+        memset(&st, 0, sizeof st);
+        s = dr_mpm_predict(m->mpm, dt, err);
+        if (s >= 0) s = dr_mpm_solve(m->mpm, lp->dv, NULL, &st, err);
+        if (s >= 0) {
+            DrStatus cs = dr_mpm_commit(m->mpm, err);
+            if (cs < 0) s = cs;
+        }
+        st.substeps = 1;
+    } else {
+        s = dr_mpm_step(m->mpm, dt, &st, err);
+    }
     m->frame.newton_iterations += st.newton_iterations;
     m->frame.cg_iterations += st.cg_iterations;
     m->frame.newton_residual = st.newton_residual;
