@@ -214,7 +214,7 @@ static void test_momentum(void **state)
     Run r;
     run_open(&r, json);
     const DrBemMatrices *m = dr_bem_solid_matrices(dr_world_bem_solid(r.world, 0));
-    double mass = m->body.mass, worst = 0.0, worst_ledger = 0.0;
+    double mass = m->body.mass, worst = 0.0, worst_ledger = 0.0, worst_inside = 0.0;
     DrVec3 P0 = {0}, Vb_prev = {0}; /* the ball's velocity at the previous frame */
     for (int f = 0; f <= 6; f++) {
         DrFrameStats st;
@@ -232,15 +232,18 @@ static void test_momentum(void **state)
             printf("momentum frame %d: |P - P0|/|P0| = %.3e (ball %.4f, liquid %.4f kg m/s along x); ball's change "
                    "against the liquid's impulse on it %.3e of |P0|\n", f, rel, mass * V[0], lp.x, ledger);
             worst = fmax(worst, rel);
+            if (f <= 5) worst_inside = fmax(worst_inside, rel);
             worst_ledger = fmax(worst_ledger, ledger);
         }
         Vb_prev = dr_v3(V[0], V[1], V[2]);
     }
     /* the exchange itself is exact: the ball's change of momentum is the liquid's impulse on it to round-off */
     assert_true(worst_ledger <= 1e-12);
-    /* the sum is kept to 1.4e-5 of |P| in the first frame and 4.5e-5 over six (about 1e-6 a substep; measured), not
-       the 1e-8 a step asked of it: what is left is the liquid's own projection next to a solid (faces shut for too
-       little mass and the virtual liquid inside the body carry pressure impulses nobody takes); this bound guards it */
+    /* while the ball is inside the blob (frames 1-5) the sum is kept to round-off (4e-14 of |P|: the mass-weighted
+       viscosity exchanges momentum in pairs; before it did not, and the sum drifted 1.4e-5 in the first frame); in
+       frame 6 the ball's front leaves the blob's surface and 7.5e-6 of |P| goes astray (measured: the liquid loses
+       6.2e-6 N s that the ball does not gain, outside the grid's phases). Both bounds guard what was measured. */
+    assert_true(worst_inside <= 1e-10);
     assert_true(worst <= 1e-4);
     run_close(&r);
 }
