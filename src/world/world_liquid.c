@@ -35,6 +35,8 @@ typedef struct WorldLiquid {
     double *mfrac;           /* per cell */
     DrVec3 mpm_gain;         /* N s, the frame's momentum the MPM solids gained from the liquid */
     long mpm_pushed;         /* the frame's liquid particles pushed out of them */
+    double mpm_work;         /* J, the frame's work of the MPM solids on the liquid (the stability watch): minus the
+                                work of the momentum they took, at their velocity mid-way through taking it */
     bool carved;             /* the liquid seeded inside them was removed (at the first substep of a bake; a
                                 resumed bake restores particles that never held it) */
 } WorldLiquid;
@@ -81,7 +83,8 @@ static DrStatus watch_frame(WorldLiquid *wl, const WorldCtx *c, DrError *err)
 {
     WorldEnergy e = liquid_energy(wl, c->gravity);
     const DrLiquidStats *ls = &wl->frame;
-    e.work = ls->source_work + ls->emitted_energy - ls->killed_energy;
+    e.work = ls->source_work + ls->emitted_energy - ls->killed_energy + wl->mpm_work;
+    wl->mpm_work = 0.0;
     char who[200];
     snprintf(who, sizeof who, "liquid '%s'", wl->element->name);
     DR_TRY(world_watch_energy(&wl->watch, c, &e, who,
@@ -294,6 +297,9 @@ static DrStatus mpm_project(WorldLiquid *wl, const WorldCtx *c, WorldMpmParticle
     for (int a = 0; a < 3; a++) mom[a] = dr_liquid_solid_momentum(wl->liquid, a);
     dr_couple_faces_to_particles(g, mp->n, wl->mx, mom, wl->mfc, mp->dv);
     mp->pending = true;
+    double w = 0.0;
+    for (long i = 0; i < 3 * mp->n; i++) w -= mp->mass[i / 3] * mp->dv[i] * (wl->mv[i] + 0.5 * mp->dv[i]);
+    wl->mpm_work += w;
     return DR_OK;
 }
 
@@ -400,6 +406,7 @@ static void liquid_begin_frame(void *self, const WorldCtx *c)
     (void)c;
     WorldLiquid *wl = self;
     memset(&wl->frame, 0, sizeof wl->frame);
+    wl->mpm_work = 0.0;
 }
 
 static bool all_finite(const double *a, long n)

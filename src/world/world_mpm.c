@@ -39,6 +39,7 @@ typedef struct WorldMpm {
     double dx;
     DrVec3 gravity;
     bool liquid;             /* two-way with the first liquid (Integrator.liquid_coupling, a liquid present) */
+    double liquid_work;      /* J, the frame's work of the liquid's forces on the particles (the stability watch) */
 } WorldMpm;
 
 /* The particles as the liquid takes them (world_kinematics_set_mpm_particles; a no-op when not two-way). */
@@ -268,7 +269,8 @@ static void watch_start(WorldMpm *m, int frame)
 static DrStatus watch_frame(WorldMpm *m, const WorldCtx *c, DrError *err)
 {
     WorldEnergy e = mpm_energy(m);
-    e.work = m->frame.collider_work;
+    e.work = m->frame.collider_work + m->liquid_work;
+    m->liquid_work = 0.0;
     int worst = 0;
     double most = -INFINITY;
     for (int b = 0; b < m->nbodies; b++) {
@@ -386,6 +388,7 @@ static void mpm_begin_frame(void *self, const WorldCtx *c)
     m->left = c->t1 - c->t0;
     m->from = c->t0;
     m->worst = DR_OK;
+    m->liquid_work = 0.0;
     memset(&m->frame, 0, sizeof m->frame);
 }
 
@@ -431,6 +434,12 @@ static DrStatus mpm_step(void *self, const WorldCtx *c, double t, double t_next,
             if (cs < 0) s = cs;
         }
         st.substeps = 1;
+        if (s >= 0) { /* the force's work over the step, at the mean of the velocities before (published) and after */
+            DrMpmState ms = dr_mpm_state(m->mpm);
+            double w = 0.0;
+            for (long i = 0; i < 3 * ms.n; i++) w += lp->dv[i] * 0.5 * (lp->v[i] + ms.v[i]) * dt;
+            m->liquid_work += w;
+        }
     } else {
         s = dr_mpm_step(m->mpm, dt, &st, err);
     }

@@ -21,6 +21,8 @@ awk -v a="$t" -v b="$EPOCHREALTIME" 'BEGIN{printf "bake of 14 frames took %.1fs\
 [ "$rc" -eq 0 ] || echo "$out" | tail -5
 baked() { [ "$rc" -eq 0 ] && [ "$(ls "$b2"/mpm_dam/bake/frame.*.h5 2>/dev/null | wc -l)" -eq 14 ]; }
 check "bake exits 0 and writes 14 frame caches" baked
+# the stability watches count the work the liquid and the solids do on each other: no alarm
+check "the bake warns of nothing (the watches count the work liquid and solids do on each other)" bash -c "! grep -qi warning <<<\"\$1\"" _ "$out"
 
 rings() { # the elastic energy: its most before the wave arrives (frames 2-4), its peak as the wave hits, its last
   local f e s=""
