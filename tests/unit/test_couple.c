@@ -1043,6 +1043,83 @@ static void test_monolithic(void **state)
     run_monolithic(0.012, 2e4, false);    /* 12 g elements, heavier than a face's 8 g of water: the implicit path */
 }
 
+/* Particle solids lumped onto the faces (couple.h): a filled block reads a blocked share of 1 inside and ½ on its flat
+   faces, the faces' mass is the particles', the spreading back gives the particles exactly the faces' momentum whatever
+   it is, and the push-out takes a point inside the block to its surface (fraction ½). */
+static void test_particles_on_faces(void **state)
+{
+    (void)state;
+    DrError err;
+    DrMacGrid *g = NULL;
+    double dx = 0.05;
+    assert_int_equal(dr_mac_grid_create(16, 16, 16, dx, dr_v3(0, 0, 0), &g, &err), DR_OK);
+    DrFaceCoupling *fc = NULL;
+    assert_int_equal(dr_face_coupling_create(g, &fc, &err), DR_OK);
+    assert_int_equal(dr_face_coupling_add_solid_mass(fc, &err), DR_OK);
+    /* a block [0.3, 0.5]³, 2 particles a cell per axis, moving at (0.2, -0.1, 0.05) */
+    long n = 0, cap = 8 * 4 * 4 * 4;
+    double *x = malloc(3 * cap * sizeof(double)), *v = malloc(3 * cap * sizeof(double));
+    double *m = malloc(cap * sizeof(double)), *vol = malloc(cap * sizeof(double)), *dv = malloc(3 * cap * sizeof(double));
+    double h = dx / 2;
+    for (int k = 0; k < 8; k++)
+        for (int j = 0; j < 8; j++)
+            for (int i = 0; i < 8; i++) {
+                x[3 * n] = 0.3 + (i + 0.5) * h, x[3 * n + 1] = 0.3 + (j + 0.5) * h, x[3 * n + 2] = 0.3 + (k + 0.5) * h;
+                v[3 * n] = 0.2, v[3 * n + 1] = -0.1, v[3 * n + 2] = 0.05;
+                vol[n] = h * h * h;
+                m[n] = 800.0 * vol[n];
+                n++;
+            }
+    dr_couple_particles_to_faces(g, n, x, v, m, vol, fc);
+    /* x faces: the one at x = 0.4 (i = 8) inside, the one at x = 0.3 (i = 6) on the surface, both at the block's centre */
+    long inside = dr_mac_face_index(g, 0, 8, 7, 7), surface = dr_mac_face_index(g, 0, 6, 7, 7);
+    printf("particles on faces: open %.6f inside, %.6f on the surface; velocity %.6f\n", fc->open[0][inside],
+           fc->open[0][surface], fc->velocity[0][inside]);
+    assert_true(fabs(fc->open[0][inside]) < 1e-12);
+    assert_true(fabs(fc->open[0][surface] - 0.5) < 1e-12);
+    assert_true(fabs(fc->velocity[0][inside] - 0.2) < 1e-12);
+    double mass = 0.0, face_mass = 0.0;
+    for (long p = 0; p < n; p++) mass += m[p];
+    for (long f = 0; f < fc->nfaces[1]; f++) face_mass += fc->solid_mass[1][f];
+    assert_true(fabs(face_mass - mass) < 1e-12 * mass);
+    /* any face momentum goes back exactly */
+    double *P[3];
+    double total[3] = {0, 0, 0};
+    uint64_t r = 7;
+    for (int a = 0; a < 3; a++) {
+        P[a] = calloc((size_t)g->nfaces[a], sizeof(double));
+        for (long f = 0; f < g->nfaces[a]; f++)
+            if (fc->solid_mass[a][f] > 0.0) {
+                r = r * 6364136223846793005ULL + 1442695040888963407ULL;
+                P[a][f] = ((double)(r >> 11) / 9007199254740992.0 - 0.5) * 1e-3;
+                total[a] += P[a][f];
+            }
+    }
+    const double *Pc[3] = {P[0], P[1], P[2]};
+    dr_couple_faces_to_particles(g, n, x, Pc, fc, dv);
+    for (int a = 0; a < 3; a++) {
+        double got = 0.0;
+        for (long p = 0; p < n; p++) got += m[p] * dv[3 * p + a];
+        printf("spreading, component %d: faces %.15e, particles %.15e\n", a, total[a], got);
+        assert_true(fabs(got - total[a]) <= 1e-13 * fabs(total[a]) + 1e-18);
+    }
+    /* push-out: a point just inside the block's low x face goes to where the fraction reads ½ */
+    double *frac = calloc((size_t)g->nx * g->ny * g->nz, sizeof(double));
+    dr_couple_particle_fraction(g, n, x, vol, frac);
+    double pt[3] = {0.31, 0.4, 0.4}, out_pt[3] = {0.2, 0.4, 0.4};
+    assert_true(dr_couple_fraction_at(g, frac, pt, NULL) > 0.5);
+    assert_int_equal(dr_couple_push_out(g, frac, 1, pt), 1);
+    assert_int_equal(dr_couple_push_out(g, frac, 1, out_pt), 0);
+    double f_after = dr_couple_fraction_at(g, frac, pt, NULL);
+    printf("push-out: (0.31, 0.4, 0.4) -> (%.5f, %.5f, %.5f), fraction %.4f\n", pt[0], pt[1], pt[2], f_after);
+    assert_true(f_after <= 0.5 + 1e-9 && pt[0] < 0.31 && pt[0] > 0.25);
+    assert_true(fabs(pt[1] - 0.4) < 1e-9 && fabs(pt[2] - 0.4) < 1e-9);
+    for (int a = 0; a < 3; a++) free(P[a]);
+    free(frac), free(x), free(v), free(m), free(vol), free(dv);
+    dr_face_coupling_destroy(&fc);
+    dr_mac_grid_destroy(&g);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -1058,6 +1135,7 @@ int main(void)
         cmocka_unit_test(test_loop_converges),
         cmocka_unit_test(test_stiff_drag_loop_bounded),
         cmocka_unit_test(test_monolithic),
+        cmocka_unit_test(test_particles_on_faces),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
