@@ -684,24 +684,36 @@ DrStatus dr_couple_step(DrCouple *c, const DrCoupleDesc *desc, const DrCoupleFlu
 
 /* ---- deformable solids lumped onto the faces (couple.h) ------------------------------------------------------- */
 
-/* The quadratic stencil of point x on the lattice of face component a (a = 3: cell centres): base node and weights
-   per axis. */
-static void lattice_stencil(const DrMacGrid *g, int a, const double *x, DrStencil3 st[3])
+/* The quadratic-kernel weights of point x on the lattice of face component a (a = 3: the cell centres): the index
+   (face or cell order) and weight of each of its up to 27 nodes inside the lattice, in a fixed order; returns how
+   many. */
+static int lattice_weights(const DrMacGrid *g, int a, const double *x, long idx[27], double w[27])
 {
     double o[3] = {g->origin.x, g->origin.y, g->origin.z};
+    int dim[3];
+    DrStencil3 st[3];
     for (int d = 0; d < 3; d++) {
+        dim[d] = a == 3 ? (d == 0 ? g->nx : d == 1 ? g->ny : g->nz) : g->fdim[a][d];
         double off = a == 3 ? 0.5 : dr_mac_face_offset(a, d);
         st[d] = dr_kernel_quadratic((x[d] - o[d]) / g->dx - off);
     }
-}
-
-static void lattice_dims(const DrMacGrid *g, int a, int dim[3])
-{
-    if (a == 3) {
-        dim[0] = g->nx, dim[1] = g->ny, dim[2] = g->nz;
-        return;
+    int n = 0;
+    for (int k = 0; k < 3; k++) {
+        int kk = st[2].base + k;
+        if (kk < 0 || kk >= dim[2]) continue;
+        for (int j = 0; j < 3; j++) {
+            int jj = st[1].base + j;
+            if (jj < 0 || jj >= dim[1]) continue;
+            double wjk = st[1].w[j] * st[2].w[k];
+            for (int i = 0; i < 3; i++) {
+                int ii = st[0].base + i;
+                if (ii < 0 || ii >= dim[0]) continue;
+                idx[n] = a == 3 ? dr_mac_cell_index(g, ii, jj, kk) : dr_mac_face_index(g, a, ii, jj, kk);
+                w[n++] = st[0].w[i] * wjk;
+            }
+        }
     }
-    for (int d = 0; d < 3; d++) dim[d] = g->fdim[a][d];
+    return n;
 }
 
 void dr_couple_particles_to_faces(const DrMacGrid *g, long n, const double *x, const double *v, const double *mass,
@@ -717,29 +729,14 @@ void dr_couple_particles_to_faces(const DrMacGrid *g, long n, const double *x, c
             if (fc->impulse[a]) fc->impulse[a][f] = 0.0;
             if (fc->drag[a]) fc->drag[a][f] = 0.0;
         }
-        int dim[3];
-        lattice_dims(g, a, dim);
         for (long p = 0; p < n; p++) {
-            DrStencil3 st[3];
-            lattice_stencil(g, a, x + 3 * p, st);
-            double mv = mass[p] * v[3 * p + a];
-            for (int k = 0; k < 3; k++) {
-                int kk = st[2].base + k;
-                if (kk < 0 || kk >= dim[2]) continue;
-                for (int j = 0; j < 3; j++) {
-                    int jj = st[1].base + j;
-                    if (jj < 0 || jj >= dim[1]) continue;
-                    double wjk = st[1].w[j] * st[2].w[k];
-                    for (int i = 0; i < 3; i++) {
-                        int ii = st[0].base + i;
-                        if (ii < 0 || ii >= dim[0]) continue;
-                        double w = st[0].w[i] * wjk;
-                        long f = dr_mac_face_index(g, a, ii, jj, kk);
-                        open[f] += w * volume[p];
-                        vel[f] += w * mv;
-                        ms[f] += w * mass[p];
-                    }
-                }
+            long idx[27];
+            double w[27], mv = mass[p] * v[3 * p + a];
+            int cnt = lattice_weights(g, a, x + 3 * p, idx, w);
+            for (int q = 0; q < cnt; q++) {
+                open[idx[q]] += w[q] * volume[p];
+                vel[idx[q]] += w[q] * mv;
+                ms[idx[q]] += w[q] * mass[p];
             }
         }
         for (long f = 0; f < g->nfaces[a]; f++) {
@@ -757,27 +754,12 @@ void dr_couple_faces_to_particles(const DrMacGrid *g, long n, const double *x, c
     for (int a = 0; a < 3; a++) {
         if (!momentum[a]) continue;
         const double *P = momentum[a], *ms = fc->solid_mass[a];
-        int dim[3];
-        lattice_dims(g, a, dim);
         for (long p = 0; p < n; p++) {
-            DrStencil3 st[3];
-            lattice_stencil(g, a, x + 3 * p, st);
-            double sum = 0.0;
-            for (int k = 0; k < 3; k++) {
-                int kk = st[2].base + k;
-                if (kk < 0 || kk >= dim[2]) continue;
-                for (int j = 0; j < 3; j++) {
-                    int jj = st[1].base + j;
-                    if (jj < 0 || jj >= dim[1]) continue;
-                    double wjk = st[1].w[j] * st[2].w[k];
-                    for (int i = 0; i < 3; i++) {
-                        int ii = st[0].base + i;
-                        if (ii < 0 || ii >= dim[0]) continue;
-                        long f = dr_mac_face_index(g, a, ii, jj, kk);
-                        if (ms[f] > 0.0 && P[f] != 0.0) sum += st[0].w[i] * wjk * P[f] / ms[f];
-                    }
-                }
-            }
+            long idx[27];
+            double w[27], sum = 0.0;
+            int cnt = lattice_weights(g, a, x + 3 * p, idx, w);
+            for (int q = 0; q < cnt; q++)
+                if (ms[idx[q]] > 0.0 && P[idx[q]] != 0.0) sum += w[q] * P[idx[q]] / ms[idx[q]];
             dv[3 * p + a] = sum;
         }
     }
@@ -789,21 +771,10 @@ void dr_couple_particle_fraction(const DrMacGrid *g, long n, const double *x, co
     double cell = g->dx * g->dx * g->dx;
     for (long c = 0; c < nc; c++) frac[c] = 0.0;
     for (long p = 0; p < n; p++) {
-        DrStencil3 st[3];
-        lattice_stencil(g, 3, x + 3 * p, st);
-        for (int k = 0; k < 3; k++) {
-            int kk = st[2].base + k;
-            if (kk < 0 || kk >= g->nz) continue;
-            for (int j = 0; j < 3; j++) {
-                int jj = st[1].base + j;
-                if (jj < 0 || jj >= g->ny) continue;
-                for (int i = 0; i < 3; i++) {
-                    int ii = st[0].base + i;
-                    if (ii < 0 || ii >= g->nx) continue;
-                    frac[dr_mac_cell_index(g, ii, jj, kk)] += st[0].w[i] * st[1].w[j] * st[2].w[k] * volume[p] / cell;
-                }
-            }
-        }
+        long idx[27];
+        double w[27];
+        int cnt = lattice_weights(g, 3, x + 3 * p, idx, w);
+        for (int q = 0; q < cnt; q++) frac[idx[q]] += w[q] * volume[p] / cell;
     }
     for (long c = 0; c < nc; c++)
         if (frac[c] > 1.0) frac[c] = 1.0;
