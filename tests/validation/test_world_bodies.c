@@ -239,10 +239,11 @@ static void test_momentum(void **state)
     }
     /* the exchange itself is exact: the ball's change of momentum is the liquid's impulse on it to round-off */
     assert_true(worst_ledger <= 1e-12);
-    /* while the ball is inside the blob (frames 1-5) the sum is kept to round-off (4e-14 of |P|: the mass-weighted
-       viscosity exchanges momentum in pairs; before it did not, and the sum drifted 1.4e-5 in the first frame); in
-       frame 6 the ball's front leaves the blob's surface and 7.5e-6 of |P| goes astray (measured: the liquid loses
-       6.2e-6 N s that the ball does not gain, outside the grid's phases). Both bounds guard what was measured. */
+    /* liquid and ball are an isolated system until the liquid the ball pushes ahead reaches the domain wall at
+       x = 0.4 m: frames 1-5 keep the sum to round-off (4e-14 of |P|; the mass-weighted viscosity exchanges momentum in
+       pairs, without which the sum drifted 1.4e-5 in the first frame). In frame 6 the wall's pressure takes 6.2e-6 N s
+       (the pressure on the wall faces over the frame's substeps, measured: exactly the change of the sum, 7.5e-6 of
+       |P|), an external force; the bound on all six frames guards that. */
     assert_true(worst_inside <= 1e-10);
     assert_true(worst <= 1e-4);
     run_close(&r);
