@@ -11,7 +11,12 @@
 #           liquid's own volume error (the particles' nominal volume is not the volume the grid holds them at): 3 mm of
 #           level is 0.035 of fraction here; tests/validation/test_world_mpm_liquid.c takes the level from the pressure
 #           instead (0.508 at Δx = 0.02 m against 0.535 here).
-# CSV (default out/bench/mpm_liquid.csv): case, dx, cells_per_radius, particles, seconds, value, error; a Markdown table.
+#   terminal — after the sweep: a ball of radius 0.1 m at 1200 kg/m³ let go at rest 0.25 m under the surface of a
+#           0.5 × 1.5 × 0.5 m tank (Δx = 0.02 m, 5 cells a radius, as bench_sink.sh's BEM ball), 48 frames: its sinking
+#           speed against the drag-limited v_t = sqrt(2 (ρ_s − ρ_f) V g / (ρ_f C_d A)) with a sphere's C_d = 0.47
+#           (Re ~ 1e5; the grid resolves no boundary layer, the tank's walls block 13 % of its section).
+# CSV (default out/bench/mpm_liquid.csv): case, dx, cells_per_radius, particles, seconds, value, error (terminal: the
+# speed in m/s at frames 24, 36 and 40 as value, its shortfall from v_t as error); a Markdown table.
 set -u
 cd "$(dirname "$0")/../.."
 csv=${1:-out/bench/mpm_liquid.csv}
@@ -62,3 +67,31 @@ for dx in 0.04 0.025 0.02 0.0125; do
   echo "float,$dx,$cpr,$n,$s2,$fv,$(awk -v f="$fv" 'BEGIN{d = f / 0.5 - 1; printf "%.5f", d < 0 ? -d : d}')" >> "$csv"
   echo "| $dx | $cpr | $n | $ra | $s1 | $fv | $s2 |"
 done
+
+# the drag-limited speed in a deep tank
+cat > "$work/terminal.json" <<JSON
+{ "shot": { "name": "terminal", "fps": 24, "frames": [1, 48], "gravity": [0, -9.81, 0] },
+  "solver": { "cfl": 1.0, "max_substeps": 64 },
+  "elements": [
+    { "name": "water", "type": "liquid", "components": {
+        "Domain": { "box": [[0, 0, 0], [0.5, 1.6, 0.5]], "voxel_size": 0.02 },
+        "LiquidSource": { "box": [[0, 0, 0], [0.5, 1.5, 0.5]] }, "Particles": { "per_cell": 8, "seed": 3 } } },
+    { "name": "ball", "type": "mpm_solid", "components": {
+        "Domain": { "box": [[0, 0, 0], [0.5, 1.6, 0.5]], "voxel_size": 0.02 },
+        "MpmShape": { "centre": [0.25, 1.25, 0.25], "radius": 0.1 },
+        "MpmMaterial": { "model": "fixed_corotated", "density": 1200, "youngs_modulus": 1e6, "poisson": 0.3 } } } ] }
+JSON
+s3=$(bake terminal)
+m=$(h5 "$(fr terminal 1)" /diagnostics/ball/mass | awk '{print $1}')
+vt=$(awk -v m="$m" 'BEGIN { pi = 3.141592653589793; V = m / 1200; R = (3 * V / (4 * pi))^(1 / 3)
+       printf "%.4f", sqrt(2 * 200 * V * 9.81 / (1000 * 0.47 * pi * R * R)) }')
+speeds=""
+for f in 24 36 40; do
+  v=$(h5 "$(fr terminal "$f")" /diagnostics/ball/linear_momentum | awk -v m="$m" '{printf "%.4f", -$2 / m}')
+  echo "terminal,0.02,5.00,$(h5 "$(fr terminal 1)" /diagnostics/ball/particles | awk '{print $1}'),$s3,$v,$(awk -v v="$v" -v t="$vt" 'BEGIN{printf "%.4f", 1 - v / t}')" >> "$csv"
+  speeds="$speeds $v"
+done
+echo
+echo "| 1200 kg/m³, r = 0.1 m, Δx = 0.02 m | sinking speed at 1, 1.5, 1.67 s (m/s) | v_t for C_d 0.47 (m/s) | bake seconds |"
+echo "|---|---|---|---|"
+echo "| MPM ball |$speeds | $vt | $s3 |"
