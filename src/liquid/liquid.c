@@ -915,7 +915,7 @@ static void shut_slices(long begin, long end, void *vctx)
    keeps them apart): open = 1 − (1 − w_own) − (1 − w_extra), at least 0, and the solid velocity is the
    share-weighted mean of the two. Faces the extra coupling leaves open keep the colliders' values exactly,
    and domain walls stay closed and at rest. Flags (impulse_partial[IMPULSE_PARTS·k + 5]) a slice holding
-   an open fraction outside [0, 1] or a non-finite velocity or impulse. */
+   an open fraction outside [0, 1], a non-finite velocity or impulse, or a negative or non-finite solid mass. */
 typedef struct MixCtx { DrLiquid *L; int a; const DrFaceCoupling *x; } MixCtx;
 
 /* Where the extra coupling's moving solid (solid mass > 0) and a collider both claim a face, the solid keeps its share
@@ -945,7 +945,9 @@ static void mix_slices(long begin, long end, void *vctx)
             for (int i = 0; i < dim[0]; i++) {
                 long f = dr_mac_face_index(g, a, i, j, (int)k);
                 int ijk[3] = {i, j, (int)k};
-                if (!(we[f] >= 0.0 && we[f] <= 1.0) || !isfinite(ve[f]) || (J && !isfinite(J[f]))) bad = true;
+                if (!(we[f] >= 0.0 && we[f] <= 1.0) || !isfinite(ve[f]) || (J && !isfinite(J[f])) ||
+                    (ms && !(ms[f] >= 0.0 && isfinite(ms[f]))))
+                    bad = true;
                 if (ijk[a] == 0 || ijk[a] == dim[a] - 1) { /* domain walls stay closed and at rest */
                     wm[f] = wo[f];
                     vm[f] = vo[f];
@@ -973,8 +975,8 @@ static DrStatus mix_coupling(DrLiquid *L, const DrFaceCoupling *x, DrError *err)
         for (int k = 0; k < g->fdim[a][2]; k++)
             if (L->impulse_partial[IMPULSE_PARTS * k + 5] != 0.0)
                 return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "liquid project: the face coupling of component "
-                                    "%d has an open fraction outside [0, 1] or a non-finite velocity or impulse "
-                                    "in face layer %d.", a, k);
+                                    "%d has an open fraction outside [0, 1], a non-finite velocity or impulse, or a "
+                                    "negative or non-finite solid mass in face layer %d.", a, k);
     }
     return DR_OK;
 }
@@ -1129,12 +1131,8 @@ static DrStatus soft_faces(DrLiquid *L, const DrFaceCoupling *x, DrError *err)
     L->soft_on = false;
     L->soft = NULL;
     L->soft_gain = dr_v3(0, 0, 0);
-    if (!x || !x->solid_mass[0] || !x->solid_mass[1] || !x->solid_mass[2]) return DR_OK;
+    if (!x || !x->solid_mass[0] || !x->solid_mass[1] || !x->solid_mass[2]) return DR_OK; /* checked in mix_slices */
     for (int a = 0; a < 3; a++) {
-        for (long f = 0; f < g->nfaces[a]; f++)
-            if (!(x->solid_mass[a][f] >= 0.0 && isfinite(x->solid_mass[a][f])))
-                return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "liquid project: the face coupling's solid mass of "
-                                    "component %d is negative or not finite at face %ld.", a, f);
         if (!L->smul[a]) {
             DR_TRY(dr_calloc((size_t)g->nfaces[a], sizeof(double), &L->smul[a], err));
             DR_TRY(dr_calloc((size_t)g->nfaces[a], sizeof(double), &L->sshare[a], err));

@@ -82,7 +82,8 @@ typedef struct WorldMpmParticles {
     long n, cap;
     double *x, *v;           /* 3n: where the MPM's last step left them */
     double *mass, *volume;   /* n: kg, m³ (V₀ det F) */
-    double *dv;              /* 3n: the velocity change the liquid's pressure gave them since, when pending */
+    double *dv;              /* 3n: the velocity change the liquid's pressure gave them since, when pending; the MPM
+                                adapter turns it into the force m_p dv_p/Δt in place over the step that takes it */
     bool pending;
 } WorldMpmParticles;
 void world_kinematics_mpm_couple(WorldKinematics *k);

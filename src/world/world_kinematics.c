@@ -852,12 +852,7 @@ DrStatus world_kinematics_set_mpm_particles(WorldKinematics *k, long n, const do
     memcpy(m->x, x, 3 * (size_t)n * sizeof(double));
     memcpy(m->v, v, 3 * (size_t)n * sizeof(double));
     memcpy(m->mass, mass, (size_t)n * sizeof(double));
-    for (long p = 0; p < n; p++) { /* the current volume V₀ det F */
-        const double *f = F + 9 * p;
-        double det = f[0] * (f[4] * f[8] - f[5] * f[7]) - f[1] * (f[3] * f[8] - f[5] * f[6]) +
-                     f[2] * (f[3] * f[7] - f[4] * f[6]);
-        m->volume[p] = vol0[p] * fabs(det);
-    }
+    for (long p = 0; p < n; p++) m->volume[p] = vol0[p] * fabs(dr_m3a_det(F + 9 * p)); /* V₀ det F */
     m->pending = false;
     return DR_OK;
 }

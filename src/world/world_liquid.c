@@ -33,7 +33,6 @@ typedef struct WorldLiquid {
     double *mx, *mv;         /* 3n */
     long mcap;
     double *mfrac;           /* per cell */
-    DrVec3 mpm_gain;         /* N s, the frame's momentum the MPM solids gained from the liquid */
     long mpm_pushed;         /* the frame's liquid particles pushed out of them */
     double mpm_work;         /* J, the frame's work of the MPM solids on the liquid (the stability watch): minus the
                                 work of the momentum they took, at their velocity mid-way through taking it */
@@ -271,8 +270,9 @@ static DrStatus end_substep(WorldLiquid *wl, const WorldCtx *c, DrError *err)
  *      predicted positions);
  *   4. the MPM then steps over the same [t, t + h] (both step at every clock step) with that change as a force
  *      m_p δv_p / h on each particle within its step's solve (world_mpm.c), beside gravity and its contacts.
- * The bodies' elasticity stays explicit against the pressure within a substep (lagged by one substep); their
- * interiors are not pressure cells, so the pressure acts on their surface only, as on a rigid body. */
+ * The bodies' elasticity stays explicit against the pressure within a substep (lagged by one substep). The cells they
+ * fill are pressure cells of the projection (liquid.c), so the pressure runs on through a body, which moves with the
+ * liquid there as one incompressible mixture. */
 static DrStatus mpm_project(WorldLiquid *wl, const WorldCtx *c, WorldMpmParticles *mp, DrError *err)
 {
     const DrMacGrid *g = dr_liquid_grid(wl->liquid);
@@ -330,8 +330,7 @@ static DrStatus mpm_carve(WorldLiquid *wl, const WorldMpmParticles *mp, DrError 
     if (s == DR_OK) s = dr_calloc((size_t)(9 * n + 1), sizeof(double), &cc, err);
     if (s == DR_OK) s = dr_calloc((size_t)(n + 1), sizeof(int64_t), &id, err);
     for (long p = 0; s == DR_OK && p < n; p++) {
-        double xp[3] = {st->x[3 * p], st->x[3 * p + 1], st->x[3 * p + 2]};
-        if (dr_couple_fraction_at(g, frac, xp, NULL) > 0.5) continue;
+        if (dr_couple_fraction_at(g, frac, st->x + 3 * p, NULL) > 0.5) continue;
         memcpy(x + 3 * kept, st->x + 3 * p, 3 * sizeof(double));
         memcpy(v + 3 * kept, st->v + 3 * p, 3 * sizeof(double));
         memcpy(cc + 9 * kept, st->c + 9 * p, 9 * sizeof(double));

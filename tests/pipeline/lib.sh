@@ -26,6 +26,14 @@ stage_scene() {
   cp "$ROOT/assets/scenes/$1" "$WORK/scenes/$1"
   echo "$WORK/scenes/$1"
 }
+# h5 FILE DATASET: the dataset's numbers in full precision on one line, separated by spaces
+h5() { h5dump -y -w 0 -A 0 -m '%.17g' -d "$2" "$1" 2>/dev/null | awk '/DATA \{/{on=1; next} on && /^ *\}/{on=0} on { gsub(/,/, " "); printf "%s ", $0 } END { print "" }'; }
+# same_frames A B SHOT N: bakes A and B (--out folders) of SHOT both hold N frame caches, byte for byte the same
+same_frames() {
+  local f ok=0
+  for f in "$1/$3"/bake/frame.*.h5; do cmp -s "$f" "$2/$3/bake/$(basename "$f")" || { echo "differs: $f"; ok=1; }; done
+  [ "$(ls "$1/$3"/bake/frame.*.h5 2>/dev/null | wc -l)" -eq "$4" ] && [ "$(ls "$2/$3"/bake/frame.*.h5 2>/dev/null | wc -l)" -eq "$4" ] && return $ok
+}
 # awk functions for a body's triangle surface, given in its body frame (x: 3 per vertex from index 1, k: 3 vertex
 # indices per triangle from 0): face_planes fills N[i, 1..3], the unit normal of face i (outward for a surface wound
 # counter-clockwise seen from outside), and O[i] = N[i]·x_a, so O[i] − N[i]·q is the depth of q below face i's plane;

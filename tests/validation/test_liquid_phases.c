@@ -630,6 +630,11 @@ static void test_phase_input(void **state)
     fc->impulse[2][3] = NAN;
     assert_int_equal(dr_liquid_project(liq, fc, &st, &err), DR_ERR_INPUT);
     fc->impulse[2][3] = 0.0;
+    assert_int_equal(dr_face_coupling_add_solid_mass(fc, &err), DR_OK);
+    fc->solid_mass[0][7] = -1.0;
+    assert_int_equal(dr_liquid_project(liq, fc, &st, &err), DR_ERR_INPUT);
+    assert_non_null(strstr(err.message, "solid mass"));
+    fc->solid_mass[0][7] = 0.0;
     assert_int_equal(dr_liquid_project(liq, fc, &st, &err), DR_OK);
     assert_int_equal(dr_liquid_end(liq, &st, &err), DR_OK);
     assert_int_equal(st.substeps, 1);
