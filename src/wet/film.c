@@ -820,7 +820,9 @@ typedef struct ExchangeCtx {
     DrFilm *f;
     const double *x, *dV, *mass;
     double *v;
-    DrVec3 vmix; /* the velocity of what arrives */
+    DrVec3 vmix;        /* the velocity of what arrives (P_in NULL) */
+    const double *P_in; /* 3V or NULL: the momentum of what arrives at each vertex */
+    double *P_out;      /* 3V or NULL: the momentum of what leaves each vertex */
 } ExchangeCtx;
 
 /* Pass 1, per strand: the geometry at x, the edges' V̂ and w, and what leaves: the volume each edge loses (into q)
@@ -846,12 +848,18 @@ static void exchange_leave(long begin, long end, void *vctx)
             if (dV[i] > 0) in += dV[i];
             if (!(dV[i] < 0)) continue;
             assert(st.V[i] + dV[i] >= 0);
+            DrVec3 Pi = dr_v3(0, 0, 0);
             for (int e = i - 1; e <= i; e++) {
                 if (e < 0 || e > n - 2) continue;
                 double d = -dV[i] * share(st.le[e], st.lv[i]);
                 DrVec3 vb = vmean(st.v, e), t = tangent(&st, e);
-                P = dr_v3_add(P, dr_v3_scale(dr_v3_add(perp(vb, t), dr_v3_scale(t, st.w[e])), rho * d));
+                Pi = dr_v3_add(Pi, dr_v3_scale(dr_v3_add(perp(vb, t), dr_v3_scale(t, st.w[e])), rho * d));
                 st.q[e] += d;
+            }
+            P = dr_v3_add(P, Pi);
+            if (c->P_out) {
+                double *po = c->P_out + 3 * (o + i);
+                po[0] = Pi.x, po[1] = Pi.y, po[2] = Pi.z;
             }
             st.V[i] += dV[i];
         }
@@ -875,10 +883,20 @@ static void exchange_arrive(long begin, long end, void *vctx)
         const double *dV = c->dV + o;
         for (int e = 0; e < n - 1; e++) {
             double keep = st.hat[e] - st.q[e], in = 0;
+            DrVec3 M = dr_v3(0, 0, 0); /* the momentum arriving on the edge (P_in) */
             for (int i = e; i <= e + 1; i++)
-                if (dV[i] > 0) in += dV[i] * share(st.le[e], st.lv[i]);
+                if (dV[i] > 0) {
+                    double sh = share(st.le[e], st.lv[i]);
+                    in += dV[i] * sh;
+                    if (c->P_in) M = dr_v3_add(M, dr_v3_scale(ld3(c->P_in + 3 * (o + i)), sh));
+                }
             if (!(in > 0)) continue;
             DrVec3 vb = vmean(st.v, e), t = tangent(&st, e);
+            if (c->P_in) {
+                st.w[e] = (keep * st.w[e] + dr_v3_dot(M, t) / rho) / (keep + in);
+                impulse_edge(&st, e, perp(dr_v3_sub(M, dr_v3_scale(vb, rho * in)), t));
+                continue;
+            }
             st.w[e] = (keep * st.w[e] + in * dr_v3_dot(c->vmix, t)) / (keep + in);
             impulse_edge(&st, e, dr_v3_scale(perp(dr_v3_sub(c->vmix, vb), t), rho * in));
         }
@@ -899,7 +917,7 @@ static void exchange_arrive(long begin, long end, void *vctx)
 void dr_film_exchange(DrFilm *f, const double *x, const double *dV, double *v, const double *hair_mass)
 {
     assert(f->V == 0 || (x && dV && v && hair_mass));
-    ExchangeCtx c = {f, x, dV, hair_mass, v, dr_v3(0, 0, 0)};
+    ExchangeCtx c = {f, x, dV, hair_mass, v, dr_v3(0, 0, 0), NULL, NULL};
     dr_parallel_for(f->S, 16, exchange_leave, &c);
     DrVec3 P = dr_v3(0, 0, 0);
     double in = 0;
@@ -910,3 +928,18 @@ void dr_film_exchange(DrFilm *f, const double *x, const double *dV, double *v, c
     c.vmix = in > 0 ? dr_v3_scale(P, 1 / (f->desc.density * in)) : dr_v3(0, 0, 0);
     dr_parallel_for(f->S, 16, exchange_arrive, &c);
 }
+
+void dr_film_transfer(DrFilm *f, const double *x, const double *dV, const double *P_in, double *P_out, double *v,
+                      const double *hair_mass)
+{
+    assert(f->V == 0 || (x && dV && P_in && P_out && v && hair_mass));
+    ExchangeCtx c = {f, x, dV, hair_mass, v, dr_v3(0, 0, 0), P_in, P_out};
+    if (f->V > 0) memset(P_out, 0, 3 * (size_t)f->V * sizeof(double));
+    dr_parallel_for(f->S, 16, exchange_leave, &c);
+    dr_parallel_for(f->S, 16, exchange_arrive, &c);
+}
+
+const DrFilmDesc *dr_film_desc(const DrFilm *f) { return &f->desc; }
+const int *dr_film_offsets(const DrFilm *f) { return f->offsets; }
+const double *dr_film_radius(const DrFilm *f) { return f->radius; }
+const double *dr_film_lengths(const DrFilm *f) { return f->lv; }

@@ -214,6 +214,114 @@ void dr_film_measure(const DrFilm *f, const double *x, const double *v, DrFilmSt
  * too: the strands' next step prescribes them again). x: positions (nverts × 3) of the film's last step. */
 void dr_film_exchange(DrFilm *f, const double *x, const double *dV, double *v, const double *hair_mass);
 
+/* Bulk liquid into the film and back (capture and dripping below): dV (nverts) the volume each vertex gains (> 0: it
+ * arrives from the bulk with momentum P_in[3i..3i+2], kg m/s) or loses (< 0: it leaves with the film's velocity on the
+ * vertex's edges, as a film flux; its momentum is written into P_out[3i..], 0 elsewhere); a vertex may not go negative
+ * (asserted). Strands + film change their momentum by exactly Σ P_in − Σ P_out: what arrives across a strand goes to
+ * its vertices through the per-vertex 3×3 solves, what arrives along it to the film's speed. Every vertex's velocity in
+ * v may change. x: positions (nverts × 3) of the film's last step. */
+void dr_film_transfer(DrFilm *f, const double *x, const double *dV, const double *P_in, double *P_out, double *v,
+                      const double *hair_mass);
+
+/* The film's desc, strands (offsets, nstrands + 1), radii (nverts) and the vertices' Voronoi lengths on the strands'
+ * shape of its last step or exchange (nverts, m): borrowed, valid for the film's life. */
+const DrFilmDesc *dr_film_desc(const DrFilm *f);
+const int *dr_film_offsets(const DrFilm *f);
+const double *dr_film_radius(const DrFilm *f);
+const double *dr_film_lengths(const DrFilm *f);
+
+/* ---- capture and dripping: the film and the bulk liquid (PHYSICS §5; fei2017 §4.3–4.4) --------------------------
+ * The bulk liquid reaches wet as a neutral set of particles (DrBulk: positions, velocities, and each particle's own
+ * volume, which capture lowers in place); what drips leaves as new particles (DrDrops) that the caller adds to the
+ * liquid. Every transfer is booked exactly: the volume a particle loses is the volume the film gains, and the momentum
+ * with it; a drop carries exactly the volume and momentum its film lost. Nothing is rescaled and nothing is deleted:
+ * a particle that gives its last share (its remnant under 1e-3 of the nominal particle volume, when the film has room
+ * for it) leaves with volume 0 for the caller to remove.
+ *
+ * Capture (bulk → film), over a step of h seconds. A particle of volume V_p (radius r_p = (3V_p/4π)^⅓) is within
+ * reach of edge e when its distance from the edge's segment is at most H_e + reach·r_p (H_e the larger film radius
+ * of the edge's vertices), and it is captured by the nearest such edge (ties: the lower edge) whose vertices have
+ * room: vertex i holds at most capacity · π r_i² (max_ratio² − 1) l_i (l_i its Voronoi length). It offers the share
+ * 1 − e^{−rate·h} of its volume (a rate in 1/s: the same capture for any step), split between the edge's vertices by
+ * the closest point's position along it; a vertex offered more than its room takes the same fraction of every offer.
+ *
+ * Dripping (film → bulk), at the end of a step of h seconds.
+ *  - Middle: per cell of the bulk's lattice (cells of dx from `lo`), the film of the vertices in the cell holds at most
+ *    V_max = 4π r̄ κ⁻² c², κ⁻² = σ/(ρ ā_n) (c = radius_scale; r̄ and ā_n the Voronoi-length weighted mean radius and
+ *    normal acceleration of those vertices; a_n = |(g − a)⊥| with a = (v − v_prev)/h the strand's solved acceleration
+ *    and ⊥ across its tangent). A cell whose excess E exceeds min_drop times the nominal particle volume V₀ loses
+ *    exactly E, every vertex the same share of its volume, as ⌈E/V₀⌉ equal drops carrying the momentum the film lost
+ *    there, placed along the cell's mean tangent below the film (along g − a), beyond the reach of capture.
+ *  - Ends: a pool (root, tip: each switchable) of at least pool_release·V₀ is released whole as ⌈V/V₀⌉ equal drops
+ *    moving with its end vertex, beyond the end along the strand.
+ *  - Budget: at most `budget` drops per call. A cell or pool that would go beyond it keeps its liquid (stats->held
+ *    counts it) so that a blow-up cannot flood the bake with particles; the caller warns. */
+typedef struct DrCaptureDesc {
+    double rate;     /* 1/s, ≥ 0; default 10 (0: no capture) */
+    double capacity; /* the share of the largest film (H/r = max_ratio) up to which capture fills a vertex, in [0, 1];
+                        default 1 */
+    double reach;    /* in particle radii beyond the film's surface, ≥ 0; default 1 */
+} DrCaptureDesc;
+void dr_capture_desc_default(DrCaptureDesc *d);
+
+typedef struct DrDripDesc {
+    double radius_scale;  /* c of V_max, > 0; default 0.5 */
+    bool middle;          /* middle dripping; default true */
+    bool root, tip;       /* release the root and the tip pools; default false, true */
+    double min_drop;      /* a cell drips once its excess reaches this times V₀, ≥ 0; default 0.5 */
+    double pool_release;  /* a pool is released once it reaches this times V₀, > 0; default 1 */
+    long budget;          /* drops per call at most, ≥ 1; default 20000 */
+} DrDripDesc;
+void dr_drip_desc_default(DrDripDesc *d);
+
+/* The bulk liquid as capture and dripping see it (borrowed for a call). */
+typedef struct DrBulk {
+    long n;
+    const double *x, *v;     /* 3n: m, m/s */
+    double *vol;             /* n: m³; capture lowers it (to 0 for a particle wholly captured) */
+    double particle_volume;  /* V₀, the nominal particle volume, m³ */
+    double dx;               /* the lattice of middle dripping, m (the liquid's cells) */
+    DrVec3 lo, hi;           /* the domain box: drops are placed inside it (lo is the lattice's origin) */
+} DrBulk;
+
+/* The strands as capture and dripping see them (borrowed for a call): positions of the film's last step, velocities
+   (in/out: exchanges move them, as dr_film_transfer), the velocities at the step's start (NULL: no acceleration),
+   the hair's mass per vertex (kg). */
+typedef struct DrWetStrands {
+    const double *x;
+    double *v;
+    const double *v_prev;
+    const double *mass;
+} DrWetStrands;
+
+/* The drops of a dripping call (owned by the exchange object; valid until its next call). */
+typedef struct DrDrops {
+    long n;
+    double *x, *v, *vol; /* 3n, 3n, n */
+} DrDrops;
+
+typedef struct DrExchangeStats {
+    double captured;        /* m³ from the bulk into the film */
+    DrVec3 captured_momentum; /* kg m/s with it */
+    long captured_particles; /* particles wholly captured (volume 0) */
+    double dripped;         /* m³ from the film and pools into drops */
+    DrVec3 dripped_momentum;
+    long drops;             /* drops made */
+    double held;            /* m³ a cell or pool kept because of the budget */
+} DrExchangeStats;
+
+typedef struct DrExchange DrExchange;
+/* DR_ERR_INPUT for a desc out of range (naming the field). */
+DR_NODISCARD DrStatus dr_exchange_create(const DrCaptureDesc *capture, const DrDripDesc *drip, DrExchange **out,
+                                         DrError *err);
+void dr_exchange_destroy(DrExchange **e);
+/* Capture over a step of h seconds; stats (may be NULL) accumulate. DR_ERR_NOMEM. Bit-identical for any thread count. */
+DR_NODISCARD DrStatus dr_exchange_capture(DrExchange *e, DrFilm *f, const DrWetStrands *s, DrBulk *b, double h,
+                                          DrExchangeStats *stats, DrError *err);
+/* Dripping at the end of a step of h seconds: the drops into *drops (owned by e); stats accumulate. DR_ERR_NOMEM. */
+DR_NODISCARD DrStatus dr_exchange_drip(DrExchange *e, DrFilm *f, const DrWetStrands *s, const DrBulk *b, double h,
+                                       DrDrops *drops, DrExchangeStats *stats, DrError *err);
+
 /* ---- bridges between strands and against solids (fei2017 §S1, eq. S28; §S5) ------------------------------------
  * A bridge joins a vertex p of one strand to the nearest point c of another strand (on its edge q0 q1, c = q0 + t (q1 −
  * q0)): per vertex and per other strand at most one. It forms when the two films touch within the Lian rupture
