@@ -71,6 +71,7 @@ struct DrLiquid {
     double *div_target;      /* per pressure row: Δx·D, the volume-correction divergence target (m/s) */
     double span;             /* duration of the current dr_liquid_advance call (a frame), s */
     int *blocks;             /* particle count per 2×2×2 block of cells (dr_liquid_particle_volume), on first use */
+    double *bvol;            /* ... and their volume, when some particle is not nominal, on first use */
     DrViscosity *visc;       /* the implicit viscosity solve and its cells' liquid fractions, on first use */
     float *vfill;
     int *row;                /* cell → pressure unknown, −1 if not a fluid cell */
@@ -86,12 +87,17 @@ struct DrLiquid {
     bool accel_known;        /* a⁺ has been measured (a substep ran, or a checkpoint restored it) */
     DrParticleBins *bins;
     DrLiquidState st;
-    double *sx, *sv, *sc;    /* scratch particle arrays (same capacity) for the sort by cell */
+    double *sx, *sv, *sc, *svol; /* scratch particle arrays (same capacity) for the sort by cell */
     int64_t *sid;
+    double *pscale;          /* per particle: its mass factor vol/V0 in the substep's order (same capacity) */
+    bool scaled;             /* the substep's P2G found a particle that is not nominal: pscale holds the factors (else
+                                every factor is 1 and the uniform paths run) */
+    bool retransfer;         /* particles were added or removed after dr_liquid_stable_dt: begin transfers again */
     long cap;
     int64_t next_id;         /* the id the next seeded or emitted particle takes */
     DrRng rng;
-    double pmass;
+    double pmass;            /* the nominal particle's mass, density·V0 */
+    double vol0;             /* V0 = dx³/per_cell, the nominal particle's volume */
     double vol_density;      /* density·dx³: the face mass of a full face (mass-weighted pressure) */
     DrColliderFrame frames[MAX_COLLIDERS_FRAME];
     int nframes;
@@ -189,6 +195,9 @@ static DrStatus reserve_particles(DrLiquid *L, long n, DrError *err)
     DR_TRY(dr_realloc((size_t)cap * 3, sizeof(double), &L->sx, err));
     DR_TRY(dr_realloc((size_t)cap * 3, sizeof(double), &L->sv, err));
     DR_TRY(dr_realloc((size_t)cap * 9, sizeof(double), &L->sc, err));
+    DR_TRY(dr_realloc((size_t)cap, sizeof(double), &L->st.vol, err));
+    DR_TRY(dr_realloc((size_t)cap, sizeof(double), &L->svol, err));
+    DR_TRY(dr_realloc((size_t)cap, sizeof(double), &L->pscale, err));
     DR_TRY(dr_realloc((size_t)cap, sizeof(int64_t), &L->st.id, err));
     DR_TRY(dr_realloc((size_t)cap, sizeof(int64_t), &L->sid, err));
     L->cap = cap;
@@ -202,8 +211,19 @@ static DrStatus add_particle(DrLiquid *L, DrVec3 x, DrVec3 v, DrError *err)
     L->st.x[3 * p] = x.x; L->st.x[3 * p + 1] = x.y; L->st.x[3 * p + 2] = x.z;
     L->st.v[3 * p] = v.x; L->st.v[3 * p + 1] = v.y; L->st.v[3 * p + 2] = v.z;
     memset(L->st.c + 9 * p, 0, 9 * sizeof(double));
+    L->st.vol[p] = L->vol0;
     L->st.id[p] = L->next_id++;
     return DR_OK;
+}
+
+/* Particle p's row copied to row w (compaction: w < p). */
+static void move_particle(DrLiquid *L, long p, long w)
+{
+    memcpy(L->st.x + 3 * w, L->st.x + 3 * p, 3 * sizeof(double));
+    memcpy(L->st.v + 3 * w, L->st.v + 3 * p, 3 * sizeof(double));
+    memcpy(L->st.c + 9 * w, L->st.c + 9 * p, 9 * sizeof(double));
+    L->st.vol[w] = L->st.vol[p];
+    L->st.id[w] = L->st.id[p];
 }
 
 /* Sub-cell lattice of seeding: k³ sub-cells when per_cell is a cube, else 0 (random positions). */
@@ -402,6 +422,7 @@ DrStatus dr_liquid_create(const DrLiquidDesc *desc, const DrCollider *const *col
     }
     L->d.emitters = L->emitters; L->d.kill_lo = L->kill_lo; L->d.kill_hi = L->kill_hi;
     L->pmass = desc->density * desc->dx * desc->dx * desc->dx / desc->per_cell;
+    L->vol0 = desc->dx * desc->dx * desc->dx / desc->per_cell;
     L->vol_density = desc->density * desc->dx * desc->dx * desc->dx;
     dr_rng_seed(&L->rng, desc->seed);
 
@@ -460,7 +481,7 @@ void dr_liquid_destroy(DrLiquid **liq)
     for (int a = 0; a < 3; a++) free(L->dsum[a]);
     free(L->nphi); free(L->nphi_static); free(L->open); free(L->near); free(L->cphi); free(L->dens);
     free(L->bface); free(L->bface_start); free(L->pdv); free(L->pwho);
-    free(L->div_target); free(L->row); free(L->cells_of_row); free(L->blocks); free(L->vfill);
+    free(L->div_target); free(L->row); free(L->cells_of_row); free(L->blocks); free(L->bvol); free(L->vfill);
     dr_viscosity_destroy(&L->visc);
     free(L->rhs); free(L->q); free(L->work); free(L->impulse_partial);
     dr_csr_destroy(&L->A);
@@ -474,6 +495,7 @@ void dr_liquid_destroy(DrLiquid **liq)
     free(L->vx); free(L->vv);
     dr_mac_grid_destroy(&L->g);
     free(L->st.x); free(L->st.v); free(L->st.c); free(L->sx); free(L->sv); free(L->sc);
+    free(L->st.vol); free(L->svol); free(L->pscale);
     free(L->st.id); free(L->sid);
     free(L->emitters); free(L->kill_lo); free(L->kill_hi);
     free(L);
@@ -483,6 +505,27 @@ void dr_liquid_destroy(DrLiquid **liq)
 const DrLiquidState *dr_liquid_state(const DrLiquid *liq) { return &liq->st; }
 DrLiquidState *dr_liquid_state_mut(DrLiquid *liq) { return &liq->st; }
 double dr_liquid_particle_mass(const DrLiquid *liq) { return liq->pmass; }
+double dr_liquid_nominal_volume(const DrLiquid *liq) { return liq->vol0; }
+
+/* Every particle carries the nominal volume (the common case, which takes the uniform paths). */
+static bool all_nominal(const DrLiquid *L)
+{
+    const double *vol = L->st.vol;
+    for (long p = 0; p < L->st.n; p++)
+        if (vol[p] != L->vol0) return false;
+    return true;
+}
+
+/* Particle p's mass, the nominal one times vol/V0 (exactly the nominal one for a nominal particle: x/x = 1). */
+static inline double particle_mass(const DrLiquid *L, long p) { return L->pmass * (L->st.vol[p] / L->vol0); }
+
+/* DR_ERR_INPUT naming the particle unless its volume is finite and > 0. */
+static DrStatus check_volume(const char *who, long p, double vol, DrError *err)
+{
+    if (isfinite(vol) && vol > 0.0) return DR_OK;
+    return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "liquid %s: particle %ld has volume %g m^3; a particle's volume "
+                        "must be finite and > 0.", who, p, vol);
+}
 const DrMacGrid *dr_liquid_grid(const DrLiquid *liq) { return liq->g; }
 const unsigned char *dr_liquid_coupled_faces(const DrLiquid *liq, int a) { return liq->take[a]; }
 const double *dr_liquid_face_mass(const DrLiquid *liq, int a)
@@ -522,7 +565,7 @@ static DrStatus check_ids(const int64_t *id, long n, int64_t next_id, int64_t *s
 }
 
 DrStatus dr_liquid_restore(DrLiquid *liq, long n, const double *x, const double *v, const double *c,
-                           const int64_t *id, const DrLiquidResume *resume, DrError *err)
+                           const double *vol, const int64_t *id, const DrLiquidResume *resume, DrError *err)
 {
     if (n < 0 || (n > 0 && (!x || !v || !c || !id)))
         return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "liquid restore: %ld particles but missing arrays.", n);
@@ -532,11 +575,15 @@ DrStatus dr_liquid_restore(DrLiquid *liq, long n, const double *x, const double 
     for (long i = 0; i < 3 * n; i++)
         if (!isfinite(x[i]) || !isfinite(v[i]))
             return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "liquid restore: particle %ld is not finite.", i / 3);
+    for (long p = 0; vol && p < n; p++) DR_TRY(check_volume("restore", p, vol[p], err));
     DR_TRY(reserve_particles(liq, n, err));
     DR_TRY(check_ids(id, n, resume->next_id, liq->sid, err));
     memcpy(liq->st.x, x, (size_t)n * 3 * sizeof(double));
     memcpy(liq->st.v, v, (size_t)n * 3 * sizeof(double));
     memcpy(liq->st.c, c, (size_t)n * 9 * sizeof(double));
+    if (vol) memcpy(liq->st.vol, vol, (size_t)n * sizeof *vol);
+    else
+        for (long p = 0; p < n; p++) liq->st.vol[p] = liq->vol0;
     memcpy(liq->st.id, id, (size_t)n * sizeof *id);
     liq->st.n = n;
     liq->next_id = resume->next_id;
@@ -549,14 +596,73 @@ DrStatus dr_liquid_restore(DrLiquid *liq, long n, const double *x, const double 
     return DR_OK;
 }
 
+/* Particles may be added or removed between substeps; between stable_dt and begin, begin transfers them again. */
+static void particles_changed(DrLiquid *L)
+{
+    assert(L->phase == PHASE_IDLE || L->phase == PHASE_READY); /* not within begin/project/end */
+    if (L->phase == PHASE_READY) L->retransfer = true;
+}
+
+DrStatus dr_liquid_add_particles(DrLiquid *liq, long n, const double *x, const double *v, const double *vol,
+                                 DrError *err)
+{
+    if (n < 0 || (n > 0 && (!x || !v || !vol)))
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "liquid add_particles: %ld particles but missing arrays.", n);
+    static const char axis[3] = {'x', 'y', 'z'};
+    for (long p = 0; p < n; p++) {
+        for (int d = 0; d < 3; d++) {
+            if (!isfinite(x[3 * p + d]))
+                return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "liquid add_particles: particle %ld: position %c is "
+                                    "%g, not finite.", p, axis[d], x[3 * p + d]);
+            if (!isfinite(v[3 * p + d]))
+                return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "liquid add_particles: particle %ld: velocity %c is "
+                                    "%g, not finite.", p, axis[d], v[3 * p + d]);
+            double lo = dr_v3_get(liq->d.domain_lo, d), hi = dr_v3_get(liq->d.domain_hi, d);
+            if (!(x[3 * p + d] >= lo && x[3 * p + d] <= hi))
+                return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "liquid add_particles: particle %ld: position %c = "
+                                    "%g m lies outside the domain box [%g, %g].", p, axis[d], x[3 * p + d], lo, hi);
+        }
+        DR_TRY(check_volume("add_particles", p, vol[p], err));
+    }
+    if (n == 0) return DR_OK;
+    DR_TRY(reserve_particles(liq, liq->st.n + n, err));
+    particles_changed(liq);
+    DrLiquidState *s = &liq->st;
+    for (long p = 0; p < n; p++) {
+        long q = s->n++;
+        memcpy(s->x + 3 * q, x + 3 * p, 3 * sizeof(double));
+        memcpy(s->v + 3 * q, v + 3 * p, 3 * sizeof(double));
+        memset(s->c + 9 * q, 0, 9 * sizeof(double));
+        s->vol[q] = vol[p];
+        s->id[q] = liq->next_id++;
+    }
+    return DR_OK;
+}
+
+long dr_liquid_remove_empty(DrLiquid *liq)
+{
+    long w = 0, n = liq->st.n;
+    for (long p = 0; p < n; p++) {
+        if (liq->st.vol[p] == 0.0) continue;
+        if (w != p) move_particle(liq, p, w);
+        w++;
+    }
+    if (w < n) particles_changed(liq);
+    liq->st.n = w;
+    return n - w;
+}
+
 DrStatus dr_liquid_particle_volume(DrLiquid *liq, double *volume, double *nominal, DrError *err)
 {
     DrLiquid *L = liq;
     const DrMacGrid *g = L->g;
     int nb[3] = {(g->nx + 1) / 2, (g->ny + 1) / 2, (g->nz + 1) / 2};
     long nblocks = (long)nb[0] * nb[1] * nb[2];
+    bool nominal_all = all_nominal(L);
     if (!L->blocks) DR_TRY(dr_calloc((size_t)nblocks, sizeof(int), &L->blocks, err));
+    if (!nominal_all && !L->bvol) DR_TRY(dr_calloc((size_t)nblocks, sizeof(double), &L->bvol, err));
     memset(L->blocks, 0, (size_t)nblocks * sizeof(int));
+    if (!nominal_all) memset(L->bvol, 0, (size_t)nblocks * sizeof(double));
     for (long p = 0; p < L->st.n; p++) {
         long b = 0, stride = 1;
         for (int a = 0; a < 3; a++) {
@@ -567,8 +673,17 @@ DrStatus dr_liquid_particle_volume(DrLiquid *liq, double *volume, double *nomina
             stride *= nb[a];
         }
         L->blocks[b]++;
+        if (!nominal_all) L->bvol[b] += L->st.vol[p];
     }
     /* a block holds at most 8 cells of seeded liquid: particles beyond that are liquid squeezed into less space */
+    if (!nominal_all) {
+        double full = 8.0 * g->dx * g->dx * g->dx, counted = 0.0, sum = 0.0;
+        for (long b = 0; b < nblocks; b++) counted += L->bvol[b] < full ? L->bvol[b] : full;
+        for (long p = 0; p < L->st.n; p++) sum += L->st.vol[p];
+        *volume = counted;
+        *nominal = sum;
+        return DR_OK;
+    }
     long full = 8L * L->d.per_cell, counted = 0;
     for (long b = 0; b < nblocks; b++) counted += L->blocks[b] < full ? L->blocks[b] : full;
     double per = g->dx * g->dx * g->dx / L->d.per_cell;
@@ -580,14 +695,40 @@ DrStatus dr_liquid_particle_volume(DrLiquid *liq, double *volume, double *nomina
 void dr_liquid_totals(const DrLiquid *liq, double *mass, DrVec3 *momentum, DrVec3 *angular, double *kinetic)
 {
     const DrLiquidState *s = &liq->st;
-    if (mass) *mass = liq->pmass * (double)s->n;
-    dr_transfer_particle_totals(s->n, s->x, s->v, liq->d.scheme == DR_TRANSFER_APIC ? s->c : NULL, liq->pmass,
-                                liq->g->dx, momentum, angular);
-    if (kinetic) {
-        double ke = 0.0;
-        for (long i = 0; i < 3 * s->n; i++) ke += s->v[i] * s->v[i];
-        *kinetic = 0.5 * liq->pmass * ke;
+    const double *c = liq->d.scheme == DR_TRANSFER_APIC ? s->c : NULL;
+    if (all_nominal(liq)) {
+        if (mass) *mass = liq->pmass * (double)s->n;
+        dr_transfer_particle_totals(s->n, s->x, s->v, c, liq->pmass, NULL, liq->g->dx, momentum, angular);
+        if (kinetic) {
+            double ke = 0.0;
+            for (long i = 0; i < 3 * s->n; i++) ke += s->v[i] * s->v[i];
+            *kinetic = 0.5 * liq->pmass * ke;
+        }
+        return;
     }
+    /* per-particle masses: the factors vol/V0 a chunk at a time (no scratch of the liquid's: this only reads it), the
+       chunks' sums added in order */
+    enum { CHUNK = 256 };
+    double m = 0.0, ke = 0.0, f[CHUNK];
+    DrVec3 P = dr_v3(0, 0, 0), L = dr_v3(0, 0, 0);
+    for (long p0 = 0; p0 < s->n; p0 += CHUNK) {
+        long k = s->n - p0 < CHUNK ? s->n - p0 : CHUNK;
+        for (long q = 0; q < k; q++) {
+            const double *v = s->v + 3 * (p0 + q);
+            f[q] = s->vol[p0 + q] / liq->vol0;
+            m += liq->pmass * f[q];
+            ke += liq->pmass * f[q] * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+        }
+        DrVec3 dp, dl;
+        dr_transfer_particle_totals(k, s->x + 3 * p0, s->v + 3 * p0, c ? c + 9 * p0 : NULL, liq->pmass, f, liq->g->dx,
+                                    &dp, &dl);
+        P = dr_v3_add(P, dp);
+        L = dr_v3_add(L, dl);
+    }
+    if (mass) *mass = m;
+    if (momentum) *momentum = P;
+    if (angular) *angular = L;
+    if (kinetic) *kinetic = 0.5 * ke;
 }
 
 /* ---- 2. forces ---------------------------------------------------------------------------------- */
@@ -1329,8 +1470,19 @@ static void density_slices(long begin, long end, void *vctx)
             }
 }
 
+/* The particles in cell c after the substep's P2G, each counting vol/V0 of one (their number while all are
+   nominal). */
+static inline double cell_count(const DrLiquid *L, long c)
+{
+    long q0 = L->bins->cell_start[c], q1 = L->bins->cell_start[c + 1];
+    if (!L->scaled) return (double)(q1 - q0);
+    double sum = 0.0;
+    for (long q = q0; q < q1; q++) sum += L->pscale[L->bins->order[q]];
+    return sum;
+}
+
 /* ---- liquid phi and the pressure cells ------------------------------------------------------------------
- * The liquid phi at a cell centre comes from the cell's particle count n (liquid.h), relative to what the
+ * The liquid phi at a cell centre comes from the cell's particle count n (cell_count), relative to what the
  * open part of the cell holds when full: φ = (½ − min(1, n / (per_cell·ω)))·Δx, ω the cell's open fraction
  * (ω clamped at 1/per_cell). A cell cut by a collider holds a number of particles that depends on where
  * the collider surface crosses the seeding lattice, so its count is not a reliable measure of where the
@@ -1343,9 +1495,8 @@ static void density_slices(long begin, long end, void *vctx)
  * cells whose every open face carries mass (liquid.h). */
 static double count_phi(const DrLiquid *L, long c)
 {
-    long cnt = L->bins->cell_start[c + 1] - L->bins->cell_start[c];
     double om = fmax((double)L->open[c], 1.0 / L->d.per_cell);
-    double frac = (double)cnt / (L->d.per_cell * om);
+    double frac = cell_count(L, c) / (L->d.per_cell * om);
     return (0.5 - (frac > 1.0 ? 1.0 : frac)) * L->g->dx;
 }
 
@@ -1627,7 +1778,7 @@ static DrStatus virtual_mass(DrLiquid *L, DrError *err)
         DR_TRY(dr_bins_create(g, L->vn, &L->vbins, err));
     }
     DR_TRY(dr_bins_build(L->vg, L->vn, L->vx, L->vbins, err));
-    dr_transfer_p2g_mac(L->vbins, L->vx, L->vv, NULL, mass, L->d.wall_no_slip, L->vg, L->vfm);
+    dr_transfer_p2g_mac(L->vbins, L->vx, L->vv, NULL, mass, NULL, L->d.wall_no_slip, L->vg, L->vfm);
     return DR_OK;
 }
 
@@ -2567,7 +2718,7 @@ static double particle_energy(const DrLiquid *L, long p)
 {
     const double *x = L->st.x + 3 * p, *v = L->st.v + 3 * p;
     DrVec3 g = L->d.gravity;
-    return L->pmass * (0.5 * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) - (g.x * x[0] + g.y * x[1] + g.z * x[2]));
+    return particle_mass(L, p) * (0.5 * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) - (g.x * x[0] + g.y * x[1] + g.z * x[2]));
 }
 
 static void kill(DrLiquid *L, DrLiquidStats *stats)
@@ -2580,14 +2731,10 @@ static void kill(DrLiquid *L, DrLiquidStats *stats)
         for (int b = 0; b < L->d.nkill_boxes && !dead; b++) dead = in_box(x, L->kill_lo[b], L->kill_hi[b]);
         if (dead) {
             stats->killed_energy += particle_energy(L, p);
+            stats->killed_volume += L->st.vol[p];
             continue;
         }
-        if (w != p) {
-            memcpy(L->st.x + 3 * w, L->st.x + 3 * p, 3 * sizeof(double));
-            memcpy(L->st.v + 3 * w, L->st.v + 3 * p, 3 * sizeof(double));
-            memcpy(L->st.c + 9 * w, L->st.c + 9 * p, 9 * sizeof(double));
-            L->st.id[w] = L->st.id[p];
-        }
+        if (w != p) move_particle(L, p, w);
         w++;
     }
     stats->killed += n - w;
@@ -2611,6 +2758,7 @@ static void sort_range(long begin, long end, void *vctx)
         memcpy(L->sx + 3 * q, L->st.x + 3 * p, 3 * sizeof(double));
         memcpy(L->sv + 3 * q, L->st.v + 3 * p, 3 * sizeof(double));
         memcpy(L->sc + 9 * q, L->st.c + 9 * p, 9 * sizeof(double));
+        L->svol[q] = L->st.vol[p];
         L->sid[q] = L->st.id[p];
         order[q] = q;
     }
@@ -2624,11 +2772,13 @@ static void sort_particles(DrLiquid *L)
     t = L->st.x; L->st.x = L->sx; L->sx = t;
     t = L->st.v; L->st.v = L->sv; L->sv = t;
     t = L->st.c; L->st.c = L->sc; L->sc = t;
+    t = L->st.vol; L->st.vol = L->svol; L->svol = t;
     int64_t *ti = L->st.id; L->st.id = L->sid; L->sid = ti;
 }
 
 
-/* 1. P2G: particles sorted by cell, then splatted; uold keeps the transferred face velocities. */
+/* 1. P2G: particles sorted by cell, then splatted; uold keeps the transferred face velocities. The particles' mass
+   factors vol/V0 go to pscale (and the substep's level set counts them) only when some particle is not nominal. */
 static DrStatus substep_p2g(DrLiquid *L, DrError *err)
 {
     DrMacGrid *g = L->g;
@@ -2636,8 +2786,12 @@ static DrStatus substep_p2g(DrLiquid *L, DrError *err)
     double t_0 = dr_time_now();
     DR_TRY(dr_bins_build(g, s->n, s->x, L->bins, err));
     sort_particles(L);
+    L->scaled = !all_nominal(L);
+    if (L->scaled)
+        for (long p = 0; p < s->n; p++) L->pscale[p] = s->vol[p] / L->vol0;
+    L->retransfer = false;
     dr_transfer_p2g_mac(L->bins, s->x, s->v, L->d.scheme == DR_TRANSFER_APIC ? s->c : NULL, L->pmass,
-                        L->d.wall_no_slip, g, L->fm);
+                        L->scaled ? L->pscale : NULL, L->d.wall_no_slip, g, L->fm);
     for (int a = 0; a < 3; a++) memcpy(L->uold[a], g->f[a], (size_t)g->nfaces[a] * sizeof(double));
     L->pend_p2g += dr_time_now() - t_0;
     return DR_OK;
@@ -2652,9 +2806,8 @@ static DrStatus implicit_viscosity(DrLiquid *L, double dt, bool count, DrError *
     if (!L->visc) DR_TRY(dr_viscosity_create(&L->visc, err));
     if (!L->vfill) DR_TRY(dr_calloc((size_t)L->ncells, sizeof(float), &L->vfill, err));
     for (long c = 0; c < L->ncells; c++) {
-        long cnt = L->bins->cell_start[c + 1] - L->bins->cell_start[c];
         double om = fmax((double)L->open[c], 1.0 / L->d.per_cell);
-        double frac = (double)cnt / (L->d.per_cell * om);
+        double frac = cell_count(L, c) / (L->d.per_cell * om);
         L->vfill[c] = (float)(frac > 1.0 ? 1.0 : frac);
     }
     DrViscosityInput in = {.g = g,
@@ -2776,7 +2929,8 @@ static void body_pushout_impulses(DrLiquid *L)
         double J[6] = {0};
         for (long p = 0; p < st->n; p++) {
             if (L->pwho[p] != b) continue;
-            double m[3] = {L->pmass * L->pdv[3 * p], L->pmass * L->pdv[3 * p + 1], L->pmass * L->pdv[3 * p + 2]};
+            double mp = particle_mass(L, p);
+            double m[3] = {mp * L->pdv[3 * p], mp * L->pdv[3 * p + 1], mp * L->pdv[3 * p + 2]};
             double r[3] = {st->x[3 * p] - B->center[0], st->x[3 * p + 1] - B->center[1], st->x[3 * p + 2] - B->center[2]};
             J[0] += m[0], J[1] += m[1], J[2] += m[2];
             J[3] += r[1] * m[2] - r[2] * m[1];
@@ -3015,7 +3169,10 @@ static DrStatus step_end(DrLiquid *L, DrLiquidStats *stats, bool report, DrError
     /* 9. emitters, kill boxes */
     long n_before = s->n;
     DR_TRY(emit(L, L->t_step, stats, err));
-    for (long p = n_before; p < s->n; p++) stats->emitted_energy += particle_energy(L, p);
+    for (long p = n_before; p < s->n; p++) {
+        stats->emitted_energy += particle_energy(L, p);
+        stats->emitted_volume += s->vol[p];
+    }
     kill(L, stats);
     stats->seconds_other += dr_time_now() - t_7;
     stats->substeps++;
@@ -3080,6 +3237,7 @@ DrStatus dr_liquid_begin(DrLiquid *liq, const DrCollider *const *colliders, int 
                             liq->h_stable);
     for (int a = 0; a < 3; a++)
         if (!liq->ustar[a]) DR_TRY(dr_calloc((size_t)liq->g->nfaces[a], sizeof(double), &liq->ustar[a], err));
+    if (liq->retransfer) DR_TRY(substep_p2g(liq, err)); /* particles added or removed since stable_dt */
     DR_TRY(step_begin(liq, colliders, ncolliders, t, h, true, err));
     return DR_OK;
 }

@@ -9,7 +9,7 @@
  * the domain → emitters, kill boxes.
  *
  * Free surface. The liquid level set at a cell centre is φ = (½ − min(1, n_c / (per_cell·ω_c)))·Δx from
- * the cell's particle count n_c and its open fraction ω_c (the part of the cell outside every collider):
+ * the cell's particle count n_c (each particle counting vol/V0, DrLiquidState) and its open fraction ω_c (the part of the cell outside every collider):
  * a full cell puts the surface on its faces (a flat, face-aligned surface is exactly flat whatever the
  * jitter), a partly filled one moves it inward. θ = φ_F/(φ_F − φ_A) ≥ 0.01.
  *
@@ -31,8 +31,9 @@
  * Memory: everything is sized in dr_liquid_create; particle arrays (and their scratch copies for the
  * sort below) grow (by 1/4 + slack) only when emitters add particles.
  * Particle order: every substep sorts the particles by grid cell (stable: ties keep their order) so the
- * transfers walk memory in grid order (each particle's id goes with it); the order, and the array pointers of
- * DrLiquidState, change in dr_liquid_advance and dr_liquid_restore: re-read them after each call. */
+ * transfers walk memory in grid order (each particle's volume and id go with it); the order, and the array pointers
+ * of DrLiquidState, change in dr_liquid_advance, dr_liquid_stable_dt, dr_liquid_restore, dr_liquid_add_particles and
+ * dr_liquid_remove_empty: re-read them after each call. */
 #ifndef DR_LIQUID_H
 #define DR_LIQUID_H
 
@@ -131,12 +132,21 @@ typedef struct DrLiquidDesc {
    no sources. */
 void dr_liquid_desc_default(DrLiquidDesc *d);
 
-typedef struct DrLiquidState { long n; double *x, *v, *c; int64_t *id; } /* 3n positions (m), 3n velocities (m/s), 9n
-      affine: c[9p + 3a + b] = component b of c_pa, the affine vector of face component a (APIC; zero for PIC/FLIP);
+typedef struct DrLiquidState { long n; double *x, *v, *c, *vol; int64_t *id; } /* 3n positions (m), 3n velocities
+      (m/s), 9n affine: c[9p + 3a + b] = component b of c_pa, the affine vector of face component a (APIC; zero for
+      PIC/FLIP);
+      n volumes (m³): the liquid each particle carries. Seeded and emitted particles carry the nominal volume
+      V0 = Δx³/per_cell (dr_liquid_nominal_volume) exactly; a caller may change them between substeps (through
+      dr_liquid_state_mut, to a finite value > 0, or 0 to drop the particle with dr_liquid_remove_empty before the
+      next substep). Particle p's mass is m_p = dr_liquid_particle_mass·(vol[p]/V0): it weighs P2G, the count of
+      the free-surface level set (a particle counts vol[p]/V0 of one), the totals and the energies. While every
+      particle is nominal (vol == V0) the liquid takes the uniform paths, bit-identical to a liquid without volumes;
+      the sort carries each volume with its particle.
       n ids: a particle's id is its own for its whole life. Seeding gives 0, 1, 2 … in seeding order and every
-      emitted particle the next unused one (a counter in DrLiquidResume, so a resumed bake goes on with the same
-      ids); the sort carries each id with its particle and a killed particle's id is never given again. Ids feed
-      nothing back into the simulation (the other arrays' bits are the same without them). */ DrLiquidState;
+      emitted or added particle the next unused one (a counter in DrLiquidResume, so a resumed bake goes on with
+      the same ids); the sort carries each id with its particle and a killed or removed particle's id is never
+      given again. Ids feed nothing back into the simulation (the other arrays' bits are the same without them). */
+      DrLiquidState;
 
 typedef struct DrLiquidStats {
     int substeps; int pressure_iterations_max; long pressure_iterations_total; double pressure_residual_max;
@@ -147,6 +157,10 @@ typedef struct DrLiquidStats {
     double density_max;           /* largest smoothed relative particle density ρ̃ seen (volume correction) */
     double seconds_p2g, seconds_pressure, seconds_g2p, seconds_advect, seconds_other;
     long emitted, killed;
+    /* m³: the volume the particles emitters added and kill boxes removed carried (Σ vol), summed like emitted and
+       killed. Kill boxes are the only way particles leave the liquid (the domain walls clamp them in);
+       dr_liquid_add_particles and dr_liquid_remove_empty are the caller's to book. */
+    double emitted_volume, killed_volume;
     /* Momentum the grid phases (forces, projection, boundaries, extrapolation, collider constraint) gave
        the liquid: Σ over substeps of Σ_f m_f (u_f^final − u_f^P2G) e_a and of the same times x_f ×.
        With APIC and particles away from the domain walls, transfers and advection conserve both exactly
@@ -323,8 +337,20 @@ DR_NODISCARD DrStatus dr_liquid_end(DrLiquid *liq, DrLiquidStats *stats, DrError
 /* The phase functions add to *stats: zero it before a sequence (dr_liquid_advance zeroes it itself). */
 
 const DrLiquidState *dr_liquid_state(const DrLiquid *liq);
-DrLiquidState *dr_liquid_state_mut(DrLiquid *liq);  /* for initial conditions in tests; keep arrays' length n and
-                                                       the ids as they are */
+DrLiquidState *dr_liquid_state_mut(DrLiquid *liq);  /* for initial conditions and, between substeps, the particles'
+                                                       volumes (DrLiquidState.vol); keep arrays' length n and the ids
+                                                       as they are */
+/* Appends n particles (3n positions in the domain box, m; 3n velocities, m/s; n volumes, m³, finite and > 0) with
+   affine c = 0 and the next unused ids, in order. Between substeps: before dr_liquid_stable_dt or after dr_liquid_end
+   (never within a begin/project/end; between stable_dt and begin, begin transfers the particles again and keeps the
+   step length stable_dt gave). Not counted in DrLiquidStats.emitted (the caller books them). DR_ERR_INPUT naming the
+   particle and the field for non-finite x or v, a volume not finite or ≤ 0, or a position outside the domain box
+   (closed); DR_ERR_NOMEM when the arrays cannot grow. Nothing is added on failure. */
+DR_NODISCARD DrStatus dr_liquid_add_particles(DrLiquid *liq, long n, const double *x, const double *v, const double *vol,
+                                              DrError *err);
+/* Removes the particles whose volume is exactly 0 (the whole particle went elsewhere), keeping the others' order; their
+   ids are never given again. Between substeps, as dr_liquid_add_particles. Returns how many it removed. */
+long dr_liquid_remove_empty(DrLiquid *liq);
 /* Checkpoint support: everything besides the particle arrays that a bit-identical continuation needs. */
 typedef struct DrLiquidResume {
     uint64_t rng[4];     /* the seeding rng (emitters) */
@@ -332,20 +358,23 @@ typedef struct DrLiquidResume {
     int64_t next_id;     /* the id the next seeded or emitted particle takes (DrLiquidState.id) */
 } DrLiquidResume;
 void dr_liquid_resume_state(const DrLiquid *liq, DrLiquidResume *out);
-/* Replaces the particles (copies n rows of x, v, c and id) and the resume state. DR_ERR_INPUT for n < 0,
-   non-finite data (a⁺ negative or non-finite too), an id outside [0, next_id) or one held by two particles;
-   DR_ERR_NOMEM. */
+/* Replaces the particles (copies n rows of x, v, c, vol and id; vol NULL: every particle nominal, V0) and the resume
+   state. DR_ERR_INPUT for n < 0, non-finite data (a⁺ negative or non-finite too), a volume not finite or ≤ 0 (naming
+   the particle), an id outside [0, next_id) or one held by two particles; DR_ERR_NOMEM. */
 DR_NODISCARD DrStatus dr_liquid_restore(DrLiquid *liq, long n, const double *x, const double *v, const double *c,
-                                        const int64_t *id, const DrLiquidResume *resume, DrError *err);
-/* Diagnostics: total mass, linear momentum, angular momentum about the origin INCLUDING the affine part
-   (APIC: L_p = x_p × m_p v_p + m_p ε:(B_pᵀ), B_p = C_p D), kinetic energy ½ Σ m |v_p|². */
+                                        const double *vol, const int64_t *id, const DrLiquidResume *resume,
+                                        DrError *err);
+/* Diagnostics: total mass Σ m_p, linear momentum, angular momentum about the origin INCLUDING the affine part
+   (APIC: L_p = x_p × m_p v_p + m_p ε:(B_pᵀ), B_p = C_p D), kinetic energy ½ Σ m_p |v_p|²; m_p = the particle mass
+   times vol[p]/V0 (DrLiquidState). */
 void dr_liquid_totals(const DrLiquid *liq, double *mass, DrVec3 *momentum, DrVec3 *angular, double *kinetic);
-double dr_liquid_particle_mass(const DrLiquid *liq); /* density·dx³/per_cell */
-/* The volume the particles fill, m³: each stands for Δx³/per_cell of liquid, counted per block of 2×2×2 cells up to
-   the block's 8 cells (particles squeezed beyond the seeded density add nothing), and *nominal, what they would fill
-   at the seeded density (n Δx³/per_cell). A liquid freshly seeded fills its nominal volume; well-mixed particles
-   about 95 % of it (the count per block scatters around its mean); liquid that collapses, its particles piled into
-   a few cells, far less. Uses scratch of its own (allocated on the first call: DR_ERR_NOMEM). */
+double dr_liquid_particle_mass(const DrLiquid *liq);   /* the nominal particle's, density·dx³/per_cell, kg */
+double dr_liquid_nominal_volume(const DrLiquid *liq);  /* V0 = dx³/per_cell, m³ */
+/* The volume the particles fill, m³: each stands for its vol (DrLiquidState), summed per block of 2×2×2 cells up to the
+   block's 8 cells (particles squeezed beyond the seeded density add nothing), and *nominal, what they would fill at
+   the seeded density (Σ vol; n V0 when all are nominal). A liquid freshly seeded fills its nominal volume;
+   well-mixed particles about 95 % of it (the count per block scatters around its mean); liquid that collapses, its
+   particles piled into a few cells, far less. Uses scratch of its own (allocated on the first call: DR_ERR_NOMEM). */
 DR_NODISCARD DrStatus dr_liquid_particle_volume(DrLiquid *liq, double *volume, double *nominal, DrError *err);
 const DrMacGrid *dr_liquid_grid(const DrLiquid *liq);
 

@@ -123,6 +123,7 @@ typedef struct P2gCtx {
     const DrParticleBins *b;
     const double *x, *v, *c;
     double mass;
+    const double *scale; /* per-particle mass factor, NULL: 1 */
     const DrMacGrid *g;
     double tsign;
     int parity;
@@ -133,7 +134,7 @@ typedef struct P2gCtx {
 static void p2g_direct(const P2gCtx *ctx, long p, const double X[3], int a)
 {
     const DrMacGrid *g = ctx->g;
-    const double dx = g->dx, m = ctx->mass;
+    const double dx = g->dx, m = ctx->scale ? ctx->mass * ctx->scale[p] : ctx->mass;
     const int *dim = g->fdim[a];
     AxisStencil ax[3];
     for (int d = 0; d < 3; d++) ax[d] = axis_stencil(X[d] - dr_mac_face_offset(a, d), dim[d], a == d, ctx->tsign, dx);
@@ -164,7 +165,7 @@ static void p2g_slab(long begin, long end, void *vctx)
     P2gCtx *ctx = vctx;
     const DrMacGrid *g = ctx->g;
     const DrParticleBins *b = ctx->b;
-    const double inv = 1.0 / g->dx, dx = g->dx, m = ctx->mass;
+    const double inv = 1.0 / g->dx, dx = g->dx;
     long slab_cells = (long)g->nx * g->ny * DR_TRANSFER_SLAB;
     for (long si = begin; si < end; si++) {
         long s = 2 * si + ctx->parity;
@@ -198,7 +199,7 @@ static void p2g_slab(long begin, long end, void *vctx)
                         p2g_direct(ctx, p, X, a);
                         continue;
                     }
-                    double va = ctx->v[3 * p + a];
+                    double va = ctx->v[3 * p + a], m = ctx->scale ? ctx->mass * ctx->scale[p] : ctx->mass;
                     const double *ca = ctx->c ? ctx->c + 9 * p + 3 * a : NULL;
                     /* affine velocity v + c·(x_i − x_p), separable along the axes */
                     double cx[3] = {0, 0, 0}, cy[3] = {0, 0, 0}, cz[3] = {0, 0, 0};
@@ -277,7 +278,8 @@ static void zero_faces(long begin, long end, void *vctx)
 }
 
 void dr_transfer_p2g_mac(const DrParticleBins *b, const double *x, const double *v, const double *c,
-                         double mass, bool wall_no_slip, DrMacGrid *g, double *const face_mass[3])
+                         double mass, const double *scale, bool wall_no_slip, DrMacGrid *g,
+                         double *const face_mass[3])
 {
     assert(b->ncells == (long)g->nx * g->ny * g->nz);
     NormCtx nctx = {b, g, face_mass};
@@ -287,7 +289,7 @@ void dr_transfer_p2g_mac(const DrParticleBins *b, const double *x, const double 
     long fgrain = nf >= 4 * DR_TRANSFER_PAR_MIN ? 1 : 1024;
     dr_parallel_for(1024, fgrain, zero_faces, &nctx);
     long nslabs = (g->nz + DR_TRANSFER_SLAB - 1) / DR_TRANSFER_SLAB;
-    P2gCtx ctx = {b, x, v, c, mass, g, wall_no_slip ? -1.0 : 1.0, 0};
+    P2gCtx ctx = {b, x, v, c, mass, scale, g, wall_no_slip ? -1.0 : 1.0, 0};
     for (int parity = 0; parity < 2; parity++) {
         ctx.parity = parity;
         long count = (nslabs - parity + 1) / 2;
@@ -471,19 +473,20 @@ void dr_transfer_g2p_mac(const DrMacGrid *g, const double *const old[3], DrTrans
 /* ---- totals ----------------------------------------------------------------------------------- */
 
 void dr_transfer_particle_totals(long n, const double *x, const double *v, const double *c, double mass,
-                                 double dx, DrVec3 *momentum, DrVec3 *angular)
+                                 const double *scale, double dx, DrVec3 *momentum, DrVec3 *angular)
 {
     DrVec3 P = dr_v3(0, 0, 0), L = dr_v3(0, 0, 0);
     double D = 0.25 * dx * dx;
     for (long p = 0; p < n; p++) {
         DrVec3 xp = dr_v3(x[3 * p], x[3 * p + 1], x[3 * p + 2]);
-        DrVec3 mv = dr_v3_scale(dr_v3(v[3 * p], v[3 * p + 1], v[3 * p + 2]), mass);
+        double m = scale ? mass * scale[p] : mass;
+        DrVec3 mv = dr_v3_scale(dr_v3(v[3 * p], v[3 * p + 1], v[3 * p + 2]), m);
         P = dr_v3_add(P, mv);
         L = dr_v3_add(L, dr_v3_cross(xp, mv));
         if (c) {
             /* m ε:(Bᵀ), B[b][a] = D c[3b + a] (see the derivation from eq. 26 in §5.3) */
             const double *cp = c + 9 * p;
-            L = dr_v3_add(L, dr_v3_scale(dr_v3(cp[7] - cp[5], cp[2] - cp[6], cp[3] - cp[1]), mass * D));
+            L = dr_v3_add(L, dr_v3_scale(dr_v3(cp[7] - cp[5], cp[2] - cp[6], cp[3] - cp[1]), m * D));
         }
     }
     if (momentum) *momentum = P;

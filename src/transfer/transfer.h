@@ -60,11 +60,13 @@ void dr_bins_destroy(DrParticleBins **b);
 DR_NODISCARD DrStatus dr_bins_build(const DrMacGrid *g, long n, const double *x, DrParticleBins *b, DrError *err);
 
 /* P2G on the MAC grid. x, v: 3n arrays; c: 9n affine vectors (c[9p + 3a + b] = component b of c_pa) or
-   NULL (PIC/FLIP: c = 0); mass per particle (kg). Writes the face masses face_mass[a] (kg, nfaces[a]
-   each) and the face velocities g->f[a] (m/s; 0 where the mass is 0). `b` must be built from the same x.
-   wall_no_slip selects the tangential mirror as in G2P. */
+   NULL (PIC/FLIP: c = 0); particle p's mass (kg) is m_p = mass·scale[p], scale n factors (≥ 0) or NULL
+   (every factor 1: m_p = mass; a factor 1.0 gives the same bits as NULL). Writes the face masses
+   face_mass[a] (kg, nfaces[a] each) and the face velocities g->f[a] (m/s; 0 where the mass is 0). `b` must
+   be built from the same x. wall_no_slip selects the tangential mirror as in G2P. */
 void dr_transfer_p2g_mac(const DrParticleBins *b, const double *x, const double *v, const double *c,
-                         double mass, bool wall_no_slip, DrMacGrid *g, double *const face_mass[3]);
+                         double mass, const double *scale, bool wall_no_slip, DrMacGrid *g,
+                         double *const face_mass[3]);
 
 /* G2P on the MAC grid for n particles at x (in the grid box). scheme selects the update:
    APIC: v_p and c_p from the grid (c required); PIC: v_p from the grid, c (if non-NULL) zeroed;
@@ -73,10 +75,11 @@ void dr_transfer_p2g_mac(const DrParticleBins *b, const double *x, const double 
 void dr_transfer_g2p_mac(const DrMacGrid *g, const double *const old[3], DrTransferScheme scheme,
                          double flip_blend, bool wall_no_slip, long n, const double *x, double *v, double *c);
 
-/* Particle totals: momentum Σ m v and angular momentum about the origin including the affine part,
-   L = Σ x_p × m v_p + m ε:(B_pᵀ) with B_p rows D c_pa, D = dx²/4 ([APIC] §5.3). c may be NULL. */
+/* Particle totals: momentum Σ m_p v_p and angular momentum about the origin including the affine part,
+   L = Σ x_p × m_p v_p + m_p ε:(B_pᵀ) with B_p rows D c_pa, D = dx²/4 ([APIC] §5.3), m_p = mass·scale[p]
+   (scale NULL: m_p = mass, as in P2G). c may be NULL. */
 void dr_transfer_particle_totals(long n, const double *x, const double *v, const double *c, double mass,
-                                 double dx, DrVec3 *momentum, DrVec3 *angular);
+                                 const double *scale, double dx, DrVec3 *momentum, DrVec3 *angular);
 /* Grid totals of face momenta: Σ m_f u_f e_a and Σ x_f × m_f u_f e_a about the origin. */
 void dr_transfer_grid_totals(const DrMacGrid *g, const double *const face_mass[3], const double *const vel[3],
                              DrVec3 *momentum, DrVec3 *angular);

@@ -26,8 +26,10 @@ typedef struct DrLiquidFrameStats {
     int pressure_not_converged;
     double volume, volume0;  /* m³: liquid cells × dx³ now and in the first frame (a cheap frame-to-frame estimate) */
     double drift;            /* volume / volume0 − 1 */
-    double particle_volume;  /* m³: Σ particles × the volume each was seeded with (dx³ / Particles.per_cell): the
-                                liquid's volume as the particles carry it, which emitters and kill boxes change */
+    double particle_volume;  /* m³: Σ of the particles' own volumes (DrLiquidState.vol: dx³ / Particles.per_cell as
+                                seeded or emitted, less what a caller took from them): the liquid's volume as the
+                                particles carry it, which emitters and kill boxes change */
+    double emitted_volume, killed_volume; /* m³: what emitters added and kill boxes removed in the frame */
     double kinetic_energy;   /* J */
     double seconds_p2g, seconds_pressure, seconds_g2p, seconds_advect, seconds_other;
     /* the MPM solids two-way with the first liquid: the momentum they gained from it in the frame (N·s, the ledger:

@@ -52,9 +52,9 @@ static WorldEnergy liquid_energy(const WorldLiquid *wl, DrVec3 gravity)
     double mass, ke;
     DrVec3 p, l;
     dr_liquid_totals(wl->liquid, &mass, &p, &l, &ke);
-    double pe = 0.0, pm = dr_liquid_particle_mass(wl->liquid);
+    double pe = 0.0, pm = dr_liquid_particle_mass(wl->liquid), v0 = dr_liquid_nominal_volume(wl->liquid);
     for (long i = 0; i < st->n; i++)
-        pe -= pm * (gravity.x * st->x[3 * i] + gravity.y * st->x[3 * i + 1] + gravity.z * st->x[3 * i + 2]);
+        pe -= pm * (st->vol[i] / v0) * (gravity.x * st->x[3 * i] + gravity.y * st->x[3 * i + 1] + gravity.z * st->x[3 * i + 2]);
     WorldEnergy e = {0};
     e.energy = ke + pe;
     e.available = fmax(0.0, e.energy - mass * wl->low);
@@ -323,27 +323,29 @@ static DrStatus mpm_carve(WorldLiquid *wl, const WorldMpmParticles *mp, DrError 
     dr_couple_particle_fraction(g, mp->n, mp->x, mp->volume, frac);
     const DrLiquidState *st = dr_liquid_state(wl->liquid);
     long n = st->n, kept = 0;
-    double *x = NULL, *v = NULL, *cc = NULL;
+    double *x = NULL, *v = NULL, *cc = NULL, *vol = NULL;
     int64_t *id = NULL;
     DrStatus s = dr_calloc((size_t)(3 * n + 1), sizeof(double), &x, err);
     if (s == DR_OK) s = dr_calloc((size_t)(3 * n + 1), sizeof(double), &v, err);
     if (s == DR_OK) s = dr_calloc((size_t)(9 * n + 1), sizeof(double), &cc, err);
+    if (s == DR_OK) s = dr_calloc((size_t)(n + 1), sizeof(double), &vol, err);
     if (s == DR_OK) s = dr_calloc((size_t)(n + 1), sizeof(int64_t), &id, err);
     for (long p = 0; s == DR_OK && p < n; p++) {
         if (dr_couple_fraction_at(g, frac, st->x + 3 * p, NULL) > 0.5) continue;
         memcpy(x + 3 * kept, st->x + 3 * p, 3 * sizeof(double));
         memcpy(v + 3 * kept, st->v + 3 * p, 3 * sizeof(double));
         memcpy(cc + 9 * kept, st->c + 9 * p, 9 * sizeof(double));
+        vol[kept] = st->vol[p];
         id[kept++] = st->id[p];
     }
     if (s == DR_OK && kept < n) {
         DrLiquidResume rs;
         dr_liquid_resume_state(wl->liquid, &rs);
-        s = dr_liquid_restore(wl->liquid, kept, x, v, cc, id, &rs, err);
+        s = dr_liquid_restore(wl->liquid, kept, x, v, cc, vol, id, &rs, err);
         if (s == DR_OK)
             dr_log_info("liquid '%s': %ld particles seeded inside the MPM solids removed", wl->element->name, n - kept);
     }
-    free(x), free(v), free(cc), free(id), free(frac);
+    free(x), free(v), free(cc), free(vol), free(id), free(frac);
     return s;
 }
 
@@ -437,8 +439,9 @@ static DrStatus liquid_end_frame(void *self, const WorldCtx *c, DrFrameStats *st
     b->volume += vol;
     b->volume0 += wl->volume0;
     b->drift = b->volume0 > 0 ? b->volume / b->volume0 - 1.0 : 0.0;
-    b->particle_volume += (double)ls->particles * dx * dx * dx /
-                          dr_component_int(dr_element_component(wl->element, "Particles"), "per_cell");
+    for (long i = 0; i < st->n; i++) b->particle_volume += st->vol[i];
+    b->emitted_volume += ls->emitted_volume;
+    b->killed_volume += ls->killed_volume;
     b->kinetic_energy += ke;
     b->grid_impulse = dr_v3_add(b->grid_impulse, ls->grid_linear_impulse);
     if (wl->mfc) {
@@ -459,7 +462,8 @@ static DrStatus liquid_end_frame(void *self, const WorldCtx *c, DrFrameStats *st
     return watch_frame(wl, c, err);
 }
 
-/* position, velocity, affine (dr_h5_write_particles) and id (N, int64: a particle's own for its life, liquid.h) */
+/* position, velocity, affine (dr_h5_write_particles), id (N, int64: a particle's own for its life, liquid.h) and
+   volume (N, m³: each particle's own, DrLiquidState.vol) */
 static DrStatus write_liquid_arrays(DrH5 *h, const WorldLiquid *wl, bool compress, DrError *err)
 {
     const DrLiquidState *st = dr_liquid_state(wl->liquid);
@@ -467,7 +471,9 @@ static DrStatus write_liquid_arrays(DrH5 *h, const WorldLiquid *wl, bool compres
     char g[512];
     uint64_t d[1] = {(uint64_t)st->n};
     PATHF(g, "/%s/id", wl->element->name);
-    return dr_h5_write_i64(h, g, 1, d, st->id, "1", compress, err);
+    DR_TRY(dr_h5_write_i64(h, g, 1, d, st->id, "1", compress, err));
+    PATHF(g, "/%s/volume", wl->element->name);
+    return dr_h5_write_f64(h, g, 1, d, st->vol, "m^3", compress, err);
 }
 
 static DrStatus liquid_write(const void *self, const WorldCtx *c, DrH5 *h, bool frame_cache, DrError *err)
@@ -513,7 +519,9 @@ static DrStatus liquid_write(const void *self, const WorldCtx *c, DrH5 *h, bool 
     DR_TRY(dr_h5_write_scalar(h, g, "pressure_iterations_total", (double)ls->pressure_iterations_total, "1", err));
     DR_TRY(dr_h5_write_scalar(h, g, "pressure_residual_max", ls->pressure_residual_max, "1", err));
     DR_TRY(dr_h5_write_scalar(h, g, "emitted", (double)ls->emitted, "1", err));
-    return dr_h5_write_scalar(h, g, "killed", (double)ls->killed, "1", err);
+    DR_TRY(dr_h5_write_scalar(h, g, "killed", (double)ls->killed, "1", err));
+    DR_TRY(dr_h5_write_scalar(h, g, "emitted_volume", ls->emitted_volume, "m^3", err));
+    return dr_h5_write_scalar(h, g, "killed_volume", ls->killed_volume, "m^3", err);
 }
 
 static DrStatus read_liquid(DrH5 *h, const char *path, WorldLiquid *wl, const WorldCtx *ctx, int frame, DrError *err)
@@ -521,8 +529,8 @@ static DrStatus read_liquid(DrH5 *h, const char *path, WorldLiquid *wl, const Wo
     const char *name = wl->element->name;
     char p[512];
     int rank;
-    uint64_t dx[4], dv[4], dc[4], dr[4], d0[4], da[4], di[4], dn[4];
-    double *x = NULL, *v = NULL, *c = NULL, *v0 = NULL, *acc = NULL;
+    uint64_t dx[4], dv[4], dc[4], dr[4], d0[4], da[4], di[4], dn[4], dw[4];
+    double *x = NULL, *v = NULL, *c = NULL, *v0 = NULL, *acc = NULL, *vol = NULL;
     uint64_t *rng = NULL;
     int64_t *id = NULL, *next_id = NULL;
     DrStatus s;
@@ -543,9 +551,14 @@ static DrStatus read_liquid(DrH5 *h, const char *path, WorldLiquid *wl, const Wo
         s = dr_error_set(err, DR_ERR_INPUT, path, 0, 0, "the checkpoint holds no particle ids of '%s' (%s: written "
                          "by an older drench); delete the checkpoint and bake without --resume", name, p);
     if (s == DR_OK) s = dr_h5_read_i64(h, p, &rank, di, &id, err);
+    PATHF(p, "/%s/volume", name);
+    if (s == DR_OK && !dr_h5_has(h, p))
+        s = dr_error_set(err, DR_ERR_INPUT, path, 0, 0, "the checkpoint holds no particle volumes of '%s' (%s: written "
+                         "by an older drench); delete the checkpoint and bake without --resume", name, p);
+    if (s == DR_OK) s = dr_h5_read_f64(h, p, &rank, dw, &vol, err);
     PATHF(p, "/%s/next_id", name);
     if (s == DR_OK) s = dr_h5_read_i64(h, p, &rank, dn, &next_id, err);
-    if (s == DR_OK && (dx[0] != dv[0] || dx[0] != dc[0] || dx[0] != di[0] || dr[0] != 4 || d0[0] != 1 ||
+    if (s == DR_OK && (dx[0] != dv[0] || dx[0] != dc[0] || dx[0] != di[0] || dx[0] != dw[0] || dr[0] != 4 || d0[0] != 1 ||
                        da[0] != 1 || dn[0] != 1))
         s = dr_error_set(err, DR_ERR_INPUT, path, 0, 0, "checkpoint arrays of '%s' disagree in size; delete the "
                          "checkpoint and bake without --resume", name);
@@ -554,7 +567,8 @@ static DrStatus read_liquid(DrH5 *h, const char *path, WorldLiquid *wl, const Wo
         memcpy(rs.rng, rng, sizeof rs.rng);
         rs.cfl_accel = acc[0];
         rs.next_id = next_id[0];
-        s = dr_liquid_restore(wl->liquid, (long)dx[0], x, v, c, id, &rs, err);
+        s = dr_liquid_restore(wl->liquid, (long)dx[0], x, v, c, vol, id, &rs, err);
+        if (s < 0 && err && !err->file[0]) snprintf(err->file, sizeof err->file, "%s", path); /* the checkpoint's */
     }
     if (s == DR_OK) wl->volume0 = v0[0];
     if (s == DR_OK) s = watch_start(wl, ctx, frame + 1, err);
@@ -565,6 +579,7 @@ static DrStatus read_liquid(DrH5 *h, const char *path, WorldLiquid *wl, const Wo
     free(v0);
     free(acc);
     free(id);
+    free(vol);
     free(next_id);
     return s;
 }
@@ -583,6 +598,13 @@ static void liquid_hash(const void *self, DrHasher *h)
     dr_hasher_update(h, st->x, 3 * sizeof(double) * (size_t)st->n);
     dr_hasher_update(h, st->v, 3 * sizeof(double) * (size_t)st->n);
     dr_hasher_update(h, st->c, 9 * sizeof(double) * (size_t)st->n);
+    /* the volumes once a particle is not nominal (a liquid of nominal particles hashes as it did before they had one) */
+    double v0 = dr_liquid_nominal_volume(wl->liquid);
+    for (long i = 0; i < st->n; i++)
+        if (st->vol[i] != v0) {
+            dr_hasher_update(h, st->vol, sizeof(double) * (size_t)st->n);
+            break;
+        }
     DrLiquidResume rs;
     dr_liquid_resume_state(wl->liquid, &rs);
     dr_hasher_update(h, rs.rng, sizeof rs.rng);

@@ -8,6 +8,17 @@ a="$WORK/a"; b="$WORK/b"; c="$WORK/c"
 same_frames() { local f ok=0; for f in "$1"/small_dam/bake/frame.*.h5; do cmp -s "$f" "$2/small_dam/bake/$(basename "$f")" || { echo "differs: $f"; ok=1; }; done
                 [ "$(ls "$1"/small_dam/bake/frame.*.h5 | wc -l)" -eq 12 ] && return $ok; }
 check "two bakes with 2 threads are bit-identical" same_frames "$a" "$b"
+# every particle's own volume (m^3) next to its id: seeded at dx^3/per_cell (0.025^3/8 in small_dam), one per id
+volumes_cached() {
+  local f="$a/small_dam/bake/frame.0006.h5" n
+  h5dump -a /water/volume/units "$f" | grep -q '"m^3"' || return 1
+  n=$(h5 "$f" /water/id | wc -w)
+  [ "$n" -gt 1000 ] && [ "$(h5 "$f" /water/volume | wc -w)" -eq "$n" ] || return 1
+  h5 "$f" /water/volume | awk '{ for (i = 1; i <= NF; i++) if ($i != 0.025 * 0.025 * 0.025 / 8) exit 1 }' || return 1
+  h5dump -a /diagnostics/water/killed_volume/units "$f" | grep -q '"m^3"' &&
+    h5dump -a /diagnostics/water/emitted_volume/units "$f" | grep -q '"m^3"'
+}
+check "the frame cache holds /water/volume (m^3), one nominal volume per particle, and the frame's emitted and killed volumes" volumes_cached
 
 "$BIN/bake" "$scene" -j 2 --out "$c" -q >/dev/null 2>&1 &
 pid=$!

@@ -50,7 +50,7 @@ static void p2g(DrMacGrid *g, double **fm, const double *c)
     assert_int_equal(dr_bins_build(g, N, X, b, &err), DR_OK);
     /* bins: every particle once, cells in order */
     assert_int_equal(b->cell_start[b->ncells], N);
-    dr_transfer_p2g_mac(b, X, V, c, 0.37, false, g, fm);
+    dr_transfer_p2g_mac(b, X, V, c, 0.37, NULL, false, g, fm);
     dr_bins_destroy(&b);
 }
 
@@ -63,7 +63,7 @@ static void test_apic_conservation(void **state)
     double *fm[3];
     DrMacGrid *g = setup(7, fm);
     DrVec3 Pp, Lp, Pg, Lg;
-    dr_transfer_particle_totals(N, X, V, C, 0.37, g->dx, &Pp, &Lp);
+    dr_transfer_particle_totals(N, X, V, C, 0.37, NULL, g->dx, &Pp, &Lp);
     p2g(g, fm, C);
     dr_transfer_grid_totals(g, (const double *const *)fm, (const double *const *)g->f, &Pg, &Lg);
     /* sums of ~10⁵ terms of O(1): relative round-off ~1e-15; 1e-13 as the brief requires */
@@ -77,7 +77,7 @@ static void test_apic_conservation(void **state)
         for (long f = 0; f < g->nfaces[a]; f++) g->f[a][f] = fm[a][f] > 0 ? 2.0 * dr_rng_uniform(&rng) - 1.0 : 0.0;
     dr_transfer_grid_totals(g, (const double *const *)fm, (const double *const *)g->f, &Pg, &Lg);
     dr_transfer_g2p_mac(g, NULL, DR_TRANSFER_APIC, 0.0, false, N, X, V, C);
-    dr_transfer_particle_totals(N, X, V, C, 0.37, g->dx, &Pp, &Lp);
+    dr_transfer_particle_totals(N, X, V, C, 0.37, NULL, g->dx, &Pp, &Lp);
     printf("G2P: momentum rel %.2e, angular rel %.2e\n", rel(Pp, Pg), rel(Lp, Lg));
     assert_true(rel(Pp, Pg) <= 1e-13);
     assert_true(rel(Lp, Lg) <= 1e-13);
@@ -147,6 +147,85 @@ static void test_p2g_thread_independent(void **state)
     teardown(&g, fm);
 }
 
+/* The per-particle mass factor of P2G (scale): all ones gives the bits of NULL; ½ for every particle gives exactly half
+   the face masses (scaling by a power of two is exact in every product and sum) and the same face velocities, and ½
+   for one particle alone half its face masses at its own velocity; random factors keep the conservation identity
+   with the particle totals weighted the same way. */
+static void test_p2g_scale(void **state)
+{
+    (void)state;
+    double *fm[3], *ref[3], *uref[3];
+    DrMacGrid *g = setup(13, fm);
+    DrParticleBins *b = NULL;
+    DrError err;
+    double *scale = malloc(sizeof(double) * N);
+    assert_int_equal(dr_bins_create(g, N, &b, &err), DR_OK);
+    assert_int_equal(dr_bins_build(g, N, X, b, &err), DR_OK);
+    dr_transfer_p2g_mac(b, X, V, C, 0.37, NULL, false, g, fm);
+    for (int a = 0; a < 3; a++) {
+        size_t bytes = sizeof(double) * (size_t)g->nfaces[a];
+        ref[a] = malloc(bytes), uref[a] = malloc(bytes);
+        memcpy(ref[a], fm[a], bytes);
+        memcpy(uref[a], g->f[a], bytes);
+    }
+    for (int p = 0; p < N; p++) scale[p] = 1.0;
+    dr_transfer_p2g_mac(b, X, V, C, 0.37, scale, false, g, fm);
+    for (int a = 0; a < 3; a++) {
+        assert_memory_equal(fm[a], ref[a], sizeof(double) * (size_t)g->nfaces[a]);
+        assert_memory_equal(g->f[a], uref[a], sizeof(double) * (size_t)g->nfaces[a]);
+    }
+    for (int p = 0; p < N; p++) scale[p] = 0.5;
+    dr_transfer_p2g_mac(b, X, V, C, 0.37, scale, false, g, fm);
+    long faces = 0;
+    for (int a = 0; a < 3; a++)
+        for (long f = 0; f < g->nfaces[a]; f++) {
+            assert_true(fm[a][f] == 0.5 * ref[a][f]);
+            assert_true(g->f[a][f] == uref[a][f]);
+            faces += ref[a][f] > 0.0;
+        }
+    assert_true(faces > 1000);
+
+    /* one particle alone, at ½: half the face masses, its own velocity on every face it reaches (PIC) */
+    double half = 0.5;
+    assert_int_equal(dr_bins_build(g, 1, X, b, &err), DR_OK);
+    dr_transfer_p2g_mac(b, X, V, NULL, 0.37, NULL, false, g, ref);
+    dr_transfer_p2g_mac(b, X, V, NULL, 0.37, &half, false, g, fm);
+    faces = 0;
+    for (int a = 0; a < 3; a++)
+        for (long f = 0; f < g->nfaces[a]; f++) {
+            assert_true(fm[a][f] == 0.5 * ref[a][f]);
+            if (fm[a][f] > 0.0) {
+                assert_true(fabs(g->f[a][f] - V[a]) <= 1e-15 * fabs(V[a])); /* (w m v)/(w m): one rounding each */
+                faces++;
+            }
+        }
+    assert_int_equal(faces, 3 * 27);
+
+    /* random factors: Σ m_f u_f and Σ x_f × m_f u_f equal the particle totals with m_p = 0.37·scale[p] */
+    DrRng rng;
+    dr_rng_seed(&rng, 17);
+    for (int p = 0; p < N; p++) scale[p] = 0.1 + 1.9 * dr_rng_uniform(&rng);
+    assert_int_equal(dr_bins_build(g, N, X, b, &err), DR_OK);
+    dr_transfer_p2g_mac(b, X, V, C, 0.37, scale, false, g, fm);
+    DrVec3 Pp, Lp, Pg, Lg;
+    dr_transfer_particle_totals(N, X, V, C, 0.37, scale, g->dx, &Pp, &Lp);
+    dr_transfer_grid_totals(g, (const double *const *)fm, (const double *const *)g->f, &Pg, &Lg);
+    double msum = 0.0, mface = 0.0;
+    for (int p = 0; p < N; p++) msum += 0.37 * scale[p];
+    for (int a = 0; a < 3; a++)
+        for (long f = 0; f < g->nfaces[a]; f++) mface += fm[a][f];
+    printf("P2G with mass factors: mass rel %.2e, momentum rel %.2e, angular rel %.2e\n",
+           fabs(mface / 3.0 - msum) / msum, rel(Pg, Pp), rel(Lg, Lp));
+    /* as test_apic_conservation: sums of ~10⁵ terms, round-off ~1e-15 */
+    assert_true(fabs(mface / 3.0 - msum) <= 1e-13 * msum);
+    assert_true(rel(Pg, Pp) <= 1e-13);
+    assert_true(rel(Lg, Lp) <= 1e-13);
+    for (int a = 0; a < 3; a++) free(ref[a]), free(uref[a]);
+    free(scale);
+    dr_bins_destroy(&b);
+    teardown(&g, fm);
+}
+
 /* Walls: 2 particles per axis per cell at ¼ and ¾ of the cell (the unjittered seeding) fill a 6³ grid;
    with the kernel folded at the walls every face that is not itself on a wall gets the same mass, 8 m_p
    (each half-spacing sub-lattice sums the B-spline weights to one per axis, and the mirror image of one
@@ -177,7 +256,7 @@ static void test_wall_fold(void **state)
     assert_int_equal(dr_bins_build(g, NP, x, b, &err), DR_OK);
     for (int no_slip = 0; no_slip < 2; no_slip++) {
         double mp = 0.37;
-        dr_transfer_p2g_mac(b, x, v, NULL, mp, no_slip, g, fm);
+        dr_transfer_p2g_mac(b, x, v, NULL, mp, NULL, no_slip, g, fm);
         double dev = 0.0;
         for (int a = 0; a < 3; a++)
             for (long f = 0; f < g->nfaces[a]; f++) {
@@ -236,7 +315,7 @@ static void test_mac_rpic(void **state)
                 e = fmax(e, fabs(c2[9 * p + 3 * a + b] - 0.5 * (C[9 * p + 3 * a + b] - C[9 * p + 3 * b + a])));
         }
     }
-    dr_transfer_particle_totals(N, X, v2, c2, 0.37, g->dx, &Pp, &Lp);
+    dr_transfer_particle_totals(N, X, v2, c2, 0.37, NULL, g->dx, &Pp, &Lp);
     printf("MAC RPIC: |c − skew(c_APIC)| %.1e, momentum rel %.1e, angular rel %.1e\n", e, rel(Pp, Pg), rel(Lp, Lg));
     assert_true(e == 0.0); /* the same numbers, halved differences */
     assert_true(rel(Pp, Pg) <= 1e-13 && rel(Lp, Lg) <= 1e-13);
@@ -597,7 +676,7 @@ static void test_node_degenerate_and_order(void **state)
 int main(void)
 {
     const struct CMUnitTest tests[] = {cmocka_unit_test(test_apic_conservation), cmocka_unit_test(test_affine_round_trip),
-                                       cmocka_unit_test(test_p2g_thread_independent),
+                                       cmocka_unit_test(test_p2g_thread_independent), cmocka_unit_test(test_p2g_scale),
                                        cmocka_unit_test(test_wall_fold), cmocka_unit_test(test_mac_rpic),
                                        cmocka_unit_test(test_kernels), cmocka_unit_test(test_node_grid_create),
                                        cmocka_unit_test(test_node_g2p_rules), cmocka_unit_test(test_isolated_particle),

@@ -184,15 +184,15 @@ static void test_restore(void **state)
 
     DrLiquidResume low = rs;
     low.next_id = 1;
-    assert_int_equal(dr_liquid_restore(b, n, x, v, c, id, &low, &err), DR_ERR_INPUT);
+    assert_int_equal(dr_liquid_restore(b, n, x, v, c, NULL, id, &low, &err), DR_ERR_INPUT);
     assert_non_null(strstr(err.message, "outside"));
     int64_t keep = id[n - 1];
     id[n - 1] = id[0];
-    assert_int_equal(dr_liquid_restore(b, n, x, v, c, id, &rs, &err), DR_ERR_INPUT);
+    assert_int_equal(dr_liquid_restore(b, n, x, v, c, NULL, id, &rs, &err), DR_ERR_INPUT);
     assert_non_null(strstr(err.message, "two particles"));
     id[n - 1] = keep;
 
-    assert_int_equal(dr_liquid_restore(b, n, x, v, c, id, &rs, &err), DR_OK);
+    assert_int_equal(dr_liquid_restore(b, n, x, v, c, NULL, id, &rs, &err), DR_OK);
     for (int f = 4; f < 8; f++) {
         advance(a, f / 24.0, (f + 1) / 24.0);
         advance(b, f / 24.0, (f + 1) / 24.0);

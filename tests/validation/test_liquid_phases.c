@@ -641,7 +641,7 @@ static void test_phase_input(void **state)
     dr_face_coupling_destroy(&fc);
     /* no particles */
     double none[9] = {0};
-    assert_int_equal(dr_liquid_restore(liq, 0, none, none, none, NULL, &(DrLiquidResume){{1, 2, 3, 4}, 0.0, 0}, &err), DR_OK);
+    assert_int_equal(dr_liquid_restore(liq, 0, none, none, none, NULL, NULL, &(DrLiquidResume){{1, 2, 3, 4}, 0.0, 0}, &err), DR_OK);
     assert_int_equal(dr_liquid_stable_dt(liq, NULL, 0, 0.25, 0.5, &h, &err), DR_OK);
     assert_true(h == 0.25);
     assert_int_equal(dr_liquid_begin(liq, NULL, 0, 0.25, h, &err), DR_OK);
