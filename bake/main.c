@@ -185,6 +185,14 @@ static void append_progress(const char *path, const DrFrameStats *fs, const Fram
                 fs->hair.film_volume, fs->hair.pool_volume, fs->hair.film_max_ratio, fs->hair.film_kinetic_energy,
                 fs->hair.film_gravity_energy, fs->hair.film_substeps, fs->hair.bridges, fs->hair.solid_bridges,
                 fs->hair.cross_flow);
+    if (fs->hair.exchange) /* capture, dripping and the volume ledger, m^3 */
+        fprintf(f,
+                "\"captured\":%.9g,\"dripped\":%.9g,\"drops\":%ld,\"captured_particles\":%ld,\"drip_held_back\":%.9g,"
+                "\"volume_bulk\":%.12g,\"volume_emitted\":%.12g,\"volume_removed\":%.12g,\"volume_total\":%.12g,"
+                "\"volume_initial\":%.12g,\"volume_error\":%.3g,",
+                fs->hair.captured, fs->hair.dripped, fs->hair.drops, fs->hair.captured_particles, fs->hair.held_back,
+                fs->hair.ledger_bulk, fs->hair.ledger_emitted, fs->hair.ledger_removed, fs->hair.ledger_total,
+                fs->hair.ledger_initial, fs->hair.ledger_error);
     if (fs->coupling.steps > 0) /* the coupled loop (src/couple): iterations and the momentum ledger, N s */
         fprintf(f,
                 "\"coupling_steps\":%d,\"coupling_iterations\":%ld,\"coupling_iterations_max\":%d,"
@@ -203,6 +211,7 @@ static void append_progress(const char *path, const DrFrameStats *fs, const Fram
     if (fs->hair.wet) /* parts of "hair" */
         fprintf(f, "\"film\":%.6f,\"cross_flow\":%.6f,\"bridges\":%.6f,", fs->hair.seconds_film,
                 fs->hair.seconds_cross_flow, fs->hair.seconds_bridges);
+    if (fs->hair.exchange) fprintf(f, "\"capture_drip\":%.6f,", fs->hair.seconds_exchange);
     if (fs->bem.present)
         fprintf(f,
                 "\"bem_history\":%.6f,\"bem_solve\":%.6f,\"bem_correction\":%.6f,\"bem_trial\":%.6f,"

@@ -824,20 +824,20 @@ static DrStatus check_bem_joints(Parser *p)
     return DR_OK;
 }
 
-/* Wet hair: a hair element is wet when it has a Wetting component; Film, Cohesion and CrossFlow need it. Every wet
-   hair element's strands share one film model, one pair of cohesion tables and one bridge model (bridges join strands
-   of different elements), so their Wetting, Cohesion, CrossFlow and Film (but initial_ratio) must agree; and a
-   Wetting.liquid names a liquid element. */
+/* Wet hair: a hair element is wet when it has a Wetting component; Film, Cohesion, CrossFlow, Capture and Dripping
+   need it. Every wet hair element's strands share one film model, one pair of cohesion tables, one bridge model
+   (bridges join strands of different elements) and one exchange with the liquid, so their Wetting, Cohesion,
+   CrossFlow, Capture, Dripping and Film (but initial_ratio) must agree; and a Wetting.liquid names a liquid element. */
 static DrStatus check_wet_hair(Parser *p)
 {
     const DrScene *s = p->s;
-    static const char *const needs[] = {"Film", "Cohesion", "CrossFlow"};
+    static const char *const needs[] = {"Film", "Cohesion", "CrossFlow", "Capture", "Dripping"};
     const DrElement *first = NULL;
     for (int i = 0; i < s->element_count; i++) {
         const DrElement *e = &s->elements[i];
         if (e->kind != DR_ELEMENT_HAIR) continue;
         const DrComponent *w = dr_element_component(e, "Wetting");
-        for (int k = 0; k < 3; k++) {
+        for (int k = 0; k < 5; k++) {
             if (w->present || !dr_element_component(e, needs[k])->present) continue;
             push_index(p, e->index);
             push_key(p, "components");
@@ -864,9 +864,11 @@ static DrStatus check_wet_hair(Parser *p)
             continue;
         }
         static const Shared shared[] = {
-            {"Wetting", NULL, NULL}, {"Cohesion", NULL, NULL}, {"CrossFlow", NULL, NULL}, {"Film", NULL, "initial_ratio"}};
-        DR_TRY(check_pair(p, first, e, shared, 4,
-                          "the strands of every wet hair element share one film, cohesion and cross-flow model"));
+            {"Wetting", NULL, NULL}, {"Cohesion", NULL, NULL}, {"CrossFlow", NULL, NULL},
+            {"Capture", NULL, NULL}, {"Dripping", NULL, NULL}, {"Film", NULL, "initial_ratio"}};
+        DR_TRY(check_pair(p, first, e, shared, 6,
+                          "the strands of every wet hair element share one film, cohesion, cross-flow, capture and "
+                          "dripping model"));
     }
     return DR_OK;
 }

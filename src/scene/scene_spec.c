@@ -448,6 +448,39 @@ static const DrFieldSpec cross_flow_fields[] = {
      .hint = "use a positive rate such as 1"},
 };
 
+static const DrFieldSpec capture_fields[] = {
+    {.name = "enabled", .kind = DR_FIELD_BOOL, .unit = "", .def = {1},
+     .doc = "liquid particles touching a strand's film are absorbed into it (with a liquid in the scene)"},
+    {.name = "rate", .kind = DR_FIELD_NUMBER, .unit = "1/s", .def = {10}, RANGE(0, 1e6),
+     .doc = "how fast: a particle within reach gives the film the share 1 - exp(-rate dt) of its volume per step of dt"},
+    {.name = "capacity", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {1}, RANGE(0, 1),
+     .doc = "capture fills a strand up to this share of the largest film it holds (Film.max_ratio)"},
+    {.name = "reach", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {1}, RANGE(0, 10),
+     .doc = "how far beyond the film's surface a particle is within reach, in particle radii"},
+};
+
+static const DrFieldSpec dripping_fields[] = {
+    {.name = "enabled", .kind = DR_FIELD_BOOL, .unit = "", .def = {1},
+     .doc = "film beyond what a strand holds leaves it as liquid particles (with a liquid in the scene)"},
+    {.name = "radius_scale", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {0.5}, RANGE_LO_OPEN(0, 100),
+     .doc = "c in the largest drop a strand holds per cell, V_max = 4 pi r c^2 sigma / (rho a_n), a_n the strand's "
+            "acceleration across itself (gravity included)", .hint = "use a positive scale such as 0.5"},
+    {.name = "middle", .kind = DR_FIELD_BOOL, .unit = "", .def = {1},
+     .doc = "drip along the strands where a cell holds more than V_max"},
+    {.name = "root", .kind = DR_FIELD_BOOL, .unit = "", .def = {0},
+     .doc = "release the liquid gathered at the roots"},
+    {.name = "tip", .kind = DR_FIELD_BOOL, .unit = "", .def = {1},
+     .doc = "release the liquid gathered at the tips"},
+    {.name = "min_drop", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {0.5}, RANGE(0, 100),
+     .doc = "a cell drips once its excess reaches this many liquid particles' volume"},
+    {.name = "pool_release", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {1}, RANGE_LO_OPEN(0, 1e6),
+     .doc = "an end's pool is released once it holds this many liquid particles' volume",
+     .hint = "use a positive number such as 1"},
+    {.name = "budget", .kind = DR_FIELD_INT, .unit = "", .def = {20000}, RANGE(1, 100000000),
+     .doc = "most drops made per step; film beyond it stays on the strands (with a warning), so a blow-up cannot "
+            "flood the bake with particles"},
+};
+
 static const DrFieldSpec motion_fields[] = {
     {.name = "keys", .kind = DR_FIELD_TABLE, .unit = "frame, m, deg", .arity = 7, POS_RANGE,
      .doc = "rows [frame, tx, ty, tz, rx_deg, ry_deg, rz_deg]: rigid motion applied after Transform, "
@@ -603,6 +636,10 @@ const DrComponentSpec dr_scene_components_[] = {
                  "hair element); needs Wetting", cohesion_fields, COUNT(cohesion_fields)},
     {"CrossFlow", "film flowing between bridged strands (the same on every wet hair element); needs Wetting",
      cross_flow_fields, COUNT(cross_flow_fields)},
+    {"Capture", "bulk liquid absorbed into the film of the strands it touches (the same on every wet hair element); "
+                "needs Wetting", capture_fields, COUNT(capture_fields)},
+    {"Dripping", "film a strand cannot hold released as liquid particles, along the strands and from their ends (the "
+                 "same on every wet hair element); needs Wetting", dripping_fields, COUNT(dripping_fields)},
     {"Drag", "couples a hair element two ways with the liquid: anisotropic porous drag, lift and buoyancy in the "
              "coupled loop (solver.coupling_iterations); hair without it does not feel the liquid",
      drag_fields, COUNT(drag_fields)},
@@ -632,7 +669,7 @@ static const char *const mpm_solid_required[] = {"Domain", "MpmShape"};
 static const char *const hair_components[] = {"Groom",          "RodMaterial",       "Collider",   "Transform",
                                               "Motion",         "CollisionGroup",    "CollisionResponse", "HairSolver",
                                               "Wetting",        "Film",              "Cohesion",   "CrossFlow",
-                                              "Drag"};
+                                              "Capture",        "Dripping",          "Drag"};
 static const char *const hair_required[] = {"Groom"};
 static const char *const bem_solid_components[] = {"Mesh",      "LinearElastic",   "Compression", "BemSolver",
                                                    "Transform", "InitialVelocity", "Collider",    "FixedVertices"};

@@ -157,6 +157,9 @@ typedef struct DrStageWet {
     DrFilmDesc film;              /* gravity left at its default: the world sets the shot's */
     DrBridgeDesc bridges;
     DrCohesionDesc tables[2];     /* [0] two cylinders, [1] cylinder–plane */
+    bool capture, dripping;       /* Capture.enabled, Dripping.enabled (they act only beside a liquid) */
+    DrCaptureDesc capture_desc;
+    DrDripDesc drip_desc;
 } DrStageWet;
 DR_NODISCARD DrStatus dr_stage_wet_settings(const DrScene *scene, DrStageWet *out, DrError *err);
 

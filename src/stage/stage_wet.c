@@ -50,6 +50,21 @@ DrStatus dr_stage_wet_settings(const DrScene *scene, DrStageWet *out, DrError *e
     out->bridges.solid_radius_multiplier = dr_component_num(c, "solid_radius_multiplier");
     out->bridges.cross_flow = dr_component_bool(x, "enabled");
     out->bridges.cross_flow_rate = dr_component_num(x, "rate");
+    const DrComponent *cap = dr_element_component(first, "Capture"), *dr = dr_element_component(first, "Dripping");
+    out->capture = dr_component_bool(cap, "enabled");
+    dr_capture_desc_default(&out->capture_desc);
+    out->capture_desc.rate = dr_component_num(cap, "rate");
+    out->capture_desc.capacity = dr_component_num(cap, "capacity");
+    out->capture_desc.reach = dr_component_num(cap, "reach");
+    out->dripping = dr_component_bool(dr, "enabled");
+    dr_drip_desc_default(&out->drip_desc);
+    out->drip_desc.radius_scale = dr_component_num(dr, "radius_scale");
+    out->drip_desc.middle = dr_component_bool(dr, "middle");
+    out->drip_desc.root = dr_component_bool(dr, "root");
+    out->drip_desc.tip = dr_component_bool(dr, "tip");
+    out->drip_desc.min_drop = dr_component_num(dr, "min_drop");
+    out->drip_desc.pool_release = dr_component_num(dr, "pool_release");
+    out->drip_desc.budget = dr_component_int(dr, "budget");
     for (int k = 0; k < 2; k++) {
         DrCohesionDesc *d = &out->tables[k];
         dr_cohesion_desc_default(d);

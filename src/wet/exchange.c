@@ -352,11 +352,10 @@ static DrVec3 vertex_tangent(const double *x, int o, int n, int i)
     return l > 0 ? dr_v3_scale(d, 1 / l) : dr_v3(1, 0, 0);
 }
 
-/* g − a at vertex i, a = (v − v_prev)/h the strand's acceleration over the step (0 without v_prev). */
-static DrVec3 effective_gravity(const DrFilmDesc *fd, const DrWetStrands *s, double h, int i)
+/* g − a at vertex i, a the strand's acceleration over its last step (0 without one). */
+static DrVec3 effective_gravity(const DrFilmDesc *fd, const DrWetStrands *s, int i)
 {
-    if (!s->v_prev || !(h > 0)) return fd->gravity;
-    return dr_v3_sub(fd->gravity, dr_v3_scale(dr_v3_sub(ld3(s->v + 3 * i), ld3(s->v_prev + 3 * i)), 1.0 / h));
+    return s->accel ? dr_v3_sub(fd->gravity, ld3(s->accel + 3 * i)) : fd->gravity;
 }
 
 static DrVec3 clamp_box(DrVec3 p, const DrBulk *b)
@@ -384,7 +383,7 @@ static DrStatus add_drops(DrExchange *e, const DrBulk *b, double rho, long n, do
     return DR_OK;
 }
 
-DrStatus dr_exchange_drip(DrExchange *e, DrFilm *f, const DrWetStrands *s, const DrBulk *b, double h, DrDrops *drops,
+DrStatus dr_exchange_drip(DrExchange *e, DrFilm *f, const DrWetStrands *s, const DrBulk *b, DrDrops *drops,
                           DrExchangeStats *stats, DrError *err)
 {
     e->drops.n = 0;
@@ -411,7 +410,7 @@ DrStatus dr_exchange_drip(DrExchange *e, DrFilm *f, const DrWetStrands *s, const
         for (int k = 0; k < fs.nstrands; k++) {
             int o = off[k], n = off[k + 1] - o;
             for (int i = o; i < o + n; i++) {
-                DrVec3 t = vertex_tangent(s->x, o, n, i), g = effective_gravity(fd, s, h, i);
+                DrVec3 t = vertex_tangent(s->x, o, n, i), g = effective_gravity(fd, s, i);
                 e->tan[3 * i] = t.x, e->tan[3 * i + 1] = t.y, e->tan[3 * i + 2] = t.z;
                 e->an[i] = dr_v3_norm(dr_v3_sub(g, dr_v3_scale(t, dr_v3_dot(g, t))));
                 long key = 0;
@@ -467,7 +466,7 @@ DrStatus dr_exchange_drip(DrExchange *e, DrFilm *f, const DrWetStrands *s, const
                 ex += w;
                 P = dr_v3_add(P, ld3(e->Pout + 3 * i));
                 c = dr_v3_add(c, dr_v3_scale(ld3(s->x + 3 * i), w));
-                DrVec3 t = ld3(e->tan + 3 * i), g = effective_gravity(fd, s, h, i);
+                DrVec3 t = ld3(e->tan + 3 * i), g = effective_gravity(fd, s, i);
                 if (dr_v3_dot(t, T) < 0) t = dr_v3_scale(t, -1);
                 T = dr_v3_add(T, dr_v3_scale(t, w));
                 G = dr_v3_add(G, dr_v3_scale(dr_v3_sub(g, dr_v3_scale(t, dr_v3_dot(g, t))), w));

@@ -245,11 +245,11 @@ const double *dr_film_lengths(const DrFilm *f);
  * 1 − e^{−rate·h} of its volume (a rate in 1/s: the same capture for any step), split between the edge's vertices by
  * the closest point's position along it; a vertex offered more than its room takes the same fraction of every offer.
  *
- * Dripping (film → bulk), at the end of a step of h seconds.
+ * Dripping (film → bulk).
  *  - Middle: per cell of the bulk's lattice (cells of dx from `lo`), the film of the vertices in the cell holds at most
  *    V_max = 4π r̄ κ⁻² c², κ⁻² = σ/(ρ ā_n) (c = radius_scale; r̄ and ā_n the Voronoi-length weighted mean radius and
- *    normal acceleration of those vertices; a_n = |(g − a)⊥| with a = (v − v_prev)/h the strand's solved acceleration
- *    and ⊥ across its tangent). A cell whose excess E exceeds min_drop times the nominal particle volume V₀ loses
+ *    normal acceleration of those vertices; a_n = |(g − a)⊥| with a the strand's solved acceleration over its last
+ *    step and ⊥ across its tangent). A cell whose excess E exceeds min_drop times the nominal particle volume V₀ loses
  *    exactly E, every vertex the same share of its volume, as ⌈E/V₀⌉ equal drops carrying the momentum the film lost
  *    there, placed along the cell's mean tangent below the film (along g − a), beyond the reach of capture.
  *  - Ends: a pool (root, tip: each switchable) of at least pool_release·V₀ is released whole as ⌈V/V₀⌉ equal drops
@@ -285,12 +285,12 @@ typedef struct DrBulk {
 } DrBulk;
 
 /* The strands as capture and dripping see them (borrowed for a call): positions of the film's last step, velocities
-   (in/out: exchanges move them, as dr_film_transfer), the velocities at the step's start (NULL: no acceleration),
-   the hair's mass per vertex (kg). */
+   (in/out: exchanges move them, as dr_film_transfer), the strands' acceleration over their last step (m/s², NULL:
+   none), the hair's mass per vertex (kg). */
 typedef struct DrWetStrands {
     const double *x;
     double *v;
-    const double *v_prev;
+    const double *accel;
     const double *mass;
 } DrWetStrands;
 
@@ -318,8 +318,8 @@ void dr_exchange_destroy(DrExchange **e);
 /* Capture over a step of h seconds; stats (may be NULL) accumulate. DR_ERR_NOMEM. Bit-identical for any thread count. */
 DR_NODISCARD DrStatus dr_exchange_capture(DrExchange *e, DrFilm *f, const DrWetStrands *s, DrBulk *b, double h,
                                           DrExchangeStats *stats, DrError *err);
-/* Dripping at the end of a step of h seconds: the drops into *drops (owned by e); stats accumulate. DR_ERR_NOMEM. */
-DR_NODISCARD DrStatus dr_exchange_drip(DrExchange *e, DrFilm *f, const DrWetStrands *s, const DrBulk *b, double h,
+/* Dripping: the drops into *drops (owned by e, valid until its next call); stats accumulate. DR_ERR_NOMEM. */
+DR_NODISCARD DrStatus dr_exchange_drip(DrExchange *e, DrFilm *f, const DrWetStrands *s, const DrBulk *b,
                                        DrDrops *drops, DrExchangeStats *stats, DrError *err);
 
 /* ---- bridges between strands and against solids (fei2017 §S1, eq. S28; §S5) ------------------------------------

@@ -210,6 +210,11 @@ static DrStatus build(DrWorld *w, const DrWorldDesc *desc, DrError *err)
             BUILD_TRY(DR_ELEMENT_BEM_SOLID, elements[i], world_kinematics_body_couple(w->kin, i, err));
             if (w->nliquids > 0) w->solvers[0].lockstep = true;
         }
+    /* capture and dripping between the first liquid and the wet hair: both stand at every clock step's end */
+    if (world_kinematics_wet(w->kin)->on && w->nliquids > 0) {
+        w->solvers[0].lockstep = true;
+        if (w->hair) w->hair->lockstep = true;
+    }
     /* MPM solids two-way with the first liquid: its substep hands them the pressure's impulse at every clock step */
     if (world_kinematics_mpm_coupled(w->kin) && w->nliquids > 0) w->solvers[0].lockstep = true;
     if (w->bem_built.self) {

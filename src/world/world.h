@@ -78,6 +78,16 @@ typedef struct DrHairFrameStats {
     double seconds_film;               /* the film's steps along the strands */
     double seconds_bridges;            /* finding the bridges, their rows in the system, the film's load on it */
     double seconds_cross_flow;         /* the film's flow across bridges and its exchange with the strands */
+    /* capture and dripping with the first liquid (Capture, Dripping; all zero without): the frame's transfers and
+       the volume ledger at its end, m³. bulk + film + pools + removed − emitted is the initial volume (bulk: the
+       liquid's particles; removed: by kill boxes since the bake's start; emitted: by emitters since then) */
+    bool exchange;
+    double captured, dripped;          /* m³ moved in the frame */
+    long drops, captured_particles;    /* drops made, particles wholly captured (removed from the liquid) */
+    double held_back;                  /* m³ the drop budget kept on the strands in the frame (a warning) */
+    double ledger_bulk, ledger_emitted, ledger_removed, ledger_total, ledger_initial;
+    double ledger_error;               /* (total − initial) / max(initial, bulk + film + pools + removed) */
+    double seconds_exchange;           /* capture and dripping (not part of `seconds`) */
 } DrHairFrameStats;
 
 typedef struct DrBemFrameStats {

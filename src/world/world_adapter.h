@@ -94,6 +94,40 @@ DR_NODISCARD DrStatus world_kinematics_set_mpm_particles(WorldKinematics *k, lon
                                                          DrError *err);
 /* The coupled particles, NULL when not coupled. */
 WorldMpmParticles *world_kinematics_mpm_particles(WorldKinematics *k);
+/* Capture and dripping between the first liquid and the wet hair (DESIGN §8 step 4; world_wet.c explains the step).
+   The liquid adapter sets `liquid` when it builds (the first liquid only); the hair adapter, when a wet hair element
+   has Capture or Dripping enabled and the scene has a liquid, creates the exchange, points at its film and strands
+   and turns it on (both then step at every clock step). The liquid's step runs the exchange at its start, when the
+   hair stands where its last step left it, at the same time. The ledger's figures are the bake's, kept in the hair's
+   checkpoint. */
+typedef struct WorldWetLink {
+    bool on;
+    DrLiquid *liquid;
+    struct DrFilm *film;
+    struct DrExchange *exchange;
+    const double *x;          /* the strands now (3 nverts) */
+    double *v;                /* their velocities (exchanges change them) */
+    const double *accel;      /* their acceleration over their last step, m/s² (NULL before the first) */
+    const double *mass;       /* the hair's mass per vertex, kg */
+    double t_last;            /* the last exchange's time, s (the bake's start before the first) */
+    /* the frame's, m³: what moved between the bulk and the film, and what the drop budget kept back; drops made; the
+       exchange's wall time */
+    double captured, dripped, held;
+    long drops, captured_particles;
+    double seconds;
+    /* the ledger since the bake's start, m³: bulk + film + pools then, and what the liquid's emitters added and its
+       kill boxes removed since (the liquid adapter adds its frame's at every frame end) */
+    double initial, emitted, removed;
+} WorldWetLink;
+/* The ledger starts at time t (building a bake from its first frame): its initial volume from the state now. */
+void world_wet_start(WorldWetLink *w, double t);
+WorldWetLink *world_kinematics_wet(WorldKinematics *k);
+/* The exchange at time t (a no-op unless on): capture over the time since the last one, the particles wholly
+   captured removed, then dripping, the drops added to the liquid. DR_ERR_NOMEM, or the liquid's DR_ERR_INPUT. */
+DR_NODISCARD DrStatus world_wet_exchange(WorldWetLink *w, double t, DrError *err);
+/* The volume of the liquid's particles, of the film on the strands and of their pools, m³. */
+void world_wet_volumes(const WorldWetLink *w, double *bulk, double *film, double *pools);
+
 /* Before body i (in the order given to world_kinematics_add_bodies) takes a step from t0: its frame there. After it
    (to t1): its collider carries it through the frame so far, keyed from the frame's start t_frame to t1 (and one key
    past t1 along its velocity), so a solver's step may span several BEM steps; its SDF follows the deformed surface

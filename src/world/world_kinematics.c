@@ -62,6 +62,7 @@ struct WorldKinematics {
     WorldPosedCollider *body_posed; /* the bodies posed at the clock step's end, as the hair sees them */
     DrPointField *mpm_surface; /* the MPM particles as a surface for the hair, NULL without hair or MPM */
     WorldMpmParticles mpm;   /* the MPM particles two-way with the first liquid (world_kinematics_mpm_couple) */
+    WorldWetLink wet;        /* capture and dripping between the first liquid and the wet hair */
     DrVec3 gravity;          /* the shot's, m/s² (the bodies' proxies) */
     DrLiquidBody *lbodies;   /* the two-way bodies as the liquid's substep takes them, and their body indices */
     int *lb_body;
@@ -858,3 +859,5 @@ DrStatus world_kinematics_set_mpm_particles(WorldKinematics *k, long n, const do
 }
 
 WorldMpmParticles *world_kinematics_mpm_particles(WorldKinematics *k) { return k->mpm.on ? &k->mpm : NULL; }
+
+WorldWetLink *world_kinematics_wet(WorldKinematics *k) { return &k->wet; }

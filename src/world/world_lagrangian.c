@@ -38,6 +38,12 @@ typedef struct WorldWet {
     DrFilmStats film_frame;    /* summed over the frame */
     double cross_flow;         /* m³ over the frame */
     double seconds_film, seconds_bridges, seconds_cross_flow; /* the frame's, disjoint parts of the hair's seconds */
+    /* capture and dripping with the first liquid (world_wet.c): the exchange, the link it is driven through, and the
+       strands' velocities at the start of a step and their acceleration over the last one */
+    DrExchange *exchange;
+    WorldWetLink *link;
+    double *v_start, *accel;
+    bool warned_budget;
 } WorldWet;
 
 /* Hair coupled two ways with a fluid (elements with a Drag component; src/couple): per vertex the element's law, the
@@ -103,6 +109,9 @@ static void wet_destroy(WorldWet **wp)
     if (!w) return;
     dr_bridges_destroy(&w->bridges);
     dr_film_destroy(&w->film);
+    dr_exchange_destroy(&w->exchange);
+    free(w->v_start);
+    free(w->accel);
     for (int k = 0; k < 2; k++) dr_cohesion_destroy(&w->tables[k]);
     void *a[] = {w->radius, w->thickness, w->batch, w->group, w->mask, w->self, w->held, w->force, w->dfdv,
                  w->block_dof, w->block, w->x_old, w->dV, w->heights};
@@ -297,6 +306,22 @@ static DrStatus build_wet(const WorldCtx *c, WorldHair *h, const char *cache_roo
     DR_TRY(dr_error_prefix(st, err, "%s.Film", set.element->name));
     DR_TRY(dr_error_prefix(dr_bridges_create(&w->set.bridges, w->tables[0], w->tables[1], &w->bridges, err), err,
                            "%s.Cohesion", set.element->name));
+    /* capture and dripping, beside a liquid */
+    WorldWetLink *link = world_kinematics_wet(c->kin);
+    if ((set.capture || set.dripping) && link->liquid) {
+        DrCaptureDesc cd = set.capture_desc;
+        DrDripDesc dd = set.drip_desc;
+        if (!set.capture) cd.rate = 0.0;
+        if (!set.dripping) dd.middle = dd.root = dd.tip = false;
+        DR_TRY(dr_error_prefix(dr_exchange_create(&cd, &dd, &w->exchange, err), err, "%s.Capture/Dripping",
+                               set.element->name));
+        DR_TRY(dr_calloc(3 * (size_t)V, sizeof(double), &w->v_start, err));
+        DR_TRY(dr_calloc(3 * (size_t)V, sizeof(double), &w->accel, err));
+        *link = (WorldWetLink){.on = true, .liquid = link->liquid, .film = w->film, .exchange = w->exchange,
+                               .x = rs.x, .v = rs.v, .accel = NULL, .mass = rs.mass};
+        w->link = link;
+        world_wet_start(link, c->t0); /* a resumed bake reads the ledger back */
+    }
     return DR_OK;
 }
 
@@ -356,6 +381,8 @@ static void hair_begin_frame(void *self, const WorldCtx *c)
         memset(&h->wet->film_frame, 0, sizeof h->wet->film_frame);
         h->wet->cross_flow = 0;
         h->wet->seconds_film = h->wet->seconds_bridges = h->wet->seconds_cross_flow = 0;
+        WorldWetLink *l = h->wet->link;
+        if (l) l->captured = l->dripped = l->held = l->seconds = 0, l->drops = l->captured_particles = 0;
     }
 }
 
@@ -407,6 +434,7 @@ static DrStatus system_predict(WorldHair *h, double dt, DrError *err)
 {
     WorldWet *w = h->wet;
     DrRodState rs = dr_rod_set_state(h->rods);
+    if (w && w->link) memcpy(w->v_start, rs.v, 3 * (size_t)rs.nverts * sizeof(double));
     DR_TRY(dr_rod_set_predict_dofs(h->rods, dt, h->any_motion ? h->poses : NULL, err));
     DrLagDofs d;
     DR_TRY(dr_lag_dofs(h->system, &d, err));
@@ -495,6 +523,11 @@ static DrStatus system_commit(WorldHair *h, double dt, DrError *err)
         if (bst.cross_flow > 0) dr_film_exchange(w->film, rs.x, w->dV, rs.v, rs.mass);
         w->cross_flow += bst.cross_flow;
         w->seconds_cross_flow += dr_time_now() - tc;
+        if (w->link) {
+            /* the strands' acceleration over the step, which sets how much film they hold (dripping) */
+            for (long i = 0; i < 3L * rs.nverts; i++) w->accel[i] = (rs.v[i] - w->v_start[i]) / dt;
+            w->link->accel = w->accel;
+        }
     }
     return DR_OK;
 }
@@ -686,6 +719,35 @@ static DrStatus hair_end_frame(void *self, const WorldCtx *c, DrFrameStats *stat
         b->seconds_film = w->seconds_film;
         b->seconds_bridges = w->seconds_bridges;
         b->seconds_cross_flow = w->seconds_cross_flow;
+        if (w->link) {
+            /* the volume ledger: the liquid's end_frame (earlier in the frame's end) booked its emitters and kill
+               boxes into the link */
+            const WorldWetLink *l = w->link;
+            double bulk, film, pools;
+            world_wet_volumes(l, &bulk, &film, &pools);
+            b->exchange = true;
+            b->captured = l->captured;
+            b->dripped = l->dripped;
+            b->drops = l->drops;
+            b->captured_particles = l->captured_particles;
+            b->held_back = l->held;
+            b->ledger_bulk = bulk;
+            b->ledger_emitted = l->emitted;
+            b->ledger_removed = l->removed;
+            b->ledger_total = bulk + film + pools + l->removed - l->emitted;
+            b->ledger_initial = l->initial;
+            /* relative to the volume there is (the initial may be 0: liquid that only emitters bring) */
+            double scale = fmax(l->initial, bulk + film + pools + l->removed);
+            b->ledger_error = scale > 0 ? (b->ledger_total - b->ledger_initial) / scale : 0.0;
+            b->seconds_exchange = l->seconds;
+            if (l->held > 0 && !w->warned_budget) {
+                w->warned_budget = true;
+                dr_log_warn("%s: frame %d: %.3g m^3 of film stayed on the strands because Dripping.budget = %ld drops "
+                            "a step was reached; the strands may be blowing up (look at hair_max_speed_growth), or "
+                            "raise Dripping.budget (warned once per bake)",
+                            w->set.element->name, c->frame, l->held, w->set.drip_desc.budget);
+            }
+        }
         h->last_wet = *b;
         if (!isfinite(fs.volume) || !isfinite(fs.kinetic))
             return dr_error_set(err, DR_ERR_RUNTIME, NULL, 0, 0,
@@ -742,7 +804,13 @@ static DrStatus wet_write_checkpoint(const WorldWet *w, DrH5 *hf, DrError *err)
     }
     free(vs);
     free(pairs);
-    return s;
+    if (s != DR_OK || !w->link) return s;
+    /* capture and dripping: the strands' last acceleration, the ledger since the bake's start and the last exchange */
+    const WorldWetLink *l = w->link;
+    DR_TRY(dr_h5_write_f64(hf, "/hair_solver/acceleration", 1, (uint64_t[]){3 * (uint64_t)fs.nverts}, w->accel,
+                           "m/s^2", false, err));
+    double ledger[6] = {1.0, l->accel ? 1.0 : 0.0, l->initial, l->emitted, l->removed, l->t_last};
+    return dr_h5_write_f64(hf, "/hair_solver/volume_ledger", 1, (uint64_t[]){6}, ledger, "m^3", false, err);
 }
 
 static DrStatus read_exact(DrH5 *hf, const char *file, const char *path, uint64_t count, double *dst, DrError *err);
@@ -772,7 +840,17 @@ static DrStatus wet_read_checkpoint(WorldWet *w, DrH5 *hf, const char *file, DrE
     if (s != DR_OK && !err->file[0]) snprintf(err->file, sizeof err->file, "%s", file);
     free(vs);
     free(pairs);
-    return s;
+    if (s != DR_OK || !w->link) return s;
+    double ledger[6];
+    DR_TRY(read_exact(hf, file, "/hair_solver/acceleration", 3 * (uint64_t)fs.nverts, w->accel, err));
+    DR_TRY(read_exact(hf, file, "/hair_solver/volume_ledger", 6, ledger, err));
+    WorldWetLink *l = w->link;
+    l->accel = ledger[1] != 0.0 ? w->accel : NULL;
+    l->initial = ledger[2];
+    l->emitted = ledger[3];
+    l->removed = ledger[4];
+    l->t_last = ledger[5];
+    return DR_OK;
 }
 
 /* Where hair element b's strands lie in the rod set's arrays: first strand, vertex and edge, and their counts. */
@@ -876,6 +954,23 @@ static DrStatus hair_write(const void *self, const WorldCtx *c, DrH5 *hf, bool f
         DR_TRY(dr_h5_write_scalar(hf, g, "hair_bridges", b->bridges, "1", err));
         DR_TRY(dr_h5_write_scalar(hf, g, "hair_solid_bridges", b->solid_bridges, "1", err));
         DR_TRY(dr_h5_write_scalar(hf, g, "hair_cross_flow", b->cross_flow, "m^3", err));
+        if (b->exchange) {
+            /* capture, dripping and the volume ledger of bulk, film and pools */
+            const char *lg = "/diagnostics/volume_ledger";
+            DR_TRY(dr_h5_write_scalar(hf, lg, "bulk", b->ledger_bulk, "m^3", err));
+            DR_TRY(dr_h5_write_scalar(hf, lg, "film", b->film_volume, "m^3", err));
+            DR_TRY(dr_h5_write_scalar(hf, lg, "pools", b->pool_volume, "m^3", err));
+            DR_TRY(dr_h5_write_scalar(hf, lg, "emitted", b->ledger_emitted, "m^3", err));
+            DR_TRY(dr_h5_write_scalar(hf, lg, "removed", b->ledger_removed, "m^3", err));
+            DR_TRY(dr_h5_write_scalar(hf, lg, "total", b->ledger_total, "m^3", err));
+            DR_TRY(dr_h5_write_scalar(hf, lg, "initial", b->ledger_initial, "m^3", err));
+            DR_TRY(dr_h5_write_scalar(hf, lg, "relative_error", b->ledger_error, "1", err));
+            DR_TRY(dr_h5_write_scalar(hf, lg, "captured", b->captured, "m^3", err));
+            DR_TRY(dr_h5_write_scalar(hf, lg, "dripped", b->dripped, "m^3", err));
+            DR_TRY(dr_h5_write_scalar(hf, lg, "drops", (double)b->drops, "1", err));
+            DR_TRY(dr_h5_write_scalar(hf, lg, "captured_particles", (double)b->captured_particles, "1", err));
+            DR_TRY(dr_h5_write_scalar(hf, lg, "held_back", b->held_back, "m^3", err));
+        }
     }
     return DR_OK;
 }

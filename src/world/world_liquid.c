@@ -36,6 +36,7 @@ typedef struct WorldLiquid {
     long mpm_pushed;         /* the frame's liquid particles pushed out of them */
     double mpm_work;         /* J, the frame's work of the MPM solids on the liquid (the stability watch): minus the
                                 work of the momentum they took, at their velocity mid-way through taking it */
+    WorldWetLink *wet;       /* the first liquid: capture and dripping with the wet hair (world_wet.c; when on) */
     bool carved;             /* the liquid seeded inside them was removed (at the first substep of a bake; a
                                 resumed bake restores particles that never held it) */
 } WorldLiquid;
@@ -396,6 +397,15 @@ static void liquid_fluid_properties(const void *self, double *density, double *v
     *viscosity = wl->viscosity;
 }
 
+/* After every solver stepped to t_next (the liquid and the hair both stand there): capture and dripping, before the
+   liquid's next stable_dt transfers its particles. */
+static DrStatus liquid_step_last(void *self, const WorldCtx *c, double t, double t_next, DrError *err)
+{
+    (void)c, (void)t;
+    WorldLiquid *wl = self;
+    return wl->wet ? world_wet_exchange(wl->wet, t_next, err) : DR_OK;
+}
+
 static DrStatus liquid_fluid_end(void *self, const WorldCtx *c, DrError *err)
 {
     WorldLiquid *wl = self;
@@ -427,6 +437,11 @@ static DrStatus liquid_end_frame(void *self, const WorldCtx *c, DrFrameStats *st
                             wl->element->name, c->frame);
     const DrLiquidStats *ls = &wl->frame;
     wl->last = *ls;
+    if (wl->wet && wl->wet->on) {
+        /* the volume ledger of capture and dripping: what the emitters added and the kill boxes removed */
+        wl->wet->emitted += ls->emitted_volume;
+        wl->wet->removed += ls->killed_volume;
+    }
     double dx = dr_liquid_grid(wl->liquid)->dx;
     double vol = (double)ls->liquid_cells * dx * dx * dx;
     if (wl->volume0 == 0.0) wl->volume0 = vol;
@@ -633,8 +648,14 @@ DrStatus world_liquid_adapter(const WorldCtx *c, const DrElement *e, WorldSolver
         liquid_destroy(wl);
         return s;
     }
+    WorldWetLink *link = world_kinematics_wet(c->kin);
+    if (!link->liquid) {
+        link->liquid = wl->liquid;
+        wl->wet = link;
+    }
     *out = (WorldSolver){.name = "liquid",
                          .self = wl,
+                         .step_last = liquid_step_last,
                          .begin_frame = liquid_begin_frame,
                          .next_time = liquid_next_time,
                          .step = liquid_step,

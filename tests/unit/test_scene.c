@@ -851,7 +851,7 @@ static void test_hair_bad_input(void **state)
            "  { \"name\": \"b\", \"type\": \"hair\", \"components\": { \"Groom\": { \"scalp\": \"meshes/tri.obj\" },\n"
            "      \"Wetting\": {}, \"Film\": { \"initial_ratio\": 3, \"max_ratio\": 4 } } } ]\n}\n";
     assert_error_at(text, "4 } } }", "b.Film.max_ratio = 4 differs from a.Film.max_ratio = 6; the strands of every "
-                                           "wet hair element share one film, cohesion and cross-flow model");
+                                           "wet hair element share one film, cohesion, cross-flow, capture and dripping model");
     text = "{\"elements\": [\n"
            "  { \"name\": \"a\", \"type\": \"hair\", \"components\": { \"Groom\": { \"scalp\": \"meshes/tri.obj\" },\n"
            "      \"Wetting\": {}, \"Film\": { \"initial_ratio\": 2 } } },\n"
@@ -1502,7 +1502,7 @@ static void test_reference_lists_everything(void **state)
     assert_contains(md, "| `scheme` | one of apic, flip, pic, rpic | - | `\"apic\"` | - |");
     assert_contains(md, "out/&lt;name&gt;/"); /* no raw HTML in the Markdown */
     assert_contains(text, "components: Groom (required), RodMaterial, Collider, Transform, Motion, CollisionGroup,\n"
-                          "    CollisionResponse, HairSolver, Wetting, Film, Cohesion, CrossFlow, Drag\n");
+                          "    CollisionResponse, HairSolver, Wetting, Film, Cohesion, CrossFlow, Capture, Dripping, Drag\n");
     assert_contains(md, "| `preconditioner` | one of block, cluster, jacobi, none | - | `\"block\"` | - |");
     assert_contains(md, "| `collides_with` | integer | - | `2147483647` | [0, 2147483647] |");
     assert_contains(text, "components: Mesh (required), LinearElastic, Compression, BemSolver");
@@ -1537,7 +1537,7 @@ static void test_spec_lookups(void **state)
     assert_null(dr_scene_element_spec("fur"));
     const DrElementSpec *hair = dr_scene_element_spec("hair");
     assert_non_null(hair);
-    assert_int_equal(hair->component_count, 13); /* Groom … HairSolver, the wet hair's Wetting … CrossFlow, Drag */
+    assert_int_equal(hair->component_count, 15); /* Groom … HairSolver, the wet hair's Wetting … Dripping, Drag */
     assert_int_equal(hair->required_count, 1);
     assert_string_equal(hair->required_components[0], "Groom");
     assert_false(hair->needs_precompute);
