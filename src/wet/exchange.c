@@ -120,6 +120,13 @@ static DrStatus grow_drops(DrExchange *e, long n, DrError *err)
 
 static inline double sphere_radius(double vol) { return cbrt(3.0 * vol / (4.0 * DR_PI)); }
 
+/* J/kg: ½|v|² − g·x of particle p */
+static double specific_energy(const DrFilmDesc *fd, const DrBulk *b, long p)
+{
+    DrVec3 v = ld3(b->v + 3 * p), x = ld3(b->x + 3 * p);
+    return 0.5 * dr_v3_dot(v, v) - dr_v3_dot(fd->gravity, x);
+}
+
 /* ---- capture ---------------------------------------------------------------------------------------------------- */
 
 typedef struct Lattice {
@@ -296,7 +303,7 @@ DrStatus dr_exchange_capture(DrExchange *e, DrFilm *f, const DrWetStrands *s, Dr
     for (long i = 0; i < V; i++) e->offer[i] = e->offer[i] > e->room[i] ? e->room[i] / e->offer[i] : 1.0;
     memset(e->dV, 0, (size_t)V * sizeof(double));
     memset(e->Pin, 0, 3 * (size_t)V * sizeof(double));
-    double rho = fd->density, got = 0, rem = REMNANT * b->particle_volume;
+    double rho = fd->density, got = 0, rem = REMNANT * b->particle_volume, energy = 0;
     DrVec3 P = dr_v3(0, 0, 0);
     long whole = 0;
     for (long p = 0; p < b->n; p++) {
@@ -315,6 +322,7 @@ DrStatus dr_exchange_capture(DrExchange *e, DrFilm *f, const DrWetStrands *s, Dr
         }
         got += b->vol[p] - left;
         P = dr_v3_add(P, dr_v3_scale(ld3(b->v + 3 * p), rho * (b->vol[p] - left)));
+        energy += rho * (b->vol[p] - left) * specific_energy(fd, b, p);
         b->vol[p] = left;
     }
     /* the remnants, whole, to the vertex with more room left, where they fit */
@@ -329,6 +337,7 @@ DrStatus dr_exchange_capture(DrExchange *e, DrFilm *f, const DrWetStrands *s, Dr
         for (int d = 0; d < 3; d++) e->Pin[3 * j + d] += rho * left * b->v[3 * p + d];
         got += left;
         P = dr_v3_add(P, dr_v3_scale(ld3(b->v + 3 * p), rho * left));
+        energy += rho * left * specific_energy(fd, b, p);
         b->vol[p] = 0;
         whole++;
     }
@@ -337,6 +346,7 @@ DrStatus dr_exchange_capture(DrExchange *e, DrFilm *f, const DrWetStrands *s, Dr
         stats->captured += got;
         stats->captured_momentum = dr_v3_add(stats->captured_momentum, P);
         stats->captured_particles += whole;
+        stats->captured_energy += energy;
     }
     return DR_OK;
 }
@@ -510,6 +520,8 @@ DrStatus dr_exchange_drip(DrExchange *e, DrFilm *f, const DrWetStrands *s, const
         }
     *drops = e->drops;
     if (stats) {
+        DrBulk db = {e->drops.n, e->drops.x, e->drops.v, e->drops.vol, 0, 0, dr_v3(0, 0, 0), dr_v3(0, 0, 0)};
+        for (long q = 0; q < e->drops.n; q++) stats->dripped_energy += rho * e->drops.vol[q] * specific_energy(fd, &db, q);
         stats->dripped += dripped;
         stats->dripped_momentum = dr_v3_add(stats->dripped_momentum, Pd);
         stats->drops += e->drops.n;

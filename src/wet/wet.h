@@ -308,6 +308,9 @@ typedef struct DrExchangeStats {
     DrVec3 dripped_momentum;
     long drops;             /* drops made */
     double held;            /* m³ a cell or pool kept because of the budget */
+    /* J: the energy the volume carried, Σ ρ ΔV (½|v|² − g·x) (g the film's gravity): what capture took from the bulk
+       and what the drops brought to it */
+    double captured_energy, dripped_energy;
 } DrExchangeStats;
 
 typedef struct DrExchange DrExchange;

@@ -115,6 +115,8 @@ typedef struct WorldWetLink {
     double captured, dripped, held;
     long drops, captured_particles;
     double seconds;
+    double liquid_work;       /* J: the energy the exchanges brought the liquid since its watch last took it (drops in,
+                                 captured volume out), for its stability watch */
     /* the ledger since the bake's start, m³: bulk + film + pools then, and what the liquid's emitters added and its
        kill boxes removed since (the liquid adapter adds its frame's at every frame end) */
     double initial, emitted, removed;

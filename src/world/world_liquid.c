@@ -85,6 +85,11 @@ static DrStatus watch_frame(WorldLiquid *wl, const WorldCtx *c, DrError *err)
     const DrLiquidStats *ls = &wl->frame;
     e.work = ls->source_work + ls->emitted_energy - ls->killed_energy + wl->mpm_work;
     wl->mpm_work = 0.0;
+    if (wl->wet) {
+        /* capture and dripping: what the drops brought and the captured volume took */
+        e.work += wl->wet->liquid_work;
+        wl->wet->liquid_work = 0.0;
+    }
     char who[200];
     snprintf(who, sizeof who, "liquid '%s'", wl->element->name);
     DR_TRY(world_watch_energy(&wl->watch, c, &e, who,

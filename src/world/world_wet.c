@@ -65,6 +65,7 @@ DrStatus world_wet_exchange(WorldWetLink *w, double t, DrError *err)
     w->dripped += es.dripped;
     w->drops += es.drops;
     w->held += es.held;
+    w->liquid_work += es.dripped_energy - es.captured_energy;
     w->seconds += dr_time_now() - t_start;
     return DR_OK;
 }
