@@ -83,6 +83,7 @@ typedef struct DrHairFrameStats {
        liquid's particles; removed: by kill boxes since the bake's start; emitted: by emitters since then) */
     bool exchange;
     double captured, dripped;          /* m³ moved in the frame */
+    DrVec3 captured_momentum, dripped_momentum; /* kg m/s the bulk gave the film with it, the drops took from the film */
     long drops, captured_particles;    /* drops made, particles wholly captured (removed from the liquid) */
     double held_back;                  /* m³ the drop budget kept on the strands in the frame (a warning) */
     double ledger_bulk, ledger_emitted, ledger_removed, ledger_total, ledger_initial;

@@ -113,6 +113,7 @@ typedef struct WorldWetLink {
     /* the frame's, m³: what moved between the bulk and the film, and what the drop budget kept back; drops made; the
        exchange's wall time */
     double captured, dripped, held;
+    DrVec3 captured_momentum, dripped_momentum; /* kg m/s: what the captured volume took from the bulk, the drops gave */
     long drops, captured_particles;
     double seconds;
     double liquid_work;       /* J: the energy the exchanges brought the liquid since its watch last took it (drops in,

@@ -382,7 +382,10 @@ static void hair_begin_frame(void *self, const WorldCtx *c)
         h->wet->cross_flow = 0;
         h->wet->seconds_film = h->wet->seconds_bridges = h->wet->seconds_cross_flow = 0;
         WorldWetLink *l = h->wet->link;
-        if (l) l->captured = l->dripped = l->held = l->seconds = 0, l->drops = l->captured_particles = 0;
+        if (l) {
+            l->captured = l->dripped = l->held = l->seconds = 0, l->drops = l->captured_particles = 0;
+            l->captured_momentum = l->dripped_momentum = dr_v3(0, 0, 0);
+        }
     }
 }
 
@@ -728,6 +731,8 @@ static DrStatus hair_end_frame(void *self, const WorldCtx *c, DrFrameStats *stat
             b->exchange = true;
             b->captured = l->captured;
             b->dripped = l->dripped;
+            b->captured_momentum = l->captured_momentum;
+            b->dripped_momentum = l->dripped_momentum;
             b->drops = l->drops;
             b->captured_particles = l->captured_particles;
             b->held_back = l->held;
@@ -970,6 +975,8 @@ static DrStatus hair_write(const void *self, const WorldCtx *c, DrH5 *hf, bool f
             DR_TRY(dr_h5_write_scalar(hf, lg, "drops", (double)b->drops, "1", err));
             DR_TRY(dr_h5_write_scalar(hf, lg, "captured_particles", (double)b->captured_particles, "1", err));
             DR_TRY(dr_h5_write_scalar(hf, lg, "held_back", b->held_back, "m^3", err));
+            DR_TRY(dr_h5_write_vec3(hf, lg, "captured_momentum", b->captured_momentum, "kg*m/s", err));
+            DR_TRY(dr_h5_write_vec3(hf, lg, "dripped_momentum", b->dripped_momentum, "kg*m/s", err));
         }
     }
     return DR_OK;

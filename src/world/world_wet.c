@@ -65,6 +65,8 @@ DrStatus world_wet_exchange(WorldWetLink *w, double t, DrError *err)
     w->dripped += es.dripped;
     w->drops += es.drops;
     w->held += es.held;
+    w->captured_momentum = dr_v3_add(w->captured_momentum, es.captured_momentum);
+    w->dripped_momentum = dr_v3_add(w->dripped_momentum, es.dripped_momentum);
     w->liquid_work += es.dripped_energy - es.captured_energy;
     w->seconds += dr_time_now() - t_start;
     return DR_OK;
