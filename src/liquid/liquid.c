@@ -90,8 +90,9 @@ struct DrLiquid {
     double *sx, *sv, *sc, *svol; /* scratch particle arrays (same capacity) for the sort by cell */
     int64_t *sid;
     double *pscale;          /* per particle: its mass factor vol/V0 in the substep's order (same capacity) */
-    bool scaled;             /* the substep's P2G found a particle that is not nominal: pscale holds the factors (else
-                                every factor is 1 and the uniform paths run) */
+    bool scaled;             /* the substep's P2G found a particle that is not nominal: the sort moved the volumes and
+                                pscale holds the factors (else every volume is V0, the sort leaves them, every factor
+                                is 1 and the uniform paths run) */
     bool retransfer;         /* particles were added or removed after dr_liquid_stable_dt: begin transfers again */
     long cap;
     int64_t next_id;         /* the id the next seeded or emitted particle takes */
@@ -2758,7 +2759,7 @@ static void sort_range(long begin, long end, void *vctx)
         memcpy(L->sx + 3 * q, L->st.x + 3 * p, 3 * sizeof(double));
         memcpy(L->sv + 3 * q, L->st.v + 3 * p, 3 * sizeof(double));
         memcpy(L->sc + 9 * q, L->st.c + 9 * p, 9 * sizeof(double));
-        L->svol[q] = L->st.vol[p];
+        if (L->scaled) L->svol[q] = L->st.vol[p];
         L->sid[q] = L->st.id[p];
         order[q] = q;
     }
@@ -2772,7 +2773,7 @@ static void sort_particles(DrLiquid *L)
     t = L->st.x; L->st.x = L->sx; L->sx = t;
     t = L->st.v; L->st.v = L->sv; L->sv = t;
     t = L->st.c; L->st.c = L->sc; L->sc = t;
-    t = L->st.vol; L->st.vol = L->svol; L->svol = t;
+    if (L->scaled) { t = L->st.vol; L->st.vol = L->svol; L->svol = t; } /* else every value is V0: no need to move */
     int64_t *ti = L->st.id; L->st.id = L->sid; L->sid = ti;
 }
 
@@ -2785,8 +2786,8 @@ static DrStatus substep_p2g(DrLiquid *L, DrError *err)
     DrLiquidState *s = &L->st;
     double t_0 = dr_time_now();
     DR_TRY(dr_bins_build(g, s->n, s->x, L->bins, err));
-    sort_particles(L);
     L->scaled = !all_nominal(L);
+    sort_particles(L);
     if (L->scaled)
         for (long p = 0; p < s->n; p++) L->pscale[p] = s->vol[p] / L->vol0;
     L->retransfer = false;
