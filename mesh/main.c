@@ -76,8 +76,8 @@ static void deformation_measures(const double F[9], double *J, double *strain)
 
 /* <e>.NNNN.points.vdb (mesh.write_points): the n particles x (m), v (m/s) of liquid or MPM solid e as OpenVDB
  * points with P, v, id and volume (m³), and for an MPM solid J and strain (deformation_measures). A liquid's id is
- * /<e>/id (its own through the bake's sorts, liquid.h) and its volume its share of the seeded volume, Δx³ per
- * per_cell particles; an MPM solid's particles keep their order, so the id is the index, and the volume is the
+ * /<e>/id (its own through the bake's sorts, liquid.h) and its volume /<e>/volume (its own, liquid.h; a cache without
+ * it: its share of the seeded volume, Δx³ per per_cell particles); an MPM solid's particles keep their order, so the id is the index, and the volume is the
  * current one, J·V₀ (/<e>/deformation_gradient, /<e>/volume). The point grid's voxel is the element's grid cell
  * (Domain.voxel_size): 8 liquid particles per voxel by default, particles_per_axis³ of an MPM solid. */
 static DrStatus write_particle_points(const DrElement *e, DrH5 *h, const char *dir, const DrVdbMeta *meta, long n,
@@ -100,8 +100,18 @@ static DrStatus write_particle_points(const DrElement *e, DrH5 *h, const char *d
                              path);
         if (s == DR_OK) s = dr_h5_read_i64(h, path, &rank, dims, &id, err);
         if (s == DR_OK) s = check_shape(h, path, rank, dims, 1, want, err);
-        int per_cell = dr_component_int(dr_element_component(e, "Particles"), "per_cell");
-        for (long p = 0; s == DR_OK && p < n; p++) vol[p] = cell * cell * cell / per_cell;
+        /* each particle's own volume (capture and dripping change it); a cache without it holds the seeded one */
+        snprintf(path, sizeof path, "/%s/volume", e->name);
+        if (s == DR_OK && dr_h5_has(h, path)) {
+            double *pv = NULL;
+            s = dr_h5_read_f64(h, path, &rank, dims, &pv, err);
+            if (s == DR_OK) s = check_shape(h, path, rank, dims, 1, want, err);
+            if (s == DR_OK) memcpy(vol, pv, (size_t)n * sizeof *vol);
+            free(pv);
+        } else {
+            int per_cell = dr_component_int(dr_element_component(e, "Particles"), "per_cell");
+            for (long p = 0; s == DR_OK && p < n; p++) vol[p] = cell * cell * cell / per_cell;
+        }
     } else if (s == DR_OK) {
         snprintf(path, sizeof path, "/%s/deformation_gradient", e->name);
         s = dr_h5_read_f64(h, path, &rank, dims, &F, err);

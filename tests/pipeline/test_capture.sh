@@ -74,3 +74,29 @@ PY
 expect_exit "Capture without Wetting exits 2 naming the component and the fix" 2 "strand\.Capture needs a Wetting component" \
   "$BIN/bake" "$S/dry.json" --frames 1-1
 check "and writes no frame" bash -c "[ ! -e '$DRENCH_OUT/dry_capture/bake/frame.0001.h5' ]"
+
+# Momentum: a gravity-free blob of water (mass-weighted pressure, touching no wall) drifting through five wet strands
+# (tests/data/wet_blob.json): the liquid's momentum changes in each frame by exactly what capture took and the drops
+# brought (the strands' and film's side is exact in tests/unit/test_wet_exchange.c; their roots are held)
+cp "$ROOT/tests/data/wet_blob.json" "$ROOT/tests/data/wet_blob_strands.obj" "$S/"
+"$BIN/precompute" "$S/wet_blob.json" >/dev/null 2>&1
+"$BIN/bake" "$S/wet_blob.json" -j 2 -q >/dev/null 2>&1
+blob() {
+  local f prev="" worst=0 line
+  for f in 1 2 3 4 5 6; do
+    local fr="$DRENCH_OUT/wet_blob/bake/frame.000$f.h5"
+    line="$(h5 "$fr" /diagnostics/water/linear_momentum) $(h5 "$fr" /diagnostics/volume_ledger/captured_momentum) $(h5 "$fr" /diagnostics/volume_ledger/dripped_momentum)"
+    set -- $line
+    [ $# -eq 9 ] || { echo "frame $f: missing diagnostics"; return 1; }
+    if [ -n "$prev" ]; then
+      worst=$(awk -v p="$prev" -v a="$1" -v b="$2" -v c="$3" -v c1="$4" -v c2="$5" -v c3="$6" -v d1="$7" -v d2="$8" -v d3="$9" -v w="$worst" 'BEGIN {
+        split(p, q, " "); r1 = a - q[1] + c1 - d1; r2 = b - q[2] + c2 - d2; r3 = c - q[3] + c3 - d3
+        e = sqrt(r1 * r1 + r2 * r2 + r3 * r3) / sqrt(a * a + b * b + c * c); printf "%.3g", (e > w ? e : w) }')
+    fi
+    prev="$1 $2 $3"
+    cap="$4"
+  done
+  echo "frames 2-6: the liquid's momentum change minus the exchange's, at most $worst of |P|"
+  awk -v w="$worst" -v c="$cap" 'BEGIN { exit !(w <= 1e-8 && c != 0) }'
+}
+check "in a gravity-free blob the liquid's momentum changes by exactly what capture and dripping moved (1e-8 of |P|)" blob
