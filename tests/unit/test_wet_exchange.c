@@ -74,6 +74,21 @@ static DrBulk bulk(long n, const double *x, const double *v, double *vol)
     return (DrBulk){n, x, v, vol, DX * DX * DX / 8, DX, dr_v3(-0.05, -0.05, -0.05), dr_v3(0.05, 0.05, 0.05)};
 }
 
+/* An exchange with the default descs but capture rate, capacity and drop budget (< 0: the default). */
+static DrExchange *exchange(double rate, double capacity, long budget)
+{
+    DrCaptureDesc cd;
+    DrDripDesc dd;
+    dr_capture_desc_default(&cd);
+    dr_drip_desc_default(&dd);
+    if (rate >= 0) cd.rate = rate;
+    if (capacity >= 0) cd.capacity = capacity;
+    if (budget >= 0) dd.budget = budget;
+    DrExchange *e = NULL;
+    CHECK(dr_exchange_create(&cd, &dd, &e, ERR));
+    return e;
+}
+
 enum { NV = 21, NP = 5000 };
 
 static void capture_case(double *px, double *pv, double *pvol, double *x, double *v, double *m, uint64_t seed)
@@ -101,13 +116,7 @@ static void test_capture_conserves(void **state)
     double x[3 * NV], v[3 * NV], m[NV], px[3 * NP], pv[3 * NP], pvol[NP];
     DrFilm *f = strand(NV, dr_v3(0, 0, 0), dr_v3(1, 0, 0), 0.01, 1.5, dr_v3(0, 0, 0), x);
     capture_case(px, pv, pvol, x, v, m, 7);
-    DrCaptureDesc cd;
-    DrDripDesc dd;
-    dr_capture_desc_default(&cd);
-    dr_drip_desc_default(&dd);
-    cd.capacity = 0.5;
-    DrExchange *e = NULL;
-    CHECK(dr_exchange_create(&cd, &dd, &e, ERR));
+    DrExchange *e = exchange(-1, 0.5, -1);
     DrWetStrands s = {x, v, NULL, m};
     DrBulk b = bulk(NP, px, pv, pvol);
     double V0 = film_volume(f);
@@ -149,12 +158,7 @@ static void test_capture_remnant(void **state)
     for (int i = 0; i < 3 * NV; i++) v[i] = 0;
     for (int i = 0; i < NV; i++) m[i] = 1e-7;
     double px[3] = {0.0051, 5.5e-5, 0}, pv[3] = {0.1, -0.2, 0.3}, pvol[1] = {1e-4 * DX * DX * DX / 8};
-    DrCaptureDesc cd;
-    DrDripDesc dd;
-    dr_capture_desc_default(&cd);
-    dr_drip_desc_default(&dd);
-    DrExchange *e = NULL;
-    CHECK(dr_exchange_create(&cd, &dd, &e, ERR));
+    DrExchange *e = exchange(-1, -1, -1);
     DrWetStrands s = {x, v, NULL, m};
     DrBulk b = bulk(1, px, pv, pvol);
     double want = pvol[0];
@@ -179,12 +183,7 @@ static void test_capture_threads(void **state)
         double x[3 * NV], v[3 * NV], m[NV], px[3 * NP], pv[3 * NP], pvol[NP];
         DrFilm *f = strand(NV, dr_v3(0, 0, 0), dr_v3(1, 0, 0), 0.01, 1.5, dr_v3(0, 0, 0), x);
         capture_case(px, pv, pvol, x, v, m, 11);
-        DrCaptureDesc cd;
-        DrDripDesc dd;
-        dr_capture_desc_default(&cd);
-        dr_drip_desc_default(&dd);
-        DrExchange *e = NULL;
-        CHECK(dr_exchange_create(&cd, &dd, &e, ERR));
+        DrExchange *e = exchange(-1, -1, -1);
         DrWetStrands s = {x, v, NULL, m};
         DrBulk b = bulk(NP, px, pv, pvol);
         for (int step = 0; step < 5; step++) CHECK(dr_exchange_capture(e, f, &s, &b, 0.01, NULL, ERR));
@@ -203,13 +202,7 @@ static void test_capture_rate_zero(void **state)
     DrFilm *f = strand(NV, dr_v3(0, 0, 0), dr_v3(1, 0, 0), 0.01, 1.5, dr_v3(0, 0, 0), x);
     capture_case(px, pv, pvol, x, v, m, 3);
     memcpy(keep, pvol, sizeof keep);
-    DrCaptureDesc cd;
-    DrDripDesc dd;
-    dr_capture_desc_default(&cd);
-    dr_drip_desc_default(&dd);
-    cd.rate = 0;
-    DrExchange *e = NULL;
-    CHECK(dr_exchange_create(&cd, &dd, &e, ERR));
+    DrExchange *e = exchange(0, -1, -1);
     DrWetStrands s = {x, v, NULL, m};
     DrBulk b = bulk(NP, px, pv, pvol);
     CHECK(dr_exchange_capture(e, f, &s, &b, 0.01, NULL, ERR));
@@ -242,12 +235,7 @@ static void test_drip_middle(void **state)
         m[i] = 2e-8;
     }
     double acc[3 * N] = {0}; /* not accelerating: a_n = g */
-    DrCaptureDesc cd;
-    DrDripDesc dd;
-    dr_capture_desc_default(&cd);
-    dr_drip_desc_default(&dd);
-    DrExchange *e = NULL;
-    CHECK(dr_exchange_create(&cd, &dd, &e, ERR));
+    DrExchange *e = exchange(-1, -1, -1);
     double pvol[1] = {0};
     DrBulk b = bulk(0, NULL, NULL, pvol);
     DrWetStrands s = {x, v, acc, m};
@@ -296,12 +284,7 @@ static void test_drip_vertical(void **state)
     }
     double acc[3 * N] = {0};
     DrFilmState fs = dr_film_state(f);
-    DrCaptureDesc cd;
-    DrDripDesc dd;
-    dr_capture_desc_default(&cd);
-    dr_drip_desc_default(&dd);
-    DrExchange *e = NULL;
-    CHECK(dr_exchange_create(&cd, &dd, &e, ERR));
+    DrExchange *e = exchange(-1, -1, -1);
     double pvol[1] = {0};
     DrBulk b = bulk(0, NULL, NULL, pvol);
     DrWetStrands s = {x, v, acc, m};
@@ -340,13 +323,7 @@ static void test_drip_budget(void **state)
         acc[3 * i] = 0, acc[3 * i + 1] = -1e7, acc[3 * i + 2] = 0; /* a blow-up: 10⁷ m/s² across the hair */
         m[i] = 2e-8;
     }
-    DrCaptureDesc cd;
-    DrDripDesc dd;
-    dr_capture_desc_default(&cd);
-    dr_drip_desc_default(&dd);
-    dd.budget = 10;
-    DrExchange *e = NULL;
-    CHECK(dr_exchange_create(&cd, &dd, &e, ERR));
+    DrExchange *e = exchange(-1, -1, 10);
     double pvol[1] = {0};
     DrBulk b = bulk(0, NULL, NULL, pvol);
     DrWetStrands s = {x, v, acc, m};
