@@ -389,6 +389,9 @@ DrStatus dr_bridges_add_groups(const DrBridges *b, const DrBridgeStrands *s, DrL
         const Bridge *br = &b->br[k];
         double cinv = bridge_cinv(b->pair, sigma, b->desc.scale, b->desc.radius_multiplier, br->r, br->area, br->w,
                                   br->dc, br->d);
+        if (s->submerged) /* under the bulk's surface there is no meniscus */
+            cinv *= 1.0 - 0.5 * (s->submerged[br->p] + (1 - br->t) * s->submerged[br->q0] +
+                                 br->t * s->submerged[br->q0 + 1]);
         if (!(cinv > 0)) continue;
         DrLagGroup g;
         memset(&g, 0, sizeof g);
@@ -410,6 +413,7 @@ DrStatus dr_bridges_add_groups(const DrBridges *b, const DrBridgeStrands *s, DrL
         const SolidBridge *sb = &b->sb[k];
         double cinv = bridge_cinv(b->plane, sigma, b->desc.solid_scale, b->desc.solid_radius_multiplier, sb->r,
                                   sb->area, sb->w, sb->dc, sb->d);
+        if (s->submerged) cinv *= 1.0 - s->submerged[sb->p];
         if (!(cinv > 0)) continue;
         DrLagGroup g;
         memset(&g, 0, sizeof g);

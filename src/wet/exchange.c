@@ -36,6 +36,8 @@ struct DrExchange {
     double *tan;          /* 3V: dripping: the vertices' unit tangents */
     DrDrops drops;
     long drop_cap;
+    double *frac;         /* submersion: the bulk's volume fraction per cell */
+    long frac_cap;
 };
 
 void dr_capture_desc_default(DrCaptureDesc *d) { *d = (DrCaptureDesc){.rate = 10.0, .capacity = 1.0, .reach = 1.0}; }
@@ -75,7 +77,7 @@ void dr_exchange_destroy(DrExchange **ep)
     DrExchange *e = *ep;
     if (!e) return;
     void *a[] = {e->near, e->s, e->dV, e->Pin, e->Pout, e->room, e->offer, e->an, e->edge_v0, e->cell_start,
-                 e->cell_edges, e->vkey, e->vtmp, e->tan, e->drops.x, e->drops.v, e->drops.vol};
+                 e->cell_edges, e->vkey, e->vtmp, e->tan, e->frac, e->drops.x, e->drops.v, e->drops.vol};
     for (size_t i = 0; i < sizeof a / sizeof *a; i++) free(a[i]);
     free(e);
     *ep = NULL;
@@ -526,6 +528,53 @@ DrStatus dr_exchange_drip(DrExchange *e, DrFilm *f, const DrWetStrands *s, const
         stats->dripped_momentum = dr_v3_add(stats->dripped_momentum, Pd);
         stats->drops += e->drops.n;
         stats->held += held;
+    }
+    return DR_OK;
+}
+
+DrStatus dr_exchange_submersion(DrExchange *e, const double *x, long nverts, const DrBulk *b, double *out, DrError *err)
+{
+    double lo[3] = {b->lo.x, b->lo.y, b->lo.z}, hi[3] = {b->hi.x, b->hi.y, b->hi.z};
+    long n[3];
+    for (int a = 0; a < 3; a++) n[a] = (long)ceil((hi[a] - lo[a]) / b->dx - 1e-9) > 0 ? (long)ceil((hi[a] - lo[a]) / b->dx - 1e-9) : 1;
+    long cells = n[0] * n[1] * n[2];
+    if (cells > e->frac_cap) {
+        DR_TRY(dr_realloc((size_t)cells, sizeof(double), &e->frac, err));
+        e->frac_cap = cells;
+    }
+    memset(e->frac, 0, (size_t)cells * sizeof(double));
+    double inv = 1.0 / (b->dx * b->dx * b->dx);
+    for (long p = 0; p < b->n; p++) {
+        long c[3];
+        for (int a = 0; a < 3; a++) {
+            c[a] = (long)floor((b->x[3 * p + a] - lo[a]) / b->dx);
+            c[a] = c[a] < 0 ? 0 : c[a] >= n[a] ? n[a] - 1 : c[a];
+        }
+        e->frac[c[0] + n[0] * (c[1] + n[1] * c[2])] += b->vol[p] * inv;
+    }
+    for (long i = 0; i < nverts; i++) {
+        /* trilinear between cell centres; outside the lattice the nearest cells */
+        long c0[3];
+        double f[3];
+        for (int a = 0; a < 3; a++) {
+            double q = (x[3 * i + a] - lo[a]) / b->dx - 0.5;
+            double fl = floor(q);
+            c0[a] = (long)fl;
+            f[a] = q - fl;
+            if (c0[a] < 0) c0[a] = 0, f[a] = 0;
+            if (c0[a] >= n[a] - 1) c0[a] = n[a] - 1 > 0 ? n[a] - 2 : 0, f[a] = n[a] > 1 ? 1 : 0;
+        }
+        double phi = 0;
+        for (int dz = 0; dz < 2; dz++)
+            for (int dy = 0; dy < 2; dy++)
+                for (int dx = 0; dx < 2; dx++) {
+                    long cx = c0[0] + dx, cy = c0[1] + dy, cz = c0[2] + dz;
+                    if (cx >= n[0] || cy >= n[1] || cz >= n[2]) continue;
+                    double w = (dx ? f[0] : 1 - f[0]) * (dy ? f[1] : 1 - f[1]) * (dz ? f[2] : 1 - f[2]);
+                    phi += w * e->frac[cx + n[0] * (cy + n[1] * cz)];
+                }
+        double sub = 2.0 * phi - 1.0;
+        out[i] = sub < 0 ? 0 : sub > 1 ? 1 : sub;
     }
     return DR_OK;
 }

@@ -321,6 +321,12 @@ void dr_exchange_destroy(DrExchange **e);
 /* Capture over a step of h seconds; stats (may be NULL) accumulate. DR_ERR_NOMEM. Bit-identical for any thread count. */
 DR_NODISCARD DrStatus dr_exchange_capture(DrExchange *e, DrFilm *f, const DrWetStrands *s, DrBulk *b, double h,
                                           DrExchangeStats *stats, DrError *err);
+/* How far each of the film's vertices at x (nverts × 3) lies under the bulk's free surface, into out (nverts):
+   s = clamp(2φ − 1, 0, 1) with φ the particles' volume fraction (Σ vol over the cell's volume, per cell of the bulk's
+   lattice) interpolated trilinearly between cell centres: 0 at the surface and above it (φ ≤ ½), 1 from half a cell
+   under it (φ ≥ 1). DR_ERR_NOMEM. */
+DR_NODISCARD DrStatus dr_exchange_submersion(DrExchange *e, const double *x, long nverts, const DrBulk *b, double *out,
+                                             DrError *err);
 /* Dripping: the drops into *drops (owned by e, valid until its next call); stats accumulate. DR_ERR_NOMEM. */
 DR_NODISCARD DrStatus dr_exchange_drip(DrExchange *e, DrFilm *f, const DrWetStrands *s, const DrBulk *b,
                                        DrDrops *drops, DrExchangeStats *stats, DrError *err);
@@ -375,6 +381,10 @@ typedef struct DrBridgeStrands {
     const int *vertex_dof;    /* nverts: the first of the vertex's 3 DOFs in the Lagrangian system */
     const unsigned char *held; /* nverts or NULL: vertices whose motion is prescribed */
     const double *thickness;  /* nstrands or NULL: contact thickness added to each strand's radius */
+    const double *submerged;  /* nverts or NULL: how far each vertex lies under the bulk liquid's surface, in [0, 1] (0:
+                                 in air, 1: half a cell or more under it; dr_exchange_submersion): cohesion acts where
+                                 films meet air, so a bridge's force is scaled by 1 − the mean of its ends' (the
+                                 other end interpolated on its edge) and a bridge to a collider by 1 − its vertex's */
     /* which strands may bridge, as hair.h's contact rule: strands of one batch when its self flag is set, of batches a
        and b when (group_a & mask_b) && (group_b & mask_a). batch NULL: every pair of strands may. */
     const int *batch;         /* nstrands: each strand's batch */

@@ -109,6 +109,8 @@ typedef struct WorldWetLink {
     double *v;                /* their velocities (exchanges change them) */
     const double *accel;      /* their acceleration over their last step, m/s² (NULL before the first) */
     const double *mass;       /* the hair's mass per vertex, kg */
+    double *submerged;        /* per vertex: how far under the liquid's surface at the last exchange (the bridges) */
+    long nverts;
     double t_last;            /* the last exchange's time, s (the bake's start before the first) */
     /* the frame's, m³: what moved between the bulk and the film, and what the drop budget kept back; drops made; the
        exchange's wall time */
@@ -122,8 +124,9 @@ typedef struct WorldWetLink {
        kill boxes removed since (the liquid adapter adds its frame's at every frame end) */
     double initial, emitted, removed;
 } WorldWetLink;
-/* The ledger starts at time t (building a bake from its first frame): its initial volume from the state now. */
-void world_wet_start(WorldWetLink *w, double t);
+/* The ledger starts at time t (building a bake from its first frame): its initial volume from the state now, and the
+   strands' submersion. DR_ERR_NOMEM. */
+DR_NODISCARD DrStatus world_wet_start(WorldWetLink *w, double t, DrError *err);
 WorldWetLink *world_kinematics_wet(WorldKinematics *k);
 /* The exchange at time t (a no-op unless on): capture over the time since the last one, the particles wholly
    captured removed, then dripping, the drops added to the liquid. DR_ERR_NOMEM, or the liquid's DR_ERR_INPUT. */

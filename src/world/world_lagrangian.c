@@ -43,6 +43,7 @@ typedef struct WorldWet {
     DrExchange *exchange;
     WorldWetLink *link;
     double *v_start, *accel;
+    double *submerged;         /* per vertex, [0, 1]: how far under the liquid's surface (cohesion is off there) */
     bool warned_budget;
 } WorldWet;
 
@@ -112,6 +113,7 @@ static void wet_destroy(WorldWet **wp)
     dr_exchange_destroy(&w->exchange);
     free(w->v_start);
     free(w->accel);
+    free(w->submerged);
     for (int k = 0; k < 2; k++) dr_cohesion_destroy(&w->tables[k]);
     void *a[] = {w->radius, w->thickness, w->batch, w->group, w->mask, w->self, w->held, w->force, w->dfdv,
                  w->block_dof, w->block, w->x_old, w->dV, w->heights};
@@ -317,10 +319,12 @@ static DrStatus build_wet(const WorldCtx *c, WorldHair *h, const char *cache_roo
                                set.element->name));
         DR_TRY(dr_calloc(3 * (size_t)V, sizeof(double), &w->v_start, err));
         DR_TRY(dr_calloc(3 * (size_t)V, sizeof(double), &w->accel, err));
+        DR_TRY(dr_calloc((size_t)V, sizeof(double), &w->submerged, err));
         *link = (WorldWetLink){.on = true, .liquid = link->liquid, .film = w->film, .exchange = w->exchange,
-                               .x = rs.x, .v = rs.v, .accel = NULL, .mass = rs.mass};
+                               .x = rs.x, .v = rs.v, .accel = NULL, .mass = rs.mass, .submerged = w->submerged,
+                               .nverts = V};
         w->link = link;
-        world_wet_start(link, c->t0); /* a resumed bake reads the ledger back */
+        DR_TRY(world_wet_start(link, c->t0, err)); /* a resumed bake reads the ledger back */
     }
     return DR_OK;
 }
@@ -333,7 +337,8 @@ static DrBridgeStrands wet_strands(const WorldHair *h)
     DrFilmState fs = dr_film_state(w->film);
     return (DrBridgeStrands){.nstrands = rs.nstrands, .nverts = rs.nverts, .offsets = rs.offsets, .x = rs.x,
                              .radius = w->radius, .volume = fs.volume, .vertex_dof = dr_rod_set_vertex_dofs(h->rods),
-                             .held = w->held_known ? w->held : NULL, .thickness = w->thickness, .batch = w->batch,
+                             .held = w->held_known ? w->held : NULL, .thickness = w->thickness,
+                             .submerged = w->link ? w->submerged : NULL, .batch = w->batch,
                              .group = w->group, .mask = w->mask, .self = w->self};
 }
 
@@ -814,6 +819,8 @@ static DrStatus wet_write_checkpoint(const WorldWet *w, DrH5 *hf, DrError *err)
     const WorldWetLink *l = w->link;
     DR_TRY(dr_h5_write_f64(hf, "/hair_solver/acceleration", 1, (uint64_t[]){3 * (uint64_t)fs.nverts}, w->accel,
                            "m/s^2", false, err));
+    DR_TRY(dr_h5_write_f64(hf, "/hair_solver/submerged", 1, (uint64_t[]){(uint64_t)fs.nverts}, w->submerged, "1",
+                           false, err));
     double ledger[6] = {1.0, l->accel ? 1.0 : 0.0, l->initial, l->emitted, l->removed, l->t_last};
     return dr_h5_write_f64(hf, "/hair_solver/volume_ledger", 1, (uint64_t[]){6}, ledger, "m^3", false, err);
 }
@@ -849,6 +856,7 @@ static DrStatus wet_read_checkpoint(WorldWet *w, DrH5 *hf, const char *file, DrE
     double ledger[6];
     DR_TRY(read_exact(hf, file, "/hair_solver/acceleration", 3 * (uint64_t)fs.nverts, w->accel, err));
     DR_TRY(read_exact(hf, file, "/hair_solver/volume_ledger", 6, ledger, err));
+    DR_TRY(read_exact(hf, file, "/hair_solver/submerged", (uint64_t)fs.nverts, w->submerged, err));
     WorldWetLink *l = w->link;
     l->accel = ledger[1] != 0.0 ? w->accel : NULL;
     l->initial = ledger[2];

@@ -7,7 +7,9 @@
  *      (their volume lowered in place, their velocity kept, so the bulk loses exactly the momentum the film and
  *      strands gain); particles left with no volume are removed;
  *   2. dripping: film beyond what a cell of strands holds, and full pools, leave as new particles with exactly that
- *      volume and momentum, added to the liquid before its step's P2G.
+ *      volume and momentum, added to the liquid before its step's P2G;
+ *   3. how far each strand vertex lies under the liquid's surface, which switches cohesion off smoothly there (the
+ *      bridges of the hair's next step).
  * Nothing is rescaled: bulk + film + pools + removed − emitted (removed: by kill boxes; emitted: by emitters) stays
  * the initial volume to round-off, which every frame's diagnostics show. */
 #include "world_adapter.h"
@@ -18,13 +20,24 @@
 #include "liquid/liquid.h"
 #include "wet/wet.h"
 
-void world_wet_start(WorldWetLink *w, double t)
+/* The bulk liquid as src/wet takes it, now. */
+static DrBulk bulk_of(const WorldWetLink *w)
+{
+    DrLiquidState *st = dr_liquid_state_mut(w->liquid);
+    const DrMacGrid *g = dr_liquid_grid(w->liquid);
+    DrVec3 hi = dr_v3_add(g->origin, dr_v3(g->nx * g->dx, g->ny * g->dx, g->nz * g->dx));
+    return (DrBulk){st->n, st->x, st->v, st->vol, dr_liquid_nominal_volume(w->liquid), g->dx, g->origin, hi};
+}
+
+DrStatus world_wet_start(WorldWetLink *w, double t, DrError *err)
 {
     double b, f, p;
     world_wet_volumes(w, &b, &f, &p);
     w->initial = b + f + p;
     w->emitted = w->removed = 0.0;
     w->t_last = t;
+    DrBulk bk = bulk_of(w);
+    return dr_exchange_submersion(w->exchange, w->x, w->nverts, &bk, w->submerged, err);
 }
 
 void world_wet_volumes(const WorldWetLink *w, double *bulk, double *film, double *pools)
@@ -47,10 +60,7 @@ DrStatus world_wet_exchange(WorldWetLink *w, double t, DrError *err)
     double t_start = dr_time_now();
     double h = t - w->t_last;
     w->t_last = t;
-    DrLiquidState *st = dr_liquid_state_mut(w->liquid);
-    const DrMacGrid *g = dr_liquid_grid(w->liquid);
-    DrVec3 hi = dr_v3_add(g->origin, dr_v3(g->nx * g->dx, g->ny * g->dx, g->nz * g->dx));
-    DrBulk b = {st->n, st->x, st->v, st->vol, dr_liquid_nominal_volume(w->liquid), g->dx, g->origin, hi};
+    DrBulk b = bulk_of(w);
     DrWetStrands s = {w->x, w->v, w->accel, w->mass};
     DrExchangeStats es = {0};
     if (h > 0) {
@@ -60,6 +70,9 @@ DrStatus world_wet_exchange(WorldWetLink *w, double t, DrError *err)
     DrDrops d;
     DR_TRY(dr_exchange_drip(w->exchange, w->film, &s, &b, &d, &es, err));
     if (d.n > 0) DR_TRY(dr_liquid_add_particles(w->liquid, d.n, d.x, d.v, d.vol, err));
+    /* where the strands stand under the surface now: the bridges of the hair's next step */
+    b = bulk_of(w);
+    DR_TRY(dr_exchange_submersion(w->exchange, w->x, w->nverts, &b, w->submerged, err));
     w->captured += es.captured;
     w->captured_particles += es.captured_particles;
     w->dripped += es.dripped;

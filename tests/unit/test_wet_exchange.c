@@ -340,6 +340,42 @@ static void test_drip_budget(void **state)
     dr_film_destroy(&f);
 }
 
+/* Submersion: a pool 10 mm deep of nominal particles (8 per 1 mm cell): 1 from half a cell under its surface, 0 at
+   it and above, in between over that half cell; the same on 1 and 2 threads (it is serial) and a vertex outside the
+   lattice takes the nearest cells. */
+static void test_submersion(void **state)
+{
+    (void)state;
+    enum { NC = 10 };
+    long n = 8L * 20 * 20 * NC, q = 0;
+    double *px = malloc(3 * (size_t)n * sizeof(double)), *pv = calloc(3 * (size_t)n, sizeof(double));
+    double *vol = malloc((size_t)n * sizeof(double));
+    for (int k = 0; k < 20; k++)
+        for (int j = 0; j < NC; j++)
+            for (int i = 0; i < 20; i++)
+                for (int s = 0; s < 8; s++, q++) {
+                    px[3 * q] = -0.01 + (i + 0.25 + 0.5 * (s & 1)) * DX;
+                    px[3 * q + 1] = -0.05 + (j + 0.25 + 0.5 * ((s >> 1) & 1)) * DX;
+                    px[3 * q + 2] = -0.01 + (k + 0.25 + 0.5 * (s >> 2)) * DX;
+                    vol[q] = DX * DX * DX / 8;
+                }
+    DrBulk b = {n, px, pv, vol, DX * DX * DX / 8, DX, dr_v3(-0.01, -0.05, -0.01), dr_v3(0.01, 0.05, 0.01)};
+    /* the surface at y = −0.04; vertices at depths 3, 0.5, 0.25 cells, at the surface, above it, and outside the box */
+    double x[3 * 6] = {0.0005, -0.0435, 0.0005, 0.0005, -0.0405, 0.0005, 0.0005, -0.04025, 0.0005,
+                       0.0005, -0.04, 0.0005,  0.0005, -0.035, 0.0005,  0.02, -0.045, 0.0005};
+    double out[6];
+    DrExchange *e = exchange(-1, -1, -1);
+    CHECK(dr_exchange_submersion(e, x, 6, &b, out, ERR));
+    printf("submersion at 3, 0.5, 0.25 cells deep, at the surface, above it, outside: %g %g %g %g %g %g\n", out[0],
+           out[1], out[2], out[3], out[4], out[5]);
+    assert_true(fabs(out[0] - 1) < 1e-12 && fabs(out[1] - 1) < 1e-12);
+    assert_true(fabs(out[2] - 0.5) < 1e-12);
+    assert_true(out[3] == 0.0 && out[4] == 0.0);
+    assert_true(fabs(out[5] - 1) < 1e-12);
+    dr_exchange_destroy(&e);
+    free(px), free(pv), free(vol);
+}
+
 static void test_bad_desc(void **state)
 {
     (void)state;
@@ -373,7 +409,7 @@ int main(void)
         cmocka_unit_test(test_capture_conserves), cmocka_unit_test(test_capture_remnant), cmocka_unit_test(test_capture_threads),
         cmocka_unit_test(test_capture_rate_zero), cmocka_unit_test(test_drip_middle),
         cmocka_unit_test(test_drip_vertical),     cmocka_unit_test(test_drip_budget),
-        cmocka_unit_test(test_bad_desc),
+        cmocka_unit_test(test_submersion), cmocka_unit_test(test_bad_desc),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

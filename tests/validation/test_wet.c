@@ -40,6 +40,7 @@ typedef struct Wet {
     double *radius, *force, *dfdv, *block, *x_old, *dV;
     int *block_dof;
     unsigned char *held;
+    double *submerged; /* NULL, or per vertex: under the bulk liquid's surface (cohesion scaled by 1 − it) */
 } Wet;
 
 /* Two straight strands along x, L long with n edges, their axes `gap` apart along z, at height y = 0. */
@@ -120,7 +121,7 @@ static void wet_free(Wet *w)
     dr_lag_destroy(&w->sys);
     dr_groom_free(&w->groom);
     free(w->radius), free(w->force), free(w->dfdv), free(w->block), free(w->block_dof), free(w->x_old);
-    free(w->dV), free(w->held);
+    free(w->dV), free(w->held), free(w->submerged);
 }
 
 static DrBridgeStrands strands_of(Wet *w)
@@ -129,7 +130,7 @@ static DrBridgeStrands strands_of(Wet *w)
     DrFilmState fs = dr_film_state(w->film);
     return (DrBridgeStrands){.nstrands = rs.nstrands, .nverts = rs.nverts, .offsets = rs.offsets, .x = rs.x,
                              .radius = w->radius, .volume = fs.volume, .vertex_dof = dr_rod_set_vertex_dofs(w->rods),
-                             .held = w->held};
+                             .held = w->held, .submerged = w->submerged};
 }
 
 /* One step as the world takes it. */
@@ -175,20 +176,27 @@ static void wet_step(Wet *w, double h)
    table's slope over 2δ, under 1 %): the mean over the bridged vertices is taken. The span is L − Δ (Δ = L/n, an edge):
    clamping holds each end edge, and the beam's clamp falls at the middle of it (a clamped strand under its weight
    deflects as a beam of L − Δ: 4.559e-8 m against 4.59e-8 at n = 24, and converges to L as 1/n). No gravity; the
-   implicit steps damp the beam's vibration (its first mode, 40 kHz, is far above 1/h). */
+   implicit steps damp the beam's vibration (its first mode, 40 kHz, is far above 1/h). Under the bulk liquid's surface
+   cohesion fades out: with the strands half submerged (s = ½) the beams deflect half as far, fully submerged (s = 1)
+   not at all. */
 static void test_bridged_beams_deflect(void **state)
 {
     (void)state;
     const double L = 2.5e-3, gap = 2.5e-4;
     const int n = 50;
-    for (int pass = 0; pass < 2; pass++) { /* pass 1: σ = 0 */
+    double delta0 = 0;
+    for (int pass = 0; pass < 4; pass++) { /* pass 1: σ = 0; 2: half submerged; 3: submerged */
         DrBridgeDesc bd;
         dr_bridge_desc_default(&bd);
-        bd.surface_tension = pass ? 0.0 : SIGMA;
+        bd.surface_tension = pass == 1 ? 0.0 : SIGMA;
         bd.cross_flow = false;
         Wet w;
         wet_make(&w, two_strands(L, n, gap), DR_ROD_ROOTS_CLAMPED, DR_ROD_ROOTS_CLAMPED, dr_v3(0, 0, 0), 1.5, &bd);
         DrRodState rs = dr_rod_set_state(w.rods);
+        if (pass >= 2) {
+            w.submerged = calloc((size_t)rs.nverts, sizeof(double));
+            for (int i = 0; i < rs.nverts; i++) w.submerged[i] = pass == 2 ? 0.5 : 1.0;
+        }
         int nb = 0, pv[2 * 51], ps[2 * 51];
         for (int i = 0; i < rs.nverts; i++, nb++) {
             pv[nb] = i;
@@ -202,9 +210,13 @@ static void test_bridged_beams_deflect(void **state)
         double delta = 0.5 * (gap - d_mid);
         DrBridgeStats bst;
         dr_bridges_stats(w.bridges, &bst);
-        if (pass) {
-            print_message("sigma = 0: %d bridges, midspan moved %.3e m\n", bst.bridges, delta);
+        if (pass == 1 || pass == 3) {
+            print_message("%s: %d bridges, midspan moved %.3e m\n", pass == 1 ? "sigma = 0" : "submerged",
+                          bst.bridges, delta);
             assert_true(fabs(delta) < 1e-12);
+        } else if (pass == 2) {
+            print_message("half submerged: midspan deflection %.4e m, %.4f of the dry pair's\n", delta, delta / delta0);
+            assert_true(fabs(delta / delta0 - 0.5) < 0.01);
         } else {
             double H = 1.5 * R, A = 2 * DR_PI * (H * H - R * R);
             double qsum = 0, qmin = INFINITY, qmax = -INFINITY;
@@ -226,6 +238,7 @@ static void test_bridged_beams_deflect(void **state)
             assert_true(bst.bridges == 2 * (n + 1));
             assert_true(qmin > 0 && (qmax - qmin) < 0.01 * q);
             assert_true(fabs(delta / expect - 1) < 0.03);
+            delta0 = delta;
         }
         wet_free(&w);
     }
