@@ -407,7 +407,7 @@ DrStatus dr_exchange_drip(DrExchange *e, DrFilm *f, const DrWetStrands *s, const
     if (V == 0) return DR_OK;
     DR_TRY(grow_vertices(e, V, fs.nedges, err));
     const double *r = dr_film_radius(f), *lv = dr_film_lengths(f);
-    double rho = fd->density, V0 = b->particle_volume, reach = 1.0, dripped = 0, held = 0;
+    double rho = fd->density, V0 = b->particle_volume, reach = e->cap.reach, dripped = 0, held = 0;
     DrVec3 Pd = dr_v3(0, 0, 0);
     long budget = e->drip.budget;
     double *H = e->room; /* reused: outer radius per vertex */
@@ -536,7 +536,10 @@ DrStatus dr_exchange_submersion(DrExchange *e, const double *x, long nverts, con
 {
     double lo[3] = {b->lo.x, b->lo.y, b->lo.z}, hi[3] = {b->hi.x, b->hi.y, b->hi.z};
     long n[3];
-    for (int a = 0; a < 3; a++) n[a] = (long)ceil((hi[a] - lo[a]) / b->dx - 1e-9) > 0 ? (long)ceil((hi[a] - lo[a]) / b->dx - 1e-9) : 1;
+    for (int a = 0; a < 3; a++) {
+        n[a] = (long)ceil((hi[a] - lo[a]) / b->dx - 1e-9);
+        if (n[a] < 1) n[a] = 1;
+    }
     long cells = n[0] * n[1] * n[2];
     if (cells > e->frac_cap) {
         DR_TRY(dr_realloc((size_t)cells, sizeof(double), &e->frac, err));

@@ -821,8 +821,9 @@ static DrStatus wet_write_checkpoint(const WorldWet *w, DrH5 *hf, DrError *err)
                            "m/s^2", false, err));
     DR_TRY(dr_h5_write_f64(hf, "/hair_solver/submerged", 1, (uint64_t[]){(uint64_t)fs.nverts}, w->submerged, "1",
                            false, err));
-    double ledger[6] = {1.0, l->accel ? 1.0 : 0.0, l->initial, l->emitted, l->removed, l->t_last};
-    return dr_h5_write_f64(hf, "/hair_solver/volume_ledger", 1, (uint64_t[]){6}, ledger, "m^3", false, err);
+    /* whether the strands have stepped (an acceleration), the ledger's start, emitted, removed, the last exchange */
+    double ledger[5] = {l->accel ? 1.0 : 0.0, l->initial, l->emitted, l->removed, l->t_last};
+    return dr_h5_write_f64(hf, "/hair_solver/volume_ledger", 1, (uint64_t[]){5}, ledger, "m^3", false, err);
 }
 
 static DrStatus read_exact(DrH5 *hf, const char *file, const char *path, uint64_t count, double *dst, DrError *err);
@@ -853,16 +854,16 @@ static DrStatus wet_read_checkpoint(WorldWet *w, DrH5 *hf, const char *file, DrE
     free(vs);
     free(pairs);
     if (s != DR_OK || !w->link) return s;
-    double ledger[6];
+    double ledger[5];
     DR_TRY(read_exact(hf, file, "/hair_solver/acceleration", 3 * (uint64_t)fs.nverts, w->accel, err));
-    DR_TRY(read_exact(hf, file, "/hair_solver/volume_ledger", 6, ledger, err));
+    DR_TRY(read_exact(hf, file, "/hair_solver/volume_ledger", 5, ledger, err));
     DR_TRY(read_exact(hf, file, "/hair_solver/submerged", (uint64_t)fs.nverts, w->submerged, err));
     WorldWetLink *l = w->link;
-    l->accel = ledger[1] != 0.0 ? w->accel : NULL;
-    l->initial = ledger[2];
-    l->emitted = ledger[3];
-    l->removed = ledger[4];
-    l->t_last = ledger[5];
+    l->accel = ledger[0] != 0.0 ? w->accel : NULL;
+    l->initial = ledger[1];
+    l->emitted = ledger[2];
+    l->removed = ledger[3];
+    l->t_last = ledger[4];
     return DR_OK;
 }
 
