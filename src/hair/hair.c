@@ -160,6 +160,7 @@ DrStatus dr_rod_set_create(const DrRodSetDesc *desc, const DrRodBatch *batches, 
     *out = NULL;
     DrStatus s = DR_OK;
     if (nbatches < 1) return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "a rod set needs at least one groom");
+    assert(desc->roots != DR_ROD_ROOTS_SET && desc->tips != DR_ROD_ROOTS_SET); /* a batch's choice only */
     long S = 0, V = 0;
     for (int b = 0; b < nbatches; b++) {
         DR_TRY(check_material(&batches[b].material, b, err));
@@ -258,6 +259,7 @@ DrStatus dr_rod_set_create(const DrRodSetDesc *desc, const DrRodBatch *batches, 
         r->materials[b] = batches[b].material;
         r->batch[b] = batches[b];
         r->batch[b].groom = NULL;
+        if (r->batch[b].roots == DR_ROD_ROOTS_SET) r->batch[b].roots = desc->roots;
         const DrRodMaterial *mt = &batches[b].material;
         double rad = mt->radius;
         for (int k = 0; k < g->nstrands; k++, si++) {
@@ -440,7 +442,8 @@ static void tip_velocities(DrRodSet *r, int k, double h)
 static void root_velocities(DrRodSet *r, int k, double h, const DrXform *pose)
 {
     int o = r->offsets[k], d0 = r->dof0[k], e0 = edge_index(r, k, 0);
-    int nfix = r->desc.roots == DR_ROD_ROOTS_CLAMPED ? 2 : (r->desc.roots == DR_ROD_ROOTS_PINNED ? 1 : 0);
+    DrRodRoots roots = r->batch[r->strand_batch[k]].roots;
+    int nfix = roots == DR_ROD_ROOTS_CLAMPED ? 2 : (roots == DR_ROD_ROOTS_PINNED ? 1 : 0);
     for (int j = 0; j < nfix; j++)
         for (int a = 0; a < 3; a++) {
             int dof = d0 + 4 * j + a;

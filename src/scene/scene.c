@@ -461,7 +461,7 @@ static DrStatus check_groom(Parser *p, const DrComponent *c, const char *where)
     if (curves) {
         for (int i = 0; i < c->spec->field_count; i++) {
             const char *name = c->spec->fields[i].name;
-            if (!c->values[i].set || strcmp(name, "curves") == 0) continue;
+            if (!c->values[i].set || strcmp(name, "curves") == 0 || strcmp(name, "roots") == 0) continue;
             push_key(p, name);
             return fail_key(p, "%s.%s applies to strands grown from a scalp; with curves the strands are the file's "
                                "polylines: remove %s", where, name, name);
@@ -1364,7 +1364,7 @@ static bool field_applies(const DrElement *e, const DrComponent *c, const DrFiel
     if (str_is(comp, "Collider") && str_is(name, "boundary")) return e->kind == DR_ELEMENT_COLLIDER;
     if (str_is(comp, "Collider") && str_is(name, "body_contact")) return e->kind == DR_ELEMENT_BEM_SOLID;
     if (str_is(comp, "Transfer") && str_is(name, "flip_blend")) return str_is(value_at(c, "scheme")->str, "flip");
-    if (str_is(comp, "Groom") && !str_is(name, "scalp") && !str_is(name, "curves")) {
+    if (str_is(comp, "Groom") && !str_is(name, "scalp") && !str_is(name, "curves") && !str_is(name, "roots")) {
         if (!value_at(c, "scalp")->set) return false;
         if (str_is(name, "curl_pitch")) return value_at(c, "curl_radius")->num[0] > 0.0;
     }

@@ -183,6 +183,10 @@ static DrStatus build_hair(const WorldCtx *c, WorldHair *h, int n, DrError *err)
         bt->contact_thickness = dr_component_num(cr, "thickness");
         bt->collider_friction = dr_component_num(co, "friction");
         bt->collider_thickness = dr_component_num(co, "thickness");
+        const char *roots = dr_component_str(dr_element_component(e, "Groom"), "roots");
+        bt->roots = strcmp(roots, "free") == 0     ? DR_ROD_ROOTS_FREE
+                    : strcmp(roots, "pinned") == 0 ? DR_ROD_ROOTS_PINNED
+                                                   : DR_ROD_ROOTS_CLAMPED;
         contact = contact || bt->self_contact || n > 1;
         /* scalp motion keys: times in s, angles in radians, as the colliders take them */
         if (s == DR_OK) s = dr_stage_motion_keys(e, c->first_frame, c->fps, &h->keys[b], &h->nkeys[b], err);

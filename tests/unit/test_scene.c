@@ -652,6 +652,7 @@ static void test_hair_defaults(void **state)
     assert_true(dr_component_num(groom, "curl_pitch") == 0.01);
     assert_true(dr_component_num(groom, "length_jitter") == 0.0);
     assert_int_equal(dr_component_int(groom, "seed"), 1);
+    assert_string_equal(dr_component_str(groom, "roots"), "clamped");
     const DrComponent *mat = dr_element_component(fur, "RodMaterial");
     assert_false(dr_component_present(mat));
     assert_true(dr_component_num(mat, "radius") == 5e-5);
@@ -684,7 +685,7 @@ static void test_hair_defaults(void **state)
 
     /* every component written, curves instead of a scalp; two hair elements with one HairSolver */
     write_curves();
-    const char *full = "\"Groom\":{\"curves\":\"meshes/curves.obj\"},"
+    const char *full = "\"Groom\":{\"curves\":\"meshes/curves.obj\",\"roots\":\"free\"},"
                        "\"RodMaterial\":{\"radius\":4e-5,\"density\":1100,\"youngs_modulus\":2e9,"
                        "\"shear_modulus\":7e8,\"damping\":0.01},"
                        "\"Collider\":{\"friction\":0.3,\"thickness\":1e-4},"
@@ -706,6 +707,8 @@ static void test_hair_defaults(void **state)
     tmp_path("meshes/curves.obj", curves, sizeof curves);
     assert_string_equal(dr_component_str(groom, "curves"), curves);
     assert_null(dr_component_str(groom, "scalp"));
+    assert_string_equal(dr_component_str(groom, "roots"), "free"); /* for curves too */
+    assert_string_equal(dr_component_str(dr_element_component(dr_scene_find(s, "mane"), "Groom"), "roots"), "clamped");
     mat = dr_element_component(fur, "RodMaterial");
     assert_true(dr_component_num(mat, "radius") == 4e-5 && dr_component_num(mat, "damping") == 0.01);
     assert_true(dr_component_num(dr_element_component(fur, "Collider"), "friction") == 0.3);
@@ -762,6 +765,9 @@ static void test_hair_bad_input(void **state)
         {"\"Groom\":{\"curves\":\"meshes/curves.obj\",\"count\":10}", NULL,
          {"fur.Groom.count applies to strands grown from a scalp; with curves the strands are the file's polylines: "
           "remove count"}},
+        {"\"Groom\":{\"scalp\":\"meshes/tri.obj\",\"roots\":\"loose\"}", NULL,
+         {"fur.Groom.roots: 'loose' is not a valid choice", "Choose one of clamped, pinned, free"}},
+        {"\"Groom\":{\"curves\":\"meshes/curves.obj\",\"roots\":true}", NULL, {"fur.Groom.roots"}},
         {"\"Groom\":{\"scalp\":\"meshes/no_scalp.obj\"}", NULL,
          {"fur.Groom.scalp: asset 'meshes/no_scalp.obj' not found"}},
         {"\"RodMaterial\":{}", NULL,
