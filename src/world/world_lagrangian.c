@@ -15,6 +15,26 @@
 #include "stage/stage.h"
 #include "wet/wet.h"
 
+/* The momentum ledger of wet hair beside the liquid it exchanges water with (capture, dripping; README "The ledger"):
+   after every clock step, once the exchange has run, P = liquid particles (m_p = the nominal particle's mass ×
+   vol_p/V0) + strands (vertex masses) + film (dr_film_measure: its edges and pools), against the previous step's P plus
+   what the world knows acts from outside, gravity × the total mass × the step. Anything else that pushes (the
+   domain's walls, colliders, held roots, emitters, kill boxes, a film denser than the liquid) shows as a residual. */
+typedef struct WorldMomentum {
+    DrVec3 prev;               /* kg m/s: P after the last step (or at the start, or as resumed) */
+    double mass;               /* kg: liquid + strands + film then */
+    /* the frame's: the largest |ΔP − gravity impulse| / max(|P| before, |P| after) of a step and its residual, the
+       gravity impulse summed, the steps measured */
+    double relative_max, residual_max;
+    DrVec3 external;
+    int steps;
+    DrVec3 liquid, hair, film; /* kg m/s: the parts of P after the frame's last step */
+    /* the last frame's, for the frame cache */
+    double last_relative_max, last_residual_max;
+    DrVec3 last_external, last_liquid, last_hair, last_film;
+    int last_steps;
+} WorldMomentum;
+
 /* Wet hair (src/wet): the film on every strand of the rod set (dry elements' strands start with none), the bridges
    between strands and to the colliders, and the cohesion tables precompute built. */
 typedef struct WorldWet {
@@ -45,6 +65,7 @@ typedef struct WorldWet {
     double *v_start, *accel;
     double *submerged;         /* per vertex, [0, 1]: how far under the liquid's surface (cohesion is off there) */
     bool warned_budget;
+    WorldMomentum momentum;    /* the momentum ledger of liquid, strands and film (with the exchange) */
 } WorldWet;
 
 /* Hair coupled two ways with a fluid (elements with a Drag component; src/couple): per vertex the element's law, the
@@ -258,6 +279,44 @@ static DrStatus build_hair(const WorldCtx *c, WorldHair *h, int n, DrError *err)
     return DR_OK;
 }
 
+/* P of the liquid's particles, of the strands and of the film now (parts and total, kg m/s) and their mass, kg
+   (WorldMomentum). In a fixed order: the same state gives the same bits. */
+static DrVec3 ledger_measure(WorldWet *w, const DrRodState *rs, DrVec3 *liquid, DrVec3 *hair, DrVec3 *film,
+                             double *mass)
+{
+    const DrLiquid *L = w->link->liquid;
+    const DrLiquidState *st = dr_liquid_state(L);
+    double pm = dr_liquid_particle_mass(L), v0 = dr_liquid_nominal_volume(L), m_all = 0.0;
+    DrVec3 pl = dr_v3(0, 0, 0), ph = dr_v3(0, 0, 0);
+    for (long p = 0; p < st->n; p++) {
+        double m = pm * (st->vol[p] / v0);
+        const double *v = st->v + 3 * p;
+        m_all += m;
+        pl = dr_v3_add(pl, dr_v3(m * v[0], m * v[1], m * v[2]));
+    }
+    for (int i = 0; i < rs->nverts; i++) {
+        double m = rs->mass[i];
+        const double *v = rs->v + 3 * i;
+        m_all += m;
+        ph = dr_v3_add(ph, dr_v3(m * v[0], m * v[1], m * v[2]));
+    }
+    DrFilmStats fs = {0};
+    dr_film_measure(w->film, rs->x, rs->v, &fs);
+    m_all += w->set.film.density * (fs.volume + fs.pools);
+    *liquid = pl;
+    *hair = ph;
+    *film = fs.momentum;
+    *mass = m_all;
+    return dr_v3_add(dr_v3_add(pl, ph), fs.momentum);
+}
+
+/* The ledger's reference: the state now (the bake's start, or a restored checkpoint). */
+static void ledger_start(WorldWet *w, const DrRodState *rs)
+{
+    WorldMomentum *m = &w->momentum;
+    m->prev = ledger_measure(w, rs, &m->liquid, &m->hair, &m->film, &m->mass);
+}
+
 /* The wet hair: the cohesion tables from the cache (bake refuses to start without them: "run precompute"), the film
    on every strand (Film.initial_ratio of its element; 1, dry, on a dry element's strands), the bridges. */
 static DrStatus build_wet(const WorldCtx *c, WorldHair *h, const char *cache_root, DrError *err)
@@ -329,6 +388,7 @@ static DrStatus build_wet(const WorldCtx *c, WorldHair *h, const char *cache_roo
                                .nverts = V};
         w->link = link;
         DR_TRY(world_wet_start(link, c->t0, err)); /* a resumed bake reads the ledger back */
+        ledger_start(w, &rs);                      /* and measures its momentum from the restored state */
     }
     return DR_OK;
 }
@@ -394,8 +454,36 @@ static void hair_begin_frame(void *self, const WorldCtx *c)
         if (l) {
             l->captured = l->dripped = l->held = l->seconds = 0, l->drops = l->captured_particles = 0;
             l->captured_momentum = l->dripped_momentum = dr_v3(0, 0, 0);
+            WorldMomentum *m = &h->wet->momentum;
+            m->relative_max = m->residual_max = 0.0;
+            m->external = dr_v3(0, 0, 0);
+            m->steps = 0;
         }
     }
+}
+
+/* After every solver stepped from t to t_next, the liquid's exchange included (liquids come first): the momentum
+   ledger's step. */
+static DrStatus hair_step_last(void *self, const WorldCtx *c, double t, double t_next, DrError *err)
+{
+    (void)err;
+    WorldHair *h = self;
+    if (!h->wet || !h->wet->link) return DR_OK;
+    WorldMomentum *m = &h->wet->momentum;
+    DrRodState rs = dr_rod_set_state(h->rods);
+    double mass;
+    DrVec3 P = ledger_measure(h->wet, &rs, &m->liquid, &m->hair, &m->film, &mass);
+    DrVec3 ext = dr_v3_scale(c->gravity, m->mass * (t_next - t));
+    double res = dr_v3_norm(dr_v3_sub(dr_v3_sub(P, m->prev), ext));
+    double scale = fmax(fmax(dr_v3_norm(P), dr_v3_norm(m->prev)), 1e-300);
+    /* fmax drops a NaN: a non-finite state is reported by the solvers' own checks */
+    m->relative_max = fmax(m->relative_max, res / scale);
+    m->residual_max = fmax(m->residual_max, res);
+    m->external = dr_v3_add(m->external, ext);
+    m->steps++;
+    m->prev = P;
+    m->mass = mass;
+    return DR_OK;
 }
 
 /* m/s: the fastest vertex, plus the fastest film along its strand (wet hair) */
@@ -763,6 +851,16 @@ static DrStatus hair_end_frame(void *self, const WorldCtx *c, DrFrameStats *stat
             }
         }
         h->last_wet = *b;
+        if (w->link) {
+            WorldMomentum *m = &w->momentum;
+            m->last_relative_max = m->relative_max;
+            m->last_residual_max = m->residual_max;
+            m->last_external = m->external;
+            m->last_steps = m->steps;
+            m->last_liquid = m->liquid;
+            m->last_hair = m->hair;
+            m->last_film = m->film;
+        }
         if (!isfinite(fs.volume) || !isfinite(fs.kinetic))
             return dr_error_set(err, DR_ERR_RUNTIME, NULL, 0, 0,
                                 "%s: the film on the strands became non-finite in frame %d (volume %g m^3); lower "
@@ -990,6 +1088,18 @@ static DrStatus hair_write(const void *self, const WorldCtx *c, DrH5 *hf, bool f
             DR_TRY(dr_h5_write_scalar(hf, lg, "held_back", b->held_back, "m^3", err));
             DR_TRY(dr_h5_write_vec3(hf, lg, "captured_momentum", b->captured_momentum, "kg*m/s", err));
             DR_TRY(dr_h5_write_vec3(hf, lg, "dripped_momentum", b->dripped_momentum, "kg*m/s", err));
+            /* the momentum ledger of liquid + strands + film over the frame's steps */
+            const WorldMomentum *m = &h->wet->momentum;
+            const char *mg = "/diagnostics/momentum_ledger";
+            DrVec3 total = dr_v3_add(dr_v3_add(m->last_liquid, m->last_hair), m->last_film);
+            DR_TRY(dr_h5_write_scalar(hf, mg, "relative_change_max", m->last_relative_max, "1", err));
+            DR_TRY(dr_h5_write_scalar(hf, mg, "residual_max", m->last_residual_max, "kg*m/s", err));
+            DR_TRY(dr_h5_write_scalar(hf, mg, "steps", m->last_steps, "1", err));
+            DR_TRY(dr_h5_write_vec3(hf, mg, "external", m->last_external, "kg*m/s", err));
+            DR_TRY(dr_h5_write_vec3(hf, mg, "total", total, "kg*m/s", err));
+            DR_TRY(dr_h5_write_vec3(hf, mg, "liquid", m->last_liquid, "kg*m/s", err));
+            DR_TRY(dr_h5_write_vec3(hf, mg, "hair", m->last_hair, "kg*m/s", err));
+            DR_TRY(dr_h5_write_vec3(hf, mg, "film", m->last_film, "kg*m/s", err));
         }
     }
     return DR_OK;
@@ -1045,6 +1155,7 @@ static DrStatus hair_read(void *self, const WorldCtx *c, DrH5 *hf, const char *f
     DR_TRY(read_exact(hf, file, "/hair_solver/lambda", (uint64_t)rs.nlambda, rs.lambda, err));
     dr_rod_set_refresh(h->rods);
     if (h->wet) DR_TRY(wet_read_checkpoint(h->wet, hf, file, err));
+    if (h->wet && h->wet->link) ledger_start(h->wet, &rs); /* the liquid (read first) and the strands restored */
     return DR_OK;
 }
 
@@ -1151,6 +1262,7 @@ DrStatus world_lagrangian_adapter(const WorldCtx *c, const char *cache_root, Wor
                          .begin_frame = hair_begin_frame,
                          .next_time = hair_next_time,
                          .step = hair_step,
+                         .step_last = hair_step_last,
                          .end_frame = hair_end_frame,
                          .write = hair_write,
                          .read = hair_read,
