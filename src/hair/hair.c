@@ -55,6 +55,7 @@ struct DrRodSet {
     int *strand_batch;         /* S */
     DrRodMaterial *materials;  /* per batch */
     DrRodBatch *batch;         /* per batch (the groom pointers are not kept past create) */
+    DrRodRoots *roots;         /* per batch: how its roots follow its scalp (desc.roots or desc.batch_roots) */
 
     /* rest */
     double *lbar;              /* E */
@@ -134,7 +135,7 @@ void dr_rod_set_destroy(DrRodSet **rp)
 {
     if (!rp || !*rp) return;
     DrRodSet *r = *rp;
-    void *arrays[] = {r->offsets, r->batch_offsets, r->batch_group, r->batch_mask, r->strand_batch, r->materials, r->batch,
+    void *arrays[] = {r->offsets, r->batch_offsets, r->batch_group, r->batch_mask, r->strand_batch, r->materials, r->batch, r->roots,
                       r->lbar, r->kbar, r->tbar, r->lv, r->vmass, r->tinertia, r->radius, r->vradius, r->eks,
                       r->ibend, r->itwist, r->root_rest,
                       r->m1_rest, r->tip_rest, r->t_old, r->edge_strand, r->edge_local, r->x, r->v, r->theta, r->theta_dot, r->a1, r->m, r->t, r->len, r->lambda,
@@ -160,7 +161,6 @@ DrStatus dr_rod_set_create(const DrRodSetDesc *desc, const DrRodBatch *batches, 
     *out = NULL;
     DrStatus s = DR_OK;
     if (nbatches < 1) return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "a rod set needs at least one groom");
-    assert(desc->roots != DR_ROD_ROOTS_SET && desc->tips != DR_ROD_ROOTS_SET); /* a batch's choice only */
     long S = 0, V = 0;
     for (int b = 0; b < nbatches; b++) {
         DR_TRY(check_material(&batches[b].material, b, err));
@@ -199,6 +199,7 @@ DrStatus dr_rod_set_create(const DrRodSetDesc *desc, const DrRodBatch *batches, 
     ALLOC(r->strand_batch, S);
     ALLOC(r->materials, nbatches);
     ALLOC(r->batch, nbatches);
+    ALLOC(r->roots, nbatches);
     ALLOC(r->lbar, r->E);
     ALLOC(r->kbar, 4 * r->I);
     ALLOC(r->tbar, r->I);
@@ -259,7 +260,7 @@ DrStatus dr_rod_set_create(const DrRodSetDesc *desc, const DrRodBatch *batches, 
         r->materials[b] = batches[b].material;
         r->batch[b] = batches[b];
         r->batch[b].groom = NULL;
-        if (r->batch[b].roots == DR_ROD_ROOTS_SET) r->batch[b].roots = desc->roots;
+        r->roots[b] = desc->batch_roots ? desc->batch_roots[b] : desc->roots;
         const DrRodMaterial *mt = &batches[b].material;
         double rad = mt->radius;
         for (int k = 0; k < g->nstrands; k++, si++) {
@@ -442,7 +443,7 @@ static void tip_velocities(DrRodSet *r, int k, double h)
 static void root_velocities(DrRodSet *r, int k, double h, const DrXform *pose)
 {
     int o = r->offsets[k], d0 = r->dof0[k], e0 = edge_index(r, k, 0);
-    DrRodRoots roots = r->batch[r->strand_batch[k]].roots;
+    DrRodRoots roots = r->roots[r->strand_batch[k]];
     int nfix = roots == DR_ROD_ROOTS_CLAMPED ? 2 : (roots == DR_ROD_ROOTS_PINNED ? 1 : 0);
     for (int j = 0; j < nfix; j++)
         for (int a = 0; a < 3; a++) {

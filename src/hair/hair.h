@@ -92,14 +92,15 @@ typedef struct DrRodCollider {
 } DrRodCollider;
 
 typedef enum DrRodRoots {
-    DR_ROD_ROOTS_SET,     /* in a DrRodBatch only (its zero value): the set's desc.roots */
     DR_ROD_ROOTS_FREE,    /* no vertex attached (a free rod) */
     DR_ROD_ROOTS_PINNED,  /* the root vertex follows the scalp */
     DR_ROD_ROOTS_CLAMPED  /* the root vertex, the next one and the first edge's twist follow the scalp */
 } DrRodRoots;
 
 typedef struct DrRodSetDesc {
-    DrRodRoots roots;           /* every batch's unless the batch says otherwise; default CLAMPED (not ROOTS_SET) */
+    DrRodRoots roots;           /* default CLAMPED */
+    const DrRodRoots *batch_roots; /* NULL (default): `roots` for every batch; else one per batch (a groom's own
+                                   choice: loose strands beside rooted ones), read at create only */
     DrRodRoots tips;            /* the other end, held where it starts (tests, tethered strands); default FREE */
     DrVec3 gravity;             /* m/s², default (0, −9.81, 0) */
     bool geometric_stiffness;   /* eq. (S27)'s λ-weighted Hessians; default true */
@@ -127,7 +128,6 @@ typedef struct DrRodBatch {
     double contact_thickness;   /* m */
     double collider_friction;   /* against colliders: the larger of this and the collider's own coefficient */
     double collider_thickness;  /* m, added to the radius against colliders (with the collider's own) */
-    DrRodRoots roots;           /* how this groom's roots follow its scalp; DR_ROD_ROOTS_SET (0): desc.roots */
 } DrRodBatch;
 
 typedef struct DrRodSet DrRodSet;

@@ -176,7 +176,9 @@ static DrStatus build_hair(const WorldCtx *c, WorldHair *h, int n, DrError *err)
     DrGroom *grooms = NULL;
     DrRodBatch *batches = NULL;
     DR_TRY(dr_calloc((size_t)n, sizeof *grooms, &grooms, err));
+    DrRodRoots *roots = NULL; /* per element: Groom.roots */
     DrStatus s = dr_calloc((size_t)n, sizeof *batches, &batches, err);
+    if (s == DR_OK) s = dr_calloc((size_t)n, sizeof *roots, &roots, err);
     const DrComponent *solver = NULL;
     bool contact = false;
     for (int i = 0; s == DR_OK && i < dr_scene_element_count(scene); i++) {
@@ -204,10 +206,10 @@ static DrStatus build_hair(const WorldCtx *c, WorldHair *h, int n, DrError *err)
         bt->contact_thickness = dr_component_num(cr, "thickness");
         bt->collider_friction = dr_component_num(co, "friction");
         bt->collider_thickness = dr_component_num(co, "thickness");
-        const char *roots = dr_component_str(dr_element_component(e, "Groom"), "roots");
-        bt->roots = strcmp(roots, "free") == 0     ? DR_ROD_ROOTS_FREE
-                    : strcmp(roots, "pinned") == 0 ? DR_ROD_ROOTS_PINNED
-                                                   : DR_ROD_ROOTS_CLAMPED;
+        const char *rt = dr_component_str(dr_element_component(e, "Groom"), "roots");
+        roots[b] = strcmp(rt, "free") == 0     ? DR_ROD_ROOTS_FREE
+                   : strcmp(rt, "pinned") == 0 ? DR_ROD_ROOTS_PINNED
+                                               : DR_ROD_ROOTS_CLAMPED;
         contact = contact || bt->self_contact || n > 1;
         /* scalp motion keys: times in s, angles in radians, as the colliders take them */
         if (s == DR_OK) s = dr_stage_motion_keys(e, c->first_frame, c->fps, &h->keys[b], &h->nkeys[b], err);
@@ -217,6 +219,7 @@ static DrStatus build_hair(const WorldCtx *c, WorldHair *h, int n, DrError *err)
         DrRodSetDesc d;
         dr_rod_set_desc_default(&d);
         d.gravity = c->gravity;
+        d.batch_roots = roots;
         d.hair_contact = contact;
         d.geometric_stiffness = dr_component_bool(solver, "geometric_stiffness");
         const char *pc = dr_component_str(solver, "preconditioner");
@@ -237,6 +240,7 @@ static DrStatus build_hair(const WorldCtx *c, WorldHair *h, int n, DrError *err)
     for (int b = 0; b < n; b++) dr_groom_free(&grooms[b]);
     free(grooms);
     free(batches);
+    free(roots);
     if (s != DR_OK) return s;
     /* the live colliders, then the bem_solid bodies' deformed surfaces and the MPM solids' particles (frictionless
        themselves: the hair's own Collider.friction applies), all where the kinematics put them at every clock
