@@ -475,24 +475,53 @@ static void received(DrCouple *c, int n, double h)
 
 /* The reaction −g_i spread over each element's coupled faces (fc.impulse), and the drag mass β_f = h Σ_i wn_if K_aa of
    every element in an iteration before the last, of the implicit ones (Element.implicit) in the last, with
+   an explicit element's reaction (the last projection, no drag mass to bound it) spread in proportion to wn_if m_f,
+   m_f the fluid's face mass (fm, NULL: by wn alone), not to wn_if: every face it reaches then changes its velocity
+   by the same −g_i,a wn_if / Σ_f wn_if m_f, at most what the element itself lost over the mass around it, where
+   spreading by wn alone would give a face holding a sliver of liquid (a lone small drop) a velocity change
+   without bound; the total is the same; with
    β_f (u_f − V_f) added to the impulse, u_f the last projection's velocity: the fluid then solves
    (m + β) u = m u* − Σ wn g + β u^prev, whose fixed point carries exactly the reaction. Returns Σ_f J_f over the spread
    reaction alone, and in *pull Σ_f β_f u_f (the ledger's fluid side is the first plus *pull less Σ_f β_f u_f after the
    projection). */
-static DrVec3 spread(DrCouple *c, const DrMacGrid *g, int n, double h, bool last, DrVec3 *pull)
+/* The drag mass element e gives a face component along which its drag is k (N s/m): h k in an iteration before the
+   last, and for a held element; in the last projection h k m/(h k + m), the element's own inertia in series with its
+   drag (what the fluid can pull on through the drag before the element moves with it): the fluid's pull on a free
+   element then moves it by at most the fluid's own change, where h k, larger than m for a light element in strong
+   drag (a thin strand at high Reynolds number), would move it by h k/m times that. */
+static double drag_mass(const Element *e, double h, double k, bool last)
+{
+    double b = h * k;
+    return last && !e->held && e->mass > 0.0 ? b * e->mass / (b + e->mass) : b;
+}
+
+static DrVec3 spread(DrCouple *c, const DrMacGrid *g, int n, double h, bool last, const double *const fm[3],
+                     DrVec3 *pull)
 {
     double t[3] = {0, 0, 0}, pl[3] = {0, 0, 0};
     for (int i = 0; i < n; i++) {
         const Element *e = &c->el[i];
         if (!e->active) continue;
         bool drag = !last || e->implicit;
-        for (int a = 0; a < 3; a++)
+        for (int a = 0; a < 3; a++) {
+            /* an explicit reaction by wn m_f (scale: the same total as by wn) */
+            double scale = 0.0;
+            if (!drag && fm && fm[a]) {
+                double wsum = 0.0, wm = 0.0;
+                for (int q = 0; q < 8; q++) {
+                    wsum += e->wn[a][q];
+                    if (e->wn[a][q] != 0.0) wm += e->wn[a][q] * fm[a][e->st[a].f[q]];
+                }
+                if (wm > 0.0 && isfinite(wm)) scale = wsum / wm;
+            }
             for (int q = 0; q < 8; q++) {
                 double w = e->wn[a][q];
                 if (w == 0.0) continue;
-                c->fc.impulse[a][e->st[a].f[q]] -= w * c->g[3 * i + a];
-                if (drag) c->fc.drag[a][e->st[a].f[q]] += w * h * c->kf[9 * i + 4 * a];
+                long f = e->st[a].f[q];
+                c->fc.impulse[a][f] -= (scale > 0.0 ? w * fm[a][f] * scale : w) * c->g[3 * i + a];
+                if (drag) c->fc.drag[a][f] += w * drag_mass(e, h, c->kf[9 * i + 4 * a], last);
             }
+        }
     }
     for (int a = 0; a < 3; a++)
         for (long f = 0; f < g->nfaces[a]; f++) {
@@ -517,20 +546,36 @@ static DrStatus final_exchange(DrCouple *c, const DrCoupleFluid *fluid, const Dr
     const DrMacGrid *g = fluid->grid;
     const double *fm[3];
     for (int a = 0; a < 3; a++) fm[a] = fluid->face_mass ? fluid->face_mass(fluid->ctx, a) : NULL;
+    /* the free elements' mass on each face, by the weights they take the fluid with (c->num, zeroed by the caller) */
+    for (int i = 0; i < n && !all_explicit && fm[0]; i++) {
+        const Element *e = &c->el[i];
+        if (!e->active || e->held) continue;
+        for (int a = 0; a < 3; a++)
+            for (int q = 0; q < 8; q++)
+                if (e->wn[a][q] != 0.0) c->num[a][e->st[a].f[q]] += e->wn[a][q] * e->mass;
+    }
     for (int i = 0; i < n; i++) {
         Element *e = &c->el[i];
         e->implicit = false;
         if (!e->active || all_explicit) continue;
         if (e->held) { e->implicit = true; continue; }
         if (!solids[e->solid].correct || !fm[0]) continue;
+        /* explicit only where the fluid outweighs the element and, on every face it reaches, all the free elements
+           there together: a fur whose strands crowd a sliver of liquid stays implicit */
         double mf = 0.0;
+        bool outweighs = true;
         for (int a = 0; a < 3; a++)
-            for (int q = 0; q < 8; q++) mf += e->wn[a][q] * fm[a][e->st[a].f[q]] / 3.0;
-        e->implicit = e->mass >= mf;
+            for (int q = 0; q < 8; q++) {
+                if (e->wn[a][q] == 0.0) continue;
+                long f = e->st[a].f[q];
+                mf += e->wn[a][q] * fm[a][f] / 3.0;
+                if (!(fm[a][f] > c->num[a][f])) outweighs = false;
+            }
+        e->implicit = e->mass >= mf || !outweighs;
     }
     /* the faces: every element's reaction spread, the implicit ones' drag masses pulling towards the last iterate */
     DrVec3 pv;
-    DrVec3 ev = spread(c, g, n, h, true, &pv);
+    DrVec3 ev = spread(c, g, n, h, true, fm, &pv);
     double expl[3] = {ev.x, ev.y, ev.z}, pull[3] = {pv.x, pv.y, pv.z};
     DR_TRY(fluid->project(fluid->ctx, &c->fc, err));
     /* the fluid gained the spread reactions and Σ β (u^prev − u) */
@@ -540,8 +585,9 @@ static DrStatus final_exchange(DrCouple *c, const DrCoupleFluid *fluid, const Dr
             if (b > 0.0) pull[a] -= b * g->f[a][f];
         }
     *gave = dr_v3(expl[0] + pull[0], expl[1] + pull[1], expl[2] + pull[2]);
-    /* what the implicit elements received besides their solve's impulse: h K_aa (ũ − ũ^prev), the fluid's change at
-       them in this projection; a free element's velocity takes it */
+    /* what the implicit elements received besides their solve's impulse: b_i (ũ − ũ^prev), what their drag masses
+       took from the fluid in this projection (Σ_i is exactly the fluid's loss, the ledger); a free element's
+       velocity takes it: b_i/m_i = h K_aa/(h K_aa + m_i) < 1 of the fluid's change at it */
     memcpy(c->uprev, c->u, (size_t)n * 3 * sizeof(double));
     sample_velocity(c, fluid, n, false);
     c->residual = rel_change(c->u, c->uprev, 3L * n, 1e-12);
@@ -551,7 +597,7 @@ static DrStatus final_exchange(DrCouple *c, const DrCoupleFluid *fluid, const Dr
         const Element *e = &c->el[i];
         if (!e->implicit) continue;
         for (int a = 0; a < 3; a++) {
-            double dg = h * c->kf[9 * i + 4 * a] * (c->u[3 * i + a] - c->uprev[3 * i + a]);
+            double dg = drag_mass(e, h, c->kf[9 * i + 4 * a], true) * (c->u[3 * i + a] - c->uprev[3 * i + a]);
             if (!e->held) {
                 c->dv[3 * i + a] = dg / e->mass;
                 any = true;
@@ -652,7 +698,7 @@ DrStatus dr_couple_step(DrCouple *c, const DrCoupleDesc *desc, const DrCoupleFlu
             break;
         }
         DrVec3 unused;
-        (void)spread(c, g, n, h, false, &unused);
+        (void)spread(c, g, n, h, false, NULL, &unused);
         DR_TRY(fluid->project(fluid->ctx, &c->fc, err));
         double a4 = dr_time_now();
         sec_laws += a1 - a0 + a3 - a2;

@@ -46,10 +46,13 @@
  *      fluid velocity and pressure falls below the tolerance, or at the iteration cap. The last projection settles
  *      what each element and the fluid exchanged, exactly, for any iteration count (the momentum ledger,
  *      DrCoupleStats), the lighter side taking the explicit part, so that an unconverged step cannot blow up:
- *      - an element lighter than the fluid around it (its mass below Σ w_if m_f): the fluid takes the impulse
- *        g_i = h (f_i + D_i v_i) the element received in its solve, negated and spread over the coupled faces with the
- *        weights it was sampled with (an explicit reaction, bounded by the element's own momentum change);
- *      - an element at least as heavy, or held (a root: its reaction goes to what holds it): the fluid takes the same
+ *      - an element lighter than the fluid around it (its mass below Σ w_if m_f, and on every face it reaches the
+ *        fluid's mass above all the free elements' there, Σ_j w_jf m_j): the fluid takes the impulse
+ *        g_i = h (f_i + D_i v_i) the element received in its solve, negated and spread over the coupled faces in
+ *        proportion to w_if m_f (an explicit reaction: every face it reaches changes by the same velocity, bounded by
+ *        the element's own velocity change; spread by w_if alone, a face holding a sliver of liquid would be given
+ *        an unbounded one);
+ *      - any other element, or a held one (a root: its reaction goes to what holds it): the fluid takes the same
  *        reaction but also keeps the element's implicit drag mass β = h K_aa pulling it towards the last iterate
  *        (as in the iterations before), and the element receives in addition exactly what that pull gave,
  *        h K_aa (ũ_a − ũ_a^prev), added to its velocity (DrCoupleSolid.correct; bounded by the fluid's change over the
@@ -105,7 +108,7 @@ typedef struct DrCoupleSamples {
     int n;
     const double *x;          /* 3n, m */
     const double *v;          /* 3n, m/s */
-    const double *mass;       /* n, kg */
+    const double *mass;       /* n, kg: the inertia the element moves with (for a wet strand vertex, with its film) */
     const double *volume;     /* n, m³ */
     const double *diameter;   /* n, m */
     const double *slender;    /* n: Λ of the element's strand */

@@ -308,7 +308,7 @@ static const DrFieldSpec groom_fields[] = {
             "area-weighted vertex normal (exactly one of scalp and curves)"},
     {.name = "curves", .kind = DR_FIELD_PATH, .unit = "",
      .doc = "OBJ file of polylines: each 'l' record is one strand, root first (exactly one of scalp and curves; "
-            "the fields below but roots are for scalp only)"},
+            "the fields below, but for roots, are for scalp only)"},
     {.name = "count", .kind = DR_FIELD_INT, .unit = "", .def = {100}, RANGE(1, 1000000),
      .doc = "strands grown from the scalp"},
     {.name = "length", .kind = DR_FIELD_NUMBER, .unit = "m", .def = {0.05}, RANGE_LO_OPEN(0, 100),
@@ -324,7 +324,8 @@ static const DrFieldSpec groom_fields[] = {
     {.name = "length_jitter", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {0}, RANGE_HI_OPEN(0, 1),
      .doc = "random spread of strand lengths: each is length * (1 + length_jitter * u), u uniform in [-1, 1)"},
     {.name = "seed", .kind = DR_FIELD_INT, .unit = "", .def = {1}, RANGE(0, INT_MAX_31),
-     .doc = "seed of the root placement, curl phases and length jitter (roots depend on scalp, count and seed only)"},    {.name = "roots", .kind = DR_FIELD_ENUM, .unit = "", .def_str = "clamped", .choices = "clamped|pinned|free",
+     .doc = "seed of the root placement, curl phases and length jitter (roots depend on scalp, count and seed only)"},
+    {.name = "roots", .kind = DR_FIELD_ENUM, .unit = "", .def_str = "clamped", .choices = "clamped|pinned|free",
      .doc = "how the strands hold to the scalp (scalp or curves): clamped (the first two vertices and the first edge's "
             "twist follow the scalp and its Motion), pinned (the first vertex only: the strand swivels about it) or "
             "free (loose strands: nothing holds them, Motion moves nothing, and no scalp pushes the hair, so strands, "

@@ -75,6 +75,9 @@ typedef struct WorldCouple {
     int *law;                  /* per vertex */
     double *slender;           /* per vertex: its strand's rest length over its diameter */
     double *volume, *diameter; /* per vertex, filled with the samples (volume 0 on an uncoupled element) */
+    double *mass;              /* per vertex, kg: the vertex's inertia the loop weighs it by, m_i + tr(B_i)/3 with the
+                                  film it carries across (B_i, wet.h; m_i on dry hair) */
+    double *corr;              /* per vertex × 3: the loop's correction as the vertex takes it */
     unsigned char *coupled;    /* per element */
     double *force, *dfdv;      /* the solve's load per vertex (the film's plus the coupling's) */
     int *block_dof;
@@ -150,7 +153,7 @@ static void hair_destroy(void *self)
     wet_destroy(&h->wet);
     if (h->cpl) {
         WorldCouple *k = h->cpl;
-        free(k->laws); free(k->law); free(k->slender); free(k->volume); free(k->diameter); free(k->coupled);
+        free(k->laws); free(k->law); free(k->slender); free(k->volume); free(k->diameter); free(k->mass); free(k->corr); free(k->coupled);
         free(k->force); free(k->dfdv); free(k->block_dof); free(k->block);
         free(k);
     }
@@ -659,6 +662,29 @@ static DrStatus hair_step(void *self, const WorldCtx *c, double t, double t_next
 
 /* ---- the coupled step (src/couple): the hair as a solid of the loop ------------------------------------------ */
 
+/* x = A⁻¹ b for a symmetric positive definite 3×3 A (row-major), by its adjugate. */
+static void solve3(const double A[9], const double b[3], double x[3])
+{
+    double c00 = A[4] * A[8] - A[5] * A[7], c01 = A[5] * A[6] - A[3] * A[8], c02 = A[3] * A[7] - A[4] * A[6];
+    double c11 = A[0] * A[8] - A[2] * A[6], c12 = A[2] * A[3] - A[0] * A[5], c22 = A[0] * A[4] - A[1] * A[3];
+    double det = A[0] * c00 + A[1] * c01 + A[2] * c02;
+    /* A symmetric: the adjugate is too (c10 = c01, c20 = c02, c21 = c12) */
+    x[0] = (c00 * b[0] + c01 * b[1] + c02 * b[2]) / det;
+    x[1] = (c01 * b[0] + c11 * b[1] + c12 * b[2]) / det;
+    x[2] = (c02 * b[0] + c12 * b[1] + c22 * b[2]) / det;
+}
+
+/* B_i of vertex i (wet.h): the film's load of the step holds −B_i/h in its velocity derivative. */
+static void film_inertia(const WorldHair *h, int i, double B[9])
+{
+    const WorldWet *w = h->wet;
+    for (int q = 0; q < 9; q++) B[q] = w ? -h->cpl->dt * w->dfdv[9 * i + q] : 0.0;
+}
+
+/* The elements are the vertices, weighed with the film they carry: the loop decides by an element's inertia whether
+   the fluid or the element takes the explicit part of the exchange, and a correction given to the vertex alone would
+   move the film's momentum across the strand with it unaccounted (and a thin strand under a heavy film would be
+   given a velocity change its film's inertia never saw). */
 static DrCoupleSamples couple_samples(void *ctx)
 {
     WorldHair *h = ctx;
@@ -668,8 +694,11 @@ static DrCoupleSamples couple_samples(void *ctx)
         bool on = k->coupled[k->law[i]];
         k->volume[i] = on ? M_PI * sm.radius[i] * sm.radius[i] * sm.length[i] : 0.0;
         k->diameter[i] = 2.0 * sm.radius[i];
+        double B[9];
+        film_inertia(h, i, B);
+        k->mass[i] = sm.mass[i] + (B[0] + B[4] + B[8]) / 3.0;
     }
-    return (DrCoupleSamples){sm.n, sm.x, sm.v, sm.mass, k->volume, k->diameter, k->slender, sm.tangent, sm.held,
+    return (DrCoupleSamples){sm.n, sm.x, sm.v, k->mass, k->volume, k->diameter, k->slender, sm.tangent, sm.held,
                              k->law};
 }
 
@@ -681,7 +710,33 @@ static DrStatus couple_solve(void *ctx, const double *force, const double *dforc
     return s == DR_WARN_NOT_CONVERGED ? DR_OK : s; /* counted in the frame's stats */
 }
 
-static void couple_correct(void *ctx, const double *dv) { dr_rod_set_add_velocity(((WorldHair *)ctx)->rods, dv); }
+/* The loop's correction dv_i = Δp_i / k->mass[i] (couple.h): the vertex and the film across it take the impulse Δp_i
+   together, (m_i I + B_i) dv'_i = Δp_i, so that strand + film gain exactly Δp_i (dry: dv'_i = dv_i). */
+static void couple_correct(void *ctx, const double *dv)
+{
+    WorldHair *h = ctx;
+    WorldCouple *k = h->cpl;
+    if (!h->wet) {
+        dr_rod_set_add_velocity(h->rods, dv);
+        return;
+    }
+    DrRodSamples sm = dr_rod_set_samples(h->rods);
+    double *out = k->corr;
+    for (int i = 0; i < sm.n; i++) {
+        double A[9], p[3];
+        film_inertia(h, i, A);
+        for (int a = 0; a < 3; a++) {
+            A[4 * a] += sm.mass[i];
+            p[a] = k->mass[i] * dv[3 * i + a];
+        }
+        if (p[0] == 0.0 && p[1] == 0.0 && p[2] == 0.0) {
+            out[3 * i] = out[3 * i + 1] = out[3 * i + 2] = 0.0;
+            continue;
+        }
+        solve3(A, p, out + 3 * i);
+    }
+    dr_rod_set_add_velocity(h->rods, out);
+}
 
 /* The lift's limit (couple.h): m/(½ ξ_L (μV/D²) C_⊥) over the free vertices of elements with lift, V and the
    vertex's length from the current state. */
@@ -1204,6 +1259,8 @@ static DrStatus build_couple(WorldHair *h, DrError *err)
     DR_TRY(dr_calloc(nv, sizeof(double), &k->slender, err));
     DR_TRY(dr_calloc(nv, sizeof(double), &k->volume, err));
     DR_TRY(dr_calloc(nv, sizeof(double), &k->diameter, err));
+    DR_TRY(dr_calloc(nv, sizeof(double), &k->mass, err));
+    DR_TRY(dr_calloc(3 * nv, sizeof(double), &k->corr, err));
     DR_TRY(dr_calloc(3 * nv, sizeof(double), &k->force, err));
     DR_TRY(dr_calloc(9 * nv, sizeof(double), &k->dfdv, err));
     int nb = dr_rod_set_load_blocks(h->rods);
