@@ -77,7 +77,8 @@ typedef struct WorldCouple {
     double *volume, *diameter; /* per vertex, filled with the samples (volume 0 on an uncoupled element) */
     double *mass;              /* per vertex, kg: the vertex's inertia the loop weighs it by, m_i + tr(B_i)/3 with the
                                   film it carries across (B_i, wet.h; m_i on dry hair) */
-    double *corr;              /* per vertex × 3: the loop's correction as the vertex takes it */
+    double *pending, *next;    /* per vertex × 3, kg m/s: the loop's corrections (couple_correct), received in one step
+                                  and applied as a force over the next one's solve (pending); next: this step's */
     unsigned char *coupled;    /* per element */
     double *force, *dfdv;      /* the solve's load per vertex (the film's plus the coupling's) */
     int *block_dof;
@@ -153,7 +154,7 @@ static void hair_destroy(void *self)
     wet_destroy(&h->wet);
     if (h->cpl) {
         WorldCouple *k = h->cpl;
-        free(k->laws); free(k->law); free(k->slender); free(k->volume); free(k->diameter); free(k->mass); free(k->corr); free(k->coupled);
+        free(k->laws); free(k->law); free(k->slender); free(k->volume); free(k->diameter); free(k->mass); free(k->pending); free(k->next); free(k->coupled);
         free(k->force); free(k->dfdv); free(k->block_dof); free(k->block);
         free(k);
     }
@@ -286,10 +287,11 @@ static DrStatus build_hair(const WorldCtx *c, WorldHair *h, int n, DrError *err)
     return DR_OK;
 }
 
-/* P of the liquid's particles, of the strands and of the film now (parts and total, kg m/s) and their mass, kg
-   (WorldMomentum). In a fixed order: the same state gives the same bits. */
-static DrVec3 ledger_measure(WorldWet *w, const DrRodState *rs, DrVec3 *liquid, DrVec3 *hair, DrVec3 *film,
-                             double *mass)
+/* P of the liquid's particles, of the strands (with the coupled loop's impulses given them but not yet applied,
+   impulse: 3 per vertex or NULL) and of the film now (parts and total, kg m/s) and their mass, kg (WorldMomentum). In a
+   fixed order: the same state gives the same bits. */
+static DrVec3 ledger_measure(WorldWet *w, const DrRodState *rs, const double *impulse, DrVec3 *liquid, DrVec3 *hair,
+                             DrVec3 *film, double *mass)
 {
     const DrLiquid *L = w->link->liquid;
     const DrLiquidState *st = dr_liquid_state(L);
@@ -306,6 +308,7 @@ static DrVec3 ledger_measure(WorldWet *w, const DrRodState *rs, DrVec3 *liquid, 
         const double *v = rs->v + 3 * i;
         m_all += m;
         ph = dr_v3_add(ph, dr_v3(m * v[0], m * v[1], m * v[2]));
+        if (impulse) ph = dr_v3_add(ph, dr_v3(impulse[3 * i], impulse[3 * i + 1], impulse[3 * i + 2]));
     }
     DrFilmStats fs = {0};
     dr_film_measure(w->film, rs->x, rs->v, &fs);
@@ -318,10 +321,10 @@ static DrVec3 ledger_measure(WorldWet *w, const DrRodState *rs, DrVec3 *liquid, 
 }
 
 /* The ledger's reference: the state now (the bake's start, or a restored checkpoint). */
-static void ledger_start(WorldWet *w, const DrRodState *rs)
+static void ledger_start(WorldWet *w, const DrRodState *rs, const double *impulse)
 {
     WorldMomentum *m = &w->momentum;
-    m->prev = ledger_measure(w, rs, &m->liquid, &m->hair, &m->film, &m->mass);
+    m->prev = ledger_measure(w, rs, impulse, &m->liquid, &m->hair, &m->film, &m->mass);
 }
 
 /* The wet hair: the cohesion tables from the cache (bake refuses to start without them: "run precompute"), the film
@@ -395,7 +398,7 @@ static DrStatus build_wet(const WorldCtx *c, WorldHair *h, const char *cache_roo
                                .nverts = V};
         w->link = link;
         DR_TRY(world_wet_start(link, c->t0, err)); /* a resumed bake reads the ledger back */
-        ledger_start(w, &rs);                      /* and measures its momentum from the restored state */
+        ledger_start(w, &rs, NULL);                /* and measures its momentum from the restored state */
     }
     return DR_OK;
 }
@@ -479,7 +482,7 @@ static DrStatus hair_step_last(void *self, const WorldCtx *c, double t, double t
     WorldMomentum *m = &h->wet->momentum;
     DrRodState rs = dr_rod_set_state(h->rods);
     double mass;
-    DrVec3 P = ledger_measure(h->wet, &rs, &m->liquid, &m->hair, &m->film, &mass);
+    DrVec3 P = ledger_measure(h->wet, &rs, h->cpl ? h->cpl->next : NULL, &m->liquid, &m->hair, &m->film, &mass);
     DrVec3 ext = dr_v3_scale(c->gravity, m->mass * (t_next - t));
     double res = dr_v3_norm(dr_v3_sub(dr_v3_sub(P, m->prev), ext));
     double scale = fmax(fmax(dr_v3_norm(P), dr_v3_norm(m->prev)), 1e-300);
@@ -578,7 +581,8 @@ static DrStatus system_solve(WorldHair *h, const double *cforce, const double *c
     if (cforce && h->cpl) {
         WorldCouple *k = h->cpl;
         int nv = dr_rod_set_state(h->rods).nverts;
-        for (long i = 0; i < 3L * nv; i++) k->force[i] = cforce[i] + (w ? w->force[i] : 0.0);
+        double inv_h = 1.0 / k->dt;
+        for (long i = 0; i < 3L * nv; i++) k->force[i] = cforce[i] + (w ? w->force[i] : 0.0) + k->pending[i] * inv_h;
         for (long i = 0; i < 9L * nv; i++) k->dfdv[i] = cdfdv[i] + (w ? w->dfdv[i] : 0.0);
         dr_rod_set_fill_load(h->rods, k->force, k->dfdv, d.force, k->block_dof, k->block);
         load = (DrLagLoad){d.force, dr_rod_set_load_blocks(h->rods), k->block_dof, k->block};
@@ -662,18 +666,6 @@ static DrStatus hair_step(void *self, const WorldCtx *c, double t, double t_next
 
 /* ---- the coupled step (src/couple): the hair as a solid of the loop ------------------------------------------ */
 
-/* x = A⁻¹ b for a symmetric positive definite 3×3 A (row-major), by its adjugate. */
-static void solve3(const double A[9], const double b[3], double x[3])
-{
-    double c00 = A[4] * A[8] - A[5] * A[7], c01 = A[5] * A[6] - A[3] * A[8], c02 = A[3] * A[7] - A[4] * A[6];
-    double c11 = A[0] * A[8] - A[2] * A[6], c12 = A[2] * A[3] - A[0] * A[5], c22 = A[0] * A[4] - A[1] * A[3];
-    double det = A[0] * c00 + A[1] * c01 + A[2] * c02;
-    /* A symmetric: the adjugate is too (c10 = c01, c20 = c02, c21 = c12) */
-    x[0] = (c00 * b[0] + c01 * b[1] + c02 * b[2]) / det;
-    x[1] = (c01 * b[0] + c11 * b[1] + c12 * b[2]) / det;
-    x[2] = (c02 * b[0] + c12 * b[1] + c22 * b[2]) / det;
-}
-
 /* B_i of vertex i (wet.h): the film's load of the step holds −B_i/h in its velocity derivative. */
 static void film_inertia(const WorldHair *h, int i, double B[9])
 {
@@ -710,32 +702,19 @@ static DrStatus couple_solve(void *ctx, const double *force, const double *dforc
     return s == DR_WARN_NOT_CONVERGED ? DR_OK : s; /* counted in the frame's stats */
 }
 
-/* The loop's correction dv_i = Δp_i / k->mass[i] (couple.h): the vertex and the film across it take the impulse Δp_i
-   together, (m_i I + B_i) dv'_i = Δp_i, so that strand + film gain exactly Δp_i (dry: dv'_i = dv_i). */
+/* The loop's correction dv_i = Δp_i / k->mass[i] (couple.h), the impulse the loop's last projection gave vertex i
+   beyond its solve. Added to the velocity at once, it bypassed the solve: a vertex next to a clamped root kicked by a
+   fluid change of a few m/s stretched its edge and the next solve threw it at several times that. So the impulse is
+   kept (k->next, in the checkpoint) and enters the next step's solves as the force Δp_i/h on the vertex, where the
+   strand's constraints, contacts, film (m_i I + B_i) and implicit drag take it up. The momentum ledgers count it
+   when given: the hair's momentum includes the impulses not yet applied. */
 static void couple_correct(void *ctx, const double *dv)
 {
     WorldHair *h = ctx;
     WorldCouple *k = h->cpl;
-    if (!h->wet) {
-        dr_rod_set_add_velocity(h->rods, dv);
-        return;
-    }
-    DrRodSamples sm = dr_rod_set_samples(h->rods);
-    double *out = k->corr;
-    for (int i = 0; i < sm.n; i++) {
-        double A[9], p[3];
-        film_inertia(h, i, A);
-        for (int a = 0; a < 3; a++) {
-            A[4 * a] += sm.mass[i];
-            p[a] = k->mass[i] * dv[3 * i + a];
-        }
-        if (p[0] == 0.0 && p[1] == 0.0 && p[2] == 0.0) {
-            out[3 * i] = out[3 * i + 1] = out[3 * i + 2] = 0.0;
-            continue;
-        }
-        solve3(A, p, out + 3 * i);
-    }
-    dr_rod_set_add_velocity(h->rods, out);
+    int n = dr_rod_set_samples(h->rods).n;
+    for (int i = 0; i < n; i++)
+        for (int a = 0; a < 3; a++) k->next[3 * i + a] += k->mass[i] * dv[3 * i + a];
 }
 
 /* The lift's limit (couple.h): m/(½ ξ_L (μV/D²) C_⊥) over the free vertices of elements with lift, V and the
@@ -779,6 +758,9 @@ static DrStatus hair_solid_predict(void *self, const WorldCtx *c, double t, doub
     WorldHair *h = self;
     h->cpl->dt = t_next - t;
     h->cpl->not_converged = false;
+    size_t nv3 = 3 * (size_t)dr_rod_set_state(h->rods).nverts;
+    memcpy(h->cpl->pending, h->cpl->next, nv3 * sizeof(double)); /* the last step's corrections act in this one */
+    memset(h->cpl->next, 0, nv3 * sizeof(double));
     for (int b = 0; b < h->nelements; b++) h->poses[b] = dr_motion_pose(h->keys[b], h->nkeys[b], t_next);
     double t_start = dr_time_now();
     DR_TRY(system_predict(h, t_next - t, err));
@@ -1098,6 +1080,9 @@ static DrStatus hair_write(const void *self, const WorldCtx *c, DrH5 *hf, bool f
         long ni = rs.nverts - 2L * rs.nstrands;
         DR_TRY(dr_h5_write_f64(hf, "/hair_solver/reference_twist", 1, (uint64_t[]){(uint64_t)(ni > 0 ? ni : 0)},
                                rs.ref_twist, "rad", false, err));
+        if (h->cpl)
+            DR_TRY(dr_h5_write_f64(hf, "/hair_solver/coupling_impulse", 2, (uint64_t[]){(uint64_t)rs.nverts, 3},
+                                   h->cpl->next, "kg*m/s", false, err));
         DR_TRY(dr_h5_write_f64(hf, "/hair_solver/lambda", 1, (uint64_t[]){(uint64_t)rs.nlambda}, rs.lambda, "1", false,
                                err));
         if (h->wet) DR_TRY(wet_write_checkpoint(h->wet, hf, err));
@@ -1212,9 +1197,11 @@ static DrStatus hair_read(void *self, const WorldCtx *c, DrH5 *hf, const char *f
     long ni = rs.nverts - 2L * rs.nstrands;
     DR_TRY(read_exact(hf, file, "/hair_solver/reference_twist", (uint64_t)(ni > 0 ? ni : 0), rs.ref_twist, err));
     DR_TRY(read_exact(hf, file, "/hair_solver/lambda", (uint64_t)rs.nlambda, rs.lambda, err));
+    if (h->cpl) DR_TRY(read_exact(hf, file, "/hair_solver/coupling_impulse", 3 * (uint64_t)rs.nverts, h->cpl->next, err));
     dr_rod_set_refresh(h->rods);
     if (h->wet) DR_TRY(wet_read_checkpoint(h->wet, hf, file, err));
-    if (h->wet && h->wet->link) ledger_start(h->wet, &rs); /* the liquid (read first) and the strands restored */
+    if (h->wet && h->wet->link) /* the liquid (read first) and the strands restored */
+        ledger_start(h->wet, &rs, h->cpl ? h->cpl->next : NULL);
     return DR_OK;
 }
 
@@ -1230,6 +1217,7 @@ static void hair_hash(const void *self, DrHasher *hs)
     dr_hasher_update(hs, rs.a1, 3 * sizeof(double) * (size_t)rs.nedges);
     if (ni > 0) dr_hasher_update(hs, rs.ref_twist, sizeof(double) * (size_t)ni);
     dr_hasher_update(hs, rs.lambda, sizeof(double) * (size_t)rs.nlambda);
+    if (h->cpl) dr_hasher_update(hs, h->cpl->next, 3 * sizeof(double) * (size_t)rs.nverts);
     if (h->wet) {
         DrFilmState fs = dr_film_state(h->wet->film);
         dr_hasher_update(hs, fs.volume, sizeof(double) * (size_t)fs.nverts);
@@ -1260,7 +1248,8 @@ static DrStatus build_couple(WorldHair *h, DrError *err)
     DR_TRY(dr_calloc(nv, sizeof(double), &k->volume, err));
     DR_TRY(dr_calloc(nv, sizeof(double), &k->diameter, err));
     DR_TRY(dr_calloc(nv, sizeof(double), &k->mass, err));
-    DR_TRY(dr_calloc(3 * nv, sizeof(double), &k->corr, err));
+    DR_TRY(dr_calloc(3 * nv, sizeof(double), &k->pending, err));
+    DR_TRY(dr_calloc(3 * nv, sizeof(double), &k->next, err));
     DR_TRY(dr_calloc(3 * nv, sizeof(double), &k->force, err));
     DR_TRY(dr_calloc(9 * nv, sizeof(double), &k->dfdv, err));
     int nb = dr_rod_set_load_blocks(h->rods);
