@@ -18,9 +18,13 @@
 
 extern char **environ; /* for posix_spawnp: gnuplot inherits our environment */
 
-enum { P_SECONDS, P_ITERATIONS, P_DRIFT, P_ENERGY, P_MOMENTUM, NPLOTS };
+enum { P_SECONDS, P_ITERATIONS, P_DRIFT, P_ENERGY, P_MOMENTUM, P_LEDGER, NPLOTS };
 static const char *const plot_names[NPLOTS] = {"seconds_per_frame", "solver_iterations", "volume_drift",
-                                               "energy", "momentum"};
+                                               "energy", "momentum", "volume_ledger"};
+/* The volume ledger of wet hair beside a liquid (capture and dripping; README "the volume ledger"): its parts, m³,
+   drawn when the bake kept one (volume_total present); its relative error on the right axis. */
+static const char *const ledger_keys[] = {"volume_bulk", "film_volume", "film_pool_volume", "volume_emitted",
+                                          "volume_removed", "volume_total", "volume_initial", "volume_error"};
 
 /* One colour per series, told apart at a glance (Paul Tol's "muted" and "light" schemes, then a few darker
  * tones): gnuplot's own cycle repeats after 8, and a frame's phases (liquid, MPM, hair, BEM, output) are 17. */
@@ -240,6 +244,8 @@ static int plot_of(const Column *c, int nrows)
     if (!strcmp(n, "liquid_particle_volume")) return P_DRIFT;
     if (!strcmp(n, "energy") || starts(n, "energy.") || (toplevel(n) && strstr(n, "_energy"))) return P_ENERGY;
     if (!strcmp(n, "momentum") || starts(n, "momentum.")) return P_MOMENTUM;
+    for (size_t k = 0; k < sizeof ledger_keys / sizeof *ledger_keys; k++)
+        if (!strcmp(n, ledger_keys[k])) return P_LEDGER;
     return -1;
 }
 
@@ -340,6 +346,11 @@ static DrStatus write_script(const char *path, const char *dat, const Table *t, 
     for (int p = 0; p < NPLOTS; p++) {
         const int *pc = cols + p * t->ncols;
         made[p] = n[p] > 0 || (p == P_SECONDS && total >= 0);
+        if (p == P_LEDGER) { /* only a bake that kept the ledger */
+            bool kept = false;
+            for (int i = 0; i < n[p]; i++) kept |= !strcmp(t->cols[pc[i]].name, "volume_total");
+            made[p] = kept;
+        }
         if (!made[p]) continue;
         switch (p) {
         case P_SECONDS:
@@ -409,6 +420,28 @@ static DrStatus write_script(const char *path, const char *dat, const Table *t, 
             gp_begin(f, png_tmp[p], "", "", KEY_RIGHT);
             write_momentum(f, dat, t, pc, n[p], style);
             break;
+        case P_LEDGER: {
+            gp_begin(f, png_tmp[p], "Volume ledger: bulk + film + pools + removed - emitted = initial", "volume (m³)",
+                     KEY_BELOW);
+            /* the film holds a thousandth of the bulk: a log axis shows both; a part that stays 0 draws nothing */
+            fputs("set logscale y\nset format y '%.0e'\nset ytics nomirror\nset y2tics\nset format y2 '%.0e'\n"
+                  "set y2label '(total - initial) / initial (right axis)'\n", f);
+            bool first = true;
+            for (int i = 0; i < n[p]; i++) {
+                const char *name = t->cols[pc[i]].name;
+                bool err_col = !strcmp(name, "volume_error");
+                char style_i[96], title[600];
+                if (err_col) snprintf(using, sizeof using, "%d", pc[i] + 1);
+                else snprintf(using, sizeof using, "($%d > 0 ? $%d : NaN)", pc[i] + 1, pc[i] + 1);
+                snprintf(style_i, sizeof style_i, "%s axes x1%s", err_col ? "lines lw 1 dt 2" : style,
+                         err_col ? "y2" : "y1");
+                snprintf(title, sizeof title, "%s%s", name, err_col ? " (right axis)" : "");
+                gp_line(f, dat, using, style_i, title, first);
+                first = false;
+            }
+            fputc('\n', f);
+            break;
+        }
         }
     }
     fputs("unset output\n", f); /* closes the last PNG before gnuplot exits */
