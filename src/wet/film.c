@@ -847,6 +847,8 @@ static void exchange_leave(long begin, long end, void *vctx)
         for (int i = 0; i < n; i++) {
             if (dV[i] > 0) in += dV[i];
             if (!(dV[i] < 0)) continue;
+            /* a non-finite film (a blow-up elsewhere) is left as it is: the frame's end reports it by name */
+            if (!isfinite(st.V[i]) || !isfinite(dV[i])) continue;
             assert(st.V[i] + dV[i] >= 0);
             DrVec3 Pi = dr_v3(0, 0, 0);
             for (int e = i - 1; e <= i; e++) {
