@@ -484,17 +484,6 @@ static void received(DrCouple *c, int n, double h)
    (m + β) u = m u* − Σ wn g + β u^prev, whose fixed point carries exactly the reaction. Returns Σ_f J_f over the spread
    reaction alone, and in *pull Σ_f β_f u_f (the ledger's fluid side is the first plus *pull less Σ_f β_f u_f after the
    projection). */
-/* The drag mass element e gives a face component along which its drag is k (N s/m): h k in an iteration before the
-   last, and for a held element; in the last projection h k m/(h k + m), the element's own inertia in series with its
-   drag (what the fluid can pull on through the drag before the element moves with it): the fluid's pull on a free
-   element then moves it by at most the fluid's own change, where h k, larger than m for a light element in strong
-   drag (a thin strand at high Reynolds number), would move it by h k/m times that. */
-static double drag_mass(const Element *e, double h, double k, bool last)
-{
-    double b = h * k;
-    return last && !e->held && e->mass > 0.0 ? b * e->mass / (b + e->mass) : b;
-}
-
 static DrVec3 spread(DrCouple *c, const DrMacGrid *g, int n, double h, bool last, const double *const fm[3],
                      DrVec3 *pull)
 {
@@ -519,7 +508,7 @@ static DrVec3 spread(DrCouple *c, const DrMacGrid *g, int n, double h, bool last
                 if (w == 0.0) continue;
                 long f = e->st[a].f[q];
                 c->fc.impulse[a][f] -= (scale > 0.0 ? w * fm[a][f] * scale : w) * c->g[3 * i + a];
-                if (drag) c->fc.drag[a][f] += w * drag_mass(e, h, c->kf[9 * i + 4 * a], last);
+                if (drag) c->fc.drag[a][f] += w * h * c->kf[9 * i + 4 * a];
             }
         }
     }
@@ -585,9 +574,9 @@ static DrStatus final_exchange(DrCouple *c, const DrCoupleFluid *fluid, const Dr
             if (b > 0.0) pull[a] -= b * g->f[a][f];
         }
     *gave = dr_v3(expl[0] + pull[0], expl[1] + pull[1], expl[2] + pull[2]);
-    /* what the implicit elements received besides their solve's impulse: b_i (ũ − ũ^prev), what their drag masses
-       took from the fluid in this projection (Σ_i is exactly the fluid's loss, the ledger); a free element's
-       velocity takes it: b_i/m_i = h K_aa/(h K_aa + m_i) < 1 of the fluid's change at it */
+    /* what the implicit elements received besides their solve's impulse: h K_aa (ũ − ũ^prev), what their drag masses
+       took from the fluid in this projection (Σ_i is exactly the fluid's loss, the ledger); a free element's solid
+       takes it (DrCoupleSolid.correct) */
     memcpy(c->uprev, c->u, (size_t)n * 3 * sizeof(double));
     sample_velocity(c, fluid, n, false);
     c->residual = rel_change(c->u, c->uprev, 3L * n, 1e-12);
@@ -597,7 +586,7 @@ static DrStatus final_exchange(DrCouple *c, const DrCoupleFluid *fluid, const Dr
         const Element *e = &c->el[i];
         if (!e->implicit) continue;
         for (int a = 0; a < 3; a++) {
-            double dg = drag_mass(e, h, c->kf[9 * i + 4 * a], true) * (c->u[3 * i + a] - c->uprev[3 * i + a]);
+            double dg = h * c->kf[9 * i + 4 * a] * (c->u[3 * i + a] - c->uprev[3 * i + a]);
             if (!e->held) {
                 c->dv[3 * i + a] = dg / e->mass;
                 any = true;

@@ -55,8 +55,10 @@
  *      - any other element, or a held one (a root: its reaction goes to what holds it): the fluid takes the same
  *        reaction but also keeps the element's implicit drag mass β = h K_aa pulling it towards the last iterate
  *        (as in the iterations before), and the element receives in addition exactly what that pull gave,
- *        h K_aa (ũ_a − ũ_a^prev), added to its velocity (DrCoupleSolid.correct; bounded by the fluid's change over the
- *        element's larger mass). It vanishes at convergence: both forms have the loop's fixed point.
+ *        h K_aa (ũ_a − ũ_a^prev), handed to its solid (DrCoupleSolid.correct), which may apply it at once or, as the hair
+ *        does, as a force over its next step's implicit solve, where the same drag keeps the velocity change below
+ *        the fluid's (added at once, h K_aa/m can be ≫ 1 for a thin strand at high Reynolds number). It vanishes at
+ *        convergence: both forms have the loop's fixed point.
  *      One iteration is the staggered step (solid with drag from the fluid, reaction, pressure); at convergence the
  *      corrections vanish and both sides hold the monolithic solution.
  * The caller then commits every solid (their last solve) and ends the fluid's substep (its last projection).
@@ -129,8 +131,8 @@ typedef struct DrCoupleSolid {
        symmetric negative semidefinite), from the prediction (as dr_rod_set_solve). Warnings (not converged) are the
        solid's to report; a negative status stops the step. */
     DrStatus (*solve)(void *ctx, const double *force, const double *dforce_dv, DrError *err);
-    /* NULL, or adds dv (3n, m/s) to the last solve's velocities of its free elements (dr_rod_set_add_velocity): the
-       loop's correction of an element heavier than the fluid around it (below). */
+    /* NULL, or takes dv (3n, m/s; the impulse over the element's mass): the loop's correction of an implicit element
+       (below), applied to the last solve's velocities or kept for the next step. */
     void (*correct)(void *ctx, const double *dv);
 } DrCoupleSolid;
 
