@@ -1,7 +1,7 @@
 /* Liquid benchmark, three parts, each a markdown table on stdout and a CSV under out/bench/:
  *  1. per-phase seconds per substep of a dam break in the unit cube at 32³ … 128³ cells for N substeps
  *     (the first csv, default out/bench/liquid.csv);
- *  2. the default shot: an 80×40×30 dam break of 180k particles (dx 0.02), F frames at 24 fps
+ *  2. the dam-break shot (dam_break.json): an 80×40×30 dam break of 180k particles (dx 0.02), F frames at 24 fps
  *     (out/bench/liquid_shot.csv);
  *  3. run time versus error: the dam-break front (99th percentile of x) at t = 0.25 s in a thin
  *     1 × 0.5 × 0.125 m tank at 16 … 48 cells/m against 64 cells/m (out/bench/liquid_error.csv).
@@ -127,7 +127,7 @@ static void phases(const char *csv, int nsub)
     fclose(f);
 }
 
-/* Part 2: the default shot, frames at 24 fps with adaptive substeps. */
+/* Part 2: the dam-break shot, frames at 24 fps with adaptive substeps. */
 static void shot(int frames)
 {
     FILE *f = open_csv("out/bench/liquid_shot.csv");

@@ -192,3 +192,22 @@ check "plots written by the render --finish job" test "$(ls "$farm_out/$shot/ren
 out=$(submit)
 check "everything up to date: nothing submitted" bash -c "grep -q 'pipeline: 0 stage(s) submitted' <<<'$out'"
 check "no failed job logs" bash -c "! grep -l 'error' '$logs'/*render* '$logs'/*mesh* 2>/dev/null | grep -q ."
+
+# ---- the default shot on the farm -------------------------------------------------------------------------------
+# The default shot (a wet fur dunked into a tank beside the jelly: capture, dripping, the coupled loop, a BEM body),
+# made small as in test_default_shot.sh, 12 frames: the farm's frames, meshes and images equal a local run's.
+mkdir -p "$WORK/dscenes" "$WORK/meshes"
+cp "$ROOT"/assets/meshes/*.obj "$WORK/meshes/"
+dscene="$WORK/dscenes/default_small.json"
+python3 "$ROOT/tests/pipeline/small_default.py" "$ROOT/assets/scenes/default.json" "$dscene" 12
+shot=default_small
+DRENCH_OUT="$local_out" "$ROOT/pipeline.sh" --no-build "$dscene" -j 2 >"$WORK/dlocal.log" 2>&1
+check "default shot: local pipeline run succeeds" test -f "$local_out/$shot/render/MANIFEST"
+out=$(DRENCH_OUT="$farm_out" DRENCH_SLURM_CHUNK=4 DRENCH_SLURM_CPUS=2 "$ROOT/pipeline.sh" --no-build --farm slurm "$dscene" 2>&1)
+check "default shot: 4 stages submitted" bash -c "grep -q 'pipeline: 4 stage(s) submitted' <<<\"\$1\"" _ "$out"
+for _ in $(seq 600); do [ -z "$(squeue -h)" ] && break; sleep 1; done
+check "default shot: every job finished within 10 minutes" test -z "$(squeue -h)"
+check "default shot: frame caches identical to the local run" same bake 'frame.*.h5'
+check "default shot: liquid OBJs identical" same mesh '*.obj'
+check "default shot: liquid VDBs identical" same mesh '*.vdb'
+check "default shot: frame PNGs identical" same render 'frame.*.png'

@@ -760,7 +760,7 @@ static void test_no_cavity_equals_flood_fill(void **state)
     int nc = 0;
     cases[nc++] = (Case){"unit cube", unit_cube(), 0.05};
     cases[nc++] = (Case){"unit cube", unit_cube(), 0.037};
-    /* the default shot's obstacle: cube.obj scaled 0.2, turned 30 degrees about y */
+    /* the dam-break shot's obstacle (dam_break.json): cube.obj scaled 0.2, turned 30 degrees about y */
     {
         DrTriMesh m = load_mesh("assets/meshes/cube.obj");
         const DrMat3 R = dr_m3_from_euler_xyz(dr_v3(0, 30 * DR_PI / 180, 0));

@@ -13,7 +13,8 @@
 #include "scene/scene.h"
 #include "stage/stage.h"
 
-static const char *const SHOTS[] = {"assets/scenes/default.json",    "assets/scenes/small_dam.json",
+static const char *const SHOTS[] = {"assets/scenes/default.json",    "assets/scenes/dam_break.json",
+                                    "assets/scenes/small_dam.json",
                                     "assets/scenes/jelly_drop.json", "assets/scenes/hair_shake.json",
                                     "assets/scenes/box_test.json",   "assets/scenes/dragging_test.json",
                                     "assets/scenes/bodies_tank.json"};
