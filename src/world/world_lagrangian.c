@@ -154,7 +154,8 @@ static void hair_destroy(void *self)
     wet_destroy(&h->wet);
     if (h->cpl) {
         WorldCouple *k = h->cpl;
-        free(k->laws); free(k->law); free(k->slender); free(k->volume); free(k->diameter); free(k->mass); free(k->pending); free(k->next); free(k->coupled);
+        free(k->laws); free(k->law); free(k->slender); free(k->volume); free(k->diameter); free(k->coupled);
+        free(k->mass); free(k->pending); free(k->next);
         free(k->force); free(k->dfdv); free(k->block_dof); free(k->block);
         free(k);
     }
@@ -1197,7 +1198,8 @@ static DrStatus hair_read(void *self, const WorldCtx *c, DrH5 *hf, const char *f
     long ni = rs.nverts - 2L * rs.nstrands;
     DR_TRY(read_exact(hf, file, "/hair_solver/reference_twist", (uint64_t)(ni > 0 ? ni : 0), rs.ref_twist, err));
     DR_TRY(read_exact(hf, file, "/hair_solver/lambda", (uint64_t)rs.nlambda, rs.lambda, err));
-    if (h->cpl) DR_TRY(read_exact(hf, file, "/hair_solver/coupling_impulse", 3 * (uint64_t)rs.nverts, h->cpl->next, err));
+    if (h->cpl)
+        DR_TRY(read_exact(hf, file, "/hair_solver/coupling_impulse", 3 * (uint64_t)rs.nverts, h->cpl->next, err));
     dr_rod_set_refresh(h->rods);
     if (h->wet) DR_TRY(wet_read_checkpoint(h->wet, hf, file, err));
     if (h->wet && h->wet->link) /* the liquid (read first) and the strands restored */
