@@ -103,7 +103,9 @@ typedef struct Element {
 struct DrCouple {
     int cap;                 /* elements */
     Element *el;
-    double *x, *v, *vprev, *u, *uprev, *p, *pprev, *gradp, *force, *dfdv, *kf, *dv, *g, *pts, *psamp;
+    double *x, *v, *vprev, *u, *uprev, *p, *pprev, *gradp, *force, *dfdv, *kf, *dv, *g, *pts, *psamp, *pwet;
+    double *carried;         /* per element: the liquid it carries, m³ (DrCoupleSamples.carried) */
+    double *imp;             /* 3 per element: what it receives outside the laws, N·s (DrCoupleSamples.impulse) */
     int ncap_faces[3];
     DrFaceCoupling fc;       /* the extra coupling handed to the fluid (arrays sized to the grid) */
     double *phi[3], *num[3], *den[3];
@@ -128,7 +130,7 @@ void dr_couple_destroy(DrCouple **cp)
     DrCouple *c = *cp;
     free(c->el);
     double **arr[] = {&c->x, &c->v, &c->vprev, &c->u, &c->uprev, &c->p, &c->pprev, &c->gradp, &c->force, &c->dfdv,
-                      &c->kf, &c->dv, &c->g, &c->pts, &c->psamp};
+                      &c->kf, &c->dv, &c->g, &c->pts, &c->psamp, &c->pwet, &c->carried, &c->imp};
     for (size_t i = 0; i < sizeof arr / sizeof arr[0]; i++) free(*arr[i]);
     for (int a = 0; a < 3; a++) {
         free(c->fc.open[a]); free(c->fc.velocity[a]); free(c->fc.impulse[a]); free(c->fc.drag[a]);
@@ -160,7 +162,8 @@ static DrStatus reserve(DrCouple *c, int n, const DrMacGrid *g, DrError *err)
         c->el = el;
         struct { double **p; int w; } arr[] = {{&c->x, 3}, {&c->v, 3}, {&c->vprev, 3}, {&c->u, 3}, {&c->uprev, 3},
                                                {&c->p, 1}, {&c->pprev, 1}, {&c->gradp, 3}, {&c->force, 3},
-                                               {&c->dfdv, 9}, {&c->kf, 9}, {&c->dv, 3}, {&c->g, 3}, {&c->pts, 21}, {&c->psamp, 7}};
+                                               {&c->dfdv, 9}, {&c->kf, 9}, {&c->dv, 3}, {&c->g, 3}, {&c->pts, 21}, {&c->psamp, 7}, {&c->pwet, 7},
+                                               {&c->carried, 1}, {&c->imp, 3}};
         for (size_t i = 0; i < sizeof arr / sizeof arr[0]; i++) {
             double *q = realloc(*arr[i].p, (size_t)cap * arr[i].w * sizeof(double));
             if (!q) return dr_error_set(err, DR_ERR_NOMEM, NULL, 0, 0, "couple: out of memory for %d elements.", cap);
@@ -315,9 +318,11 @@ static DrStatus gather(DrCouple *c, const DrCoupleFluid *fluid, const DrCoupleSo
             e->active = true; /* a held element drags the fluid too, its reaction going to what holds it */
             e->held = sm.held && sm.held[i];
             e->implicit = false;
+            c->carried[at] = sm.carried ? sm.carried[i] : 0.0;
             for (int d = 0; d < 3; d++) {
                 c->x[3 * at + d] = sm.x[3 * i + d];
                 c->v[3 * at + d] = sm.v[3 * i + d];
+                c->imp[3 * at + d] = sm.impulse ? sm.impulse[3 * i + d] : 0.0;
             }
         }
     }
@@ -335,8 +340,9 @@ static void read_velocities(DrCouple *c, const DrCoupleSolid *solids, int nsolid
     }
 }
 
-/* The solid fraction φ_s and the solids' velocity on the faces: fc.open = 1 − min(φ_s, ½) (weights w V), fc.velocity
-   the mean of the elements' velocities (weights w V), fc.impulse and fc.drag zero. Sets each element's γ. */
+/* The solid fraction φ_s and the solids' velocity on the faces: fc.open = 1 − min(φ_s, ½) (weights w V, V the
+   element's volume with the liquid it carries), fc.velocity the mean of the elements' velocities (weights w V),
+   fc.impulse and fc.drag zero. Sets each element's γ. */
 static void rasterise(DrCouple *c, const DrMacGrid *g, int n)
 {
     double cell = g->dx * g->dx * g->dx;
@@ -350,7 +356,7 @@ static void rasterise(DrCouple *c, const DrMacGrid *g, int n)
         const Element *e = &c->el[i];
         for (int a = 0; a < 3; a++)
             for (int q = 0; q < 8; q++) {
-                double wv = e->st[a].w[q] * e->site.volume;
+                double wv = e->st[a].w[q] * (e->site.volume + c->carried[i]);
                 c->phi[a][e->st[a].f[q]] += wv;
                 c->num[a][e->st[a].f[q]] += wv * c->v[3 * i + a];
             }
@@ -395,7 +401,11 @@ static void sample_velocity(DrCouple *c, const DrCoupleFluid *fluid, int n, bool
     }
 }
 
-/* The pressure and its gradient at every element (central differences over ±Δx/2), when any law has buoyancy. */
+/* The pressure and its gradient at every element (central differences over ±Δx/2), when any law has buoyancy. The
+   gradient is weighted by min(1, 2 w), w the least share of the seven samples' stencils in the fluid: full inside the
+   fluid and where every sample's stencil is at least half in it, fading to 0 where one reaches into a solid or the
+   air, where the fluid's pressure reads 0 and a difference across the boundary is no gradient (beside a collider it
+   read up to 1e6 Pa/m, which flung the film of a wet strand there). */
 static void sample_pressure(DrCouple *c, const DrCoupleFluid *fluid, int n)
 {
     double d = 0.5 * fluid->grid->dx;
@@ -403,11 +413,32 @@ static void sample_pressure(DrCouple *c, const DrCoupleFluid *fluid, int n)
         for (int q = 0; q < 7; q++)
             for (int a = 0; a < 3; a++)
                 c->pts[21 * i + 3 * q + a] = c->x[3 * i + a] + (q > 0 && (q - 1) / 2 == a ? ((q - 1) % 2 ? d : -d) : 0.0);
-    fluid->pressure(fluid->ctx, 7L * n, c->pts, c->psamp);
+    fluid->pressure(fluid->ctx, 7L * n, c->pts, c->psamp, c->pwet);
     for (int i = 0; i < n; i++) {
-        const double *ps = c->psamp + 7 * i;
+        const double *ps = c->psamp + 7 * i, *pw = c->pwet + 7 * i;
+        double w = 1.0;
+        for (int q = 0; q < 7; q++) w = fmin(w, pw[q]);
+        w = c->el[i].active ? fmin(1.0, 2.0 * fmax(w, 0.0)) : 0.0;
         c->p[i] = c->el[i].active ? ps[0] : 0.0;
-        for (int a = 0; a < 3; a++) c->gradp[3 * i + a] = c->el[i].active ? (ps[2 + 2 * a] - ps[1 + 2 * a]) / (2.0 * d) : 0.0;
+        for (int a = 0; a < 3; a++) c->gradp[3 * i + a] = w * (ps[2 + 2 * a] - ps[1 + 2 * a]) / (2.0 * d);
+    }
+}
+
+/* Every solid that takes it (DrCoupleSolid.pressure_gradient) gets ∇p at its elements, 0 where the element's law
+   has no buoyancy (c->dv as scratch); then its impulses (DrCoupleSamples.impulse) are read again, for the step. */
+static void pressure_to_solids(DrCouple *c, const DrCoupleSolid *solids, int nsolids, int n)
+{
+    for (int i = 0; i < n; i++)
+        for (int a = 0; a < 3; a++) c->dv[3 * i + a] = c->el[i].law->buoyancy ? c->gradp[3 * i + a] : 0.0;
+    int at = 0;
+    for (int s = 0; s < nsolids; s++) {
+        int ns = solids[s].samples(solids[s].ctx).n;
+        if (solids[s].pressure_gradient) {
+            solids[s].pressure_gradient(solids[s].ctx, c->dv + 3 * at);
+            const double *imp = solids[s].samples(solids[s].ctx).impulse;
+            if (imp) memcpy(c->imp + 3 * at, imp, (size_t)ns * 3 * sizeof(double));
+        }
+        at += ns;
     }
 }
 
@@ -462,14 +493,15 @@ static DrStatus laws(DrCouple *c, const DrCoupleDesc *desc, const DrCoupleFluid 
     return DR_OK;
 }
 
-/* What each element received over the step, g_i = h (f_i + D_i v_i), for the velocities the solids solved for. */
+/* What each element received over the step, g_i = h (f_i + D_i v_i) + its impulse outside the laws (the pressure on
+   what it carries), for the velocities the solids solved for. */
 static void received(DrCouple *c, int n, double h)
 {
     for (int i = 0; i < n; i++)
         for (int r = 0; r < 3; r++) {
             double f = c->force[3 * i + r];
             for (int q = 0; q < 3; q++) f += c->dfdv[9 * i + 3 * r + q] * c->v[3 * i + q];
-            c->g[3 * i + r] = c->el[i].active ? h * f : 0.0;
+            c->g[3 * i + r] = c->el[i].active ? h * f + c->imp[3 * i + r] : 0.0;
         }
 }
 
@@ -493,9 +525,10 @@ static DrVec3 spread(DrCouple *c, const DrMacGrid *g, int n, double h, bool last
         if (!e->active) continue;
         bool drag = !last || e->implicit;
         for (int a = 0; a < 3; a++) {
-            /* an explicit reaction by wn m_f (scale: the same total as by wn) */
+            /* by wn m_f (scale: the same total as by wn): an explicit reaction, and always the impulse the element
+               received outside the laws (it has no drag mass to bound it either) */
             double scale = 0.0;
-            if (!drag && fm && fm[a]) {
+            if (fm && fm[a]) {
                 double wsum = 0.0, wm = 0.0;
                 for (int q = 0; q < 8; q++) {
                     wsum += e->wn[a][q];
@@ -503,11 +536,13 @@ static DrVec3 spread(DrCouple *c, const DrMacGrid *g, int n, double h, bool last
                 }
                 if (wm > 0.0 && isfinite(wm)) scale = wsum / wm;
             }
+            double gi = c->imp[3 * i + a], gl = c->g[3 * i + a] - gi; /* outside the laws; the laws' */
+            double sl = drag ? 0.0 : scale;
             for (int q = 0; q < 8; q++) {
                 double w = e->wn[a][q];
                 if (w == 0.0) continue;
                 long f = e->st[a].f[q];
-                c->fc.impulse[a][f] -= (scale > 0.0 ? w * fm[a][f] * scale : w) * c->g[3 * i + a];
+                c->fc.impulse[a][f] -= (sl > 0.0 ? w * fm[a][f] * sl : w) * gl + (scale > 0.0 ? w * fm[a][f] * scale : w) * gi;
                 if (drag) c->fc.drag[a][f] += w * h * c->kf[9 * i + 4 * a];
             }
         }
@@ -645,7 +680,10 @@ DrStatus dr_couple_step(DrCouple *c, const DrCoupleDesc *desc, const DrCoupleFlu
     sample_velocity(c, fluid, n, true);
     memset(c->gradp, 0, (size_t)n * 3 * sizeof(double));
     memset(c->p, 0, (size_t)n * sizeof(double));
-    if (buoyancy) sample_pressure(c, fluid, n);
+    if (buoyancy) {
+        sample_pressure(c, fluid, n);
+        pressure_to_solids(c, solids, nsolids, n);
+    }
     long active = 0;
     for (int i = 0; i < n; i++) active += c->el[i].active;
     double ufloor = 1e-12, change = INFINITY, change_fluid = INFINITY;

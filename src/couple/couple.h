@@ -27,7 +27,12 @@
  * step so that it turns an element's relative velocity by at most a radian per step, m/(½ ξ_L (μV/D²) C_⊥) with the
  * linear C_⊥.
  *     f_buoyancy = −V ∇p                                                                       (PHYSICS §6)
- * with ∇p the fluid pressure's gradient at the element (a hydrostatic pool: −V ρ g, Archimedes).
+ * with ∇p the fluid pressure's gradient at the element (a hydrostatic pool: −V ρ g, Archimedes). Liquid an element
+ * carries (a strand's film) feels −V_c ∇p too; the solid applies it (DrCoupleSolid.pressure_gradient, with ∇p from
+ * the step's first projection), as the film's share along the strand belongs to the film, and the loop books it
+ * (DrCoupleSamples.impulse). The film moves with its strand across the fluid: it is part of the porous solid the
+ * projection sees (φ_s), with the film's mass already in the element's (the porous choice for film mass on the grid:
+ * the film's momentum reaches the fluid through φ_s, drag and pressure, not through the grid's P2G).
  *
  * ---- the loop (one step of h) -------------------------------------------------------------------------------------
  * The caller predicts every solid and begins the fluid's substep; dr_couple_step then
@@ -119,6 +124,13 @@ typedef struct DrCoupleSamples {
                                  with its prescribed velocity, and what it receives goes to what holds it (the solid
                                  ignores forces on it; the ledger counts them) */
     const int *law;           /* n or NULL (all law 0): index into DrCoupleSolid.laws */
+    const double *carried;    /* n or NULL (none): m³ of liquid the element carries with it (a wet strand vertex's film
+                                 and pools): it moves with the element across the fluid, so it blocks the fluid with
+                                 the element (φ_s and γ count V + carried); the laws' V stays the element's own */
+    const double *impulse;    /* 3n or NULL (none): N·s the element receives from the fluid over the step besides the
+                                 laws, applied by the solid itself (the pressure on what it carries, below); the loop
+                                 counts it as received and gives the fluid its reaction with the element's, always
+                                 spread by w_if m_f as an explicit reaction is (no drag mass bounds it) */
 } DrCoupleSamples;
 
 typedef struct DrCoupleSolid {
@@ -134,6 +146,11 @@ typedef struct DrCoupleSolid {
     /* NULL, or takes dv (3n, m/s; the impulse over the element's mass): the loop's correction of an implicit element
        (below), applied to the last solve's velocities or kept for the next step. */
     void (*correct)(void *ctx, const double *dv);
+    /* NULL, or takes ∇p (3n, Pa/m) at its elements from the step's first projection (0 outside the fluid and where the
+       element's law has no buoyancy), once per step before its first solve: a solid that carries liquid (a strand's
+       film) applies the pressure's force on it itself (the film's share along the strand is the film's, not the
+       strand's) and reports it in DrCoupleSamples.impulse. */
+    void (*pressure_gradient)(void *ctx, const double *gradp);
 } DrCoupleSolid;
 
 typedef struct DrCoupleFluid {
@@ -142,8 +159,9 @@ typedef struct DrCoupleFluid {
     const DrMacGrid *grid;       /* its grid: after project, grid->f holds the velocities the coupling samples */
     /* dr_liquid_project-like: re-callable from the substep's begin with the extra face coupling. */
     DrStatus (*project)(void *ctx, const DrFaceCoupling *extra, DrError *err);
-    /* Pressure (Pa) at n points (3n, m), as dr_liquid_sample (velocity not asked). */
-    void (*pressure)(void *ctx, long n, const double *points, double *p);
+    /* Pressure (Pa) at n points (3n, m), and in wet (n) how much of each point's stencil is in the fluid, in [0, 1]
+       (1 inside it, 0 inside a solid or in air: dr_liquid_sample_wet_pressure). */
+    void (*pressure)(void *ctx, long n, const double *points, double *p, double *wet);
     /* The faces that took the extra coupling in the last project (dr_liquid_coupled_faces). */
     const unsigned char *(*coupled_faces)(void *ctx, int a);
     /* Its face masses m_f, kg (dr_liquid_face_mass), valid after the substep's begin. */
@@ -167,7 +185,8 @@ typedef struct DrCoupleStats {
     int not_converged;         /* steps that stopped at the cap with the change above the tolerance */
     double change_max;         /* the largest final relative change of a step */
     long elements;             /* elements in the fluid (with coupled faces) at the last step */
-    DrVec3 solid_impulse;      /* N·s: Σ g_i, what the solids received (drag, lift, buoyancy) */
+    DrVec3 solid_impulse;      /* N·s: Σ g_i, what the solids received (drag, lift, buoyancy, the impulses of
+                                  DrCoupleSamples.impulse) */
     DrVec3 fluid_impulse;      /* N·s: what the coupled faces gave the fluid; solid + fluid = 0 to round-off */
     double seconds_laws, seconds_solid, seconds_fluid;
 } DrCoupleStats;

@@ -3320,7 +3320,8 @@ void dr_liquid_sample_wet_pressure(const DrLiquid *liq, long n, const double *po
     assert(liq->sample_ok);
     for (long i = 0; i < n; i++) {
         double wet;
-        pressure_out[i] = sample_wet_pressure(liq, dr_v3(points[3 * i], points[3 * i + 1], points[3 * i + 2]), &wet);
+        double p = sample_wet_pressure(liq, dr_v3(points[3 * i], points[3 * i + 1], points[3 * i + 2]), &wet);
+        if (pressure_out) pressure_out[i] = p;
         if (wet_out) wet_out[i] = wet;
     }
 }

@@ -295,7 +295,8 @@ typedef struct DrLiquidBody {
 DR_NODISCARD DrStatus dr_liquid_set_bodies(DrLiquid *liq, DrLiquidBody *bodies, int n, DrError *err);
 /* Pressure (Pa) at n points (3n, m) from the pressure cells alone: trilinear over the cell centres that are pressure
    cells, renormalised by their weight; wet_out[i] (may be NULL) that weight in [0, 1], and p = 0 where it is 0 (a
-   point with no pressure cell around it: dry, or inside a solid). After a project, like dr_liquid_sample. */
+   point with no pressure cell around it: dry, or inside a solid). pressure_out may be NULL (the weights alone). After
+   a project, like dr_liquid_sample. */
 void dr_liquid_sample_wet_pressure(const DrLiquid *liq, long n, const double *points, double *pressure_out,
                                    double *wet_out);
 /* sample: after a project (and until the next stable_dt), the grid velocity (m/s; trilinear on each face

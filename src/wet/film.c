@@ -88,6 +88,9 @@ struct DrFilm {
     double *to_pools;    /* S */
     DrStatus *status;    /* S */
     double *partial;     /* 4S: dr_film_exchange's per-strand sums (momentum that left, volume that arrives) */
+    double *pacc, *pimp; /* E each: the bulk's pressure along each edge over the next step (dr_film_pressure): the
+                            acceleration −(t⁰·∇p̄)/ρ it gives the film (m/s²) and the impulse booked for it along t⁰,
+                            h ρ V̂⁰ a (N·s); consumed by dr_film_step */
 };
 
 void dr_film_desc_default(DrFilmDesc *d)
@@ -171,7 +174,7 @@ void dr_film_destroy(DrFilm **fp)
     DrFilm *f = *fp;
     void *arrays[] = {f->offsets, f->radius, f->volume, f->u, f->pool, f->strand_speed, f->lv, f->t0, f->le0,
                       f->lv0, f->t1, f->le1, f->lv1, f->hat, f->w, f->fv, f->ur, f->q, f->G, f->hh, f->p, f->J, f->Kinv,
-                      f->save, f->nsub, f->to_pools, f->status, f->partial};
+                      f->save, f->nsub, f->to_pools, f->status, f->partial, f->pacc, f->pimp};
     for (size_t k = 0; k < sizeof arrays / sizeof arrays[0]; k++) free(arrays[k]);
     free(f);
     *fp = NULL;
@@ -274,6 +277,8 @@ DrStatus dr_film_create(const DrFilmDesc *desc, int nstrands, const int *offsets
     ALLOC(f->to_pools, S);
     ALLOC(f->status, S);
     ALLOC(f->partial, 4 * S);
+    ALLOC(f->pacc, E);
+    ALLOC(f->pimp, E);
     memcpy(f->offsets, offsets, (size_t)(S + 1) * sizeof(int));
     if (V > 0) memcpy(f->radius, radius, (size_t)V * sizeof(double));
     for (int k = 0; k < f->S; k++) {
@@ -362,6 +367,64 @@ void dr_film_hair_load(const DrFilm *f, const double *x, const double *v, double
     dr_parallel_for(f->S, 16, load_range, &c);
 }
 
+/* ---- the bulk's pressure on the film (wet.h) -------------------------------------------------------------------- */
+
+typedef struct PressureCtx {
+    DrFilm *f;
+    const double *x, *gradp;
+    double h, *force, *impulse;
+} PressureCtx;
+
+static void pressure_range(long begin, long end, void *vctx)
+{
+    const PressureCtx *c = vctx;
+    DrFilm *f = c->f;
+    double rho = f->desc.density, h = c->h;
+    for (long k = begin; k < end; k++) {
+        int o = f->offsets[k], n = f->offsets[k + 1] - o, e0 = o - (int)k;
+        const double *x = c->x + 3 * o, *V = f->volume + o, *gp = c->gradp + 3 * o;
+        double *J = c->impulse + 3 * o, *fo = c->force + 3 * o;
+        memset(J, 0, 3 * (size_t)n * sizeof(double));
+        for (int e = 0; e < n - 1; e++) {
+            DrVec3 t;
+            double le = edge_len(x, e, &t);
+            /* V̂_e on the step's starting shape, as the film's step and its load weigh it */
+            double hat = V[e] * share(le, voronoi_at(x, n, e)) + V[e + 1] * share(le, voronoi_at(x, n, e + 1));
+            DrVec3 ga = ld3(gp + 3 * e), gb = ld3(gp + 3 * e + 3);
+            /* across the edge: half its film's −V̂ ∇p at each vertex, as its weight in the load */
+            DrVec3 Fa = dr_v3_scale(perp(ga, t), -0.5 * hat), Fb = dr_v3_scale(perp(gb, t), -0.5 * hat);
+            add3(fo + 3 * e, Fa);
+            add3(fo + 3 * e + 3, Fb);
+            add3(J + 3 * e, dr_v3_scale(Fa, h));
+            add3(J + 3 * e + 3, dr_v3_scale(Fb, h));
+            /* along it: the film's own speed, with the mean gradient of its two vertices */
+            double gt = 0.5 * (dr_v3_dot(ga, t) + dr_v3_dot(gb, t));
+            f->pacc[e0 + e] = -gt / rho;
+            f->pimp[e0 + e] = -h * hat * gt;
+            DrVec3 Pt = dr_v3_scale(t, -0.5 * h * hat * gt);
+            add3(J + 3 * e, Pt);
+            add3(J + 3 * e + 3, Pt);
+        }
+        /* the pools move with their end vertex: all of −V ∇p */
+        for (int end = 0; end < 2; end++) {
+            int i = end ? n - 1 : 0;
+            double pv = f->pool[2 * k + end];
+            if (!(pv > 0)) continue;
+            DrVec3 F = dr_v3_scale(ld3(gp + 3 * i), -pv);
+            add3(fo + 3 * i, F);
+            add3(J + 3 * i, dr_v3_scale(F, h));
+        }
+    }
+}
+
+void dr_film_pressure(DrFilm *f, const double *x, const double *gradp, double h, double *force, double *impulse)
+{
+    assert(h > 0);
+    assert(f->V == 0 || (x && gradp && force && impulse));
+    PressureCtx c = {f, x, gradp, h, force, impulse};
+    dr_parallel_for(f->S, 16, pressure_range, &c);
+}
+
 /* ---- a strand's step ------------------------------------------------------------------------------------------- */
 
 /* One strand's view of the film's and the strands' arrays (local indices: vertices 0 … n − 1, edges 0 … n − 2). */
@@ -374,6 +437,8 @@ typedef struct Strand {
     const double *m;
     const unsigned char *held;
     double to_pools;
+    const double *t0, *pacc, *pimp; /* a step's: the tangents at its start, the bulk's pressure (DrFilm.pacc, pimp) */
+    double h;                       /* the step */
 } Strand;
 
 static Strand strand_view(DrFilm *f, int k, double *v, const double *mass, const unsigned char *held)
@@ -382,7 +447,7 @@ static Strand strand_view(DrFilm *f, int k, double *v, const double *mass, const
     Strand st = {f, k, f->offsets[k + 1] - o, f->volume + o, f->hat + e0, f->w + e0, f->fv + 3 * e0, f->ur + e0,
                  f->q + e0, f->G + o, f->hh + o, f->p + o, f->J + 3 * o, f->Kinv + 9 * o, f->pool + 2 * k,
                  f->t1 + 3 * e0, f->le1 + e0, f->lv1 + o, f->radius + o, v + 3 * o, mass ? mass + o : NULL,
-                 held ? held + o : NULL, 0};
+                 held ? held + o : NULL, 0, NULL, NULL, NULL, 0};
     return st;
 }
 
@@ -619,7 +684,22 @@ static void forces(Strand *st, double dt)
     int n = st->n;
     double rho = f->desc.density, sigma = f->desc.surface_tension;
     for (int e = 0; e < n - 1; e++) st->w[e] += dt * dr_v3_dot(f->desc.gravity, tangent(st, e));
-    if (!(sigma > 0)) return;
+    /* the bulk's pressure (dr_film_pressure): an acceleration of the film along each edge, as gravity's, with the
+       strand taking the difference between the impulse booked for the substep (its share dt/h, along t⁰ with V̂⁰) and
+       the one the film got (along t, with V̂ now): film and strand get exactly what was booked */
+    bool pushed = false;
+    for (int e = 0; st->pacc && e < n - 1; e++) {
+        if (st->pacc[e] == 0.0 && st->pimp[e] == 0.0) continue;
+        double given = st->hat[e] > 0 ? dt * st->pacc[e] : 0.0;
+        st->w[e] += given;
+        DrVec3 booked = dr_v3_scale(ld3(st->t0 + 3 * e), dt / st->h * st->pimp[e]);
+        impulse_edge(st, e, dr_v3_sub(booked, dr_v3_scale(tangent(st, e), rho * st->hat[e] * given)));
+        pushed = true;
+    }
+    if (!(sigma > 0)) {
+        if (pushed) apply_impulses(st);
+        return;
+    }
     for (int i = 0; i < n; i++) st->hh[i] = thickness(st->V[i] / st->lv[i], st->r[i]);
     for (int i = 0; i < n; i++) {
         double d2 = 0; /* ∂²h/∂s² in the vertex's control volume, zero slope beyond the ends */
@@ -691,6 +771,10 @@ static DrStatus strand_step(const StepCtx *c, int k, int *nsub, double *to_pools
     DrFilm *f = c->f;
     int o = f->offsets[k], n = f->offsets[k + 1] - o, e0 = o - k;
     Strand st = strand_view(f, k, c->v, c->mass, c->held);
+    st.t0 = f->t0 + 3 * e0;
+    st.pacc = f->pacc + e0;
+    st.pimp = f->pimp + e0;
+    st.h = c->h;
     double *u = f->u + e0, *speed = f->strand_speed + e0;
     strand_geometry(c->x_old + 3 * o, n, f->t0 + 3 * e0, f->le0 + e0, f->lv0 + o);
     strand_geometry(c->x + 3 * o, n, f->t1 + 3 * e0, f->le1 + e0, f->lv1 + o);
@@ -756,13 +840,15 @@ DrStatus dr_film_step(DrFilm *f, const double *x_old, const double *x, double *v
     dr_parallel_for(f->S, 8, step_range, &c);
     for (int k = 0; k < f->S; k++)
         if (f->status[k] != DR_OK) {
-            save_state(f, v, true, v);
+            save_state(f, v, true, v); /* the pressure is kept: the step may be taken again */
             return dr_error_set(err, DR_ERR_RUNTIME, NULL, 0, 0,
                                 "wet film: strand %d's film became non-finite over a step of %g s (a non-finite hair "
                                 "position, velocity or mass, or more than %d film substeps); the film and the hair "
                                 "velocities are left as they were before the step",
                                 k, h, FILM_MAX_SUBSTEPS);
         }
+    memset(f->pacc, 0, (size_t)f->E * sizeof(double));
+    memset(f->pimp, 0, (size_t)f->E * sizeof(double));
     if (stats) {
         int most = 0;
         double to_pools = 0;

@@ -176,6 +176,21 @@ DrFilmState dr_film_state(DrFilm *f);
  * added into force (3 nverts) and dforce_dv (9 nverts). */
 void dr_film_hair_load(const DrFilm *f, const double *x, const double *v, double h, double *force, double *dforce_dv);
 
+/* The bulk liquid's pressure on the film and pools over the next step of h seconds (fei2017 §4.3: the pressure's
+ * impulse on the film and, through the film, on the strand), for the gradient gradp (nverts × 3, Pa/m; 0 where no bulk
+ * is) at the strands' positions x at the step's start (as dr_film_hair_load's): each vertex's film and pools feel
+ * −V ∇p, split as their weight is, so that a film under still bulk liquid is neutral (∇p = ρ g: it neither drains
+ * along the strand nor weighs it down):
+ *  - across each edge, half of the edge's −V̂_e ∇p_i (I − t_e t_eᵀ) at each vertex i, and a pool's whole −V ∇p, added
+ *    into force (3 nverts) as the load of the strands' solve;
+ *  - along each edge, −V̂_e (t_e·∇p̄_e) t_e (∇p̄_e the mean of its two vertices'), kept by the film as a change of its
+ *    speed along the strand that dr_film_step applies before it flows (at the start of the step, like the momentum
+ *    the step realigns: exactly that impulse, whatever the step then does; a second call before the step replaces it).
+ * impulse (3 nverts, overwritten) takes every vertex's share of the whole, h F_i with half of each edge's along part:
+ * what the strands and film receive from the bulk over the step, for the bulk's reaction (the coupled loop's
+ * DrCoupleSamples.impulse). Call after dr_film_hair_load and before the strands' solve. */
+void dr_film_pressure(DrFilm *f, const double *x, const double *gradp, double h, double *force, double *impulse);
+
 typedef struct DrFilmStats {
     int substeps;          /* film substeps taken, summed over steps (strands substep independently: per step the
                               largest count of any strand) */

@@ -73,6 +73,7 @@ typedef struct DrHairFrameStats {
     int bridges, solid_bridges;        /* of the last substep */
     int film_substeps;                 /* summed over the frame */
     double cross_flow;                 /* m³ moved across bridges in the frame */
+    DrVec3 film_pressure_impulse;      /* N·s: the bulk's pressure on the film and pools over the frame (coupled) */
     double film_kinetic_energy;        /* J */
     double film_gravity_energy;        /* J: −Σ ρ V g·x of the film and the pools */
     double seconds_film;               /* the film's steps along the strands */

@@ -88,9 +88,10 @@ static DrStatus fluid_project(void *ctx, const DrFaceCoupling *extra, DrError *e
     WorldAir *wa = ctx;
     return dr_air_project(wa->air, extra, &wa->frame, err);
 }
-static void fluid_pressure(void *ctx, long n, const double *points, double *p)
+static void fluid_pressure(void *ctx, long n, const double *points, double *p, double *wet)
 {
     dr_air_sample(((WorldAir *)ctx)->air, n, points, NULL, p);
+    for (long i = 0; i < n; i++) wet[i] = 1.0; /* the air fills its box */
 }
 static const unsigned char *fluid_faces(void *ctx, int a) { return dr_air_coupled_faces(((WorldAir *)ctx)->air, a); }
 

@@ -58,6 +58,7 @@ typedef struct WorldWet {
     DrFilmStats film_frame;    /* summed over the frame */
     double cross_flow;         /* m³ over the frame */
     double seconds_film, seconds_bridges, seconds_cross_flow; /* the frame's, disjoint parts of the hair's seconds */
+    DrVec3 film_pressure;      /* N·s over the frame: the bulk's pressure on the film and pools (dr_film_pressure) */
     /* capture and dripping with the first liquid (world_wet.c): the exchange, the link it is driven through, and the
        strands' velocities at the start of a step and their acceleration over the last one */
     DrExchange *exchange;
@@ -80,6 +81,10 @@ typedef struct WorldCouple {
     double *pending, *next;    /* per vertex × 3, kg m/s: the loop's corrections (couple_correct), received in one step
                                   and applied as a force over the next one's solve (pending); next: this step's */
     unsigned char *coupled;    /* per element */
+    double *carried;           /* per vertex, m³: the film and pools it carries (0 on dry hair or an uncoupled element) */
+    double *impulse;           /* per vertex × 3, N·s: the bulk's pressure on its film and pools over the step
+                                  (dr_film_pressure; 0 until the loop hands the hair ∇p) */
+    double *gradp;             /* per vertex × 3, Pa/m: ∇p as the film takes it (0 on uncoupled elements) */
     double *force, *dfdv;      /* the solve's load per vertex (the film's plus the coupling's) */
     int *block_dof;
     double *block;
@@ -155,7 +160,7 @@ static void hair_destroy(void *self)
     if (h->cpl) {
         WorldCouple *k = h->cpl;
         free(k->laws); free(k->law); free(k->slender); free(k->volume); free(k->diameter); free(k->coupled);
-        free(k->mass); free(k->pending); free(k->next);
+        free(k->mass); free(k->pending); free(k->next); free(k->carried); free(k->impulse); free(k->gradp);
         free(k->force); free(k->dfdv); free(k->block_dof); free(k->block);
         free(k);
     }
@@ -461,6 +466,7 @@ static void hair_begin_frame(void *self, const WorldCtx *c)
         memset(&h->wet->film_frame, 0, sizeof h->wet->film_frame);
         h->wet->cross_flow = 0;
         h->wet->seconds_film = h->wet->seconds_bridges = h->wet->seconds_cross_flow = 0;
+        h->wet->film_pressure = dr_v3(0, 0, 0);
         WorldWetLink *l = h->wet->link;
         if (l) {
             l->captured = l->dripped = l->held = l->seconds = 0, l->drops = l->captured_particles = 0;
@@ -683,6 +689,14 @@ static DrCoupleSamples couple_samples(void *ctx)
     WorldHair *h = ctx;
     WorldCouple *k = h->cpl;
     DrRodSamples sm = dr_rod_set_samples(h->rods);
+    DrFilmState fs = h->wet ? dr_film_state(h->wet->film) : (DrFilmState){0};
+    const int *off = h->wet ? dr_film_offsets(h->wet->film) : NULL; /* the rod set's strands */
+    for (int st = 0; st < fs.nstrands; st++) /* the film, and the pools at their end vertices */
+        for (int i = off[st]; i < off[st + 1]; i++) {
+            bool on = k->coupled[k->law[i]];
+            double pool = (i == off[st] ? fs.pool[2 * st] : 0.0) + (i == off[st + 1] - 1 ? fs.pool[2 * st + 1] : 0.0);
+            k->carried[i] = on ? fs.volume[i] + pool : 0.0;
+        }
     for (int i = 0; i < sm.n; i++) {
         bool on = k->coupled[k->law[i]];
         k->volume[i] = on ? M_PI * sm.radius[i] * sm.radius[i] * sm.length[i] : 0.0;
@@ -692,7 +706,7 @@ static DrCoupleSamples couple_samples(void *ctx)
         k->mass[i] = sm.mass[i] + (B[0] + B[4] + B[8]) / 3.0;
     }
     return (DrCoupleSamples){sm.n, sm.x, sm.v, k->mass, k->volume, k->diameter, k->slender, sm.tangent, sm.held,
-                             k->law};
+                             k->law, h->wet ? k->carried : NULL, h->wet ? k->impulse : NULL};
 }
 
 static DrStatus couple_solve(void *ctx, const double *force, const double *dforce_dv, DrError *err)
@@ -716,6 +730,30 @@ static void couple_correct(void *ctx, const double *dv)
     int n = dr_rod_set_samples(h->rods).n;
     for (int i = 0; i < n; i++)
         for (int a = 0; a < 3; a++) k->next[3 * i + a] += k->mass[i] * dv[3 * i + a];
+}
+
+/* The bulk's pressure on the film and pools (DrCoupleSolid.pressure_gradient, dr_film_pressure): across the strand
+   into the film's load of the step's solves, along it into the film's speed at its step, all of it into k->impulse for
+   the loop's books. ∇p at the step's first projection: the iterations refine drag, not this. Weighted by each
+   vertex's submersion s (the exchange's, which switches cohesion off), min(1, 2s): 0 where the particles fill at
+   most half of the cells around the vertex, 1 from three quarters (well-mixed particles fill about 95 %, so a film
+   deep in the bulk gets all of it). The film is in the bulk's pressure where the bulk surrounds it; a drop or a
+   splash beside a strand in the air has a pressure whose gradient over a cell or two (up to 1e7 Pa/m as the default
+   shot's fur swings through its drops) would fling a film of a fraction of the drop's mass. Without the exchange
+   (Capture and Dripping both off) there is no submersion, and the film takes no pressure. */
+static void couple_pressure(void *ctx, const double *gradp)
+{
+    WorldHair *h = ctx;
+    WorldCouple *k = h->cpl;
+    WorldWet *w = h->wet;
+    DrRodState rs = dr_rod_set_state(h->rods);
+    for (int i = 0; i < rs.nverts; i++) {
+        double s = k->coupled[k->law[i]] && w->link ? fmin(1.0, 2.0 * w->submerged[i]) : 0.0;
+        for (int a = 0; a < 3; a++) k->gradp[3 * i + a] = s * gradp[3 * i + a];
+    }
+    dr_film_pressure(w->film, w->x_old, k->gradp, k->dt, w->force, k->impulse);
+    for (int i = 0; i < rs.nverts; i++)
+        w->film_pressure = dr_v3_add(w->film_pressure, dr_v3(k->impulse[3 * i], k->impulse[3 * i + 1], k->impulse[3 * i + 2]));
 }
 
 /* The lift's limit (couple.h): m/(½ ξ_L (μV/D²) C_⊥) over the free vertices of elements with lift, V and the
@@ -766,7 +804,9 @@ static DrStatus hair_solid_predict(void *self, const WorldCtx *c, double t, doub
     double t_start = dr_time_now();
     DR_TRY(system_predict(h, t_next - t, err));
     h->seconds += dr_time_now() - t_start;
-    *solid = (DrCoupleSolid){h, h->nelements, h->cpl->laws, couple_samples, couple_solve, couple_correct};
+    memset(h->cpl->impulse, 0, nv3 * sizeof(double));
+    *solid = (DrCoupleSolid){h, h->nelements, h->cpl->laws, couple_samples, couple_solve, couple_correct,
+                             h->wet ? couple_pressure : NULL};
     return DR_OK;
 }
 
@@ -840,6 +880,7 @@ static DrStatus hair_end_frame(void *self, const WorldCtx *c, DrFrameStats *stat
         dr_bridges_stats(w->bridges, &bst);
         b->wet = true;
         b->film_volume = fs.volume;
+        b->film_pressure_impulse = w->film_pressure;
         b->pool_volume = fs.pools;
         b->film_max_ratio = fs.max_ratio;
         b->film_kinetic_energy = fs.kinetic;
@@ -1145,6 +1186,7 @@ static DrStatus hair_write(const void *self, const WorldCtx *c, DrH5 *hf, bool f
             DR_TRY(dr_h5_write_vec3(hf, mg, "liquid", m->last_liquid, "kg*m/s", err));
             DR_TRY(dr_h5_write_vec3(hf, mg, "hair", m->last_hair, "kg*m/s", err));
             DR_TRY(dr_h5_write_vec3(hf, mg, "film", m->last_film, "kg*m/s", err));
+            DR_TRY(dr_h5_write_vec3(hf, mg, "film_pressure_impulse", b->film_pressure_impulse, "N*s", err));
         }
     }
     return DR_OK;
@@ -1252,6 +1294,9 @@ static DrStatus build_couple(WorldHair *h, DrError *err)
     DR_TRY(dr_calloc(nv, sizeof(double), &k->mass, err));
     DR_TRY(dr_calloc(3 * nv, sizeof(double), &k->pending, err));
     DR_TRY(dr_calloc(3 * nv, sizeof(double), &k->next, err));
+    DR_TRY(dr_calloc(nv, sizeof(double), &k->carried, err));
+    DR_TRY(dr_calloc(3 * nv, sizeof(double), &k->impulse, err));
+    DR_TRY(dr_calloc(3 * nv, sizeof(double), &k->gradp, err));
     DR_TRY(dr_calloc(3 * nv, sizeof(double), &k->force, err));
     DR_TRY(dr_calloc(9 * nv, sizeof(double), &k->dfdv, err));
     int nb = dr_rod_set_load_blocks(h->rods);

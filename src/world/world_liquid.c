@@ -374,9 +374,15 @@ static DrStatus fluid_project(void *ctx, const DrFaceCoupling *extra, DrError *e
     WorldLiquid *wl = ctx;
     return dr_liquid_project(wl->liquid, extra, &wl->frame, err);
 }
-static void fluid_pressure(void *ctx, long n, const double *points, double *p)
+/* The pressure as the liquid's sample gives it (0 at air and solid cell centres) and how much of each point's stencil
+   is in the liquid (the pressure cells' weight of dr_liquid_sample_wet_pressure). The pressure extrapolated into solids
+   was tried instead: strands starting inside tree_structure's solids then read gradients that fed back through the
+   loop and blew the hair up in its first steps. */
+static void fluid_pressure(void *ctx, long n, const double *points, double *p, double *wet)
 {
-    dr_liquid_sample(((WorldLiquid *)ctx)->liquid, n, points, NULL, p);
+    const DrLiquid *liq = ((WorldLiquid *)ctx)->liquid;
+    dr_liquid_sample(liq, n, points, NULL, p);
+    dr_liquid_sample_wet_pressure(liq, n, points, NULL, wet);
 }
 static const unsigned char *fluid_faces(void *ctx, int a)
 {

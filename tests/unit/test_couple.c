@@ -2,7 +2,8 @@
  * ⊥/∥ ratio that of the scales, R C Rᵀ for any orientation), the Stokes reference (the slender-body drag per unit
  * length of a long cylinder), the nonlinear and permeability models, lift (orthogonal to Δv, zero along and across,
  * ∝ sin 2φ); a free rod falling through still liquid (one-way: a fluid at rest that takes nothing back) reproduces
- * v_{n+1} = (v_n + g h)/(1 + h/τ) and its terminal velocity; the coupled loop's momentum ledger with a mock fluid. */
+ * v_{n+1} = (v_n + g h)/(1 + h/τ) and its terminal velocity; the coupled loop's momentum ledger with a mock fluid;
+ * liquid an element carries (a film): its pressure handed to the solid, booked in the ledger, its volume in φ_s. */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -192,8 +193,9 @@ static DrStatus still_project(void *ctx, const DrFaceCoupling *extra, DrError *e
     ((Still *)ctx)->projects++;
     return DR_OK;
 }
-static void still_pressure(void *ctx, long n, const double *pts, double *p)
+static void still_pressure(void *ctx, long n, const double *pts, double *p, double *wet)
 {
+    for (long i = 0; i < n; i++) wet[i] = 1.0;
     (void)ctx; (void)pts;
     for (long i = 0; i < n; i++) p[i] = 0.0;
 }
@@ -232,7 +234,7 @@ static DrCoupleSamples rod_samples(void *ctx)
         rs->diameter[i] = 2.0 * sm.radius[i];
     }
     return (DrCoupleSamples){sm.n, sm.x, sm.v, sm.mass, rs->volume, rs->diameter, rs->slender, sm.tangent, sm.held,
-                             NULL};
+                             NULL, NULL, NULL};
 }
 static void rod_correct(void *ctx, const double *dv) { dr_rod_set_add_velocity(((RodSolid *)ctx)->r, dv); }
 
@@ -278,7 +280,7 @@ static void test_falling_rod_terminal_velocity(void **state)
     Still fl;
     still_make(&fl);
     DrCoupleFluid fluid = {&fl, RHO, MU, fl.g, still_project, still_pressure, still_faces, NULL};
-    DrCoupleSolid solid = {&rs, 1, &law, rod_samples, rod_solve, rod_correct};
+    DrCoupleSolid solid = {&rs, 1, &law, rod_samples, rod_solve, rod_correct, NULL};
     DrCouple *c = NULL;
     CHECK(dr_couple_create(&c, ERR));
     DrCoupleDesc cd;
@@ -318,7 +320,7 @@ typedef struct Points { int n; double x[3], v[3], mass[1], volume[1], diameter[1
 static DrCoupleSamples points_samples(void *ctx)
 {
     Points *p = ctx;
-    return (DrCoupleSamples){p->n, p->x, p->v, p->mass, p->volume, p->diameter, p->slender, p->tangent, NULL, NULL};
+    return (DrCoupleSamples){p->n, p->x, p->v, p->mass, p->volume, p->diameter, p->slender, p->tangent, NULL, NULL, NULL, NULL};
 }
 /* x = A⁻¹ b for a 3×3 A (row-major), by Cramer's rule. */
 static void solve3(const double A[9], const double b[3], double x[3])
@@ -375,7 +377,7 @@ static void test_position_derivative(void **state)
     for (int pd = 0; pd < 2; pd++) {
         Points pt = {1, {x0, 0.0, 0.0}, {0, 0, 0}, {2e-6}, {M_PI * 1e-8 * 0.01}, {2e-4}, {300}, {0, 0, 1}};
         DrCoupleFluid fluid = {&fl, RHO, MU, fl.g, still_project, still_pressure, still_faces, NULL};
-        DrCoupleSolid solid = {&pt, 1, &law, points_samples, points_solve, NULL};
+        DrCoupleSolid solid = {&pt, 1, &law, points_samples, points_solve, NULL, NULL};
         DrCouple *c = NULL;
         CHECK(dr_couple_create(&c, ERR));
         DrCoupleDesc cd;
@@ -398,6 +400,97 @@ static void test_position_derivative(void **state)
     still_free(&fl);
 }
 
+
+/* ---- liquid an element carries: its pressure handed to the solid, booked, and its volume in φ_s ----------------- */
+
+/* A still fluid under gravity: p = ρ g (1 − y), every sample wet; it records the least open share of the faces its
+   projections were given. */
+typedef struct Hydro { Still s; double open_min; } Hydro;
+
+static void hydro_pressure(void *ctx, long n, const double *pts, double *p, double *wet)
+{
+    (void)ctx;
+    for (long i = 0; i < n; i++) p[i] = RHO * 9.81 * (1.0 - pts[3 * i + 1]), wet[i] = 1.0;
+}
+static DrStatus hydro_project(void *ctx, const DrFaceCoupling *extra, DrError *err)
+{
+    (void)err;
+    Hydro *hy = ctx;
+    for (int a = 0; a < 3; a++)
+        for (long f = 0; f < extra->nfaces[a]; f++) hy->open_min = fmin(hy->open_min, extra->open[a][f]);
+    return DR_OK;
+}
+static const unsigned char *hydro_faces(void *ctx, int a) { return ((Hydro *)ctx)->s.take[a]; }
+
+/* A point that carries liquid V_c: it takes the pressure's force on it as the film does (the solid applies it), here
+   not at all to its own velocity, and reports it as its impulse −h V_c ∇p. */
+typedef struct Carrier {
+    Points p;
+    double carried[1], imp[3], gradp[3], h;
+    int calls;
+} Carrier;
+
+static DrCoupleSamples carrier_samples(void *ctx)
+{
+    Carrier *c = ctx;
+    DrCoupleSamples sm = points_samples(&c->p);
+    sm.carried = c->carried;
+    sm.impulse = c->imp;
+    return sm;
+}
+static DrStatus carrier_solve(void *ctx, const double *force, const double *dfdv, DrError *err)
+{
+    return points_solve(&((Carrier *)ctx)->p, force, dfdv, err);
+}
+static void carrier_pressure(void *ctx, const double *gradp)
+{
+    Carrier *c = ctx;
+    c->calls++;
+    for (int a = 0; a < 3; a++) c->gradp[a] = gradp[a], c->imp[a] = -c->h * c->carried[0] * gradp[a];
+}
+
+/* The loop hands the solid ∇p once per step (ρ g here, exact for a linear pressure), counts the solid's impulse as
+   received and gives the fluid its reaction (solid + fluid = 0 to round-off; the solid's side grows by exactly the
+   impulse against a run without carried liquid), and blocks the fluid with the carried volume too. */
+static void test_carried_liquid(void **state)
+{
+    (void)state;
+    double h = 1e-3, V = M_PI * 1e-8 * 0.01, Vc = 35 * V, solid_got[2][3], open_min[2];
+    for (int run = 0; run < 2; run++) {
+        Hydro hy;
+        still_make(&hy.s);
+        hy.open_min = 1.0;
+        DrDragLaw law = linear_law();
+        Carrier cr = {{1, {0.1, -0.7, 0.0}, {0, 0, 0}, {2e-6}, {V}, {2e-4}, {300}, {0, 0, 1}}, {run ? Vc : 0.0},
+                      {0, 0, 0}, {0, 0, 0}, h, 0};
+        DrCoupleFluid fluid = {&hy, RHO, MU, hy.s.g, hydro_project, hydro_pressure, hydro_faces, NULL};
+        DrCoupleSolid solid = {&cr, 1, &law, carrier_samples, carrier_solve, NULL, carrier_pressure};
+        DrCouple *c = NULL;
+        CHECK(dr_couple_create(&c, ERR));
+        DrCoupleDesc cd;
+        dr_couple_desc_default(&cd);
+        CHECK(dr_couple_step(c, &cd, &fluid, &solid, 1, h, NULL, ERR));
+        assert_int_equal(cr.calls, 1);
+        assert_near(cr.gradp[1], -RHO * 9.81, 1e-9 * RHO * 9.81);
+        assert_near(cr.gradp[0], 0.0, 1e-9 * RHO * 9.81);
+        DrVec3 sg, fg;
+        dr_couple_last_ledger(c, &sg, &fg);
+        print_message("carried %g m^3: solid received %.12e N s (y), fluid %.12e, least open share %.6f\n",
+                      cr.carried[0], sg.y, fg.y, hy.open_min);
+        assert_near(sg.y + fg.y, 0.0, 1e-14 * fabs(sg.y));
+        assert_near(sg.x + fg.x, 0.0, 1e-14 * fabs(sg.y));
+        solid_got[run][0] = sg.x, solid_got[run][1] = sg.y, solid_got[run][2] = sg.z;
+        open_min[run] = hy.open_min;
+        dr_couple_destroy(&c);
+        still_free(&hy.s);
+    }
+    /* the impulse, ρ g V_c h upward, on top of what the laws gave (the same in both runs) */
+    assert_near(solid_got[1][1] - solid_got[0][1], RHO * 9.81 * Vc * h, 1e-9 * RHO * 9.81 * Vc * h);
+    double cell = 0.025 * 0.025 * 0.025;
+    assert_true(1.0 - open_min[1] > 30 * (1.0 - open_min[0]));          /* φ_s counts the carried volume */
+    assert_true(1.0 - open_min[1] <= (V + Vc) / cell * (1 + 1e-12));    /* by the trilinear weights */
+}
+
 /* ---- the real liquid as the fluid -------------------------------------------------------------------------------- */
 
 static DrStatus liq_project(void *ctx, const DrFaceCoupling *extra, DrError *err)
@@ -406,7 +499,10 @@ static DrStatus liq_project(void *ctx, const DrFaceCoupling *extra, DrError *err
     memset(&st, 0, sizeof st);
     return dr_liquid_project(ctx, extra, &st, err);
 }
-static void liq_pressure(void *ctx, long n, const double *pts, double *p) { dr_liquid_sample(ctx, n, pts, NULL, p); }
+static void liq_pressure(void *ctx, long n, const double *pts, double *p, double *wet)
+{
+    dr_liquid_sample_wet_pressure(ctx, n, pts, p, wet);
+}
 static const unsigned char *liq_faces(void *ctx, int a) { return dr_liquid_coupled_faces(ctx, a); }
 static const double *liq_mass(void *ctx, int a) { return dr_liquid_face_mass(ctx, a); }
 
@@ -470,7 +566,7 @@ static void run_closed_box(int iterations, double *hair_speed)
     law.lift = 0.5;
     DrCoupleFluid fluid = {liq, d.density, d.viscosity, dr_liquid_grid(liq), liq_project, liq_pressure, liq_faces,
                            liq_mass};
-    DrCoupleSolid solid = {&rs, 1, &law, rod_samples, rod_solve, rod_correct};
+    DrCoupleSolid solid = {&rs, 1, &law, rod_samples, rod_solve, rod_correct, NULL};
     DrCouple *c = NULL;
     CHECK(dr_couple_create(&c, ERR));
     DrCoupleDesc cd;
@@ -539,7 +635,7 @@ typedef struct Layer { int n; double *x, *v, *mass, *volume, *diameter, *slender
 static DrCoupleSamples layer_samples(void *ctx)
 {
     Layer *l = ctx;
-    return (DrCoupleSamples){l->n, l->x, l->v, l->mass, l->volume, l->diameter, l->slender, l->tangent, l->held, NULL};
+    return (DrCoupleSamples){l->n, l->x, l->v, l->mass, l->volume, l->diameter, l->slender, l->tangent, l->held, NULL, NULL, NULL};
 }
 static DrStatus layer_solve(void *ctx, const double *force, const double *dfdv, DrError *err)
 {
@@ -553,7 +649,11 @@ static DrStatus air_project_cb(void *ctx, const DrFaceCoupling *extra, DrError *
     memset(&st, 0, sizeof st);
     return dr_air_project(ctx, extra, &st, err);
 }
-static void air_pressure_cb(void *ctx, long n, const double *pts, double *p) { dr_air_sample(ctx, n, pts, NULL, p); }
+static void air_pressure_cb(void *ctx, long n, const double *pts, double *p, double *wet)
+{
+    dr_air_sample(ctx, n, pts, NULL, p);
+    for (long i = 0; i < n; i++) wet[i] = 1.0;
+}
 static const unsigned char *air_faces_cb(void *ctx, int a) { return dr_air_coupled_faces(ctx, a); }
 static const double *air_mass_cb(void *ctx, int a) { return dr_air_face_mass(ctx, a); }
 
@@ -597,7 +697,7 @@ static void test_porous_layer(void **state)
     law.global = 20.0;
     DrCoupleFluid fluid = {air, d.density, d.viscosity, dr_air_grid(air), air_project_cb, air_pressure_cb, air_faces_cb,
                            air_mass_cb};
-    DrCoupleSolid solid = {&l, 1, &law, layer_samples, layer_solve, NULL};
+    DrCoupleSolid solid = {&l, 1, &law, layer_samples, layer_solve, NULL, NULL};
     DrCouple *c = NULL;
     CHECK(dr_couple_create(&c, ERR));
     DrCoupleDesc cd;
@@ -718,7 +818,7 @@ static double patch_step(Patch *p, const DrCoupleDesc *cd, double hmax, DrCouple
     CHECK(dr_rod_set_predict(p->rs.r, h, NULL, NULL, 0, ERR));
     DrCoupleFluid fluid = {p->air, p->d.density, p->d.viscosity, dr_air_grid(p->air), air_project_cb, air_pressure_cb,
                            air_faces_cb, air_mass_cb};
-    DrCoupleSolid solid = {&p->rs, 1, &p->law, rod_samples, rod_solve, rod_correct};
+    DrCoupleSolid solid = {&p->rs, 1, &p->law, rod_samples, rod_solve, rod_correct, NULL};
     CHECK(dr_couple_step(p->c, cd, &fluid, &solid, 1, h, st, ERR));
     CHECK(dr_rod_set_commit(p->rs.r, NULL, ERR));
     DrAirStats ast;
@@ -805,7 +905,7 @@ typedef struct MonoSolid { int *n; double *x, *v, *mass, *volume, *diameter, *sl
 static DrCoupleSamples mono_samples(void *ctx)
 {
     MonoSolid *p = ctx;
-    return (DrCoupleSamples){*p->n, p->x, p->v, p->mass, p->volume, p->diameter, p->slender, p->tangent, NULL, NULL};
+    return (DrCoupleSamples){*p->n, p->x, p->v, p->mass, p->volume, p->diameter, p->slender, p->tangent, NULL, NULL, NULL, NULL};
 }
 static DrStatus mono_solve(void *ctx, const double *force, const double *dfdv, DrError *err)
 {
@@ -988,7 +1088,7 @@ static void run_monolithic(double mass, double xi_d, bool explicit_reaction)
     }
     DrCoupleFluid fluid = {m.air, d.density, d.viscosity, g, air_project_cb, air_pressure_cb, air_faces_cb, air_mass_cb};
     MonoSolid ms = {&many.n, many.x, many.v, many.mass, many.volume, many.diameter, many.slender, many.tangent, m.h};
-    DrCoupleSolid solid = {&ms, 1, &law, mono_samples, mono_solve, mono_correct};
+    DrCoupleSolid solid = {&ms, 1, &law, mono_samples, mono_solve, mono_correct, NULL};
     DrCouple *c = NULL;
     CHECK(dr_couple_create(&c, ERR));
     DrCoupleDesc cd;
@@ -1130,6 +1230,7 @@ int main(void)
         cmocka_unit_test(test_lift),
         cmocka_unit_test(test_falling_rod_terminal_velocity),
         cmocka_unit_test(test_position_derivative),
+        cmocka_unit_test(test_carried_liquid),
         cmocka_unit_test(test_closed_box_momentum),
         cmocka_unit_test(test_porous_layer),
         cmocka_unit_test(test_loop_converges),
