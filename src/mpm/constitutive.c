@@ -99,7 +99,7 @@ static void svd3(const double F[9], double U[9], double sig[3], double V[9])
     sig[0] = R[0], sig[1] = R[4], sig[2] = R[8];
 }
 
-void dr_mpm_polar(int dim, const double F[9], double R[9], double S[9])
+void dr_mpm_polar_parts(int dim, const double F[9], DrMpmPolar *out)
 {
     assert(dim == 2 || dim == 3);
     if (dim == 2) {
@@ -107,35 +107,41 @@ void dr_mpm_polar(int dim, const double F[9], double R[9], double S[9])
         double a = F[0] + F[4], b = F[3] - F[1], r = hypot(a, b);
         double c = r > 0.0 ? a / r : 1.0, s = r > 0.0 ? b / r : 0.0;
         double Rr[9] = {c, -s, 0, s, c, 0, 0, 0, 1};
-        memcpy(R, Rr, sizeof Rr);
+        memcpy(out->R, Rr, sizeof Rr);
+        memset(out->V, 0, sizeof out->V);
+        memset(out->sig, 0, sizeof out->sig);
     } else {
-        double U[9], sig[3], V[9];
-        svd3(F, U, sig, V);
-        dr_m3a_mul_nt(U, V, R);
+        double U[9];
+        svd3(F, U, out->sig, out->V);
+        dr_m3a_mul_nt(U, out->V, out->R);
     }
+}
+
+void dr_mpm_polar(int dim, const double F[9], double R[9], double S[9])
+{
+    DrMpmPolar pol;
+    dr_mpm_polar_parts(dim, F, &pol);
+    memcpy(R, pol.R, sizeof pol.R);
     if (S) dr_m3a_mul_tn(R, F, S);
 }
 
 /* dR for F = R S: RᵀdR = [w]× with (tr S·I − S) w = axial(RᵀdF − dFᵀR), solved in the eigenbasis of S
-   (the V of the SVD), where tr S·I − S is diagonal with entries σ_i + σ_j. A vanishing σ_i + σ_j (two
+   (the V of the SVD, in pol), where tr S·I − S is diagonal with entries σ_i + σ_j. A vanishing σ_i + σ_j (two
    singular values cancelling in an inverted element) makes dR singular; it is clamped to ±1e-12 of
    the largest singular value, a branch cut no smooth path crosses except through that set. */
-static void polar_diff(int dim, const double F[9], const double dF[9], double R[9], double dR[9])
+static void polar_diff(int dim, const double F[9], const DrMpmPolar *pol, const double dF[9], double dR[9])
 {
     if (dim == 2) {
+        (void)pol;
         double a = F[0] + F[4], b = F[3] - F[1], r2 = a * a + b * b, r = sqrt(r2);
         double c = r > 0.0 ? a / r : 1.0, s = r > 0.0 ? b / r : 0.0;
-        double Rr[9] = {c, -s, 0, s, c, 0, 0, 0, 1};
-        memcpy(R, Rr, sizeof Rr);
         double da = dF[0] + dF[4], db = dF[3] - dF[1];
         double dth = r2 > 0.0 ? (a * db - b * da) / r2 : 0.0;
         double d[9] = {-s * dth, -c * dth, 0, c * dth, -s * dth, 0, 0, 0, 0};
         memcpy(dR, d, sizeof d);
         return;
     }
-    double U[9], sig[3], V[9];
-    svd3(F, U, sig, V);
-    dr_m3a_mul_nt(U, V, R);
+    const double *R = pol->R, *V = pol->V, *sig = pol->sig;
     double M[9];
     dr_m3a_mul_tn(R, dF, M);
     double a[3] = {M[7] - M[5], M[2] - M[6], M[3] - M[1]};
@@ -154,7 +160,8 @@ static void polar_diff(int dim, const double F[9], const double dF[9], double R[
 
 /* ---- energy, stress, stress differential ------------------------------------------------------ */
 
-bool dr_mpm_energy_density(DrMpmModel model, int dim, double mu, double lambda, const double F[9], double *psi)
+bool dr_mpm_energy_density_polar(DrMpmModel model, int dim, double mu, double lambda, const double F[9],
+                                 const DrMpmPolar *pol, double *psi)
 {
     assert(dim == 2 || dim == 3);
     double J = dr_m3a_det(F);
@@ -164,15 +171,22 @@ bool dr_mpm_energy_density(DrMpmModel model, int dim, double mu, double lambda, 
         *psi = 0.5 * mu * (dr_m3a_ddot(F, F) - 3.0) - mu * lnJ + 0.5 * lambda * lnJ * lnJ;
         return isfinite(*psi);
     }
-    double R[9];
-    dr_mpm_polar(dim, F, R, NULL);
+    DrMpmPolar own;
+    if (!pol) dr_mpm_polar_parts(dim, F, &own), pol = &own;
+    const double *R = pol->R;
     double s = 0.0;
     for (int k = 0; k < 9; k++) s += (F[k] - R[k]) * (F[k] - R[k]);
     *psi = mu * s + 0.5 * lambda * (J - 1.0) * (J - 1.0);
     return isfinite(*psi);
 }
 
-bool dr_mpm_pk1(DrMpmModel model, int dim, double mu, double lambda, const double F[9], double P[9])
+bool dr_mpm_energy_density(DrMpmModel model, int dim, double mu, double lambda, const double F[9], double *psi)
+{
+    return dr_mpm_energy_density_polar(model, dim, mu, lambda, F, NULL, psi);
+}
+
+bool dr_mpm_pk1_polar(DrMpmModel model, int dim, double mu, double lambda, const double F[9], const DrMpmPolar *pol,
+                      double P[9])
 {
     assert(dim == 2 || dim == 3);
     double C[9];
@@ -185,9 +199,9 @@ bool dr_mpm_pk1(DrMpmModel model, int dim, double mu, double lambda, const doubl
         for (int k = 0; k < 9; k++) P[k] = mu * F[k] + (lambda * lnJ - mu) * iJ * C[k];
     } else {
         /* P = 2μ(F − R) + λ(J − 1) J F⁻ᵀ */
-        double R[9];
-        dr_mpm_polar(dim, F, R, NULL);
-        for (int k = 0; k < 9; k++) P[k] = 2.0 * mu * (F[k] - R[k]) + lambda * (J - 1.0) * C[k];
+        DrMpmPolar own;
+        if (!pol) dr_mpm_polar_parts(dim, F, &own), pol = &own;
+        for (int k = 0; k < 9; k++) P[k] = 2.0 * mu * (F[k] - pol->R[k]) + lambda * (J - 1.0) * C[k];
     }
     zero_z(dim, P);
     for (int k = 0; k < 9; k++)
@@ -195,8 +209,13 @@ bool dr_mpm_pk1(DrMpmModel model, int dim, double mu, double lambda, const doubl
     return true;
 }
 
-bool dr_mpm_dpk1(DrMpmModel model, int dim, double mu, double lambda, const double F[9], const double dF[9],
-                 double dP[9])
+bool dr_mpm_pk1(DrMpmModel model, int dim, double mu, double lambda, const double F[9], double P[9])
+{
+    return dr_mpm_pk1_polar(model, dim, mu, lambda, F, NULL, P);
+}
+
+bool dr_mpm_dpk1_polar(DrMpmModel model, int dim, double mu, double lambda, const double F[9], const DrMpmPolar *pol,
+                       const double dF[9], double dP[9])
 {
     assert(dim == 2 || dim == 3);
     double dFz[9];
@@ -216,8 +235,10 @@ bool dr_mpm_dpk1(DrMpmModel model, int dim, double mu, double lambda, const doub
             dP[k] = mu * dFz[k] + a * (dC[k] * iJ - C[k] * dJ * iJ * iJ) + lambda * dlnJ * iJ * C[k];
     } else {
         /* dP = 2μ(dF − dR) + λ dJ cof + λ(J − 1) d cof */
-        double R[9], dR[9];
-        polar_diff(dim, F, dFz, R, dR);
+        DrMpmPolar own;
+        if (!pol) dr_mpm_polar_parts(dim, F, &own), pol = &own;
+        double dR[9];
+        polar_diff(dim, F, pol, dFz, dR);
         for (int k = 0; k < 9; k++)
             dP[k] = 2.0 * mu * (dFz[k] - dR[k]) + lambda * dJ * C[k] + lambda * (J - 1.0) * dC[k];
     }
@@ -225,4 +246,10 @@ bool dr_mpm_dpk1(DrMpmModel model, int dim, double mu, double lambda, const doub
     for (int k = 0; k < 9; k++)
         if (!isfinite(dP[k])) return false;
     return true;
+}
+
+bool dr_mpm_dpk1(DrMpmModel model, int dim, double mu, double lambda, const double F[9], const double dF[9],
+                 double dP[9])
+{
+    return dr_mpm_dpk1_polar(model, dim, mu, lambda, F, NULL, dF, dP);
 }

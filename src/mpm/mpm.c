@@ -71,6 +71,7 @@ struct DrMpm {
     bool anchors;
     /* per-particle scratch */
     double *G, *Fu, *Q, *dG, *dM, *px, *pf, *bx, *bv, *bC, *bF;
+    DrMpmPolar *pol;    /* Fu's polar parts (fixed corotated), set with Fu: every CG product of the iterate reuses them */
     double *psi;
     double *pvol;       /* samples: current volume V₀ det F^n (n) */
     double *sv;         /* samples: solved grid velocity at the particles (3n) */
@@ -236,7 +237,7 @@ void dr_mpm_destroy(DrMpm **mpm)
     dr_node_grid_destroy(&m->grid);
     void *arrays[] = {m->x, m->v, m->C, m->F, m->mass, m->vol0, m->mu, m->lam, m->ak, m->at, m->model, m->body,
                       m->G, m->Fu, m->Q, m->dG, m->dM, m->px, m->pf, m->bx, m->bv, m->bC, m->bF, m->psi,
-                      m->pvol, m->sv, m->xf, m->xs, m->body_start, m->mats, m->cols, m->vn, m->v0, m->vnew,
+                      m->pol, m->pvol, m->sv, m->xf, m->xs, m->body_start, m->mats, m->cols, m->vn, m->v0, m->vnew,
                       m->uf, m->ff, m->tf, m->fe, m->fv, m->fix, m->con, m->con0, m->cnrm, m->cinfo, m->cvel, m->touch, m->act,
                       m->mact, m->dv, m->res, m->del, m->tmp, m->cgw};
     for (size_t k = 0; k < sizeof arrays / sizeof *arrays; k++) free(arrays[k]);
@@ -259,7 +260,7 @@ static DrStatus reserve(DrMpm *m, long need, DrError *err)
         {&m->pf, 3 * sizeof(double)}, {&m->bx, 3 * sizeof(double)}, {&m->bv, 3 * sizeof(double)},
         {&m->bC, 9 * sizeof(double)}, {&m->bF, 9 * sizeof(double)}, {&m->psi, sizeof(double)},
         {&m->pvol, sizeof(double)},   {&m->sv, 3 * sizeof(double)}, {&m->xf, 3 * sizeof(double)},
-        {&m->xs, 3 * sizeof(double)},
+        {&m->xs, 3 * sizeof(double)}, {&m->pol, sizeof(DrMpmPolar)},
     };
     for (size_t k = 0; k < sizeof arr / sizeof *arr; k++) DR_TRY(dr_realloc((size_t)cap, arr[k].per, arr[k].p, err));
     /* anchors of particles added later are "none" */
@@ -607,8 +608,10 @@ static void eval_range(long b, long e, void *vctx)
         dr_m3a_mul(N, Fn, Fu);
         double psi, P[9];
         DrMpmModel model = (DrMpmModel)m->model[p];
-        if (!dr_mpm_energy_density(model, m->dim, m->mu[p], m->lam[p], Fu, &psi) ||
-            !dr_mpm_pk1(model, m->dim, m->mu[p], m->lam[p], Fu, P)) {
+        const DrMpmPolar *pol = NULL;
+        if (model == DR_MPM_FIXED_COROTATED) dr_mpm_polar_parts(m->dim, Fu, &m->pol[p]), pol = &m->pol[p];
+        if (!dr_mpm_energy_density_polar(model, m->dim, m->mu[p], m->lam[p], Fu, pol, &psi) ||
+            !dr_mpm_pk1_polar(model, m->dim, m->mu[p], m->lam[p], Fu, pol, P)) {
             m->psi[p] = INFINITY;
 #pragma omp critical(dr_mpm_eval_bad)
             {
@@ -627,7 +630,7 @@ static void eval_range(long b, long e, void *vctx)
     }
 }
 
-/* Force differential per particle: dM from dG (δG), with G, Fu, Q of the current iterate. */
+/* Force differential per particle: dM from dG (δG), with G, Fu, its polar parts and Q of the current iterate. */
 typedef struct DiffCtx { DrMpm *m; double q; } DiffCtx;
 static void diff_range(long b, long e, void *vctx)
 {
@@ -646,7 +649,9 @@ static void diff_range(long b, long e, void *vctx)
         }
         double dF[9], dP[9];
         dr_m3a_mul(dN, Fn, dF);
-        if (!dr_mpm_dpk1((DrMpmModel)m->model[p], m->dim, m->mu[p], m->lam[p], m->Fu + 9 * p, dF, dP))
+        DrMpmModel model = (DrMpmModel)m->model[p];
+        if (!dr_mpm_dpk1_polar(model, m->dim, m->mu[p], m->lam[p], m->Fu + 9 * p,
+                               model == DR_MPM_FIXED_COROTATED ? &m->pol[p] : NULL, dF, dP))
             memset(dP, 0, sizeof dP); /* only reachable where E = +∞, which the line search never accepts */
         double dQ[9], *M = m->dM + 9 * p;
         dr_m3a_mul_nt(dP, Fn, dQ);

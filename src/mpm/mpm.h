@@ -50,6 +50,18 @@ bool dr_mpm_dpk1(DrMpmModel model, int dim, double mu, double lambda, const doub
    Polar decomposition F = R S with R a rotation (det R = +1, also for det F < 0: the smallest singular
    value carries the sign, as fixed corotated needs) and S = RᵀF (S may be NULL). 2-D: F's xy block. */
 void dr_mpm_polar(int dim, const double F[9], double R[9], double S[9]);
+/* The parts of F's polar decomposition fixed corotated needs: R, and in 3-D the SVD's V and signed σ (F = U Σ Vᵀ,
+   R = U Vᵀ; zero in 2-D). The _polar forms of the energy, stress and differential take them (NULL: computed), so a
+   solver computes them once per iterate and every product of its linear solve reuses them, bit for bit what the
+   plain forms give; Neo-Hookean ignores them. */
+typedef struct DrMpmPolar { double R[9], V[9], sig[3]; } DrMpmPolar;
+void dr_mpm_polar_parts(int dim, const double F[9], DrMpmPolar *out);
+bool dr_mpm_energy_density_polar(DrMpmModel model, int dim, double mu, double lambda, const double F[9],
+                                 const DrMpmPolar *pol, double *psi);
+bool dr_mpm_pk1_polar(DrMpmModel model, int dim, double mu, double lambda, const double F[9], const DrMpmPolar *pol,
+                      double P[9]);
+bool dr_mpm_dpk1_polar(DrMpmModel model, int dim, double mu, double lambda, const double F[9], const DrMpmPolar *pol,
+                       const double dF[9], double dP[9]);
 
 typedef struct DrMpmDesc {
     int dim;                    /* 2 or 3 */
