@@ -18,6 +18,7 @@
 #include "liquid/liquid.h"
 #include "mpm/mpm.h"
 #include "world/world.h"
+#include "world_run.h"
 
 typedef struct Run {
     char dir[256];
@@ -195,28 +196,23 @@ static void test_sink(void **state)
    C_d = 0.47, 2.5 radii under the surface of a 5-radii-wide, 1.2 m deep tank at 5 cells per radius: after the
    impulsive start (about 0.8 v_t) its wake grows and the speed levels off. Asserted over frames 10–12: the mean speed
    within 15 % of v_t (measured 1.013: the ball smeared over the kernel's width drags less than the BEM ball's sharp
-   surface, 0.853; at 6 cells per radius 1.15 against 0.91), levelled (under 3 % of v_t across those frames), and no
-   liquid where the ball's fraction reads above 0.75. */
+   surface, 0.853; in bench_terminal 0.94, 1.02, 1.07 at 4, 5, 6 cells per radius against 0.78, 0.85, 0.91),
+   levelled (under 3 % of v_t across those frames), and no liquid where the ball's fraction reads above 0.75. */
 static void test_drag_limited(void **state)
 {
     (void)state;
     const double radius = 0.05, dx = 0.01, width = 0.25, depth = 1.2, rho = 2000.0;
-    const double vt0 = sqrt(8.0 * radius * 9.81 * (rho - 1000.0) / (3.0 * 1000.0 * 0.47));
-    char json[4096];
-    snprintf(json, sizeof json,
-             "{\"shot\": {\"name\": \"terminal\", \"fps\": 24, \"frames\": [1, 12], \"gravity\": [0, -9.81, 0]},"
-             "\"solver\": {\"cfl\": 1.0, \"max_substeps\": 64},"
-             "\"elements\": [{\"name\": \"water\", \"type\": \"liquid\", \"components\": {"
-             "  \"Domain\": {\"box\": [[0, 0, 0], [%g, %g, %g]], \"voxel_size\": %g},"
-             "  \"LiquidSource\": {\"box\": [[0, 0, 0], [%g, %g, %g]]}, \"Particles\": {\"per_cell\": 8, \"seed\": 3}}},"
-             " {\"name\": \"ball\", \"type\": \"mpm_solid\", \"components\": {"
-             "  \"Domain\": {\"box\": [[0, 0, 0], [%g, %g, %g]], \"voxel_size\": %g},"
-             "  \"MpmShape\": {\"centre\": [%g, %g, %g], \"radius\": %g},"
-             "  \"InitialVelocity\": {\"velocity\": [0, %.17g, 0]},"
-             "  \"MpmMaterial\": {\"model\": \"fixed_corotated\", \"density\": %g, \"youngs_modulus\": 1e6,"
-             "  \"poisson\": 0.3}}}]}",
-             width, depth + 3 * dx, width, dx, width, depth, width, width, depth + 3 * dx, width, dx, 0.5 * width,
-             depth - 2.5 * radius, 0.5 * width, radius, -vt0, rho);
+    char body[1024], json[4096];
+    snprintf(body, sizeof body,
+             "{\"name\": \"ball\", \"type\": \"mpm_solid\", \"components\": {"
+             " \"Domain\": {\"box\": [[0, 0, 0], [%g, %g, %g]], \"voxel_size\": %g},"
+             " \"MpmShape\": {\"centre\": [%g, %g, %g], \"radius\": %g},"
+             " \"InitialVelocity\": {\"velocity\": [0, %.17g, 0]},"
+             " \"MpmMaterial\": {\"model\": \"fixed_corotated\", \"density\": %g, \"youngs_modulus\": 1e6,"
+             " \"poisson\": 0.3}}}",
+             width, depth + 3 * dx, width, dx, 0.5 * width, depth - 2.5 * radius, 0.5 * width, radius,
+             -world_run_terminal_speed(rho, radius), rho);
+    world_run_sink_tank(json, sizeof json, 12, width, depth, dx, body);
     Run r;
     run_open(&r, json);
     double v[13] = {0}, vt = 0.0;
@@ -228,21 +224,20 @@ static void test_drag_limited(void **state)
         ball_state(&r, c, u, NULL, &volume);
         assert_true(isfinite(c[1]) && isfinite(u[1]));
         /* the sphere of the particles' volume */
-        double R = cbrt(3.0 * volume / (4.0 * DR_PI));
-        vt = sqrt(8.0 * R * 9.81 * (rho - 1000.0) / (3.0 * 1000.0 * 0.47));
+        vt = world_run_terminal_speed(rho, cbrt(3.0 * volume / (4.0 * DR_PI)));
         v[f] = -u[1];
         long in = particles_inside(&r, 0.75);
         if (in > inside) inside = in;
         printf("drag-limited (MPM, %.0f kg/m^3): frame %2d, centre %.4f m, speed %.4f m/s = %.3f v_t\n", rho, f, c[1],
                v[f], v[f] / vt);
     }
-    double mean = (v[10] + v[11] + v[12]) / 3.0, lo = fmin(v[10], fmin(v[11], v[12])),
-           hi = fmax(v[10], fmax(v[11], v[12]));
-    printf("drag-limited (MPM): v_t %.4f m/s (C_d 0.47); frames 10-12 mean %.4f m/s = %.3f v_t (within 15 %%), spread "
-           "%.3f v_t (under 0.03); at most %ld liquid particles where the ball's fraction reads > 0.75\n", vt, mean,
-           mean / vt, (hi - lo) / vt, inside);
-    assert_true(fabs(mean / vt - 1.0) <= 0.15);
-    assert_true((hi - lo) / vt <= 0.03);
+    double mean, spread;
+    world_run_levelled(v, 10, 12, vt, &mean, &spread);
+    printf("drag-limited (MPM): v_t %.4f m/s (C_d 0.47); frames 10-12 mean %.3f v_t (within 15 %%), spread %.3f v_t "
+           "(under 0.03); at most %ld liquid particles where the ball's fraction reads > 0.75\n", vt, mean, spread,
+           inside);
+    assert_true(fabs(mean - 1.0) <= 0.15);
+    assert_true(spread <= 0.03);
     assert_int_equal(inside, 0);
     run_close(&r);
 }
