@@ -84,12 +84,13 @@ $(TEST_HELPERS): build/tests/%: tests/pipeline/%.c $(LIB)
 	@mkdir -p $(@D)
 	$(CC) $(CPPFLAGS) $(CFLAGS) $< $(LIB) $(LDLIBS) -o $@
 
+# The build before the tests and benchmarks uses every core (the tests then set their own threads).
 test: test-deps
-	@$(MAKE) --no-print-directory all $(TEST_BIN) $(TEST_HELPERS)
+	@$(MAKE) --no-print-directory -j$$(nproc) all $(TEST_BIN) $(TEST_HELPERS)
 	@bash tests/run_tests.sh $(TEST_BIN)
 
 bench: deps
-	@$(MAKE) --no-print-directory all $(BENCH_BIN)
+	@$(MAKE) --no-print-directory -j$$(nproc) all $(BENCH_BIN)
 	@bash tests/bench/run_bench.sh $(BENCH_BIN) $(BENCH_SH)
 
 # Refreshes the README's component reference from the scene tables (headings moved under README's own).
