@@ -15,16 +15,13 @@
 #include "stage/stage.h"
 #include "world/world.h"
 
+#include "../validation/sink_tank.h"
+
 static void die(const char *what, const DrError *err)
 {
     if (err) dr_error_print("bench_terminal", err);
     else fprintf(stderr, "bench_terminal: %s\n", what);
     exit(1);
-}
-
-static double terminal_speed(double rho, double R)
-{
-    return sqrt(8.0 * R * 9.81 * (rho - 1000.0) / (3.0 * 1000.0 * 0.47));
 }
 
 /* One run: writes the scene (and the icosphere) into a temporary folder, builds the body's matrices as precompute
@@ -43,30 +40,9 @@ static void run(int bem, int cells, FILE *csv)
         dr_trimesh_free(&m);
     }
     char body[1536];
-    if (bem)
-        snprintf(body, sizeof body,
-                 "{\"name\": \"ball\", \"type\": \"bem_solid\", \"components\": {\"Mesh\": {\"file\": \"ball.obj\"},"
-                 " \"Transform\": {\"translate\": [%g, %g, %g]}, \"InitialVelocity\": {\"velocity\": [0, %.17g, 0]},"
-                 " \"LinearElastic\": {\"density\": %g, \"shear_modulus\": 1e6, \"poisson\": 0.4},"
-                 " \"Compression\": {\"ratio\": 1},"
-                 " \"BemSolver\": {\"time_step\": 0.004166666666666667, \"history_margin\": 8}}}",
-                 0.5 * W, H - 2.5 * R, 0.5 * W, -terminal_speed(rho, R), rho);
-    else
-        snprintf(body, sizeof body,
-                 "{\"name\": \"ball\", \"type\": \"mpm_solid\", \"components\": {"
-                 " \"Domain\": {\"box\": [[0, 0, 0], [%g, %g, %g]], \"voxel_size\": %g},"
-                 " \"MpmShape\": {\"centre\": [%g, %g, %g], \"radius\": %g},"
-                 " \"InitialVelocity\": {\"velocity\": [0, %.17g, 0]},"
-                 " \"MpmMaterial\": {\"model\": \"fixed_corotated\", \"density\": %g, \"youngs_modulus\": 1e6,"
-                 " \"poisson\": 0.3}}}",
-                 W, H + 3 * dx, W, dx, 0.5 * W, H - 2.5 * R, 0.5 * W, R, -terminal_speed(rho, R), rho);
-    snprintf(json, sizeof json,
-             "{\"shot\": {\"name\": \"terminal\", \"fps\": 24, \"frames\": [1, 48], \"gravity\": [0, -9.81, 0]},"
-             "\"solver\": {\"cfl\": 1.0, \"max_substeps\": 64}, \"elements\": ["
-             "{\"name\": \"water\", \"type\": \"liquid\", \"components\": {"
-             " \"Domain\": {\"box\": [[0, 0, 0], [%g, %g, %g]], \"voxel_size\": %g},"
-             " \"LiquidSource\": {\"box\": [[0, 0, 0], [%g, %g, %g]]}, \"Particles\": {\"per_cell\": 8, \"seed\": 3}}}, %s]}",
-             W, H + 3 * dx, W, dx, W, H, W, body);
+    if (!sink_ball_json(body, sizeof body, bem, rho, R, W, H, dx) ||
+        !sink_tank_json(json, sizeof json, 48, W, H, dx, body))
+        die("the scene does not fit its buffer", NULL);
     snprintf(path, sizeof path, "%s/scene.json", dir);
     FILE *f = fopen(path, "w");
     if (!f) die("cannot write the scene", NULL);
@@ -112,15 +88,15 @@ static void run(int bem, int cells, FILE *csv)
                 m += s.mass[i], volume += s.vol0[i], c += s.mass[i] * s.x[3 * i + 1], p += s.mass[i] * s.v[3 * i + 1];
             y = c / m, vy = p / m;
         }
-        vt = terminal_speed(rho, cbrt(3.0 * volume / (4.0 * DR_PI)));
+        vt = sink_terminal_speed(rho, cbrt(3.0 * volume / (4.0 * DR_PI)));
         v[fr] = -vy;
         frames = fr + 1;
         if (y < 8.0 * R) break;
     }
     double secs = dr_time_now() - t0;
     if (frames < 3) die("the ball reached the floor within three frames", NULL);
-    double a = v[frames - 3], b = v[frames - 2], c = v[frames - 1];
-    double mean = (a + b + c) / 3.0 / vt, spread = (fmax(a, fmax(b, c)) - fmin(a, fmin(b, c))) / vt;
+    double mean, spread;
+    sink_levelled(v, frames - 3, frames - 1, vt, &mean, &spread);
     fprintf(csv, "%s,%d,%.6f,%.6f,%.6f,%d,%.2f\n", bem ? "bem" : "mpm", cells, mean, fabs(mean - 1.0), spread, frames,
             secs);
     fflush(csv);

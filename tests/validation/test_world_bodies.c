@@ -17,7 +17,7 @@
 #include "liquid/liquid.h"
 #include "stage/stage.h"
 #include "world/world.h"
-#include "world_run.h"
+#include "sink_tank.h"
 
 #define RADIUS 0.08
 
@@ -225,18 +225,12 @@ static void test_drag_limited(void **state)
     (void)state;
     const double radius = 0.05, dx = 0.01, width = 0.25, depth = 1.2, rho = 2000.0;
     char body[1024], json[4096];
-    snprintf(body, sizeof body,
-             "{\"name\": \"ball\", \"type\": \"bem_solid\", \"components\": {\"Mesh\": {\"file\": \"ball.obj\"},"
-             " \"Transform\": {\"translate\": [%g, %g, %g]}, \"InitialVelocity\": {\"velocity\": [0, %.17g, 0]},"
-             " \"LinearElastic\": {\"density\": %g, \"shear_modulus\": 1e6, \"poisson\": 0.4},"
-             " \"Compression\": {\"ratio\": 1},"
-             " \"BemSolver\": {\"time_step\": 0.004166666666666667, \"history_margin\": 8}}}",
-             0.5 * width, depth - 2.5 * radius, 0.5 * width, -world_run_terminal_speed(rho, radius), rho);
-    world_run_sink_tank(json, sizeof json, 12, width, depth, dx, body);
+    assert_true(sink_ball_json(body, sizeof body, true, rho, radius, width, depth, dx));
+    assert_true(sink_tank_json(json, sizeof json, 12, width, depth, dx, body));
     Run r;
     run_open_radius(&r, json, radius);
     const DrBemMatrices *m = dr_bem_solid_matrices(dr_world_bem_solid(r.world, 0));
-    double vt = world_run_terminal_speed(rho, cbrt(3.0 * m->body.volume / (4.0 * DR_PI)));
+    double vt = sink_terminal_speed(rho, cbrt(3.0 * m->body.volume / (4.0 * DR_PI)));
     double v[13] = {0};
     long inside = 0;
     for (int f = 1; f <= 12; f++) {
@@ -252,7 +246,7 @@ static void test_drag_limited(void **state)
                v[f], v[f] / vt);
     }
     double mean, spread;
-    world_run_levelled(v, 10, 12, vt, &mean, &spread);
+    sink_levelled(v, 10, 12, vt, &mean, &spread);
     printf("drag-limited (BEM): v_t %.4f m/s (C_d 0.47); frames 10-12 mean %.3f v_t (within 15 %%), spread %.3f v_t "
            "(under 0.03); at most %ld particles more than dx/2 inside\n", vt, mean, spread, inside);
     assert_true(fabs(mean - 1.0) <= 0.15);

@@ -18,7 +18,7 @@
 #include "liquid/liquid.h"
 #include "mpm/mpm.h"
 #include "world/world.h"
-#include "world_run.h"
+#include "sink_tank.h"
 
 typedef struct Run {
     char dir[256];
@@ -203,16 +203,8 @@ static void test_drag_limited(void **state)
     (void)state;
     const double radius = 0.05, dx = 0.01, width = 0.25, depth = 1.2, rho = 2000.0;
     char body[1024], json[4096];
-    snprintf(body, sizeof body,
-             "{\"name\": \"ball\", \"type\": \"mpm_solid\", \"components\": {"
-             " \"Domain\": {\"box\": [[0, 0, 0], [%g, %g, %g]], \"voxel_size\": %g},"
-             " \"MpmShape\": {\"centre\": [%g, %g, %g], \"radius\": %g},"
-             " \"InitialVelocity\": {\"velocity\": [0, %.17g, 0]},"
-             " \"MpmMaterial\": {\"model\": \"fixed_corotated\", \"density\": %g, \"youngs_modulus\": 1e6,"
-             " \"poisson\": 0.3}}}",
-             width, depth + 3 * dx, width, dx, 0.5 * width, depth - 2.5 * radius, 0.5 * width, radius,
-             -world_run_terminal_speed(rho, radius), rho);
-    world_run_sink_tank(json, sizeof json, 12, width, depth, dx, body);
+    assert_true(sink_ball_json(body, sizeof body, false, rho, radius, width, depth, dx));
+    assert_true(sink_tank_json(json, sizeof json, 12, width, depth, dx, body));
     Run r;
     run_open(&r, json);
     double v[13] = {0}, vt = 0.0;
@@ -224,7 +216,7 @@ static void test_drag_limited(void **state)
         ball_state(&r, c, u, NULL, &volume);
         assert_true(isfinite(c[1]) && isfinite(u[1]));
         /* the sphere of the particles' volume */
-        vt = world_run_terminal_speed(rho, cbrt(3.0 * volume / (4.0 * DR_PI)));
+        vt = sink_terminal_speed(rho, cbrt(3.0 * volume / (4.0 * DR_PI)));
         v[f] = -u[1];
         long in = particles_inside(&r, 0.75);
         if (in > inside) inside = in;
@@ -232,7 +224,7 @@ static void test_drag_limited(void **state)
                v[f], v[f] / vt);
     }
     double mean, spread;
-    world_run_levelled(v, 10, 12, vt, &mean, &spread);
+    sink_levelled(v, 10, 12, vt, &mean, &spread);
     printf("drag-limited (MPM): v_t %.4f m/s (C_d 0.47); frames 10-12 mean %.3f v_t (within 15 %%), spread %.3f v_t "
            "(under 0.03); at most %ld liquid particles where the ball's fraction reads > 0.75\n", vt, mean, spread,
            inside);

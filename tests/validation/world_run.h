@@ -4,7 +4,6 @@
 #ifndef DR_TEST_WORLD_RUN_H
 #define DR_TEST_WORLD_RUN_H
 
-#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -77,38 +76,6 @@ static inline void world_run_close(WorldRun *r)
     char cmd[300];
     snprintf(cmd, sizeof cmd, "rm -rf '%s'", r->dir);
     assert_int_equal(system(cmd), 0);
-}
-
-/* The drag-limited sinking tests (test_world_bodies, test_world_mpm_liquid): the speed at which the drag of a sphere
-   of radius R with C_d = 0.47 balances its weight less buoyancy in water, v_t = sqrt(8 R g (ρ_s − ρ_f)/(3 ρ_f C_d)),
-   and their scene: `frames` frames at 24 fps of a tank of still water [0, width] × [0, depth] × [0, width] (Δx = dx,
-   the domain a few cells higher) with the body element `body` (JSON) in it. */
-static inline double world_run_terminal_speed(double rho, double R)
-{
-    return sqrt(8.0 * R * 9.81 * (rho - 1000.0) / (3.0 * 1000.0 * 0.47));
-}
-
-static inline void world_run_sink_tank(char *json, size_t size, int frames, double width, double depth, double dx,
-                                       const char *body)
-{
-    int n = snprintf(json, size,
-                     "{\"shot\": {\"name\": \"terminal\", \"fps\": 24, \"frames\": [1, %d], \"gravity\": [0, -9.81, 0]},"
-                     "\"solver\": {\"cfl\": 1.0, \"max_substeps\": 64},"
-                     "\"elements\": [{\"name\": \"water\", \"type\": \"liquid\", \"components\": {"
-                     "  \"Domain\": {\"box\": [[0, 0, 0], [%g, %g, %g]], \"voxel_size\": %g},"
-                     "  \"LiquidSource\": {\"box\": [[0, 0, 0], [%g, %g, %g]]},"
-                     "  \"Particles\": {\"per_cell\": 8, \"seed\": 3}}}, %s]}",
-                     frames, width, depth + 3 * dx, width, dx, width, depth, width, body);
-    assert_true(n > 0 && (size_t)n < size);
-}
-
-/* The mean of v[from..to] and its spread (largest − smallest), both over vt. */
-static inline void world_run_levelled(const double *v, int from, int to, double vt, double *mean, double *spread)
-{
-    double sum = 0.0, lo = v[from], hi = v[from];
-    for (int f = from; f <= to; f++) sum += v[f], lo = fmin(lo, v[f]), hi = fmax(hi, v[f]);
-    *mean = sum / (to - from + 1) / vt;
-    *spread = (hi - lo) / vt;
 }
 
 #endif
