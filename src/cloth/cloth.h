@@ -1,0 +1,113 @@
+/* drench cloth: thin shells on triangle meshes as Lagrangian vertex objects (PHYSICS §4 "Shells"; seed weta_avatar
+ * §1–§3: hair and cloth alike on one constrained-dynamics solver).
+ *
+ * Model. A panel is a triangle mesh whose vertices carry position DOFs (3 each) of one object of the Lagrangian
+ * system (src/lagrangian). Its forces are constraint groups (shell.h): three StVK membrane rows per triangle, the
+ * bending rows (up to three per triangle on the dihedral angles of its edges, or one per hinge), and a viscous twin of
+ * each (damping, C_v⁻¹ = damping · C⁻¹). Mass is lumped: each triangle gives ρ h A/3 to each of its vertices.
+ *
+ * Vertex order. The object's block is banded: its vertices are numbered in reverse Cuthill–McKee order (George and
+ * Liu 1981) over the mesh's edge graph, so a vertex's neighbours lie within `band` vertices of it and the block's
+ * half-bandwidth is 3·band + 2 DOFs. The banded Cholesky factor then costs O(n (3 band)²), no fill outside the band
+ * and no symbolic phase; a panel of w × w vertices has band ≈ w. tests/bench/bench_cloth measures it against a
+ * sparse factorisation (CHOLMOD, nested dissection) of the same matrix: the README states which wins where.
+ *
+ * Attachments. A pinned vertex follows a prescribed velocity (zero by default): its DOFs are eliminated from the
+ * solve, so it moves exactly by h v at every step.
+ *
+ * Colliders. A collider is a signed distance with an outward normal and a surface velocity (the same callbacks the
+ * hair takes); a vertex that is inside, or would enter within the step at its current velocity, gets the one-row
+ * constraint φ = d − thickness ≥ 0 along the normal with stiffness collider_stiffness, and Coulomb friction at
+ * commit (the tangential velocity relative to the collider loses up to μ times the normal velocity the contact
+ * gave).
+ *
+ * A panel alone steps its own system (dr_cloth_step = predict + solve + commit); in a shared system (desc.system) the
+ * owner drives the phases as for the rod set. Results are bit-identical for any thread count. */
+#ifndef DR_CLOTH_H
+#define DR_CLOTH_H
+
+#include "core/core.h"
+#include "lagrangian/lagrangian.h"
+
+/* How bending is discretised (shell.h): the discrete shape operator of each triangle from its edges' dihedral angles
+   (the default: Kirchhoff's energy with the material's Poisson ratio on any regular mesh), or one row per hinge
+   (Grinspun et al.'s discrete shells: cheaper, but its energy depends on how the mesh is cut). */
+typedef enum DrClothBending { DR_CLOTH_BEND_SHAPE_OPERATOR, DR_CLOTH_BEND_HINGE } DrClothBending;
+
+typedef struct DrClothMaterial {
+    double density;        /* kg/m³ of the fabric (areal density ρ h), > 0; default 400 */
+    double thickness;      /* m, > 0; default 5e-4 */
+    double youngs_modulus; /* Pa, > 0; default 1e6 */
+    double poisson;        /* in [0, 0.5); default 0.3 */
+    double bend_scale;     /* multiplies the plate's bending stiffness E h³/(24(1 − ν²)), ≥ 0; default 1 */
+    double damping;        /* s, ≥ 0: each group's viscous twin has C_v⁻¹ = damping · C⁻¹; default 0 */
+    double friction;       /* Coulomb coefficient against colliders (the larger of this and the collider's) */
+    double collision_thickness; /* m, ≥ 0: distance kept from colliders (with the collider's own); default 1e-3 */
+    DrClothBending bending;     /* default DR_CLOTH_BEND_SHAPE_OPERATOR */
+} DrClothMaterial;
+void dr_cloth_material_default(DrClothMaterial *m);
+
+typedef double (*DrClothSdfFn)(DrVec3 x, DrVec3 *normal, void *ctx);
+typedef DrVec3 (*DrClothVelocityFn)(DrVec3 x, void *ctx);
+typedef struct DrClothCollider {
+    DrClothSdfFn sdf;               /* signed distance (negative inside), outward unit normal */
+    DrClothVelocityFn velocity_at;  /* NULL: at rest */
+    void *ctx;
+    double friction, thickness;
+} DrClothCollider;
+
+typedef struct DrClothDesc {
+    DrVec3 gravity;              /* m/s², default (0, −9.81, 0) */
+    DrLagDesc solver;            /* for a panel stepping its own system */
+    bool geometric_stiffness;    /* the membrane's λ-weighted Hessians (eq. S27); default true */
+    double collider_stiffness;   /* N/m of a vertex–collider contact; default 1e4 */
+    DrLag *system;               /* NULL (default): a system of its own. Else the shared system (DESIGN §8) */
+} DrClothDesc;
+void dr_cloth_desc_default(DrClothDesc *d);
+
+typedef struct DrCloth DrCloth;
+
+/* A panel at rest in the mesh's shape (its rest shape). Every edge must border one or two triangles, the two
+   triangles of an edge wound consistently (they traverse it in opposite directions), and no triangle degenerate:
+   DR_ERR_INPUT naming the triangle or the edge (by its vertices, 0-based) otherwise. `name` prefixes messages. */
+DR_NODISCARD DrStatus dr_cloth_create(const DrClothDesc *desc, const DrTriMesh *mesh, const DrClothMaterial *material,
+                                      const char *name, DrCloth **out, DrError *err);
+void dr_cloth_destroy(DrCloth **c);
+
+int dr_cloth_vertex_count(const DrCloth *c);
+int dr_cloth_triangle_count(const DrCloth *c);
+int dr_cloth_hinge_count(const DrCloth *c); /* interior edges */
+/* The half-bandwidth of the panel's block in vertices (after the reverse Cuthill–McKee order). */
+int dr_cloth_band(const DrCloth *c);
+const int *dr_cloth_triangles(const DrCloth *c);   /* 3 per triangle, the mesh's */
+const double *dr_cloth_positions(const DrCloth *c); /* 3 per vertex, mesh order, m */
+double *dr_cloth_positions_mut(DrCloth *c);         /* to place the panel before its first step */
+const double *dr_cloth_velocities(const DrCloth *c);
+double *dr_cloth_velocities_mut(DrCloth *c);
+const double *dr_cloth_masses(const DrCloth *c);    /* kg per vertex */
+
+/* Pins vertex v (mesh index) to move with velocity vel (m/s, NULL: at rest) from the next step on; pinned false
+   frees it. DR_ERR_INPUT for a vertex out of range. */
+DR_NODISCARD DrStatus dr_cloth_pin(DrCloth *c, int v, bool pinned, const double *vel, DrError *err);
+
+typedef struct DrClothStats {
+    int iterations;          /* CG iterations of the last solve */
+    bool converged;
+    int collider_contacts;   /* vertex–collider contacts of the last step */
+    double seconds;
+} DrClothStats;
+
+/* One step of h > 0 s alone (own system only). DR_WARN_NOT_CONVERGED when CG stopped at its cap; DR_ERR_RUNTIME
+   when the state turned non-finite (the state is then left as it was before the step). */
+DR_NODISCARD DrStatus dr_cloth_step(DrCloth *c, double h, const DrClothCollider *colliders, int ncolliders,
+                                    DrClothStats *stats, DrError *err);
+
+typedef struct DrClothEnergy {
+    double kinetic, membrane, bending, gravity; /* J; gravity: −Σ m g·x */
+} DrClothEnergy;
+void dr_cloth_energy(const DrCloth *c, DrClothEnergy *e);
+
+/* Vertex normals (3 per vertex, unit): area-weighted triangle normals. */
+void dr_cloth_normals(const DrCloth *c, double *n);
+
+#endif
