@@ -44,6 +44,13 @@ struct DrCloth {
     int ncontacts;
     double *save;       /* 6V */
     double h_step;
+    /* the step's phases */
+    enum { CLOTH_IDLE, CLOTH_PREDICTED, CLOTH_SOLVED } phase;
+    double *vsolve;     /* 3V, mesh order: the last solve's velocities */
+    int *block_dof;     /* V: each vertex's first DOF (a load's 3×3 blocks) */
+    int iterations;
+    bool converged;
+    double seconds;
 };
 
 void dr_cloth_material_default(DrClothMaterial *m)
@@ -108,6 +115,8 @@ void dr_cloth_destroy(DrCloth **cp)
     free(c->clambda);
     free(c->cphi);
     free(c->save);
+    free(c->vsolve);
+    free(c->block_dof);
     if (c->own_system) dr_lag_destroy(&c->lag);
     free(c);
     *cp = NULL;
@@ -277,6 +286,8 @@ DrStatus dr_cloth_create(const DrClothDesc *desc, const DrTriMesh *mesh, const D
     ALLOC(c->clambda, V);
     ALLOC(c->cphi, V);
     ALLOC(c->save, 6 * V);
+    ALLOC(c->vsolve, 3 * V);
+    ALLOC(c->block_dof, V);
     ALLOC(he, 3 * T);
     ALLOC(off, V + 1);
     ALLOC(fill, V + 1);
@@ -419,10 +430,12 @@ DrStatus dr_cloth_create(const DrClothDesc *desc, const DrTriMesh *mesh, const D
         if (st != DR_OK) goto fail;
         c->own_system = true;
     }
+    for (int v = 0; v < V; v++) c->vsolve[3 * v] = c->vsolve[3 * v + 1] = c->vsolve[3 * v + 2] = 0.0;
     int kd = 3 * band + 2;
     if (kd >= 3 * V) kd = 3 * V - 1;
     st = dr_lag_add_object(c->lag, 3 * V, kd, &c->object, &c->dof0, err);
     if (st != DR_OK) goto fail;
+    for (int v = 0; v < V; v++) c->block_dof[v] = c->dof0 + 3 * c->rank[v];
     free(he);
     free(off);
     free(nb);
@@ -679,6 +692,15 @@ static bool update_contacts(DrCloth *c, double h, const DrClothCollider *col, in
     return changed;
 }
 
+/* The solve's velocities (DOF order) into vsolve (mesh order). */
+static void gather_velocities(DrCloth *c, const double *qdot)
+{
+    for (int v = 0; v < c->V; v++) {
+        int d0 = vdof(c, v);
+        for (int a = 0; a < 3; a++) c->vsolve[3 * v + a] = qdot[d0 + a];
+    }
+}
+
 /* Positions from the solve's velocities, with friction at the contacts; false (state restored) when non-finite. */
 static bool advance(DrCloth *c, double h, const double *qdot)
 {
@@ -711,39 +733,97 @@ static bool advance(DrCloth *c, double h, const double *qdot)
     return finite;
 }
 
-DrStatus dr_cloth_step(DrCloth *c, double h, const DrClothCollider *colliders, int ncolliders, DrClothStats *stats,
-                       DrError *err)
+DrStatus dr_cloth_predict(DrCloth *c, double h, const DrClothCollider *colliders, int ncolliders, DrError *err)
 {
-    assert(c->own_system && h > 0);
+    assert(h > 0 && c->phase == CLOTH_IDLE);
     double t0 = dr_time_now();
     DrLagDofs d;
     DR_TRY(dr_lag_dofs(c->lag, &d, err));
     fill_dofs(c, &d, h);
     detect_contacts(c, h, colliders, ncolliders);
     DrLagStats ls;
-    DrStatus st = DR_OK;
-    int iterations = 0;
+    c->iterations = 0;
     for (int pass = 0;; pass++) {
         DR_TRY(dr_lag_begin(c->lag, h, d.mass, d.qdot, d.fext, d.prescribed, d.qdot_prescribed, err));
         DR_TRY(add_groups(c, err));
-        st = dr_lag_solve_load(c->lag, NULL, d.qdot_out, &ls, err);
+        DrStatus st = dr_lag_solve_load(c->lag, NULL, d.qdot_out, &ls, err);
         if (st != DR_OK && st != DR_WARN_NOT_CONVERGED) return st;
-        iterations += ls.iterations;
+        c->iterations += ls.iterations;
         if (pass + 1 == CONTACT_PASSES || !update_contacts(c, h, colliders, ncolliders, d.qdot_out, pass == 0)) break;
     }
-    dr_lag_update_multipliers(c->lag, d.qdot_out);
-    if (!advance(c, h, d.qdot_out))
+    c->converged = ls.converged;
+    gather_velocities(c, d.qdot_out);
+    c->h_step = h;
+    c->phase = CLOTH_PREDICTED;
+    c->seconds = dr_time_now() - t0;
+    return ls.converged ? DR_OK : DR_WARN_NOT_CONVERGED;
+}
+
+DrStatus dr_cloth_solve(DrCloth *c, const double *force, const double *dforce_dv, DrError *err)
+{
+    assert(c->phase != CLOTH_IDLE);
+    double t0 = dr_time_now();
+    DrLagDofs d;
+    DR_TRY(dr_lag_dofs(c->lag, &d, err));
+    for (int v = 0; v < c->V; v++) {
+        int d0 = vdof(c, v);
+        for (int a = 0; a < 3; a++) d.force[d0 + a] = force ? force[3 * v + a] : 0.0;
+    }
+    DrLagLoad load = {force ? d.force : NULL, dforce_dv ? c->V : 0, c->block_dof, dforce_dv};
+    DrLagStats ls;
+    DrStatus st = dr_lag_solve_load(c->lag, &load, d.qdot_out, &ls, err);
+    if (st != DR_OK && st != DR_WARN_NOT_CONVERGED) return st;
+    c->iterations += ls.iterations;
+    c->converged = ls.converged;
+    gather_velocities(c, d.qdot_out);
+    c->phase = CLOTH_SOLVED;
+    c->seconds += dr_time_now() - t0;
+    return st;
+}
+
+const double *dr_cloth_solved_velocities(const DrCloth *c) { return c->vsolve; }
+
+DrStatus dr_cloth_commit(DrCloth *c, DrClothStats *stats, DrError *err)
+{
+    assert(c->phase != CLOTH_IDLE);
+    double t0 = dr_time_now();
+    DrLagDofs d;
+    DR_TRY(dr_lag_dofs(c->lag, &d, err));
+    c->phase = CLOTH_IDLE;
+    if (c->own_system) dr_lag_update_multipliers(c->lag, d.qdot_out);
+    if (!advance(c, c->h_step, d.qdot_out))
         return dr_error_set(err, DR_ERR_RUNTIME, NULL, 0, 0,
                             "%s: the cloth's state became non-finite (time step %g s too large for its stiffness, or a "
-                            "collider too stiff); lower solver.max_substeps' step or the stiffness",
-                            c->name, h);
+                            "collider too stiff); raise ClothSolver.substeps or lower the stiffness",
+                            c->name, c->h_step);
+    c->seconds += dr_time_now() - t0;
     if (stats) {
-        stats->iterations = iterations;
-        stats->converged = ls.converged;
+        stats->iterations = c->iterations;
+        stats->converged = c->converged;
         stats->collider_contacts = c->ncontacts;
-        stats->seconds = dr_time_now() - t0;
+        stats->seconds = c->seconds;
     }
-    return st;
+    return c->converged ? DR_OK : DR_WARN_NOT_CONVERGED;
+}
+
+DrStatus dr_cloth_step(DrCloth *c, double h, const DrClothCollider *colliders, int ncolliders, DrClothStats *stats,
+                       DrError *err)
+{
+    assert(c->own_system && h > 0);
+    DrStatus st = dr_cloth_predict(c, h, colliders, ncolliders, err);
+    if (st < 0) return st;
+    return dr_cloth_commit(c, stats, err);
+}
+
+void dr_cloth_samples(const DrCloth *c, DrClothSamples *out)
+{
+    *out = (DrClothSamples){c->V, c->x, c->vsolve, c->mass, c->pinned};
+}
+
+double *dr_cloth_multipliers(DrCloth *c, int *count)
+{
+    *count = 3 * c->T;
+    return c->lambda;
 }
 
 void dr_cloth_energy(const DrCloth *c, DrClothEnergy *e)

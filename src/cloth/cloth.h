@@ -91,7 +91,7 @@ const double *dr_cloth_masses(const DrCloth *c);    /* kg per vertex */
 DR_NODISCARD DrStatus dr_cloth_pin(DrCloth *c, int v, bool pinned, const double *vel, DrError *err);
 
 typedef struct DrClothStats {
-    int iterations;          /* CG iterations of the last solve */
+    int iterations;          /* CG iterations of the step (every solve) */
     bool converged;
     int collider_contacts;   /* vertex–collider contacts of the last step */
     double seconds;
@@ -101,6 +101,30 @@ typedef struct DrClothStats {
    when the state turned non-finite (the state is then left as it was before the step). */
 DR_NODISCARD DrStatus dr_cloth_step(DrCloth *c, double h, const DrClothCollider *colliders, int ncolliders,
                                     DrClothStats *stats, DrError *err);
+
+/* ---- the step in phases (DESIGN §8), for the coupled loop -------------------------------------------------------------
+ * predict: the step's groups and contacts (an active set settled by solves without load), the predicted velocities;
+ * solve: with a load on the vertices (force 3V, N; dforce_dv 9V row-major ∂f/∂v, symmetric negative semidefinite;
+ * either NULL), callable any number of times, each from the prediction; commit: the last solve's velocities (the
+ * prediction's without a solve), friction at the contacts, positions. dr_cloth_step is predict + commit. */
+DR_NODISCARD DrStatus dr_cloth_predict(DrCloth *c, double h, const DrClothCollider *colliders, int ncolliders,
+                                       DrError *err);
+DR_NODISCARD DrStatus dr_cloth_solve(DrCloth *c, const double *force, const double *dforce_dv, DrError *err);
+const double *dr_cloth_solved_velocities(const DrCloth *c); /* 3V, mesh order: the last solve's (or prediction's) */
+DR_NODISCARD DrStatus dr_cloth_commit(DrCloth *c, DrClothStats *stats, DrError *err);
+
+/* The panel's vertices as the coupled loop sees them between predict and commit (borrowed): positions at the step's
+   start, the last solve's velocities, masses, pinned flags. */
+typedef struct DrClothSamples {
+    int n;
+    const double *x, *v, *mass;
+    const unsigned char *pinned;
+} DrClothSamples;
+void dr_cloth_samples(const DrCloth *c, DrClothSamples *out);
+
+/* The membrane rows' multipliers (3 per triangle), which the next step's geometric stiffness uses: a checkpoint keeps
+   them for a bit-identical resume. */
+double *dr_cloth_multipliers(DrCloth *c, int *count);
 
 typedef struct DrClothEnergy {
     double kinetic, membrane, bending, gravity; /* J; gravity: −Σ m g·x */

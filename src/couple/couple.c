@@ -38,6 +38,7 @@ static double drummond_tahir(int l, double gamma)
 static double inverse_permeability(const DrDragLaw *law, int l, const DrDragSite *site)
 {
     double xi = law->global * (l == 0 ? law->normal : law->tangent);
+    if (site->face) return xi;
     if (law->model == DR_DRAG_PERMEABILITY) {
         double g = site->gamma < 1e-4 ? 1e-4 : (site->gamma > 0.5 ? 0.5 : site->gamma);
         return xi / (g * drummond_tahir(l, site->gamma));
@@ -67,8 +68,10 @@ void dr_drag_tensor(const DrDragLaw *law, double rho, double mu, const DrDragSit
     double cp = s * dr_drag_coefficient(law, 0, rho, mu, site, speed);
     double ct = s * dr_drag_coefficient(law, 1, rho, mu, site, speed);
     double t[3] = {site->tangent.x, site->tangent.y, site->tangent.z};
+    /* a rod: C_∥ along its tangent, C_⊥ across; a face: C_⊥ along its normal, C_∥ in its plane */
+    double across = site->face ? ct : cp, along = site->face ? cp : ct;
     for (int r = 0; r < 3; r++)
-        for (int q = 0; q < 3; q++) K[3 * r + q] = (r == q ? cp : 0.0) + (ct - cp) * t[r] * t[q];
+        for (int q = 0; q < 3; q++) K[3 * r + q] = (r == q ? across : 0.0) + (along - across) * t[r] * t[q];
 }
 
 DrVec3 dr_drag_lift(const DrDragLaw *law, const DrDragSite *site, const double K[9], DrVec3 dv)
@@ -280,9 +283,10 @@ double dr_couple_stable_dt(const DrCoupleFluid *fluid, const DrCoupleSolid *soli
             const DrDragLaw *law = &solids[s].laws[sm.law ? sm.law[i] : 0];
             if (!(law->lift > 0.0)) continue;
             DrDragSite site = {dr_v3(sm.tangent[3 * i], sm.tangent[3 * i + 1], sm.tangent[3 * i + 2]), sm.diameter[i],
-                               sm.volume[i], sm.slender[i], 0.0};
+                               sm.volume[i], sm.slender[i], 0.0, sm.face && sm.face[i]};
+            /* the lift is largest through the coefficient across the direction e (a rod's C_⊥, a face's C_∥) */
             double cp = fluid->viscosity * site.volume / (site.diameter * site.diameter) *
-                        dr_drag_coefficient(law, 0, fluid->density, fluid->viscosity, &site, 0.0);
+                        dr_drag_coefficient(law, site.face ? 1 : 0, fluid->density, fluid->viscosity, &site, 0.0);
             double l = 0.5 * law->lift * cp;
             if (l > 0.0 && sm.mass[i] / l < h) h = sm.mass[i] / l;
         }
@@ -312,6 +316,7 @@ static DrStatus gather(DrCouple *c, const DrCoupleFluid *fluid, const DrCoupleSo
             e->site.volume = sm.volume[i];
             e->site.slender = sm.slender[i];
             e->site.gamma = 0.0;
+            e->site.face = sm.face && sm.face[i];
             e->mass = sm.mass[i];
             e->solid = s;
             e->index = i;

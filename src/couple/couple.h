@@ -26,6 +26,12 @@
  * explicit (it does no work on Δv but can feed energy through the solid's response): dr_couple_stable_dt bounds the
  * step so that it turns an element's relative velocity by at most a radian per step, m/(½ ξ_L (μV/D²) C_⊥) with the
  * linear C_⊥.
+ * Faces (cloth, [AV] §2: C = diag(C_⊥, C_∥, C_∥) in the frame of the face's normal n): an element of area A and
+ * thickness D (V = A D) feels f_drag = −(μV/D²) (C_⊥ n nᵀ + C_∥ (I − n nᵀ)) Δv, where ⊥ is now across the surface and
+ * ∥ along it; with DR_DRAG_SCALES, 1/k_l = ξ_D ξ_l, the inverse of the fabric's permeability in units of D² (Darcy:
+ * a layer of permeability k across a flow U loses μ U D/k of pressure, the force (μ A/D)(D²/k) U); the reference and
+ * the permeability model are rod laws and do not apply. The lift takes e_∥ = n: Q = n × (n × f_drag) is minus the
+ * drag's part along the surface, so a sheet at an angle to the flow is lifted across it.
  *     f_buoyancy = −V ∇p                                                                       (PHYSICS §6)
  * with ∇p the fluid pressure's gradient at the element (a hydrostatic pool: −V ρ g, Archimedes). Liquid an element
  * carries (a strand's film) feels −V_c ∇p too; the solid applies it (DrCoupleSolid.pressure_gradient, with ∇p from
@@ -98,6 +104,7 @@ typedef struct DrDragSite {
     double volume;    /* V, m³, ≥ 0 */
     double slender;   /* Λ = L/D of its strand, > 1 */
     double gamma;     /* solid fraction around it, [0, 1) */
+    bool face;        /* a face element (cloth): `tangent` is its unit normal (below) */
 } DrDragSite;
 
 /* C_l (dimensionless) for l = 0 (⊥) or 1 (∥) at relative speed `speed` (m/s) in a fluid of density rho, viscosity mu. */
@@ -131,6 +138,9 @@ typedef struct DrCoupleSamples {
                                  laws, applied by the solid itself (the pressure on what it carries, below); the loop
                                  counts it as received and gives the fluid its reaction with the element's, always
                                  spread by w_if m_f as an explicit reaction is (no drag mass bounds it) */
+    const unsigned char *face;/* n or NULL (none): 1 for a face element (a cloth vertex with its share of the panel):
+                                 its `tangent` is the surface's unit normal, `diameter` the fabric's thickness and
+                                 `slender` unused (the face laws above) */
 } DrCoupleSamples;
 
 typedef struct DrCoupleSolid {

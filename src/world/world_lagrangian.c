@@ -706,7 +706,7 @@ static DrCoupleSamples couple_samples(void *ctx)
         k->mass[i] = sm.mass[i] + (B[0] + B[4] + B[8]) / 3.0;
     }
     return (DrCoupleSamples){sm.n, sm.x, sm.v, k->mass, k->volume, k->diameter, k->slender, sm.tangent, sm.held,
-                             k->law, h->wet ? k->carried : NULL, h->wet ? k->impulse : NULL};
+                             k->law, h->wet ? k->carried : NULL, h->wet ? k->impulse : NULL, NULL};
 }
 
 static DrStatus couple_solve(void *ctx, const double *force, const double *dforce_dv, DrError *err)
@@ -779,7 +779,7 @@ static double hair_solid_stable_dt(const void *self, double density, double visc
                 len += 0.5 * dr_v3_norm(dr_v3_sub(c, a));
             }
             double r = rs.vertex_radius[v];
-            DrDragSite site = {dr_v3(1, 0, 0), 2.0 * r, M_PI * r * r * len, k->slender[v], 0.0};
+            DrDragSite site = {dr_v3(1, 0, 0), 2.0 * r, M_PI * r * r * len, k->slender[v], 0.0, false};
             double cp = viscosity * site.volume / (site.diameter * site.diameter) *
                         dr_drag_coefficient(law, 0, density, viscosity, &site, 0.0);
             double l = 0.5 * law->lift * cp;

@@ -48,7 +48,7 @@ static DrDragLaw linear_law(void)
 
 static DrDragSite site_along(DrVec3 t)
 {
-    DrDragSite s = {dr_v3_normalize(t), 1e-4, 0.0, 600.0, 0.0};
+    DrDragSite s = {dr_v3_normalize(t), 1e-4, 0.0, 600.0, 0.0, false};
     s.volume = M_PI / 4.0 * s.diameter * s.diameter * 1e-3; /* a 1 mm piece */
     return s;
 }
@@ -234,7 +234,7 @@ static DrCoupleSamples rod_samples(void *ctx)
         rs->diameter[i] = 2.0 * sm.radius[i];
     }
     return (DrCoupleSamples){sm.n, sm.x, sm.v, sm.mass, rs->volume, rs->diameter, rs->slender, sm.tangent, sm.held,
-                             NULL, NULL, NULL};
+                             NULL, NULL, NULL, NULL};
 }
 static void rod_correct(void *ctx, const double *dv) { dr_rod_set_add_velocity(((RodSolid *)ctx)->r, dv); }
 
@@ -320,7 +320,7 @@ typedef struct Points { int n; double x[3], v[3], mass[1], volume[1], diameter[1
 static DrCoupleSamples points_samples(void *ctx)
 {
     Points *p = ctx;
-    return (DrCoupleSamples){p->n, p->x, p->v, p->mass, p->volume, p->diameter, p->slender, p->tangent, NULL, NULL, NULL, NULL};
+    return (DrCoupleSamples){p->n, p->x, p->v, p->mass, p->volume, p->diameter, p->slender, p->tangent, NULL, NULL, NULL, NULL, NULL};
 }
 /* x = A⁻¹ b for a 3×3 A (row-major), by Cramer's rule. */
 static void solve3(const double A[9], const double b[3], double x[3])
@@ -386,7 +386,7 @@ static void test_position_derivative(void **state)
         cd.position_derivative = pd == 1;
         double h = 1e-3;
         CHECK(dr_couple_step(c, &cd, &fluid, &solid, 1, h, NULL, ERR));
-        DrDragSite site = {dr_v3(0, 0, 1), 2e-4, M_PI * 1e-8 * 0.01, 300, 0};
+        DrDragSite site = {dr_v3(0, 0, 1), 2e-4, M_PI * 1e-8 * 0.01, 300, 0, false};
         double K[9];
         dr_drag_tensor(&law, RHO, MU, &site, dr_v3(1, 0, 0), K);
         double k = K[0], m = 2e-6;
@@ -635,7 +635,7 @@ typedef struct Layer { int n; double *x, *v, *mass, *volume, *diameter, *slender
 static DrCoupleSamples layer_samples(void *ctx)
 {
     Layer *l = ctx;
-    return (DrCoupleSamples){l->n, l->x, l->v, l->mass, l->volume, l->diameter, l->slender, l->tangent, l->held, NULL, NULL, NULL};
+    return (DrCoupleSamples){l->n, l->x, l->v, l->mass, l->volume, l->diameter, l->slender, l->tangent, l->held, NULL, NULL, NULL, NULL};
 }
 static DrStatus layer_solve(void *ctx, const double *force, const double *dfdv, DrError *err)
 {
@@ -731,7 +731,7 @@ static void test_porous_layer(void **state)
         }
     double area = 0.16 * 0.16, drag = gs.x / h;
     /* the drag's analytic value at the inflow speed */
-    DrDragSite site = {dr_v3(0, 0, 1), 2 * r, M_PI * r * r * 0.01, 0.16 / (2 * r), 0};
+    DrDragSite site = {dr_v3(0, 0, 1), 2 * r, M_PI * r * r * 0.01, 0.16 / (2 * r), 0, false};
     double K[9];
     dr_drag_tensor(&law, d.density, d.viscosity, &site, dr_v3(1, 0, 0), K);
     double analytic = 256.0 * K[0] * 0.05;
@@ -905,7 +905,7 @@ typedef struct MonoSolid { int *n; double *x, *v, *mass, *volume, *diameter, *sl
 static DrCoupleSamples mono_samples(void *ctx)
 {
     MonoSolid *p = ctx;
-    return (DrCoupleSamples){*p->n, p->x, p->v, p->mass, p->volume, p->diameter, p->slender, p->tangent, NULL, NULL, NULL, NULL};
+    return (DrCoupleSamples){*p->n, p->x, p->v, p->mass, p->volume, p->diameter, p->slender, p->tangent, NULL, NULL, NULL, NULL, NULL};
 }
 static DrStatus mono_solve(void *ctx, const double *force, const double *dfdv, DrError *err)
 {
@@ -1036,7 +1036,7 @@ static void run_monolithic(double mass, double xi_d, bool explicit_reaction)
     law.buoyancy = false;
     law.global = xi_d;
     law.tangent = 0.3;
-    DrDragSite site = {dr_v3_normalize(dr_v3(0.2, 0.3, 1.0)), m.D, m.V, 100.0, 0.0};
+    DrDragSite site = {dr_v3_normalize(dr_v3(0.2, 0.3, 1.0)), m.D, m.V, 100.0, 0.0, false};
     dr_drag_tensor(&law, d.density, d.viscosity, &site, dr_v3(1, 0, 0), m.K);
     double h;
     CHECK(dr_air_stable_dt(m.air, NULL, 0, 0.0, 0.01, &h, ERR));
