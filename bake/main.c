@@ -139,6 +139,16 @@ static void append_progress(const char *path, const DrFrameStats *fs, const Fram
                 fs->mpm.particles, fs->mpm.substeps, fs->mpm.newton_iterations, fs->mpm.cg_iterations,
                 fs->mpm.newton_residual, fs->mpm.not_converged, fs->mpm.kinetic_energy, fs->mpm.elastic_energy,
                 fs->mpm.gravity_energy, fs->mpm.kinetic_energy + fs->mpm.elastic_energy + fs->mpm.gravity_energy);
+    /* cloth panels */
+    if (fs->cloth.present)
+        fprintf(f,
+                "\"cloth_vertices\":%ld,\"cloth_substeps\":%d,\"cloth_cg_iterations\":%ld,\"cloth_not_converged\":%d,"
+                "\"cloth_kinetic_energy\":%.9g,\"cloth_membrane_energy\":%.9g,\"cloth_bending_energy\":%.9g,"
+                "\"cloth_gravity_energy\":%.9g,\"cloth_total_energy\":%.9g,",
+                fs->cloth.vertices, fs->cloth.substeps, fs->cloth.cg_iterations, fs->cloth.not_converged,
+                fs->cloth.kinetic_energy, fs->cloth.membrane_energy, fs->cloth.bending_energy, fs->cloth.gravity_energy,
+                fs->cloth.kinetic_energy + fs->cloth.membrane_energy + fs->cloth.bending_energy +
+                    fs->cloth.gravity_energy);
     /* boundary-element bodies: the energies of their rigid frames (kinetic and gravity's) */
     if (fs->bem.present)
         fprintf(f,
@@ -570,7 +580,7 @@ int main(int argc, char **argv)
         tot.bem_seconds_pgs += fs.bem.seconds_pgs;
         tot.bem_seconds_final += fs.bem.seconds_final;
         tot.bem_max_displacement = fmax(tot.bem_max_displacement, fs.bem.max_displacement);
-        char detail[460], mpm[96] = "", hair[96] = "", bem[96] = "";
+        char detail[560], mpm[96] = "", hair[96] = "", bem[96] = "", cloth[96] = "";
         if (fs.mpm.present)
             snprintf(mpm, sizeof mpm, " mpm %ld newton %ld cg %ld", fs.mpm.particles, fs.mpm.newton_iterations,
                      fs.mpm.cg_iterations);
@@ -580,12 +590,15 @@ int main(int argc, char **argv)
         if (fs.bem.present)
             snprintf(bem, sizeof bem, " bem %d steps %ld max|u| %.3g m", fs.bem.bodies, fs.bem.steps,
                      fs.bem.max_displacement);
+        if (fs.cloth.present)
+            snprintf(cloth, sizeof cloth, " cloth %ld steps %d cg %ld contacts %d", fs.cloth.vertices, fs.cloth.substeps,
+                     fs.cloth.cg_iterations, fs.cloth.collider_contacts);
         char cpl[64] = "";
         if (fs.coupling.steps > 0)
             snprintf(cpl, sizeof cpl, " couple %.1f it/step", (double)fs.coupling.iterations / fs.coupling.steps);
-        snprintf(detail, sizeof detail, "frame %d substeps %d iters %d particles %ld cells %+.1f%%%s%s%s%s %.2fs",
+        snprintf(detail, sizeof detail, "frame %d substeps %d iters %d particles %ld cells %+.1f%%%s%s%s%s%s %.2fs",
                  fs.frame, fs.substeps, fs.liquid.pressure_iterations_max, fs.liquid.particles, 100.0 * fs.liquid.drift, mpm, hair,
-                 cpl, bem, fs.seconds + io);
+                 cloth, cpl, bem, fs.seconds + io);
         dr_progress_step(&prog, detail);
         if (stop_signal && dr_world_frame(world) < last) break;
     }

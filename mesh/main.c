@@ -743,6 +743,75 @@ static DrStatus mesh_bem(const DrElement *e, DrH5 *h, const char *dir, int frame
     return s;
 }
 
+/* ---- cloth ----------------------------------------------------------------------------------------------------- */
+
+static bool is_cloth(const DrElement *e) { return e->kind == DR_ELEMENT_CLOTH; }
+
+/* The panel in this frame: the cached positions and triangles, with area-weighted vertex normals (the side the mesh's
+   winding faces). */
+static DrStatus mesh_cloth(const DrElement *e, DrH5 *h, const char *dir, int frame, long *triangles, DrError *err)
+{
+    double *x = NULL;
+    int32_t *tri = NULL;
+    long nv = 0, nt = 0;
+    DrStatus s = read_bem_f64(h, e->name, "position", -1, 3, &x, &nv, err);
+    char path[1024];
+    snprintf(path, sizeof path, "/%s/triangles", e->name);
+    int rank;
+    uint64_t dims[4];
+    if (s == DR_OK) s = dr_h5_read_i32(h, path, &rank, dims, &tri, err);
+    if (s == DR_OK && (rank != 2 || dims[1] != 3 || dims[0] < 1 || dims[0] > (uint64_t)(INT_MAX / 3))) {
+        char shape[96];
+        shape_str(rank, dims, shape, sizeof shape);
+        s = dr_error_set(err, DR_ERR_INPUT, dr_h5_path(h), 0, 0,
+                         "dataset %s has shape %s; expected M×3 vertex indices; rerun bake (or pipeline.sh)", path, shape);
+    }
+    if (s == DR_OK) nt = (long)dims[0];
+    for (long k = 0; s == DR_OK && k < 3 * nt; k++)
+        if (tri[k] < 0 || tri[k] >= nv)
+            s = dr_error_set(err, DR_ERR_INPUT, dr_h5_path(h), 0, 0,
+                             "dataset %s: triangle %ld refers to vertex %d of %ld; rerun bake (or pipeline.sh)", path,
+                             k / 3, (int)tri[k], nv);
+    DrTriMesh m = {.nv = (int)nv, .nt = (int)nt};
+    if (s == DR_OK) s = dr_calloc(3 * (size_t)nv + 1, sizeof *m.n, &m.n, err);
+    if (s == DR_OK) s = dr_calloc(3 * (size_t)nt + 1, sizeof *m.tri, &m.tri, err);
+    if (s == DR_OK) {
+        m.v = x;
+        x = NULL;
+        for (long k = 0; k < 3 * nt; k++) m.tri[k] = tri[k];
+        for (long t = 0; t < nt; t++) {
+            const int *c = m.tri + 3 * t;
+            DrVec3 p0 = dr_v3(m.v[3 * c[0]], m.v[3 * c[0] + 1], m.v[3 * c[0] + 2]);
+            DrVec3 p1 = dr_v3(m.v[3 * c[1]], m.v[3 * c[1] + 1], m.v[3 * c[1] + 2]);
+            DrVec3 p2 = dr_v3(m.v[3 * c[2]], m.v[3 * c[2] + 1], m.v[3 * c[2] + 2]);
+            DrVec3 fn = dr_v3_cross(dr_v3_sub(p1, p0), dr_v3_sub(p2, p0));
+            for (int j = 0; j < 3; j++) {
+                m.n[3 * c[j]] += fn.x;
+                m.n[3 * c[j] + 1] += fn.y;
+                m.n[3 * c[j] + 2] += fn.z;
+            }
+        }
+        for (long i = 0; i < nv; i++) {
+            DrVec3 n = dr_v3(m.n[3 * i], m.n[3 * i + 1], m.n[3 * i + 2]);
+            double len = dr_v3_norm(n);
+            n = len > 0.0 ? dr_v3_scale(n, 1.0 / len) : dr_v3(0, 0, 0);
+            m.n[3 * i] = n.x, m.n[3 * i + 1] = n.y, m.n[3 * i + 2] = n.z;
+        }
+        char comment[512], out[4096];
+        snprintf(comment, sizeof comment,
+                 "drench %s cloth '%s' frame %d (m, y up): the panel's vertices in the mesh's order, its triangles as "
+                 "the input mesh winds them, area-weighted normals",
+                 DR_VERSION, e->name, frame);
+        dr_stage_frame_path(dir, e->name, frame, "obj", out, sizeof out);
+        s = dr_io_write_obj(out, &m, comment, err);
+        if (s == DR_OK) *triangles += m.nt;
+    }
+    dr_trimesh_free(&m);
+    free(x);
+    free(tri);
+    return s;
+}
+
 /* With mesh.hair_ribbons, hair element H writes H_ribbons.NNNN.obj, and with mesh.wet_tubes (in a scene with wet
  * hair) H_wet.NNNN.obj: an element named H_ribbons or H_wet would share those files. Checked before anything is
  * written. */
@@ -861,6 +930,10 @@ static DrStatus mesh_frame(const DrScene *scene, const DrTriMesh *rest, const ch
         }
         if (is_bem(e)) {
             s = mesh_bem(e, h, dir, frame, triangles, err);
+            continue;
+        }
+        if (is_cloth(e)) {
+            s = mesh_cloth(e, h, dir, frame, triangles, err);
             continue;
         }
         bool liquid = e->kind == DR_ELEMENT_LIQUID;
@@ -1065,7 +1138,7 @@ static DrStatus check_outputs(const DrScene *scene, const char *dir, int first, 
             const char *file[5][2] = {{NULL, NULL}, {NULL, NULL}, {NULL, NULL}, {NULL, NULL}, {NULL, NULL}};
             if (liquid && dr_component_bool(ms, "write_obj")) file[0][0] = e->name, file[0][1] = "obj";
             if (liquid && dr_component_bool(ms, "write_vdb")) file[1][0] = e->name, file[1][1] = "vdb";
-            if (moving || is_hair(e) || is_bem(e)) file[0][0] = e->name, file[0][1] = "obj";
+            if (moving || is_hair(e) || is_bem(e) || is_cloth(e)) file[0][0] = e->name, file[0][1] = "obj";
             if (is_hair(e) && dr_component_bool(ms, "hair_ribbons")) file[2][0] = ribbons, file[2][1] = "obj";
             if ((liquid || is_hair(e)) && dr_component_bool(ms, "write_points"))
                 file[3][0] = e->name, file[3][1] = "points.vdb";

@@ -328,6 +328,11 @@ DrStatus scene_preview(const DrScene *scene, const DrStageArgs *args, char *path
             if (s == DR_OK) s = dr_render_scene_add_mesh(rs, &m, DR_MATERIAL_SOLID, err);
             break;
         case DR_ELEMENT_HAIR: s = add_groom(scene, e, rs, err); break;
+        case DR_ELEMENT_CLOTH:
+            s = dr_stage_load_posed_mesh(e, dr_component_str(dr_element_component(e, "Mesh"), "file"), "Mesh.file", &m,
+                                         err);
+            if (s == DR_OK) s = dr_render_scene_add_mesh(rs, &m, DR_MATERIAL_SOLID, err);
+            break;
         case DR_ELEMENT_BEM_JOINT: break; /* no surface of its own */
         case DR_ELEMENT_AIR: break;       /* no surface */
         }

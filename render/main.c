@@ -220,8 +220,9 @@ int main(int argc, char **argv)
             /* MPM solids are opaque deformable bodies: the warm matte solid material, not the liquid's */
             d.material = liquid ? DR_MATERIAL_LIQUID : DR_MATERIAL_SOLID;
             d.per_frame = true;
-        } else if (e->kind == DR_ELEMENT_BEM_SOLID) {
-            /* the body's deformed surface, which the mesh stage writes for every frame whatever mesh.write_obj says */
+        } else if (e->kind == DR_ELEMENT_BEM_SOLID || e->kind == DR_ELEMENT_CLOTH) {
+            /* the body's deformed surface or the cloth's panel, which the mesh stage writes for every frame whatever
+               mesh.write_obj says (two-sided: a sheet seen from its back is lit as from its front) */
             d.material = DR_MATERIAL_SOLID;
             d.per_frame = true;
         } else if (e->kind == DR_ELEMENT_HAIR) {

@@ -79,6 +79,7 @@ int dr_cloth_vertex_count(const DrCloth *c) { return c->V; }
 int dr_cloth_triangle_count(const DrCloth *c) { return c->T; }
 int dr_cloth_hinge_count(const DrCloth *c) { return c->H; }
 int dr_cloth_band(const DrCloth *c) { return c->band; }
+const int *dr_cloth_vertex_order(const DrCloth *c) { return c->rank; }
 const int *dr_cloth_triangles(const DrCloth *c) { return c->tri; }
 const double *dr_cloth_positions(const DrCloth *c) { return c->x; }
 double *dr_cloth_positions_mut(DrCloth *c) { return c->x; }
@@ -227,6 +228,41 @@ static int tri_group_vertices(const DrCloth *c, int t, int vs[6])
     return n;
 }
 
+/* The widest spread of `rank` within any group of the panel (a triangle, or its bending group: a hinge's four
+   vertices, or a triangle with the wings across its edges), in vertices. */
+static int group_band(const DrCloth *c, const int *rank)
+{
+    int band = 0;
+    for (int t = 0; t < c->T; t++) {
+        int vs[6], n = 3;
+        if (c->mat.bending == DR_CLOTH_BEND_SHAPE_OPERATOR) n = tri_group_vertices(c, t, vs);
+        else
+            for (int a = 0; a < 3; a++) vs[a] = c->tri[3 * t + a];
+        for (int a = 0; a < n; a++)
+            for (int b = a + 1; b < n; b++) band = abs(rank[vs[a]] - rank[vs[b]]) > band ? abs(rank[vs[a]] - rank[vs[b]]) : band;
+    }
+    if (c->mat.bending == DR_CLOTH_BEND_HINGE)
+        for (int q = 0; q < c->H; q++)
+            for (int a = 0; a < 4; a++)
+                for (int b = a + 1; b < 4; b++) {
+                    int d = abs(rank[c->hinge[4 * q + a]] - rank[c->hinge[4 * q + b]]);
+                    if (d > band) band = d;
+                }
+    return band;
+}
+
+/* qsort by one coordinate of the rest positions, then by index (the order depends on the mesh alone); qsort takes no
+   context, so the axis and the positions are set in per-thread statics just before it. */
+static _Thread_local int sort_axis;
+static _Thread_local const double *sort_x;
+static int axis_cmp(const void *pa, const void *pb)
+{
+    int a = *(const int *)pa, b = *(const int *)pb;
+    double xa = sort_x[3 * a + sort_axis], xb = sort_x[3 * b + sort_axis];
+    if (xa != xb) return xa < xb ? -1 : 1;
+    return a < b ? -1 : (a > b);
+}
+
 static bool material_ok(const DrClothMaterial *m)
 {
     return m->density > 0 && isfinite(m->density) && m->thickness > 0 && isfinite(m->thickness) &&
@@ -265,7 +301,7 @@ DrStatus dr_cloth_create(const DrClothDesc *desc, const DrTriMesh *mesh, const D
     snprintf(c->name, sizeof c->name, "%s", nm);
     int V = c->V = mesh->nv, T = c->T = mesh->nt;
     HalfEdge *he = NULL;
-    int *off = NULL, *nb = NULL, *fill = NULL;
+    int *off = NULL, *nb = NULL, *fill = NULL, *order = NULL, *trial = NULL;
     DrStatus st = DR_OK;
 #define ALLOC(p, n) \
     if (st == DR_OK) st = dr_calloc((size_t)(n) > 0 ? (size_t)(n) : 1, sizeof *(p), &(p), err)
@@ -395,31 +431,25 @@ DrStatus dr_cloth_create(const DrClothDesc *desc, const DrTriMesh *mesh, const D
         c->bend_rows[t] = dr_shell_bend_rest(c->x + 3 * tv[0], c->x + 3 * tv[1], c->x + 3 * tv[2], c->area[t], interior,
                                              c->k_bend, nu, c->bend_u + 9 * t, c->bend_cinv + 3 * t);
     }
+    /* the vertex order: reverse Cuthill–McKee, or a sweep of the rest positions along a coordinate axis when that
+       gives a narrower band (on quad-split cells with alternating diagonals, RCM's breadth-first levels run along
+       the diagonals and its band is twice a sweep's: 251 against 129 vertices on a 64 × 64 panel) */
+    ALLOC(order, V);
+    ALLOC(trial, V);
+    if (st != DR_OK) goto fail;
     st = rcm_order(V, off, nb, c->rank, err);
     if (st != DR_OK) goto fail;
-    /* the band: the widest spread of ranks within any group (a triangle, a hinge's four vertices) */
-    int band = 0;
-    for (int t = 0; t < T; t++)
-        for (int a = 0; a < 3; a++)
-            for (int b = a + 1; b < 3; b++) {
-                int d = abs(c->rank[c->tri[3 * t + a]] - c->rank[c->tri[3 * t + b]]);
-                if (d > band) band = d;
-            }
-    if (m->bending == DR_CLOTH_BEND_HINGE) {
-        for (int q = 0; q < H; q++)
-            for (int a = 0; a < 4; a++)
-                for (int b = a + 1; b < 4; b++) {
-                    int d = abs(c->rank[c->hinge[4 * q + a]] - c->rank[c->hinge[4 * q + b]]);
-                    if (d > band) band = d;
-                }
-    } else {
-        for (int t = 0; t < T; t++) {
-            int vs[6], n = tri_group_vertices(c, t, vs);
-            for (int a = 0; a < n; a++)
-                for (int b = a + 1; b < n; b++) {
-                    int d = abs(c->rank[vs[a]] - c->rank[vs[b]]);
-                    if (d > band) band = d;
-                }
+    int band = group_band(c, c->rank);
+    for (int axis = 0; axis < 3; axis++) {
+        for (int v = 0; v < V; v++) order[v] = v;
+        sort_axis = axis;
+        sort_x = c->x;
+        qsort(order, (size_t)V, sizeof(int), axis_cmp);
+        for (int k = 0; k < V; k++) trial[order[k]] = k;
+        int b = group_band(c, trial);
+        if (b < band) {
+            band = b;
+            memcpy(c->rank, trial, (size_t)V * sizeof(int));
         }
     }
     c->band = band;
@@ -440,6 +470,8 @@ DrStatus dr_cloth_create(const DrClothDesc *desc, const DrTriMesh *mesh, const D
     free(off);
     free(nb);
     free(fill);
+    free(order);
+    free(trial);
     *out = c;
     return DR_OK;
 fail:
@@ -448,6 +480,8 @@ fail:
     free(off);
     free(nb);
     free(fill);
+    free(order);
+    free(trial);
     dr_cloth_destroy(&c);
     return st;
 }
@@ -566,7 +600,7 @@ static DrStatus add_groups(DrCloth *c, DrError *err)
         int dof[3] = {vdof(c, tv[0]), vdof(c, tv[1]), vdof(c, tv[2])};
         double *lam = c->lambda + 3 * t;
         dr_shell_membrane_group(c->x + 3 * tv[0], c->x + 3 * tv[1], c->x + 3 * tv[2], c->Bm + 4 * t, c->area[t],
-                                c->k_membrane, c->nu, dof, geo ? lam : NULL, geo ? G : NULL, &g);
+                                c->k_membrane, c->nu, dof, geo ? lam : NULL, true, geo ? G : NULL, &g);
         g.lambda = lam;
         DR_TRY(add_with_damping(c->lag, &g, damping, err));
     }

@@ -7,10 +7,13 @@
  * each (damping, C_v⁻¹ = damping · C⁻¹). Mass is lumped: each triangle gives ρ h A/3 to each of its vertices.
  *
  * Vertex order. The object's block is banded: its vertices are numbered in reverse Cuthill–McKee order (George and
- * Liu 1981) over the mesh's edge graph, so a vertex's neighbours lie within `band` vertices of it and the block's
- * half-bandwidth is 3·band + 2 DOFs. The banded Cholesky factor then costs O(n (3 band)²), no fill outside the band
- * and no symbolic phase; a panel of w × w vertices has band ≈ w. tests/bench/bench_cloth measures it against a
- * sparse factorisation (CHOLMOD, nested dissection) of the same matrix: the README states which wins where.
+ * Liu 1981) over the mesh's edge graph, or by a sweep of the rest positions along a coordinate axis when that is
+ * narrower, so every group's vertices lie within `band` of each other and the block's half-bandwidth is 3·band + 2
+ * DOFs. A bending group reaches across two rows of a regular mesh: a panel of w × w vertices has band ≈ 2w. The
+ * banded Cholesky factor costs O(n (3 band)²), with no fill outside the band and no symbolic phase.
+ * tests/bench/bench_cloth measures it against a sparse factorisation (CHOLMOD with its AMD order) of the same matrix:
+ * one panel's step, factor and solve, is 1.6–8× faster banded from 16 × 16 to 96 × 96 vertices (the README's
+ * table), so a panel is one banded object.
  *
  * Attachments. A pinned vertex follows a prescribed velocity (zero by default): its DOFs are eliminated from the
  * solve, so it moves exactly by h v at every step.
@@ -77,8 +80,9 @@ void dr_cloth_destroy(DrCloth **c);
 int dr_cloth_vertex_count(const DrCloth *c);
 int dr_cloth_triangle_count(const DrCloth *c);
 int dr_cloth_hinge_count(const DrCloth *c); /* interior edges */
-/* The half-bandwidth of the panel's block in vertices (after the reverse Cuthill–McKee order). */
+/* The half-bandwidth of the panel's block in vertices, and each vertex's place in the block's order (V values). */
 int dr_cloth_band(const DrCloth *c);
+const int *dr_cloth_vertex_order(const DrCloth *c);
 const int *dr_cloth_triangles(const DrCloth *c);   /* 3 per triangle, the mesh's */
 const double *dr_cloth_positions(const DrCloth *c); /* 3 per vertex, mesh order, m */
 double *dr_cloth_positions_mut(DrCloth *c);         /* to place the panel before its first step */

@@ -72,7 +72,8 @@ double dr_shell_membrane_energy(const double *x0, const double *x1, const double
 }
 
 void dr_shell_membrane_group(const double *x0, const double *x1, const double *x2, const double Bm[4], double area,
-                             double k, double nu, const int dof[3], const double *lambda, double *G, DrLagGroup *g)
+                             double k, double nu, const int dof[3], const double *lambda, bool project, double *G,
+                             DrLagGroup *g)
 {
     const double r2 = 1.0 / sqrt(2.0);
     double c[3][2], E[3];
@@ -106,15 +107,31 @@ void dr_shell_membrane_group(const double *x0, const double *x1, const double *x
         }
     }
     if (lambda && G) {
-        memset(G, 0, 81 * sizeof(double));
+        /* Σ_r λ_r ∇²φ_r = S ⊗ I₃ with S the 3×3 (vertex by vertex) sum of the rows' constant Hessians */
+        double S[9];
         for (int i = 0; i < 3; i++)
             for (int j = 0; j < 3; j++) {
                 double h0 = (c[i][0] * c[j][0] + c[i][1] * c[j][1]) * r2;
                 double h1 = (c[i][0] * c[j][0] - c[i][1] * c[j][1]) * r2;
                 double h2 = (c[i][0] * c[j][1] + c[i][1] * c[j][0]) * r2;
-                double s = lambda[0] * h0 + lambda[1] * h1 + lambda[2] * h2;
-                for (int a = 0; a < 3; a++) G[(3 * i + a) * 9 + 3 * j + a] = s;
+                S[3 * i + j] = lambda[0] * h0 + lambda[1] * h1 + lambda[2] * h2;
             }
+        if (project) {
+            /* keep the part that stiffens (S's negative eigenvalues: −h²G adds to the matrix); the rest would soften
+               it, and a compressed triangle's would make it indefinite */
+            double e[3], V[9], P[9] = {0};
+            dr_m3a_sym_eigen(S, e, V);
+            for (int k = 0; k < 3; k++) {
+                double ek = fmin(e[k], 0.0);
+                for (int i = 0; i < 3; i++)
+                    for (int j = 0; j < 3; j++) P[3 * i + j] += ek * V[3 * i + k] * V[3 * j + k];
+            }
+            memcpy(S, P, sizeof S);
+        }
+        memset(G, 0, 81 * sizeof(double));
+        for (int i = 0; i < 3; i++)
+            for (int j = 0; j < 3; j++)
+                for (int a = 0; a < 3; a++) G[(3 * i + a) * 9 + 3 * j + a] = S[3 * i + j];
         g->G = G;
     }
 }

@@ -58,9 +58,14 @@ double dr_shell_membrane_energy(const double *x0, const double *x1, const double
 
 /* The three membrane rows of a triangle over its vertices' DOFs dof[0..2] (each vertex's x, y, z at dof[v] + 0, 1, 2):
    φ, J, C⁻¹ as the header says. When lambda and G are non-NULL, G (81 values) = Σ λ_r ∇²φ_r is written and linked
-   from g->G. */
+   from g->G; with `project`, only its negative semidefinite part (the 3×3 vertex matrix S of G = S ⊗ I₃ with its
+   positive eigenvalues set to zero): the solver's matrix has −h²G, so the part kept only stiffens it, and a
+   compressed triangle (λ > 0 on its area row) cannot make the panel's block indefinite, which would drop the whole
+   panel's geometric stiffness for the step (a sheet of 33 × 33 vertices hanging from two corners gains energy at
+   1/96 s steps then; with the projection it loses it, tests/validation/test_cloth). */
 void dr_shell_membrane_group(const double *x0, const double *x1, const double *x2, const double Bm[4], double area,
-                             double k, double nu, const int dof[3], const double *lambda, double *G, DrLagGroup *g);
+                             double k, double nu, const int dof[3], const double *lambda, bool project, double *G,
+                             DrLagGroup *g);
 
 /* Signed dihedral angle θ of the hinge x1x2 with wings x0 (triangle x0 x1 x2) and x3 (triangle x3 x2 x1); when grad
    is non-NULL, ∂θ/∂(x0, x1, x2, x3) (12 values). 0 for a degenerate wing. */

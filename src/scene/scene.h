@@ -91,6 +91,7 @@ typedef enum DrElementKind {
     DR_ELEMENT_BEM_SOLID,
     DR_ELEMENT_BEM_JOINT,
     DR_ELEMENT_AIR,
+    DR_ELEMENT_CLOTH,
 } DrElementKind;
 
 typedef struct DrElementSpec {

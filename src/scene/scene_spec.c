@@ -262,12 +262,13 @@ static const DrFieldSpec mesh_file_fields[] = {
 
 static const DrFieldSpec collider_fields[] = {
     {.name = "friction", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {0}, RANGE(0, 10),
-     .doc = "Coulomb friction coefficient (hair against a collider: the larger of the two elements' values)"},
+     .doc = "Coulomb friction coefficient (hair or cloth against a collider: the larger of the two elements' values)"},
     {.name = "boundary", .kind = DR_FIELD_ENUM, .unit = "", .def_str = "slip", .choices = "slip|no_slip",
      .doc = "velocity condition of liquid at the surface (collider elements only)"},
     {.name = "thickness", .kind = DR_FIELD_NUMBER, .unit = "m", .def = {0}, RANGE(0, 1),
      .doc = "extra thickness added around the surface (on hair: around each strand, beyond its radius; on a "
-            "bem_solid: the contact offset its vertices keep from colliders and other bodies)"},
+            "bem_solid: the contact offset its vertices keep from colliders and other bodies; on cloth: the distance "
+            "its vertices keep from colliders and bodies, default 0 taken as 1 mm)"},
     {.name = "body_contact", .kind = DR_FIELD_BOOL, .unit = "", .def = {1},
      .doc = "bem_solid only: the body's vertices are kept outside the other bem_solid bodies stepped with it (the "
             "same BemSolver.time_step), with its friction"},
@@ -275,8 +276,8 @@ static const DrFieldSpec collider_fields[] = {
 
 static const DrFieldSpec fixed_vertices_fields[] = {
     {.name = "box", .kind = DR_FIELD_BOX, .unit = "m", .required = true, POS_RANGE,
-     .doc = "every vertex inside this box in the placed rest pose (after Transform) is held at its position at t=0; "
-            "the box must hold at least one vertex"},
+     .doc = "every vertex inside this box in the placed rest pose (after Transform) is held at its position at t=0 "
+            "(a bem_solid's, or a cloth's: pinned); the box must hold at least one vertex"},
 };
 
 static const DrFieldSpec joint_fields[] = {
@@ -564,6 +565,65 @@ static const DrFieldSpec drag_fields[] = {
      .doc = "the fluid's pressure gradient pushes on the strands' volume (Archimedes)"},
 };
 
+/* Cloth (src/cloth): a light cotton-like fabric by default (0.2 kg/m², E h = 500 N/m). */
+static const DrFieldSpec cloth_material_fields[] = {
+    {.name = "density", .kind = DR_FIELD_NUMBER, .unit = "kg/m^3", .def = {400}, RANGE(1, 1e5),
+     .doc = "mass density of the fabric (its areal density is density * thickness)",
+     .hint = "use a positive density such as 400 (0.2 kg/m^2 at 0.5 mm)"},
+    {.name = "thickness", .kind = DR_FIELD_NUMBER, .unit = "m", .def = {5e-4}, RANGE_LO_OPEN(0, 0.1),
+     .doc = "shell thickness h: membrane stiffness E h / (1 - nu^2), bending E h^3 / (12 (1 - nu^2)); also the "
+            "diameter of its drag law", .hint = "use a positive thickness such as 5e-4"},
+    {.name = "youngs_modulus", .kind = DR_FIELD_NUMBER, .unit = "Pa", .def = {1e6}, RANGE_LO_OPEN(0, 1e12),
+     .doc = "Young's modulus E of the fabric (StVK membrane in plane stress)", .hint = "use a positive stiffness such as 1e6"},
+    {.name = "poisson", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {0.3}, RANGE_HI_OPEN(0, 0.5),
+     .doc = "Poisson's ratio nu"},
+    {.name = "bend_scale", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {1}, RANGE(0, 1e6),
+     .doc = "multiplies the plate's bending stiffness (woven fabric bends more easily than a plate of its membrane "
+            "stiffness: values well below 1 are common); 0 = no bending"},
+    {.name = "damping", .kind = DR_FIELD_NUMBER, .unit = "s", .def = {0}, RANGE(0, 10),
+     .doc = "internal viscosity as a Kelvin-Voigt time constant on stretching and bending; 0 = none"},
+    {.name = "bending", .kind = DR_FIELD_ENUM, .unit = "", .def_str = "shape_operator", .choices = "shape_operator|hinge",
+     .doc = "bending discretisation: shape_operator (each triangle's discrete shape operator from its edges' "
+            "dihedral angles: Kirchhoff's plate energy with the material's nu on regular meshes) or hinge (one term "
+            "per interior edge: cheaper, but its stiffness depends on how the mesh is cut)"},
+};
+
+static const DrFieldSpec cloth_solver_fields[] = {
+    {.name = "substeps", .kind = DR_FIELD_INT, .unit = "", .def = {16}, RANGE(1, 100000),
+     .doc = "cloth steps per frame at least (more when the cloth moves fast: cfl). Each step is one linearised "
+            "implicit solve: a 1 m sheet of 33 x 33 vertices draped on a faceted sphere collider at 24 fps gains "
+            "energy in a frame at 8 steps a frame and none at 16; on an analytic sphere, none at 8"},
+    {.name = "cfl", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {0.5}, RANGE(0, 100),
+     .doc = "a cloth step moves no vertex by more than this many shortest edges of the panel (0 = exactly substeps)"},
+    {.name = "max_substeps", .kind = DR_FIELD_INT, .unit = "", .def = {1000}, RANGE(1, 1000000),
+     .doc = "cloth steps per frame at most that cfl may ask for (reaching it is a warning)"},
+    {.name = "tolerance", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {1e-8}, RANGE(1e-14, 0.1),
+     .doc = "relative mass-weighted residual at which the solve stops"},
+    {.name = "max_iterations", .kind = DR_FIELD_INT, .unit = "", .def = {1000}, RANGE(1, 1000000),
+     .doc = "iteration limit of the solve (reaching it is a warning; the step is kept)"},
+    {.name = "collider_stiffness", .kind = DR_FIELD_NUMBER, .unit = "N/m", .def = {1e4}, RANGE_LO_OPEN(0, 1e9),
+     .doc = "stiffness of a vertex's contact with a collider, a bem_solid or an MPM solid"},
+};
+
+/* The face law of src/couple: C = diag(C_perp, C_par, C_par) in the frame of the surface's normal, 1/k = scale. */
+static const DrFieldSpec cloth_drag_fields[] = {
+    {.name = "normal", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {1000}, RANGE(0, 1e9),
+     .doc = "xi_perp: drag across the fabric, the inverse of its permeability in units of thickness^2 (h^2/k: a "
+            "tight weave of 0.5 mm has k about 1e-10 m^2, so about 2500); the pressure a flow U loses through it is "
+            "mu U normal / h"},
+    {.name = "tangent", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {10}, RANGE(0, 1e9),
+     .doc = "xi_par: drag of flow along the fabric, per thickness^2 as normal"},
+    {.name = "nonlinear_scale", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {1}, RANGE(0, 1e6),
+     .doc = "xi_N: the inertial (Ergun) part of the drag, growing with the Reynolds number of the thickness"},
+    {.name = "degree", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {1}, RANGE(0, 3),
+     .doc = "c: the power of the Reynolds number in the inertial part"},
+    {.name = "lift_scale", .kind = DR_FIELD_NUMBER, .unit = "1", .def = {0}, RANGE(0, 100),
+     .doc = "xi_L: lift of a panel at an angle to the flow, orthogonal to the relative velocity (explicit: it "
+            "limits the step)"},
+    {.name = "buoyancy", .kind = DR_FIELD_BOOL, .unit = "", .def = {1},
+     .doc = "the fluid's pressure gradient pushes on the fabric's volume (Archimedes)"},
+};
+
 /* The air (liquid.h, "air"): air at sea level by default. */
 static const DrFieldSpec air_domain_fields[] = {
     {.name = "box", .kind = DR_FIELD_BOX, .unit = "m", .required = true, POS_RANGE,
@@ -614,7 +674,8 @@ const DrComponentSpec dr_scene_components_[] = {
     {"Transform", "rest placement of the mesh (of an mpm_solid: of its MpmShape; of hair: of its scalp or curves; of a "
                   "bem_solid: its pose at t=0, scale 1 only): scale, then rotate, then translate",
      transform_fields, COUNT(transform_fields)},
-    {"Motion", "keyframed rigid motion (of hair: of its scalp, which the roots follow)", motion_fields,
+    {"Motion", "keyframed rigid motion (of hair: of its scalp, which the roots follow; of cloth: of its FixedVertices, "
+               "which move rigidly from where the placed rest pose has them)", motion_fields,
      COUNT(motion_fields)},
     {"MpmMaterial", "hyperelastic material of an MPM solid", mpm_material_fields, COUNT(mpm_material_fields)},
     {"MpmShape", "the body's shape at t=0, filled with particles: exactly one of box, centre and radius (a sphere), "
@@ -655,6 +716,13 @@ const DrComponentSpec dr_scene_components_[] = {
     {"AirDomain", "the box and grid of an air element", air_domain_fields, COUNT(air_domain_fields)},
     {"AirMaterial", "material of the air", air_material_fields, COUNT(air_material_fields)},
     {"Wind", "the wind blowing into the air's box through one face", wind_fields, COUNT(wind_fields)},
+    {"ClothMaterial", "the fabric of a cloth element: discrete shells (StVK membrane, plate bending)",
+     cloth_material_fields, COUNT(cloth_material_fields)},
+    {"ClothSolver", "the steps of a cloth element and their linear solve", cloth_solver_fields,
+     COUNT(cloth_solver_fields)},
+    {"ClothDrag", "couples a cloth element two ways with the scene's fluid (liquid or air): porous drag across and "
+                  "along the fabric, lift and buoyancy in the coupled loop",
+     cloth_drag_fields, COUNT(cloth_drag_fields)},
     {"BemSolver", "time discretisation of a boundary-element body: the step its matrices are built for, the history "
                   "length and the spatial quadrature; and how the body's frame moves in a bake",
      bem_solver_fields, COUNT(bem_solver_fields)},
@@ -681,6 +749,9 @@ static const char *const bem_solid_components[] = {"Mesh",      "LinearElastic",
 static const char *const bem_solid_required[] = {"Mesh"};
 static const char *const bem_joint_components[] = {"Joint"};
 static const char *const air_components[] = {"AirDomain", "AirMaterial", "Wind"};
+static const char *const cloth_components[] = {"Mesh",     "Transform", "ClothMaterial", "ClothSolver",
+                                               "ClothDrag", "Collider",  "FixedVertices", "Motion"};
+static const char *const cloth_required[] = {"Mesh"};
 static const char *const air_required[] = {"AirDomain"};
 
 const DrElementSpec dr_scene_types_[] = {
@@ -707,9 +778,14 @@ const DrElementSpec dr_scene_types_[] = {
      "incompressible air filling its AirDomain box on a MAC grid, blown by a Wind through one face; colliders move "
      "it; at most one per scene, and not yet together with a liquid",
      air_components, COUNT(air_components), air_required, COUNT(air_required), false, DR_ELEMENT_AIR},
+    {"cloth",
+     "a panel of cloth from a triangle mesh (its rest shape, placed by Transform) as discrete shells on the "
+     "Lagrangian solver; FixedVertices pins it, colliders, bem_solid and MPM bodies hold it up, ClothDrag couples it "
+     "with the liquid or the air",
+     cloth_components, COUNT(cloth_components), cloth_required, COUNT(cloth_required), false, DR_ELEMENT_CLOTH},
 };
 const int dr_scene_type_count_ = COUNT(dr_scene_types_);
-_Static_assert(COUNT(dr_scene_types_) == DR_ELEMENT_AIR + 1, "one DrElementKind per element type");
+_Static_assert(COUNT(dr_scene_types_) == DR_ELEMENT_CLOTH + 1, "one DrElementKind per element type");
 
 /* ---- lookups ---------------------------------------------------------------------------------------------- */
 

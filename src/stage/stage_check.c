@@ -6,6 +6,7 @@
 #include <string.h>
 
 #include "bem/bem.h"
+#include "cloth/cloth.h"
 #include "hair/hair.h"
 
 /* ---- assets ------------------------------------------------------------------------------------------------- */
@@ -62,6 +63,26 @@ DrStatus dr_stage_check_assets(const DrScene *scene, DrError *err)
                                        "%s.LiquidSource.mesh", e->name));
                 dr_trimesh_free(&m);
             }
+            break;
+        }
+        case DR_ELEMENT_CLOTH: {
+            /* the mesh loads and makes a panel (a manifold, consistently wound, no degenerate triangle) */
+            DrTriMesh m = {0};
+            DR_TRY(dr_stage_load_posed_mesh(e, dr_component_str(dr_element_component(e, "Mesh"), "file"), "Mesh.file", &m,
+                                            err));
+            DrClothMaterial mat;
+            dr_cloth_material_default(&mat);
+            DrCloth *cl = NULL;
+            DrStatus s = dr_cloth_create(NULL, &m, &mat, e->name, &cl, err);
+            if (s != DR_OK) {
+                char msg[sizeof err->message];
+                snprintf(msg, sizeof msg, "%s", err->message);
+                s = dr_error_set(err, s, dr_component_str(dr_element_component(e, "Mesh"), "file"), 0, 0,
+                                 "%s.Mesh.file: %s", e->name, msg);
+            }
+            dr_cloth_destroy(&cl);
+            dr_trimesh_free(&m);
+            DR_TRY(s);
             break;
         }
         case DR_ELEMENT_HAIR: {

@@ -10,7 +10,7 @@
 #include "liquid/liquid.h"
 #include "vdb/vdb.h"
 
-enum { MAX_SOLVERS_FIXED = 4 }; /* MPM, hair, air, BEM: one adapter each; the liquids come before them, one per element */
+enum { MAX_SOLVERS_FIXED = 5 }; /* MPM, hair, cloth, air, BEM: one adapter each; the liquids come before them, one per element */
 
 struct DrWorld {
     const DrScene *scene;
@@ -18,15 +18,17 @@ struct DrWorld {
     double fps;
     DrVec3 gravity;
     WorldKinematics *kin;
-    /* the adapters in the order they are stepped, written and hashed: the liquids (element order), MPM, hair, air, BEM */
+    /* the adapters in the order they are stepped, written and hashed: the liquids (element order), MPM, hair, cloth, air,
+       BEM */
     WorldSolver *solvers;
     int nsolvers;
     int nliquids;
-    WorldSolver *mpm, *hair, *bem; /* into solvers, NULL when the scene has none */
+    WorldSolver *mpm, *hair, *cloth, *bem; /* into solvers, NULL when the scene has none */
     WorldSolver bem_built;         /* built first (the liquid seeds no particle inside a body), placed last */
     double *at, *proposal;         /* per solver during a frame: the time it stands at, its next step's end */
-    /* the coupled step (DESIGN §8 step 3): the fluid and the solid of src/couple's loop, -1 when there is none */
-    int couple_fluid, couple_solid;
+    /* the coupled step (DESIGN §8 step 3): the fluid and the solids of src/couple's loop (hair, cloth), -1 and 0 when
+       there is none */
+    int couple_fluid, couple_solid[2], ncouple_solids;
     DrCouple *couple;
     DrCoupleDesc couple_desc;
 };
@@ -52,6 +54,7 @@ int dr_world_live_collider_count(const DrWorld *w)
 }
 const DrMpm *dr_world_mpm(const DrWorld *w) { return w->mpm ? world_mpm_solver(w->mpm) : NULL; }
 long dr_world_mpm_particle_count(const DrWorld *w) { return w->mpm ? world_mpm_particles(w->mpm) : 0; }
+long dr_world_cloth_vertex_count(const DrWorld *w) { return w->cloth ? world_cloth_vertex_count(w->cloth) : 0; }
 long dr_world_hair_vertex_count(const DrWorld *w)
 {
     int strands = 0, verts = 0;
@@ -146,6 +149,7 @@ static DrStatus solver_failed(const DrWorld *w, int i, int frame, DrStatus s, Dr
     const WorldSolver *sv = &w->solvers[i];
     if (sv == w->mpm) return failed(w, DR_ELEMENT_MPM_SOLID, NULL, frame, s, err);
     if (sv == w->hair) return failed(w, DR_ELEMENT_HAIR, NULL, frame, s, err);
+    if (sv == w->cloth) return failed(w, DR_ELEMENT_CLOTH, NULL, frame, s, err);
     if (sv == w->bem) return failed(w, DR_ELEMENT_BEM_SOLID, NULL, frame, s, err);
     if (strcmp(sv->name, "air") == 0) return failed(w, DR_ELEMENT_AIR, NULL, frame, s, err);
     for (int k = 0, liquid = 0; k < dr_scene_element_count(w->scene); k++) {
@@ -202,6 +206,11 @@ static DrStatus build(DrWorld *w, const DrWorldDesc *desc, DrError *err)
         w->solvers[w->nsolvers] = s;
         w->hair = &w->solvers[w->nsolvers++];
     }
+    BUILD_TRY(DR_ELEMENT_CLOTH, NULL, world_cloth_adapter(&c, &s, err));
+    if (s.self) {
+        w->solvers[w->nsolvers] = s;
+        w->cloth = &w->solvers[w->nsolvers++];
+    }
     BUILD_TRY(DR_ELEMENT_AIR, NULL, world_air_adapter(&c, &s, err));
     if (s.self) w->solvers[w->nsolvers++] = s;
     /* two-way bodies: the first liquid's projections move them, so it steps at every clock step (every BEM step end) */
@@ -222,20 +231,24 @@ static DrStatus build(DrWorld *w, const DrWorldDesc *desc, DrError *err)
         w->bem = &w->solvers[w->nsolvers++];
         memset(&w->bem_built, 0, sizeof w->bem_built);
     }
-    /* the coupled loop: the first fluid and the Lagrangian solids when any takes part (hair with Drag) */
-    w->couple_fluid = w->couple_solid = -1;
+    /* the coupled loop: the first fluid and the Lagrangian solids that take part (hair with Drag, cloth with
+       ClothDrag) */
+    w->couple_fluid = -1;
+    w->ncouple_solids = 0;
     for (int i = 0; i < w->nsolvers; i++) {
         const WorldSolver *sv = &w->solvers[i];
         if (sv->fluid_begin && w->couple_fluid < 0) w->couple_fluid = i;
-        if (sv->couples && sv->couples(sv->self)) w->couple_solid = i;
+        if (sv->couples && sv->couples(sv->self)) w->couple_solid[w->ncouple_solids++] = i;
     }
-    if (w->couple_fluid < 0 || w->couple_solid < 0) {
-        w->couple_fluid = w->couple_solid = -1;
+    if (w->couple_fluid < 0 || w->ncouple_solids == 0) {
+        w->couple_fluid = -1;
+        w->ncouple_solids = 0;
     } else if (world_kinematics_mpm_coupled(w->kin)) {
         return dr_error_set(err, DR_ERR_INPUT, dr_scene_path(scene), 0, 0,
-                            "the scene couples hair (Drag) and MPM solids (Integrator.liquid_coupling \"two_way\") "
-                            "with the liquid; both in one scene is not supported yet: set the mpm_solids' "
-                            "Integrator.liquid_coupling to \"none\" or remove the hair's Drag");
+                            "the scene couples hair (Drag) or cloth (ClothDrag) and MPM solids "
+                            "(Integrator.liquid_coupling \"two_way\") with the liquid; both in one scene is not "
+                            "supported yet: set the mpm_solids' Integrator.liquid_coupling to \"none\" or remove the "
+                            "Drag and ClothDrag components");
     } else {
         const DrComponent *solver = dr_scene_section(scene, "solver");
         dr_couple_desc_default(&w->couple_desc);
@@ -254,6 +267,8 @@ static void log_solvers(const DrWorld *w)
         world_lagrangian_hair_counts(w->hair, &strands, &verts);
         snprintf(hair, sizeof hair, "%d strand(s) of hair with %d vertices", strands, verts);
     }
+    char cloth[96] = "";
+    if (w->cloth) snprintf(cloth, sizeof cloth, ", cloth with %ld vertices", world_cloth_vertex_count(w->cloth));
     char bem[160] = "";
     if (w->bem) {
         int bodies, sets;
@@ -265,10 +280,11 @@ static void log_solvers(const DrWorld *w)
     int nlive = dr_world_live_collider_count(w);
     if (w->mpm) {
         int nb = world_mpm_bodies(w->mpm);
-        dr_log_info("world: %d liquid grid(s), one MPM grid with %ld particles in %d bod%s, %s%s, %d collider SDF(s)",
-                    w->nliquids, world_mpm_particles(w->mpm), nb, nb == 1 ? "y" : "ies", hair, bem, nlive);
+        dr_log_info("world: %d liquid grid(s), one MPM grid with %ld particles in %d bod%s, %s%s%s, %d collider SDF(s)",
+                    w->nliquids, world_mpm_particles(w->mpm), nb, nb == 1 ? "y" : "ies", hair, cloth, bem, nlive);
     } else {
-        dr_log_info("world: %d liquid grid(s), no MPM solver, %s%s, %d collider SDF(s)", w->nliquids, hair, bem, nlive);
+        dr_log_info("world: %d liquid grid(s), no MPM solver, %s%s%s, %d collider SDF(s)", w->nliquids, hair, cloth, bem,
+                    nlive);
     }
 }
 
@@ -329,17 +345,23 @@ void dr_world_destroy(DrWorld **world)
 static DrStatus coupled_step(DrWorld *w, const WorldCtx *c, double t, double t_next, DrFrameStats *stats,
                              DrError *err)
 {
-    int fi = w->couple_fluid, si = w->couple_solid;
-    WorldSolver *f = &w->solvers[fi], *s = &w->solvers[si];
-    assert(w->at[fi] == t && w->at[si] == t);
+    int fi = w->couple_fluid, ns = w->ncouple_solids;
+    WorldSolver *f = &w->solvers[fi];
     DrCoupleFluid fluid;
-    DrCoupleSolid solid;
+    DrCoupleSolid solids[2];
     double t0 = dr_time_now();
     SOLVER_TRY(fi, c->frame, f->fluid_begin(f->self, c, t, t_next, &fluid, err));
-    DR_TRY(s->solid_predict(s->self, c, t, t_next, &solid, err));
+    for (int k = 0; k < ns; k++) {
+        WorldSolver *s = &w->solvers[w->couple_solid[k]];
+        assert(w->at[w->couple_solid[k]] == t);
+        SOLVER_TRY(w->couple_solid[k], c->frame, s->solid_predict(s->self, c, t, t_next, &solids[k], err));
+    }
     DrCoupleStats cs = {0};
-    DR_TRY(dr_couple_step(w->couple, &w->couple_desc, &fluid, &solid, 1, t_next - t, &cs, err));
-    DR_TRY(s->solid_commit(s->self, c, t, t_next, err));
+    DR_TRY(dr_couple_step(w->couple, &w->couple_desc, &fluid, solids, ns, t_next - t, &cs, err));
+    for (int k = 0; k < ns; k++) {
+        WorldSolver *s = &w->solvers[w->couple_solid[k]];
+        SOLVER_TRY(w->couple_solid[k], c->frame, s->solid_commit(s->self, c, t, t_next, err));
+    }
     SOLVER_TRY(fi, c->frame, f->fluid_end(f->self, c, err));
     stats->coupling.steps += cs.steps;
     stats->coupling.iterations += cs.iterations_total;
@@ -350,12 +372,21 @@ static DrStatus coupled_step(DrWorld *w, const WorldCtx *c, double t, double t_n
     stats->coupling.solid_impulse = dr_v3_add(stats->coupling.solid_impulse, cs.solid_impulse);
     stats->coupling.fluid_impulse = dr_v3_add(stats->coupling.fluid_impulse, cs.fluid_impulse);
     stats->coupling.seconds += dr_time_now() - t0;
-    for (int i = 0; i < 2; i++) {
-        int k = i ? si : fi;
+    for (int i = 0; i <= ns; i++) {
+        int k = i < ns ? w->couple_solid[i] : fi;
         w->at[k] = t_next;
         w->proposal[k] = NAN;
     }
     return DR_OK;
+}
+
+/* Whether solver i takes part in the coupled loop. */
+static bool in_couple(const DrWorld *w, int i)
+{
+    if (i == w->couple_fluid) return true;
+    for (int k = 0; k < w->ncouple_solids; k++)
+        if (w->couple_solid[k] == i) return true;
+    return false;
 }
 
 DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrError *err)
@@ -392,10 +423,13 @@ DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrError *err)
         }
         if (w->couple) {
             /* the coupled solids' explicit forces (lift) limit the coupled step */
-            const WorldSolver *f = &w->solvers[w->couple_fluid], *sd = &w->solvers[w->couple_solid];
-            double rho = 0.0, mu = 0.0;
+            const WorldSolver *f = &w->solvers[w->couple_fluid];
+            double rho = 0.0, mu = 0.0, lim = INFINITY;
             f->fluid_properties(f->self, &rho, &mu);
-            double lim = sd->solid_stable_dt ? sd->solid_stable_dt(sd->self, rho, mu) : INFINITY;
+            for (int k = 0; k < w->ncouple_solids; k++) {
+                const WorldSolver *sd = &w->solvers[w->couple_solid[k]];
+                if (sd->solid_stable_dt) lim = fmin(lim, sd->solid_stable_dt(sd->self, rho, mu));
+            }
             if (t + lim < t_next) {
                 double n = ceil((t_next - t) / lim);
                 t_next = t + (t_next - t) / n;
@@ -404,10 +438,10 @@ DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrError *err)
         /* a proposal a rounding error short of a landing time lands on it (no step of a few ulps after it) */
         if (land - t_next <= tol) t_next = land;
         world_kinematics_pose(w->kin, t_next);
-        if (w->couple) SOLVER_TRY(w->couple_solid, c.frame, coupled_step(w, &c, t, t_next, stats, err));
+        if (w->couple) DR_TRY(coupled_step(w, &c, t, t_next, stats, err));
         for (int i = 0; i < w->nsolvers; i++) {
             WorldSolver *s = &w->solvers[i];
-            if (!s->step || i == w->couple_fluid || i == w->couple_solid) continue;
+            if (!s->step || in_couple(w, i)) continue;
             if (!s->lockstep && t_next < c.t1 && s->next_time && t_next < w->proposal[i]) continue; /* its own step ends later */
             SOLVER_TRY(i, c.frame, s->step(s->self, &c, w->at[i], t_next, err));
             w->at[i] = t_next;
@@ -427,10 +461,12 @@ DrStatus dr_world_step_frame(DrWorld *w, DrFrameStats *stats, DrError *err)
     stats->kinetic_energy += stats->liquid.kinetic_energy;
     stats->kinetic_energy += stats->mpm.kinetic_energy;
     stats->kinetic_energy += stats->hair.kinetic_energy;
+    stats->kinetic_energy += stats->cloth.kinetic_energy;
     int k = stats->bem.substeps;
     if (stats->liquid.substeps > k) k = stats->liquid.substeps;
     if (stats->mpm.substeps > k) k = stats->mpm.substeps;
     if (stats->hair.substeps > k) k = stats->hair.substeps;
+    if (stats->cloth.substeps > k) k = stats->cloth.substeps;
     stats->substeps = k;
     w->frame = c.frame;
     stats->seconds = dr_time_now() - t_start;
@@ -461,7 +497,8 @@ static DrStatus write_frame_body(const DrWorld *w, const DrFrameStats *stats, Dr
         DR_TRY(dr_h5_write_scalar(h, g, "mpm_liquid_pushed_out", (double)stats->liquid.mpm_pushed, "1", err));
     }
     if (w->couple) {
-        /* the coupled loop's figures and its momentum ledger (hair received + liquid given = 0) */
+        /* the coupled loop's figures and its momentum ledger: what the coupled solids received (hair and cloth; the
+           datasets keep the name coupling_impulse_hair_*) + what the fluid was given = 0 */
         DR_TRY(dr_h5_write_scalar(h, g, "coupling_steps", stats->coupling.steps, "1", err));
         DR_TRY(dr_h5_write_scalar(h, g, "coupling_iterations", (double)stats->coupling.iterations, "1", err));
         DR_TRY(dr_h5_write_scalar(h, g, "coupling_iterations_max", stats->coupling.iterations_max, "1", err));

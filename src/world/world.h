@@ -111,6 +111,19 @@ typedef struct DrBemFrameStats {
     DrVec3 liquid_impulse;   /* N s: what the liquid's pressure gave the two-way bodies in the frame */
 } DrBemFrameStats;
 
+typedef struct DrClothFrameStats {
+    bool present;
+    int panels;
+    long vertices;
+    int substeps;            /* cloth steps in the frame (every panel takes the same) */
+    long cg_iterations;      /* summed over the panels' solves in the frame */
+    int not_converged;       /* solves stopped at ClothSolver.max_iterations (a warning) */
+    int collider_contacts;   /* vertex contacts of the last step, every panel */
+    double kinetic_energy, membrane_energy, bending_energy, gravity_energy; /* J, at the frame's end */
+    double max_speed;        /* m/s, the fastest vertex at the frame's end */
+    double seconds;
+} DrClothFrameStats;
+
 typedef struct DrFrameStats {
     int frame;
     double time;             /* s, at the end of the frame */
@@ -123,6 +136,7 @@ typedef struct DrFrameStats {
     DrMpmFrameStats mpm;
     DrHairFrameStats hair;
     DrBemFrameStats bem;
+    DrClothFrameStats cloth;
     /* The coupled loop between hair with a Drag component and the liquid (src/couple), over the frame: steps,
        iterations (solid solves), steps that stopped at solver.coupling_iterations with the change above
        solver.coupling_tolerance, the largest final relative change, and the momentum ledger: what the hair received
@@ -159,6 +173,7 @@ int dr_world_frame(const DrWorld *w);      /* last completed frame; first_frame 
 double dr_world_frame_time(const DrWorld *w, int frame);
 int dr_world_liquid_count(const DrWorld *w);
 long dr_world_hair_vertex_count(const DrWorld *w); /* 0 when the scene has no hair */
+long dr_world_cloth_vertex_count(const DrWorld *w); /* 0 when the scene has no cloth */
 long dr_world_mpm_particle_count(const DrWorld *w); /* 0 when the scene has no MPM solver */
 typedef struct DrMpm DrMpm;
 const DrMpm *dr_world_mpm(const DrWorld *w);        /* the MPM solver, NULL when there is none */

@@ -277,6 +277,9 @@ int world_mpm_bodies(const WorldSolver *s);
 DR_NODISCARD DrStatus world_lagrangian_adapter(const WorldCtx *c, const char *cache_root, WorldSolver *out,
                                                 DrError *err);
 void world_lagrangian_hair_counts(const WorldSolver *s, int *strands, int *vertices);
+/* The scene's cloth elements, each a panel of src/cloth (out->self NULL without any), and their vertices. */
+DR_NODISCARD DrStatus world_cloth_adapter(const WorldCtx *c, WorldSolver *out, DrError *err);
+long world_cloth_vertex_count(const WorldSolver *s);
 void world_bem_counts(const WorldSolver *s, int *bodies, long *vertices, int *sets);
 /* The scene's air element (at most one; out->self NULL without one), stepped alone with the scene's colliders (not the
    bem_solid bodies), and its solver for a coupling loop or a test (NULL when s holds none). */

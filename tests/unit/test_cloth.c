@@ -52,7 +52,7 @@ static void test_membrane_rows(void **state)
         const int dof[3] = {0, 3, 6};
         double lambda[3] = {uni(&rng, -1, 1), uni(&rng, -1, 1), uni(&rng, -1, 1)}, G[81];
         DrLagGroup g;
-        dr_shell_membrane_group(x, x + 3, x + 6, Bm, A, K, NU, dof, lambda, G, &g);
+        dr_shell_membrane_group(x, x + 3, x + 6, Bm, A, K, NU, dof, lambda, false, G, &g);
         assert_int_equal(g.nrows, 3);
         assert_int_equal(g.ndof, 9);
         /* the rows' energy is the StVK energy */
@@ -65,9 +65,9 @@ static void test_membrane_rows(void **state)
             double s = x[a], Jp[27], Jm[27], pp[3], pm[3];
             DrLagGroup gp, gm;
             x[a] = s + eps;
-            dr_shell_membrane_group(x, x + 3, x + 6, Bm, A, K, NU, dof, NULL, NULL, &gp);
+            dr_shell_membrane_group(x, x + 3, x + 6, Bm, A, K, NU, dof, NULL, false, NULL, &gp);
             x[a] = s - eps;
-            dr_shell_membrane_group(x, x + 3, x + 6, Bm, A, K, NU, dof, NULL, NULL, &gm);
+            dr_shell_membrane_group(x, x + 3, x + 6, Bm, A, K, NU, dof, NULL, false, NULL, &gm);
             x[a] = s;
             memcpy(pp, gp.phi, sizeof pp), memcpy(pm, gm.phi, sizeof pm);
             memcpy(Jp, gp.J, sizeof Jp), memcpy(Jm, gm.J, sizeof Jm);
@@ -94,7 +94,7 @@ static double membrane_forces(const DrTriMesh *rest, const double *x, double *f)
         assert_true(dr_shell_rest(rest->v + 3 * tv[0], rest->v + 3 * tv[1], rest->v + 3 * tv[2], Bm, &A));
         int dof[3] = {3 * tv[0], 3 * tv[1], 3 * tv[2]};
         DrLagGroup g;
-        dr_shell_membrane_group(x + 3 * tv[0], x + 3 * tv[1], x + 3 * tv[2], Bm, A, K, NU, dof, NULL, NULL, &g);
+        dr_shell_membrane_group(x + 3 * tv[0], x + 3 * tv[1], x + 3 * tv[2], Bm, A, K, NU, dof, NULL, false, NULL, &g);
         for (int r = 0; r < 3; r++) {
             W += 0.5 * g.cinv[r] * g.phi[r] * g.phi[r];
             for (int a = 0; a < 9; a++) f[g.dof[a]] -= g.J[9 * r + a] * g.cinv[r] * g.phi[r];
