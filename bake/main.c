@@ -222,6 +222,7 @@ static void append_progress(const char *path, const DrFrameStats *fs, const Fram
         fprintf(f, "\"film\":%.6f,\"cross_flow\":%.6f,\"bridges\":%.6f,", fs->hair.seconds_film,
                 fs->hair.seconds_cross_flow, fs->hair.seconds_bridges);
     if (fs->hair.exchange) fprintf(f, "\"capture_drip\":%.6f,", fs->hair.seconds_exchange);
+    if (fs->cloth.present) fprintf(f, "\"cloth\":%.6f,", fs->cloth.seconds);
     if (fs->bem.present)
         fprintf(f,
                 "\"bem_history\":%.6f,\"bem_solve\":%.6f,\"bem_correction\":%.6f,\"bem_trial\":%.6f,"
@@ -229,6 +230,8 @@ static void append_progress(const char *path, const DrFrameStats *fs, const Fram
                 fs->bem.seconds_history, fs->bem.seconds_solve, fs->bem.seconds_correction, fs->bem.seconds_trial,
                 fs->bem.seconds_detect, fs->bem.seconds_assembly, fs->bem.seconds_pgs, fs->bem.seconds_final);
     fprintf(f, "\"io\":%.6f,\"frame\":%.6f},", io->io, fs->seconds + io->io);
+    /* the coupled loop's wall time: it holds parts of the fluid's and the solids' seconds, so it is not a share */
+    if (fs->coupling.steps > 0) fprintf(f, "\"coupling_seconds\":%.6f,", fs->coupling.seconds);
     /* outside "seconds", whose keys the plots stack as shares of the frame: the writer's seconds overlap
        the next frame's simulation and the wait is part of seconds.io */
     fprintf(f, "\"io\":{\"background\":%s,\"wait\":%.6f,\"writer\":%.6f}}\n", io->background ? "true" : "false",

@@ -900,8 +900,8 @@ static DrStatus check_air(Parser *p)
     return DR_OK;
 }
 
-/* A hair element's Drag couples it with the scene's fluid (its liquid or its air element); without one there is
-   nothing to drag against, and the component would be silently ignored. */
+/* A hair element's Drag or a cloth element's ClothDrag couples it with the scene's fluid (its liquid or its air
+   element); without one there is nothing to drag against, and the component would be silently ignored. */
 static DrStatus check_drag_fluid(Parser *p)
 {
     const DrScene *s = p->s;
@@ -909,12 +909,16 @@ static DrStatus check_drag_fluid(Parser *p)
         if (s->elements[i].kind == DR_ELEMENT_LIQUID || s->elements[i].kind == DR_ELEMENT_AIR) return DR_OK;
     for (int i = 0; i < s->element_count; i++) {
         const DrElement *e = &s->elements[i];
-        if (e->kind != DR_ELEMENT_HAIR || !dr_element_component(e, "Drag")->present) continue;
+        bool hair = e->kind == DR_ELEMENT_HAIR && dr_element_component(e, "Drag")->present;
+        bool cloth = e->kind == DR_ELEMENT_CLOTH && dr_element_component(e, "ClothDrag")->present;
+        if (!hair && !cloth) continue;
+        const char *comp = hair ? "Drag" : "ClothDrag";
         push_index(p, e->index);
         push_key(p, "components");
-        push_key(p, "Drag");
-        return fail(p, "%s.Drag couples hair element '%s' with the scene's fluid, but the scene has neither a liquid "
-                       "nor an air element; add a liquid or an air element, or remove Drag", e->name, e->name);
+        push_key(p, comp);
+        return fail(p, "%s.%s couples %s element '%s' with the scene's fluid, but the scene has neither a liquid nor an "
+                       "air element; add a liquid or an air element, or remove %s",
+                    e->name, comp, hair ? "hair" : "cloth", e->name, comp);
     }
     return DR_OK;
 }
