@@ -12,10 +12,11 @@ scene="$S/dip.json"
 python3 - "$full" "$scene" <<'PY'
 import json, sys
 s = json.load(open(sys.argv[1])); s['shot']['name'] = 'dip'; s['shot']['frames'] = [1, 12]
-s['elements'][0]['components']['Domain']['voxel_size'] = 0.03
+s['elements'][0]['components']['Domain']['voxel_size'] = 0.04
 s['elements'][0]['components']['Particles']['per_cell'] = 4
 t = s['elements'][1]['components']
 t['Motion']['keys'] = [[0, 0, 0, 0, 0, 0, 0], [2, 0, 0, 0, 0, 0, 0], [10, 0, -0.24, 0, 0, 0, 0], [12, 0, -0.24, 0, 0, 0, 0]]
+t['ClothSolver'] = {'substeps': 8}
 json.dump(s, open(sys.argv[2], 'w'))
 PY
 b1="$WORK/b1" b2="$WORK/b2" b3="$WORK/b3"
