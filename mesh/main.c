@@ -775,6 +775,14 @@ static DrStatus mesh_cloth(const DrElement *e, DrH5 *h, const char *dir, int fra
     DrTriMesh m = {.nv = (int)nv, .nt = (int)nt};
     if (s == DR_OK) s = dr_calloc(3 * (size_t)nv + 1, sizeof *m.n, &m.n, err);
     if (s == DR_OK) s = dr_calloc(3 * (size_t)nt + 1, sizeof *m.tri, &m.tri, err);
+    snprintf(path, sizeof path, "/%s/uv", e->name);
+    if (s == DR_OK && dr_h5_has(h, path)) { /* the mesh file's texture coordinates, per triangle corner */
+        s = dr_h5_read_f64(h, path, &rank, dims, &m.uv, err);
+        if (s == DR_OK && (rank != 3 || dims[0] != (uint64_t)nt || dims[1] != 3 || dims[2] != 2))
+            s = dr_error_set(err, DR_ERR_INPUT, dr_h5_path(h), 0, 0,
+                             "dataset %s does not hold 2 coordinates for each corner of the %ld triangles; rerun bake "
+                             "(or pipeline.sh)", path, nt);
+    }
     if (s == DR_OK) {
         m.v = x;
         x = NULL;
@@ -800,7 +808,7 @@ static DrStatus mesh_cloth(const DrElement *e, DrH5 *h, const char *dir, int fra
         char comment[512], out[4096];
         snprintf(comment, sizeof comment,
                  "drench %s cloth '%s' frame %d (m, y up): the panel's vertices in the mesh's order, its triangles as "
-                 "the input mesh winds them, area-weighted normals",
+                 "the input mesh winds them, area-weighted normals, the mesh file's texture coordinates per corner",
                  DR_VERSION, e->name, frame);
         dr_stage_frame_path(dir, e->name, frame, "obj", out, sizeof out);
         s = dr_io_write_obj(out, &m, comment, err);

@@ -232,6 +232,8 @@ typedef struct DrTriMesh {
     double *v; /* 3*nv vertex coordinates, metres */
     int *tri;  /* 3*nt vertex indices, counter-clockwise seen from outside */
     double *n; /* 3*nv per-vertex normals or NULL */
+    double *uv; /* 6*nt texture coordinates per triangle corner (u, v), or NULL: from the file's first set when every
+                   triangle has them (per corner, so a seam does not split the welded surface) */
 } DrTriMesh;
 void dr_trimesh_free(DrTriMesh *m); /* frees the arrays and zeroes the struct */
 /* Signed volume by the divergence theorem (positive for outward CCW winding). */

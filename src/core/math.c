@@ -101,6 +101,7 @@ void dr_trimesh_free(DrTriMesh *m)
     free(m->v);
     free(m->tri);
     free(m->n);
+    free(m->uv);
     memset(m, 0, sizeof *m);
 }
 

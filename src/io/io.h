@@ -32,7 +32,9 @@
  * are removed. Vertex order is the order of first use by the triangles. out->n holds per-vertex unit
  * normals when the file has normals (the normalised sum of the file normals joined into the vertex;
  * where those cancel or are zero, the normalised area-weighted sum of the adjacent face normals, and
- * (0,0,0) only where even those cancel, as on a double-sided sheet), NULL otherwise.
+ * (0,0,0) only where even those cancel, as on a double-sided sheet), NULL otherwise; mesh->uv holds
+ * the file's first set of texture coordinates per triangle corner when every mesh of the file has one (a
+ * UV seam keeps the surface welded), NULL otherwise.
  * Units: the file's coordinates are taken as metres. Assimp (as packaged) keeps coordinates in single
  * precision, so they come back rounded to float (relative 6e-8).
  * Errors (DR_ERR_INPUT, err->file = path, *out left zeroed): file missing or unreadable; assimp failed
@@ -42,8 +44,9 @@ DR_NODISCARD DrStatus dr_io_load_mesh(const char *path, DrTriMesh *out, DrError 
 
 /* Writes `mesh` as an OBJ file atomically: optional header comment lines (each line of `comment`,
  * split at '\n', prefixed by "# "; NULL for none), then "v x y z" lines, "vn x y z" lines when
- * mesh->n is non-NULL, and "f a b c" (or "f a//a b//b c//c" with normals) lines with 1-based indices,
- * counter-clockwise as stored. Numbers are printed with %.9g (about 1e-9 relative). An empty mesh
+ * mesh->n is non-NULL, "vt u v" lines (one per triangle corner, in triangle order) when mesh->uv is, and
+ * "f a b c" (or "f a//a …" with normals, "f a/t …" with texture coordinates, "f a/t/a …" with both) lines with
+ * 1-based indices, counter-clockwise as stored. Numbers are printed with %.9g (about 1e-9 relative). An empty mesh
  * gives a file with only the comment. A non-finite vertex or normal is DR_ERR_RUNTIME and nothing is
  * written; a write failure is DR_ERR_IO naming the file, and neither path is left behind. */
 DR_NODISCARD DrStatus dr_io_write_obj(const char *path, const DrTriMesh *mesh, const char *comment,

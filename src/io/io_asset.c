@@ -55,6 +55,7 @@ static int weld_key_cmp(const void *pa, const void *pb)
 /* Scratch of one load, freed together. */
 typedef struct LoadScratch {
     double *pos, *nrm; /* raw positions and normals, 3 per raw vertex */
+    double *uv;        /* raw texture coordinates, 2 per raw vertex (when every mesh has a first set) */
     int *tri;          /* raw triangle corners */
     WeldKey *keys;
     int *rep, *remap;
@@ -65,6 +66,7 @@ static void scratch_free(LoadScratch *s)
 {
     free(s->pos);
     free(s->nrm);
+    free(s->uv);
     free(s->tri);
     free(s->keys);
     free(s->rep);
@@ -82,13 +84,14 @@ static DrStatus gather(const char *path, const struct aiScene *sc, LoadScratch *
                        bool *with_normals, DrError *err)
 {
     long long nv = 0, nt = 0;
-    bool normals = true;
+    bool normals = true, uvs = true;
     for (unsigned mi = 0; mi < sc->mNumMeshes; mi++) {
         const struct aiMesh *m = sc->mMeshes[mi];
         if (!mesh_has_triangles(m)) continue;
         nv += m->mNumVertices;
         for (unsigned f = 0; f < m->mNumFaces; f++) nt += m->mFaces[f].mNumIndices == 3;
         normals = normals && m->mNormals != NULL;
+        uvs = uvs && m->mTextureCoords[0] != NULL;
     }
     if (nt == 0)
         return dr_error_set(err, DR_ERR_INPUT, path, 0, 0,
@@ -99,6 +102,7 @@ static DrStatus gather(const char *path, const struct aiScene *sc, LoadScratch *
                             nv, nt, INT_MAX / 3);
     DR_TRY(dr_calloc((size_t)nv * 3, sizeof(double), &s->pos, err));
     if (normals) DR_TRY(dr_calloc((size_t)nv * 3, sizeof(double), &s->nrm, err));
+    if (uvs) DR_TRY(dr_calloc((size_t)nv * 2, sizeof(double), &s->uv, err));
     DR_TRY(dr_calloc((size_t)nt * 3, sizeof(int), &s->tri, err));
     int v0 = 0, t = 0;
     for (unsigned mi = 0; mi < sc->mNumMeshes; mi++) {
@@ -114,6 +118,11 @@ static DrStatus gather(const char *path, const struct aiScene *sc, LoadScratch *
                 q[0] = m->mNormals[i].x;
                 q[1] = m->mNormals[i].y;
                 q[2] = m->mNormals[i].z;
+            }
+            if (uvs) {
+                double *q = s->uv + 2 * (size_t)(v0 + (int)i);
+                q[0] = m->mTextureCoords[0][i].x;
+                q[1] = m->mTextureCoords[0][i].y;
             }
         }
         for (unsigned f = 0; f < m->mNumFaces; f++) {
@@ -156,6 +165,7 @@ static DrStatus weld(const char *path, LoadScratch *s, int nraw_v, int nraw_t, b
     for (int i = 0; i < nraw_v; i++) s->remap[i] = -1;
 
     DR_TRY(dr_calloc((size_t)nraw_t * 3, sizeof(int), &out->tri, err));
+    if (s->uv) DR_TRY(dr_calloc((size_t)nraw_t * 6, sizeof(double), &out->uv, err));
     int nv = 0, nt = 0;
     for (int t = 0; t < nraw_t; t++) {
         int r[3];
@@ -164,6 +174,7 @@ static DrStatus weld(const char *path, LoadScratch *s, int nraw_v, int nraw_t, b
         for (int c = 0; c < 3; c++) {
             if (s->remap[r[c]] < 0) s->remap[r[c]] = nv++;
             out->tri[3 * nt + c] = s->remap[r[c]];
+            if (s->uv) memcpy(out->uv + 6 * nt + 2 * c, s->uv + 2 * s->tri[3 * t + c], 2 * sizeof(double));
         }
         nt++;
     }
@@ -300,6 +311,10 @@ DrStatus dr_io_load_mesh(const char *path, DrTriMesh *out, DrError *err)
 
 DrStatus dr_io_write_obj(const char *path, const DrTriMesh *mesh, const char *comment, DrError *err)
 {
+    for (int i = 0; mesh->uv && i < 6 * mesh->nt; i++)
+        if (!isfinite(mesh->uv[i]))
+            return dr_error_set(err, DR_ERR_RUNTIME, path, 0, 0,
+                                "triangle %d has a non-finite texture coordinate; nothing was written", i / 6);
     for (int i = 0; i < 3 * mesh->nv; i++) {
         if (!isfinite(mesh->v[i]) || (mesh->n && !isfinite(mesh->n[i])))
             return dr_error_set(err, DR_ERR_RUNTIME, path, 0, 0,
@@ -329,9 +344,16 @@ DrStatus dr_io_write_obj(const char *path, const DrTriMesh *mesh, const char *co
     if (mesh->n)
         for (int i = 0; i < mesh->nv; i++)
             fprintf(f, "vn %.9g %.9g %.9g\n", mesh->n[3 * i], mesh->n[3 * i + 1], mesh->n[3 * i + 2]);
+    if (mesh->uv) /* one texture coordinate per corner, in triangle order */
+        for (int k = 0; k < 3 * mesh->nt; k++) fprintf(f, "vt %.9g %.9g\n", mesh->uv[2 * k], mesh->uv[2 * k + 1]);
     for (int t = 0; t < mesh->nt; t++) {
         int a = mesh->tri[3 * t] + 1, b = mesh->tri[3 * t + 1] + 1, c = mesh->tri[3 * t + 2] + 1;
-        if (mesh->n)
+        int ta = 3 * t + 1, tb = 3 * t + 2, tc = 3 * t + 3;
+        if (mesh->uv && mesh->n)
+            fprintf(f, "f %d/%d/%d %d/%d/%d %d/%d/%d\n", a, ta, a, b, tb, b, c, tc, c);
+        else if (mesh->uv)
+            fprintf(f, "f %d/%d %d/%d %d/%d\n", a, ta, b, tb, c, tc);
+        else if (mesh->n)
             fprintf(f, "f %d//%d %d//%d %d//%d\n", a, a, b, b, c, c);
         else
             fprintf(f, "f %d %d %d\n", a, b, c);

@@ -11,7 +11,8 @@
  * held (its reaction goes to the pin).
  *
  * Frame cache, per frame, under /<cloth>/ (type "cloth"): position and velocity (V×3, m and m/s, the mesh's vertex
- * order after Transform), triangles (T×3, the mesh's, counter-clockwise seen from the side its normals face), and
+ * order after Transform), triangles (T×3, the mesh's, counter-clockwise seen from the side its normals face), uv
+ * (T×3×2, the mesh file's texture coordinates of each triangle corner, when it has them), and
  * kinetic_energy, membrane_energy, bending_energy (J). Checkpoint: position, velocity and the membrane multipliers
  * (3 per triangle), which the next step's geometric stiffness uses: a resumed bake is bit-identical. */
 #include "world_adapter.h"
@@ -36,6 +37,7 @@ typedef struct WorldPanel {
     double *pin_rest;    /* 3 npins: where they are in the placed rest pose */
     double *keys;        /* Motion keys (rows of 7), moving the pins rigidly from the rest pose */
     int nkeys;
+    double *uv;          /* 6T: the mesh's texture coordinates per triangle corner, NULL without */
 } WorldPanel;
 
 typedef struct WorldCloth {
@@ -73,6 +75,7 @@ static void cloth_destroy(void *self)
         free(w->panels[i].pins);
         free(w->panels[i].pin_rest);
         free(w->panels[i].keys);
+        free(w->panels[i].uv);
     }
     free(w->panels);
     free(w->colliders);
@@ -161,6 +164,10 @@ static DrStatus build_panel(const WorldCtx *c, const DrElement *e, WorldPanel *p
             double l = dr_v3_norm(dr_v3_sub(q[(k + 1) % 3], q[k]));
             if (l > 0) p->min_edge = fmin(p->min_edge, l);
         }
+    }
+    if (s == DR_OK && m.uv) {
+        p->uv = m.uv; /* the panel keeps the mesh's triangles in order: the corners' coordinates stay theirs */
+        m.uv = NULL;
     }
     dr_trimesh_free(&m);
     return s;
@@ -532,6 +539,10 @@ static DrStatus cloth_write(const void *self, const WorldCtx *c, DrH5 *h, bool f
             DrStatus s = dr_h5_write_i32(h, path, 2, (uint64_t[]){nt, 3}, tri, "1", true, err);
             free(tri);
             DR_TRY(s);
+            if (p->uv) {
+                PATHF(path, "/%s/uv", name);
+                DR_TRY(dr_h5_write_f64(h, path, 3, (uint64_t[]){nt, 3, 2}, p->uv, "1", true, err));
+            }
             DrClothEnergy e;
             dr_cloth_energy(p->cloth, &e);
             PATHF(path, "/%s", name);

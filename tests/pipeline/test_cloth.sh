@@ -3,7 +3,7 @@
 # with the water): it bakes without a warning; the pinned vertices land exactly where the Motion puts them; the coupled
 # loop's momentum ledger (what the cloth received + what the water was given) is zero to round-off every frame; 1 and 2
 # threads and a resumed bake are bit-identical; mesh writes towel.NNNN.obj with a normal per vertex and render draws
-# it. Then a reduced cloth_flag (the panel in the air's wind) bakes without a warning and the wind carries the flag
+# it with the mesh file's texture coordinates. Then a reduced cloth_flag (the panel in the air's wind) bakes without a warning and the wind carries the flag
 # downstream; and bad cloth input exits 2 naming the element, the field and the fix, with no frame written.
 source "$(dirname "$0")/lib.sh"
 full=$(stage_scene cloth_dip.json)
@@ -70,8 +70,9 @@ check "a resumed cloth bake is bit-identical to an uninterrupted one" same_frame
 
 "$BIN/mesh" "$scene" --out "$b2" -q >/dev/null 2>&1
 obj="$b2/dip/mesh/towel.0012.obj"
-check "mesh writes the towel as an OBJ with a normal per vertex" bash -c "
-  [ \$(grep -c '^v ' '$obj') -eq 1089 ] && [ \$(grep -c '^vn ' '$obj') -eq 1089 ] && [ \$(grep -c '^f ' '$obj') -eq 2048 ]"
+check "mesh writes the towel as an OBJ with a normal per vertex and the mesh file's texture coordinates" bash -c "
+  [ \$(grep -c '^v ' '$obj') -eq 1089 ] && [ \$(grep -c '^vn ' '$obj') -eq 1089 ] && [ \$(grep -c '^vt ' '$obj') -eq 6144 ] &&
+  [ \$(grep -c '^f [0-9]*/[0-9]*/[0-9]* ' '$obj') -eq 2048 ]"
 "$BIN/render" "$scene" --out "$b2" --frames 12-12 -q >/dev/null 2>&1
 check "render draws the towel" test -s "$b2/dip/render/frame.0012.png"
 

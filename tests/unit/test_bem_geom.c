@@ -36,7 +36,7 @@ static DrTriMesh box(double x0, double y0, double z0, double x1, double y1, doub
 /* A mesh with room for `extra_v` more vertices and `extra_t` more triangles (counts unchanged). */
 static DrTriMesh copy_mesh(const DrTriMesh *m, int extra_v, int extra_t)
 {
-    DrTriMesh c = {m->nv, m->nt, NULL, NULL, NULL};
+    DrTriMesh c = {m->nv, m->nt, NULL, NULL, NULL, NULL};
     c.v = calloc(3 * (size_t)(m->nv + extra_v) + 1, sizeof(double));
     c.tri = calloc(3 * (size_t)(m->nt + extra_t) + 1, sizeof(int));
     assert_non_null(c.v);
@@ -541,7 +541,7 @@ static double mean_step(const DrTriMesh *m, const int *order)
 static void test_vertex_order_is_a_hilbert_curve(void **state)
 {
     (void)state;
-    DrTriMesh m = {512, 0, calloc(3 * 512, sizeof(double)), NULL, NULL};
+    DrTriMesh m = {512, 0, calloc(3 * 512, sizeof(double)), NULL, NULL, NULL};
     assert_non_null(m.v);
     for (int i = 0; i < 512; i++) {
         m.v[3 * i] = 0.5 * (i % 8);
@@ -561,7 +561,7 @@ static void test_vertex_order_is_a_hilbert_curve(void **state)
 
     /* One vertex and coincident vertices: the input order. */
     double one[6] = {1, 2, 3, 1, 2, 3};
-    DrTriMesh p = {2, 0, one, NULL, NULL};
+    DrTriMesh p = {2, 0, one, NULL, NULL, NULL};
     int o2[2];
     dr_bem_vertex_order(&p, o2);
     assert_true(o2[0] == 0 && o2[1] == 1);

@@ -242,7 +242,7 @@ static DrTriMesh unit_cube(void)
     static const double v[] = {0, 0, 0, 1, 0, 0, 1, 1, 0, 0, 1, 0, 0, 0, 1, 1, 0, 1, 1, 1, 1, 0, 1, 1};
     static const int t[] = {0, 2, 1, 0, 3, 2, 4, 5, 6, 4, 6, 7, 0, 1, 5, 0, 5, 4,
                             1, 2, 6, 1, 6, 5, 2, 3, 7, 2, 7, 6, 3, 0, 4, 3, 4, 7};
-    DrTriMesh m = {8, 12, NULL, NULL, NULL};
+    DrTriMesh m = {8, 12, NULL, NULL, NULL, NULL};
     m.v = malloc(sizeof v);
     m.tri = malloc(sizeof t);
     memcpy(m.v, v, sizeof v);

@@ -210,6 +210,50 @@ static void test_load_bad_meshes(void **state)
     dr_trimesh_free(&m);
 }
 
+/* Texture coordinates: per triangle corner, so that a seam (one position, two coordinates) keeps the surface welded;
+   the cloth panel's are u = x + 0.5, v = z + 0.5 of its 33 × 33 rest grid. Written as "vt" per corner and "f a/t/n",
+   read back the same. */
+static void test_texture_coordinates(void **state)
+{
+    (void)state;
+    DrTriMesh a, b;
+    DrError err;
+    assert_int_equal(dr_io_load_mesh(MESHES "cloth_panel.obj", &a, &err), DR_OK);
+    assert_int_equal(a.nv, 33 * 33);
+    assert_int_equal(a.nt, 2 * 32 * 32);
+    assert_non_null(a.uv);
+    for (int t = 0; t < a.nt; t++)
+        for (int c = 0; c < 3; c++) {
+            const double *p = a.v + 3 * a.tri[3 * t + c], *uv = a.uv + 6 * t + 2 * c;
+            assert_true(fabs(uv[0] - (p[0] + 0.5)) < 1e-6 && fabs(uv[1] - (p[2] + 0.5)) < 1e-6);
+        }
+    /* a seam: two triangles sharing an edge whose corners carry different coordinates stay joined */
+    char path[512];
+    scratch_path("seam.obj", path, sizeof path);
+    FILE *f = fopen(path, "w");
+    assert_non_null(f);
+    fputs("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nvt 0.5 0.5\nvt 0.9 0.1\nvt 0.1 0.9\n"
+          "f 1/1 2/2 3/3\nf 2/5 4/4 3/6\n", f);
+    fclose(f);
+    assert_int_equal(dr_io_load_mesh(path, &b, &err), DR_OK);
+    assert_int_equal(b.nv, 4);
+    assert_int_equal(b.nt, 2);
+    assert_non_null(b.uv);
+    assert_true(fabs(b.uv[6] - 0.9) < 1e-6 && fabs(b.uv[7] - 0.1) < 1e-6);
+    dr_trimesh_free(&b);
+    scratch_path("panel_out.obj", path, sizeof path);
+    assert_int_equal(dr_io_write_obj(path, &a, NULL, &err), DR_OK);
+    char *text = slurp(path);
+    assert_non_null(strstr(text, "\nvt "));
+    free(text);
+    assert_int_equal(dr_io_load_mesh(path, &b, &err), DR_OK);
+    assert_int_equal(b.nt, a.nt);
+    assert_memory_equal(a.tri, b.tri, 3 * sizeof(int) * (size_t)a.nt);
+    assert_memory_equal(a.uv, b.uv, 6 * sizeof(double) * (size_t)a.nt);
+    dr_trimesh_free(&a);
+    dr_trimesh_free(&b);
+}
+
 static void test_write_obj_round_trip(void **state)
 {
     (void)state;
@@ -1641,6 +1685,7 @@ int main(void)
         cmocka_unit_test(test_load_sphere_and_ground),
         cmocka_unit_test(test_load_bad_meshes),
         cmocka_unit_test(test_write_obj_round_trip),
+        cmocka_unit_test(test_texture_coordinates),
         cmocka_unit_test(test_polylines_round_trip),
         cmocka_unit_test(test_polylines_read_other_writers),
         cmocka_unit_test(test_polylines_read_desc),
