@@ -933,12 +933,16 @@ static DrStatus check_cross_element(Parser *p)
         {"Domain", "voxel_size", NULL}, {"Domain", "wall_boundary", NULL}, {"Transfer", NULL, NULL},
         {"Integrator", NULL, NULL}};
     static const Shared hair[] = {{"HairSolver", NULL, NULL}};
+    static const Shared cloth[] = {
+        {"ClothSolver", "substeps", NULL}, {"ClothSolver", "cfl", NULL}, {"ClothSolver", "max_substeps", NULL}};
     DR_TRY(check_shared(p, "mpm_solid", mpm, (int)(sizeof mpm / sizeof mpm[0]),
                         "every mpm_solid of a scene shares one grid and one time step"));
     DR_TRY(check_bem_joints(p));
     DR_TRY(check_wet_hair(p));
     DR_TRY(check_air(p));
     DR_TRY(check_drag_fluid(p));
+    DR_TRY(check_shared(p, "cloth", cloth, (int)(sizeof cloth / sizeof cloth[0]),
+                        "every cloth element of a scene takes the same steps"));
     return check_shared(p, "hair", hair, 1, "every hair element of a scene is solved in one system");
 }
 

@@ -4,7 +4,7 @@
  *
  * Steps. Every panel takes the same steps: ClothSolver.substeps a frame at least, more when a vertex would move by
  * more than ClothSolver.cfl shortest edges of its panel in one (at most max_substeps a frame; reaching it is a
- * warning). The settings are the first cloth element's (the scene checks they agree).
+ * warning). The scene checks that every cloth element gives the same substeps, cfl and max_substeps.
  *
  * Coupled, a vertex is a face element of area A_v (a third of its triangles'), thickness h and unit normal n (the
  * area-weighted normal of its triangles at the step's start), volume A_v h, drag law ClothDrag; a pinned vertex is
