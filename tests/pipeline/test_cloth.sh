@@ -111,6 +111,10 @@ b = json.loads(json.dumps(s)); b['shot']['name'] = 'nopin'; b['elements'][1]['co
 json.dump(b, open(d + '/nopin.json', 'w'))
 c = json.loads(json.dumps(s)); c['shot']['name'] = 'nu'; c['elements'][1]['components']['ClothMaterial']['poisson'] = 0.6
 json.dump(c, open(d + '/nu.json', 'w'))
+e = json.loads(json.dumps(s)); e['shot']['name'] = 'two'
+second = json.loads(json.dumps(e['elements'][1])); second['name'] = 'rag'; second['components']['ClothSolver'] = {'substeps': 4}
+second['components'].pop('ClothDrag'); e['elements'].append(second)
+json.dump(e, open(d + '/two.json', 'w'))
 PY
 expect_exit "a non-manifold cloth mesh exits 2 naming the element, the field and the edge" 2 \
   "towel\.Mesh\.file.*edge \(0, 1\) borders 3 triangles" "$BIN/bake" "$S/fin.json" --frames 1-1
@@ -119,3 +123,6 @@ expect_exit "a FixedVertices box holding no vertex exits 2 with the fix" 2 "towe
   "$BIN/bake" "$S/nopin.json" --frames 1-1
 expect_exit "a Poisson ratio out of range exits 2 naming the field and the range" 2 "towel\.ClothMaterial\.poisson" \
   "$BIN/bake" "$S/nu.json" --frames 1-1
+expect_exit "two cloth elements stepped differently exit 2 naming both and the fix" 2 \
+  "rag\.ClothSolver\.substeps = 4 differs from towel\.ClothSolver\.substeps = 8.*give both elements the same" \
+  "$BIN/bake" "$S/two.json" --frames 1-1
