@@ -655,6 +655,65 @@ static DrStatus read_bem_f64(DrH5 *h, const char *name, const char *what, long r
     return DR_OK;
 }
 
+/* Dataset /<name>/triangles of a frame cache: M ≥ 1 rows of 3 vertex indices, each below nv, into a new array of 3M
+   ints (*out, *nt). Anything else is DR_ERR_INPUT naming the file and the dataset. */
+static DrStatus read_triangles(DrH5 *h, const char *name, long nv, int **out, long *nt, DrError *err)
+{
+    *out = NULL;
+    *nt = 0;
+    char path[1024];
+    snprintf(path, sizeof path, "/%s/triangles", name);
+    int rank;
+    uint64_t dims[4];
+    int32_t *tri = NULL;
+    DrStatus s = dr_h5_read_i32(h, path, &rank, dims, &tri, err);
+    if (s == DR_OK && (rank != 2 || dims[1] != 3 || dims[0] < 1 || dims[0] > (uint64_t)(INT_MAX / 3))) {
+        char shape[96];
+        shape_str(rank, dims, shape, sizeof shape);
+        s = dr_error_set(err, DR_ERR_INPUT, dr_h5_path(h), 0, 0,
+                         "dataset %s has shape %s; expected M×3 vertex indices; rerun bake (or pipeline.sh)", path, shape);
+    }
+    long n = s == DR_OK ? (long)dims[0] : 0;
+    for (long k = 0; s == DR_OK && k < 3 * n; k++)
+        if (tri[k] < 0 || tri[k] >= nv)
+            s = dr_error_set(err, DR_ERR_INPUT, dr_h5_path(h), 0, 0,
+                             "dataset %s: triangle %ld refers to vertex %d of %ld; rerun bake (or pipeline.sh)", path,
+                             k / 3, (int)tri[k], nv);
+    if (s == DR_OK) s = dr_calloc(3 * (size_t)n + 1, sizeof **out, out, err);
+    if (s == DR_OK) {
+        for (long k = 0; k < 3 * n; k++) (*out)[k] = tri[k];
+        *nt = n;
+    }
+    free(tri);
+    return s;
+}
+
+/* m->n (allocated, 3 per vertex): area-weighted vertex normals, the normalised sum of the (unnormalised) face normals
+   around each vertex (0 where they cancel). */
+static DrStatus area_normals(DrTriMesh *m, DrError *err)
+{
+    DR_TRY(dr_calloc(3 * (size_t)m->nv + 1, sizeof *m->n, &m->n, err));
+    for (long t = 0; t < m->nt; t++) {
+        const int *c = m->tri + 3 * t;
+        DrVec3 p0 = dr_v3(m->v[3 * c[0]], m->v[3 * c[0] + 1], m->v[3 * c[0] + 2]);
+        DrVec3 p1 = dr_v3(m->v[3 * c[1]], m->v[3 * c[1] + 1], m->v[3 * c[1] + 2]);
+        DrVec3 p2 = dr_v3(m->v[3 * c[2]], m->v[3 * c[2] + 1], m->v[3 * c[2] + 2]);
+        DrVec3 fn = dr_v3_cross(dr_v3_sub(p1, p0), dr_v3_sub(p2, p0));
+        for (int j = 0; j < 3; j++) {
+            m->n[3 * c[j]] += fn.x;
+            m->n[3 * c[j] + 1] += fn.y;
+            m->n[3 * c[j] + 2] += fn.z;
+        }
+    }
+    for (long i = 0; i < m->nv; i++) {
+        DrVec3 n = dr_v3(m->n[3 * i], m->n[3 * i + 1], m->n[3 * i + 2]);
+        double len = dr_v3_norm(n);
+        n = len > 0.0 ? dr_v3_scale(n, 1.0 / len) : dr_v3(0, 0, 0);
+        m->n[3 * i] = n.x, m->n[3 * i + 1] = n.y, m->n[3 * i + 2] = n.z;
+    }
+    return DR_OK;
+}
+
 /* The body's surface in this frame (DESIGN §4): V = R·(reference + displacement) + translation, with the cached
  * triangles (counter-clockwise from outside: R is a rotation, so it keeps the winding) and area-weighted vertex
  * normals. */
@@ -662,68 +721,29 @@ static DrStatus read_bem_surface(DrH5 *h, const char *name, DrTriMesh *out, DrEr
 {
     *out = (DrTriMesh){0};
     double *R = NULL, *T = NULL, *ref = NULL, *u = NULL;
-    int32_t *tri = NULL;
     long nv = 0, nt = 0;
+    DrTriMesh m = {0};
     DrStatus s = read_bem_f64(h, name, "rotation", 3, 3, &R, NULL, err);
     if (s == DR_OK) s = read_bem_f64(h, name, "translation", 0, 3, &T, NULL, err);
     if (s == DR_OK) s = read_bem_f64(h, name, "reference", -1, 3, &ref, &nv, err);
     if (s == DR_OK) s = read_bem_f64(h, name, "displacement", nv, 3, &u, NULL, err);
-    char path[1024];
-    snprintf(path, sizeof path, "/%s/triangles", name);
-    int rank;
-    uint64_t dims[4];
-    if (s == DR_OK) s = dr_h5_read_i32(h, path, &rank, dims, &tri, err);
-    if (s == DR_OK && (rank != 2 || dims[1] != 3 || dims[0] < 1 || dims[0] > (uint64_t)(INT_MAX / 3))) {
-        char shape[96];
-        shape_str(rank, dims, shape, sizeof shape);
-        s = dr_error_set(err, DR_ERR_INPUT, dr_h5_path(h), 0, 0,
-                         "dataset %s has shape %s; expected M×3 vertex indices; rerun bake (or pipeline.sh)", path, shape);
-    }
-    if (s == DR_OK) nt = (long)dims[0];
-    for (long k = 0; s == DR_OK && k < 3 * nt; k++)
-        if (tri[k] < 0 || tri[k] >= nv)
-            s = dr_error_set(err, DR_ERR_INPUT, dr_h5_path(h), 0, 0,
-                             "dataset %s: triangle %ld refers to vertex %d of %ld; rerun bake (or pipeline.sh)", path,
-                             k / 3, (int)tri[k], nv);
-    DrTriMesh m = {.nv = (int)nv, .nt = (int)nt};
+    if (s == DR_OK) s = read_triangles(h, name, nv, &m.tri, &nt, err);
+    m.nv = (int)nv, m.nt = (int)nt;
     if (s == DR_OK) s = dr_calloc(3 * (size_t)nv + 1, sizeof *m.v, &m.v, err);
-    if (s == DR_OK) s = dr_calloc(3 * (size_t)nv + 1, sizeof *m.n, &m.n, err);
-    if (s == DR_OK) s = dr_calloc(3 * (size_t)nt + 1, sizeof *m.tri, &m.tri, err);
     if (s == DR_OK) {
         for (long i = 0; i < nv; i++) {
             double b[3] = {ref[3 * i] + u[3 * i], ref[3 * i + 1] + u[3 * i + 1], ref[3 * i + 2] + u[3 * i + 2]};
             for (int a = 0; a < 3; a++)
                 m.v[3 * i + a] = R[3 * a] * b[0] + R[3 * a + 1] * b[1] + R[3 * a + 2] * b[2] + T[a];
         }
-        for (long k = 0; k < 3 * nt; k++) m.tri[k] = tri[k];
-        /* area-weighted: the sum of the (unnormalised) face normals around each vertex */
-        for (long t = 0; t < nt; t++) {
-            const int *c = m.tri + 3 * t;
-            DrVec3 p0 = dr_v3(m.v[3 * c[0]], m.v[3 * c[0] + 1], m.v[3 * c[0] + 2]);
-            DrVec3 p1 = dr_v3(m.v[3 * c[1]], m.v[3 * c[1] + 1], m.v[3 * c[1] + 2]);
-            DrVec3 p2 = dr_v3(m.v[3 * c[2]], m.v[3 * c[2] + 1], m.v[3 * c[2] + 2]);
-            DrVec3 fn = dr_v3_cross(dr_v3_sub(p1, p0), dr_v3_sub(p2, p0));
-            for (int j = 0; j < 3; j++) {
-                m.n[3 * c[j]] += fn.x;
-                m.n[3 * c[j] + 1] += fn.y;
-                m.n[3 * c[j] + 2] += fn.z;
-            }
-        }
-        for (long i = 0; i < nv; i++) {
-            DrVec3 n = dr_v3(m.n[3 * i], m.n[3 * i + 1], m.n[3 * i + 2]);
-            double len = dr_v3_norm(n);
-            n = len > 0.0 ? dr_v3_scale(n, 1.0 / len) : dr_v3(0, 0, 0);
-            m.n[3 * i] = n.x, m.n[3 * i + 1] = n.y, m.n[3 * i + 2] = n.z;
-        }
-        *out = m;
-    } else {
-        dr_trimesh_free(&m);
+        s = area_normals(&m, err);
     }
+    if (s == DR_OK) *out = m;
+    else dr_trimesh_free(&m);
     free(R);
     free(T);
     free(ref);
     free(u);
-    free(tri);
     return s;
 }
 
@@ -751,60 +771,24 @@ static bool is_cloth(const DrElement *e) { return e->kind == DR_ELEMENT_CLOTH; }
    winding faces). */
 static DrStatus mesh_cloth(const DrElement *e, DrH5 *h, const char *dir, int frame, long *triangles, DrError *err)
 {
-    double *x = NULL;
-    int32_t *tri = NULL;
     long nv = 0, nt = 0;
-    DrStatus s = read_bem_f64(h, e->name, "position", -1, 3, &x, &nv, err);
+    DrTriMesh m = {0};
+    DrStatus s = read_bem_f64(h, e->name, "position", -1, 3, &m.v, &nv, err);
+    if (s == DR_OK) s = read_triangles(h, e->name, nv, &m.tri, &nt, err);
+    m.nv = (int)nv, m.nt = (int)nt;
     char path[1024];
-    snprintf(path, sizeof path, "/%s/triangles", e->name);
-    int rank;
-    uint64_t dims[4];
-    if (s == DR_OK) s = dr_h5_read_i32(h, path, &rank, dims, &tri, err);
-    if (s == DR_OK && (rank != 2 || dims[1] != 3 || dims[0] < 1 || dims[0] > (uint64_t)(INT_MAX / 3))) {
-        char shape[96];
-        shape_str(rank, dims, shape, sizeof shape);
-        s = dr_error_set(err, DR_ERR_INPUT, dr_h5_path(h), 0, 0,
-                         "dataset %s has shape %s; expected M×3 vertex indices; rerun bake (or pipeline.sh)", path, shape);
-    }
-    if (s == DR_OK) nt = (long)dims[0];
-    for (long k = 0; s == DR_OK && k < 3 * nt; k++)
-        if (tri[k] < 0 || tri[k] >= nv)
-            s = dr_error_set(err, DR_ERR_INPUT, dr_h5_path(h), 0, 0,
-                             "dataset %s: triangle %ld refers to vertex %d of %ld; rerun bake (or pipeline.sh)", path,
-                             k / 3, (int)tri[k], nv);
-    DrTriMesh m = {.nv = (int)nv, .nt = (int)nt};
-    if (s == DR_OK) s = dr_calloc(3 * (size_t)nv + 1, sizeof *m.n, &m.n, err);
-    if (s == DR_OK) s = dr_calloc(3 * (size_t)nt + 1, sizeof *m.tri, &m.tri, err);
     snprintf(path, sizeof path, "/%s/uv", e->name);
     if (s == DR_OK && dr_h5_has(h, path)) { /* the mesh file's texture coordinates, per triangle corner */
+        int rank;
+        uint64_t dims[4];
         s = dr_h5_read_f64(h, path, &rank, dims, &m.uv, err);
         if (s == DR_OK && (rank != 3 || dims[0] != (uint64_t)nt || dims[1] != 3 || dims[2] != 2))
             s = dr_error_set(err, DR_ERR_INPUT, dr_h5_path(h), 0, 0,
                              "dataset %s does not hold 2 coordinates for each corner of the %ld triangles; rerun bake "
                              "(or pipeline.sh)", path, nt);
     }
+    if (s == DR_OK) s = area_normals(&m, err);
     if (s == DR_OK) {
-        m.v = x;
-        x = NULL;
-        for (long k = 0; k < 3 * nt; k++) m.tri[k] = tri[k];
-        for (long t = 0; t < nt; t++) {
-            const int *c = m.tri + 3 * t;
-            DrVec3 p0 = dr_v3(m.v[3 * c[0]], m.v[3 * c[0] + 1], m.v[3 * c[0] + 2]);
-            DrVec3 p1 = dr_v3(m.v[3 * c[1]], m.v[3 * c[1] + 1], m.v[3 * c[1] + 2]);
-            DrVec3 p2 = dr_v3(m.v[3 * c[2]], m.v[3 * c[2] + 1], m.v[3 * c[2] + 2]);
-            DrVec3 fn = dr_v3_cross(dr_v3_sub(p1, p0), dr_v3_sub(p2, p0));
-            for (int j = 0; j < 3; j++) {
-                m.n[3 * c[j]] += fn.x;
-                m.n[3 * c[j] + 1] += fn.y;
-                m.n[3 * c[j] + 2] += fn.z;
-            }
-        }
-        for (long i = 0; i < nv; i++) {
-            DrVec3 n = dr_v3(m.n[3 * i], m.n[3 * i + 1], m.n[3 * i + 2]);
-            double len = dr_v3_norm(n);
-            n = len > 0.0 ? dr_v3_scale(n, 1.0 / len) : dr_v3(0, 0, 0);
-            m.n[3 * i] = n.x, m.n[3 * i + 1] = n.y, m.n[3 * i + 2] = n.z;
-        }
         char comment[512], out[4096];
         snprintf(comment, sizeof comment,
                  "drench %s cloth '%s' frame %d (m, y up): the panel's vertices in the mesh's order, its triangles as "
@@ -815,8 +799,6 @@ static DrStatus mesh_cloth(const DrElement *e, DrH5 *h, const char *dir, int fra
         if (s == DR_OK) *triangles += m.nt;
     }
     dr_trimesh_free(&m);
-    free(x);
-    free(tri);
     return s;
 }
 
