@@ -17,6 +17,7 @@
 
 #include "core/core.h"
 #include "couple/couple.h"
+#include "../validation/couple_fluids.h"
 #include "grid/grid.h"
 #include "hair/hair.h"
 #include "liquid/liquid.h"
@@ -183,40 +184,6 @@ static void test_lift(void **state)
     assert_near(best_phi, 45.0, 0.0);
 }
 
-/* ---- a mock fluid at rest on a small grid: every face coupled, no pressure, takes nothing back ------------------- */
-
-typedef struct Still { DrMacGrid *g; unsigned char *take[3]; int projects; } Still;
-
-static DrStatus still_project(void *ctx, const DrFaceCoupling *extra, DrError *err)
-{
-    (void)extra; (void)err;
-    ((Still *)ctx)->projects++;
-    return DR_OK;
-}
-static void still_pressure(void *ctx, long n, const double *pts, double *p, double *wet)
-{
-    for (long i = 0; i < n; i++) wet[i] = 1.0;
-    (void)ctx; (void)pts;
-    for (long i = 0; i < n; i++) p[i] = 0.0;
-}
-static const unsigned char *still_faces(void *ctx, int a) { return ((Still *)ctx)->take[a]; }
-
-static void still_make(Still *s)
-{
-    memset(s, 0, sizeof *s);
-    DrError err;
-    assert_int_equal(dr_mac_grid_create(16, 64, 16, 0.025, dr_v3(-0.2, -1.5, -0.2), &s->g, &err), DR_OK);
-    for (int a = 0; a < 3; a++) {
-        s->take[a] = malloc((size_t)s->g->nfaces[a]);
-        memset(s->take[a], 1, (size_t)s->g->nfaces[a]);
-    }
-}
-static void still_free(Still *s)
-{
-    for (int a = 0; a < 3; a++) free(s->take[a]);
-    dr_mac_grid_destroy(&s->g);
-}
-
 /* ---- a rod set as a coupled solid ----------------------------------------------------------------------------- */
 
 typedef struct RodSolid {
@@ -278,7 +245,7 @@ static void test_falling_rod_terminal_velocity(void **state)
     DrDragLaw law = linear_law();
     law.buoyancy = false;
     Still fl;
-    still_make(&fl);
+    CHECK(still_make(&fl, ERR));
     DrCoupleFluid fluid = {&fl, RHO, MU, fl.g, still_project, still_pressure, still_faces, NULL};
     DrCoupleSolid solid = {&rs, 1, &law, rod_samples, rod_solve, rod_correct, NULL};
     DrCouple *c = NULL;
@@ -363,7 +330,7 @@ static void test_position_derivative(void **state)
 {
     (void)state;
     Still fl;
-    still_make(&fl);
+    CHECK(still_make(&fl, ERR));
     double s = -40.0, x0 = 0.1;
     for (int a = 0; a < 3; a++)
         for (long f = 0; f < fl.g->nfaces[a]; f++) {
@@ -458,7 +425,7 @@ static void test_carried_liquid(void **state)
     double h = 1e-3, V = M_PI * 1e-8 * 0.01, Vc = 35 * V, solid_got[2][3], open_min[2];
     for (int run = 0; run < 2; run++) {
         Hydro hy;
-        still_make(&hy.s);
+        CHECK(still_make(&hy.s, ERR));
         hy.open_min = 1.0;
         DrDragLaw law = linear_law();
         Carrier cr = {{1, {0.1, -0.7, 0.0}, {0, 0, 0}, {2e-6}, {V}, {2e-4}, {300}, {0, 0, 1}}, {run ? Vc : 0.0},
@@ -642,20 +609,6 @@ static DrStatus layer_solve(void *ctx, const double *force, const double *dfdv, 
     (void)ctx; (void)force; (void)dfdv; (void)err;
     return DR_OK; /* every element is held */
 }
-
-static DrStatus air_project_cb(void *ctx, const DrFaceCoupling *extra, DrError *err)
-{
-    DrAirStats st;
-    memset(&st, 0, sizeof st);
-    return dr_air_project(ctx, extra, &st, err);
-}
-static void air_pressure_cb(void *ctx, long n, const double *pts, double *p, double *wet)
-{
-    dr_air_sample(ctx, n, pts, NULL, p);
-    for (long i = 0; i < n; i++) wet[i] = 1.0;
-}
-static const unsigned char *air_faces_cb(void *ctx, int a) { return dr_air_coupled_faces(ctx, a); }
-static const double *air_mass_cb(void *ctx, int a) { return dr_air_face_mass(ctx, a); }
 
 static void test_porous_layer(void **state)
 {

@@ -16,6 +16,7 @@
 #include "couple/couple.h"
 #include "liquid/liquid.h"
 #include "cloth_grid.h"
+#include "couple_fluids.h"
 
 static void check(DrStatus s, const DrError *e)
 {
@@ -98,20 +99,6 @@ static void sheet_predict(Sheet *s, double h)
 }
 
 /* ---- a sheet across a channel (acceptance 3) ---------------------------------------------------------------------- */
-
-static DrStatus air_project_cb(void *ctx, const DrFaceCoupling *extra, DrError *err)
-{
-    DrAirStats st;
-    memset(&st, 0, sizeof st);
-    return dr_air_project(ctx, extra, &st, err);
-}
-static void air_pressure_cb(void *ctx, long n, const double *pts, double *p, double *wet)
-{
-    dr_air_sample(ctx, n, pts, NULL, p);
-    for (long i = 0; i < n; i++) wet[i] = 1.0;
-}
-static const unsigned char *air_faces_cb(void *ctx, int a) { return dr_air_coupled_faces(ctx, a); }
-static const double *air_mass_cb(void *ctx, int a) { return dr_air_face_mass(ctx, a); }
 
 /* A square sheet of 17 × 17 vertices filling the 0.16 m section of a channel of water (to 0.5 mm of its walls) (the air solver as a
    single-phase fluid of water's density and viscosity: inflow U = 5 cm/s on −x, open on +x), every vertex pinned (held:
@@ -223,29 +210,12 @@ static void test_sheet_across_channel(void **state)
 
 /* ---- a sheet falling through still liquid (acceptance 3) ------------------------------------------------------------- */
 
-typedef struct Still { DrMacGrid *g; unsigned char *take[3]; } Still;
-static DrStatus still_project(void *ctx, const DrFaceCoupling *extra, DrError *err)
-{
-    (void)ctx, (void)extra, (void)err;
-    return DR_OK;
-}
-static void still_pressure(void *ctx, long n, const double *pts, double *p, double *wet)
-{
-    (void)ctx, (void)pts;
-    for (long i = 0; i < n; i++) p[i] = 0.0, wet[i] = 1.0;
-}
-static const unsigned char *still_faces(void *ctx, int a) { return ((Still *)ctx)->take[a]; }
-
 static void test_falling_sheet_terminal_velocity(void **state)
 {
     (void)state;
     DrError err;
     Still fl;
-    check(dr_mac_grid_create(16, 64, 16, 0.025, dr_v3(-0.2, -1.5, -0.2), &fl.g, &err), &err);
-    for (int a = 0; a < 3; a++) {
-        fl.take[a] = malloc((size_t)fl.g->nfaces[a]);
-        memset(fl.take[a], 1, (size_t)fl.g->nfaces[a]);
-    }
+    check(still_make(&fl, &err), &err);
     const double rho_f = 1000.0, mu = 1e-3;
     DrTriMesh m;
     assert_int_equal(cloth_grid(9, 9, 0.2, 0.2, 0.0, &m), 0);
@@ -293,8 +263,7 @@ static void test_falling_sheet_terminal_velocity(void **state)
     sheet_free(&s);
     dr_cloth_destroy(&c);
     dr_trimesh_free(&m);
-    for (int a = 0; a < 3; a++) free(fl.take[a]);
-    dr_mac_grid_destroy(&fl.g);
+    still_free(&fl);
 }
 
 int main(void)
