@@ -484,6 +484,8 @@ DrStatus dr_bem_mesh_weld(DrTriMesh *m, double tol, int *removed, DrError *err)
     m->nv = kept;
     free(m->n);
     m->n = NULL;
+    free(m->uv); /* per-corner texture coordinates would not follow the triangles dropped above */
+    m->uv = NULL;
     *removed = nv - kept;
 
 done:

@@ -18,6 +18,7 @@ static inline int cloth_grid_pattern(int nx, int ny, double lx, double ly, doubl
     m->v = malloc(3 * (size_t)m->nv * sizeof(double));
     m->tri = malloc(3 * (size_t)m->nt * sizeof(int));
     m->n = NULL;
+    m->uv = NULL;
     if (!m->v || !m->tri) return -1;
     for (int j = 0; j < ny; j++)
         for (int i = 0; i < nx; i++) {
