@@ -45,8 +45,8 @@ typedef struct WorldKinematics WorldKinematics;
 DR_NODISCARD DrStatus world_kinematics_create(const DrScene *scene, int first_frame, double fps, WorldKinematics **out,
                                               DrError *err);
 void world_kinematics_destroy(WorldKinematics **k);
-/* The bem_solid bodies as colliders of the liquid and the hair: one SDF per body, of its deformed surface in the
-   body frame, carried by the body's rigid frame; built only when the scene has a liquid or hair. */
+/* The bem_solid bodies as colliders of the liquid, the hair and the cloth: one SDF per body, of its deformed surface
+   in the body frame, carried by the body's rigid frame; built only when the scene has a liquid, hair or cloth. */
 DR_NODISCARD DrStatus world_kinematics_add_bodies(WorldKinematics *k, const DrScene *scene,
                                                   const DrBemSolid *const *solids, const DrElement *const *elements,
                                                   int n, DrError *err);
@@ -59,15 +59,15 @@ double world_kinematics_dx(const WorldKinematics *k);
 /* The live colliders (those with an SDF), in element order, and what the liquid takes: those, then the bodies. */
 int world_kinematics_colliders(const WorldKinematics *k, const DrCollider *const **out);
 int world_kinematics_liquid_colliders(const WorldKinematics *k, const DrCollider *const **out);
-/* Every live collider posed at t (the shared array the MPM and hair colliders point into), and the bodies. */
+/* Every live collider posed at t (the shared array the MPM, hair and cloth colliders point into), and the bodies. */
 WorldPosedCollider *world_kinematics_posed(WorldKinematics *k);
 void world_kinematics_pose(WorldKinematics *k, double t);
-/* The bem_solid bodies as the hair sees them (their deformed surface, posed with the colliders); 0 without hair and
-   liquid. The array stays in place; each entry's collider changes at every BEM step. */
+/* The bem_solid bodies as the hair and the cloth see them (their deformed surface, posed with the colliders); 0
+   without hair, cloth and liquid. The array stays in place; each entry's collider changes at every BEM step. */
 int world_kinematics_bodies_posed(WorldKinematics *k, WorldPosedCollider **out);
-/* The MPM solids' particles as a surface the hair meets (contact.h's point field), kept only when the scene has
-   both: the MPM adapter hands its particles after each of its steps (a no-op when nobody wants them); the hair
-   takes the field's callbacks (false: there is none). */
+/* The MPM solids' particles as a surface the hair and the cloth meet (contact.h's point field), kept only when the
+   scene has MPM solids and hair or cloth: the MPM adapter hands its particles after each of its steps (a no-op when
+   nobody wants them); the hair and the cloth take the field's callbacks (false: there is none). */
 bool world_kinematics_wants_mpm_surface(const WorldKinematics *k);
 DR_NODISCARD DrStatus world_kinematics_set_mpm_surface(WorldKinematics *k, long n, const double *x, const double *v,
                                                        const double *volume, DrError *err);
@@ -262,7 +262,8 @@ typedef struct WorldSolver {
 } WorldSolver;
 
 /* The adapters' constructors: each fills *out (out->self NULL when the scene has nothing for it) and logs nothing.
-   The BEM bodies are built first (the liquid seeds no particle inside them), then the liquids, MPM and hair. */
+   The BEM bodies are built first (the liquid seeds no particle inside them), then the liquids, MPM, hair, cloth and
+   air. */
 DR_NODISCARD DrStatus world_bem_adapter(const WorldCtx *c, const char *cache_root, WorldSolver *out, DrError *err);
 /* The bodies' solids and elements (borrowed), for the kinematics; 0 without bodies. */
 /* Whether body i (world_bem_solids' order) is two-way with the liquid (BemSolver.liquid_coupling, a liquid present). */
