@@ -105,7 +105,7 @@ DrStatus world_make_collider(const DrTriMesh *mesh, double dx, double friction, 
 }
 
 /* The smallest cell of any grid that samples colliders (liquid, MPM and air) or, for hair, a grown groom's segment
-   length (4 mm for curves read from a file), for cloth 1 cm, 0 when nothing samples colliders. */
+   length (4 mm for curves read from a file), for cloth 4 mm, 0 when nothing samples colliders. */
 static double smallest_grid_dx(const DrScene *scene)
 {
     double dx = 0.0;
@@ -120,8 +120,8 @@ static double smallest_grid_dx(const DrScene *scene)
         } else if (e->kind == DR_ELEMENT_AIR) {
             d = dr_component_num(dr_element_component(e, "AirDomain"), "voxel_size");
         } else if (e->kind == DR_ELEMENT_CLOTH) {
-            d = 0.01; /* a cloth vertex meets colliders through their SDF: 5 mm samples resolve a surface's curvature
-                         well beside typical 1–3 cm cloth edges */
+            d = 0.004; /* a cloth vertex meets colliders through their SDF: samples every 2 mm keep the trilinear SDF's
+                          error at a faceted body's edges within a tenth of the default 1 mm contact layer */
         } else {
             continue;
         }

@@ -99,6 +99,60 @@ blown() {
 }
 check "the wind carries the flag downstream of where it hangs in still air" blown
 
+# a sheet dropped onto a bem_solid icosphere (radius 0.1 m, its lower half held by FixedVertices, the same body as
+# test_hair_bodies.sh's) rests on its deformed surface: after 1.5 s no vertex is nearer its faces' planes than 0.8 of the
+# 1 mm contact distance (the contact keeps the Euclidean distance to the surface, which beside an edge or a corner of
+# this 42-vertex body exceeds the distance to the nearest face's plane: cos 21° = 0.93 of it across an edge, less at a
+# corner), the sheet touches the body over many vertices, and those have come to rest (the hanging rim still swings)
+python3 - "$ROOT" "$S" <<'PY'
+import json, sys
+root, d = sys.argv[1], sys.argv[2]
+n = 17
+lines = []
+for j in range(n):
+    for i in range(n):
+        lines.append("v %.6f 0 %.6f" % (0.3 * i / (n - 1) - 0.15, 0.3 * j / (n - 1) - 0.15))
+idx = lambda i, j: i + n * j + 1
+for j in range(n - 1):
+    for i in range(n - 1):
+        a, b, c, e = idx(i, j), idx(i + 1, j), idx(i, j + 1), idx(i + 1, j + 1)
+        lines += ["f %d %d %d" % (a, c, e), "f %d %d %d" % (a, e, b)]
+open(d + "/sheet17.obj", "w").write("\n".join(lines) + "\n")
+s = json.load(open(root + "/tests/data/hair_drape_bem.json"))
+s["shot"]["name"] = "drape_bem"; s["shot"]["frames"] = [1, 36]
+s["elements"][0]["components"]["Mesh"]["file"] = root + "/tests/data/bem_ico1.obj"
+s["elements"][1] = {"name": "sheet", "type": "cloth", "components": {
+    "Mesh": {"file": d + "/sheet17.obj"}, "Transform": {"translate": [0.01, 0.215, 0.02]},
+    "ClothMaterial": {"damping": 0.02}, "Collider": {"friction": 0.5, "thickness": 0.001}}}
+json.dump(s, open(d + "/drape_bem.json", "w"))
+PY
+"$BIN/precompute" "$S/drape_bem.json" -j 2 >/dev/null 2>&1
+"$BIN/bake" "$S/drape_bem.json" -j 2 --out "$b2" >"$WORK/drape.log" 2>&1; rc=$?
+[ "$rc" -eq 0 ] || tail -5 "$WORK/drape.log"
+check "a sheet over a bem_solid bakes without a warning" bash -c "[ $rc -eq 0 ] && ! grep -qi warn '$WORK/drape.log'"
+on_bem() {
+  local f="$b2/drape_bem/bake/frame.0036.h5"
+  h5 "$f" /sheet/position |
+  awk -v R="$(h5 "$f" /rock/rotation)" -v T="$(h5 "$f" /rock/translation)" -v X="$(h5 "$f" /rock/reference)" \
+      -v U="$(h5 "$f" /rock/displacement)" -v K="$(h5 "$f" /rock/triangles)" -v V="$(h5 "$f" /sheet/velocity)" -v C=0.001 \
+      "$AWK_SURFACE"'BEGIN {
+    split(R, r, " "); split(T, t, " "); split(X, x, " "); split(U, u, " "); nt = split(K, k, " ") / 3
+    for (i in x) x[i] += u[i]
+    face_planes(x, k, nt)
+    split(V, vel, " ") }
+  { np = split($0, p, " ") / 3; gmin = 1e9; near = 0; vmax = 0
+    for (j = 0; j < np; j++) {
+      to_body(p, j, r, t, q)
+      g = -1e9
+      for (i = 0; i < nt; i++) { s = N[i, 1] * q[1] + N[i, 2] * q[2] + N[i, 3] * q[3] - O[i]; if (s > g) g = s }
+      if (g < gmin) gmin = g
+      if (g < 2 * C) { near++; sp = sqrt(vel[3*j+1]^2 + vel[3*j+2]^2 + vel[3*j+3]^2); if (sp > vmax) vmax = sp }
+    }
+    printf "closest vertex %.3e m from the body (contact at 1e-3 m), %d vertices within 2 mm, the fastest of them %.3e m/s\n", gmin, near, vmax
+    exit !(gmin >= 0.8 * C && near >= 10 && vmax < 0.01) }'
+}
+check "the sheet rests on the bem_solid's deformed surface, within 20 % of its contact thickness" on_bem
+
 # bad input: a mesh that is not a manifold, a pin box holding nothing, a value out of range
 python3 - "$scene" "$S" <<'PY'
 import json, sys
