@@ -204,7 +204,8 @@ static DrStatus build_couple(WorldCloth *w, DrError *err)
         for (int v = 0; v < nv; v++) {
             long k = p->first + v;
             w->law[k] = i;
-            w->volume[k] = p->area[v] * p->thickness;
+            /* a panel without ClothDrag neither drags nor blocks the fluid */
+            w->volume[k] = dr_component_present(d) ? p->area[v] * p->thickness : 0.0;
             w->diameter[k] = p->thickness;
             w->slender[k] = 2.0;
             w->face[k] = 1;
@@ -225,11 +226,10 @@ static DrStatus build_cloth(const WorldCtx *c, WorldCloth *w, DrError *err)
         const DrElement *e = dr_scene_element(scene, i);
         if (e->kind != DR_ELEMENT_CLOTH) continue;
         if (!first) first = e;
-        WorldPanel *p = &w->panels[w->n];
+        WorldPanel *p = &w->panels[w->n++]; /* counted first: a panel that fails half-built is freed with the rest */
         DR_TRY(dr_error_prefix(build_panel(c, e, p, err), err, "cloth '%s'", e->name));
         p->first = (int)w->nverts;
         w->nverts += dr_cloth_vertex_count(p->cloth);
-        w->n++;
         coupled = coupled || dr_component_present(dr_element_component(e, "ClothDrag"));
     }
     const DrComponent *sc = dr_element_component(first, "ClothSolver");
