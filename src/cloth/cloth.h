@@ -24,6 +24,20 @@
  * commit (the tangential velocity relative to the collider loses up to μ times the normal velocity the contact
  * gave).
  *
+ * Self contact (the material's self_contact, on by default). A vertex and a triangle of the same panel that does not
+ * contain it keep the material's collision_thickness apart: the one-row constraint φ = n·(x_v − Σ b_i x_i) −
+ * thickness ≥ 0 over the four vertices, n the triangle's unit normal at the step's start turned towards the vertex's
+ * side, b the barycentric coordinates of the vertex's projection on the triangle (both held for the step), stiffness
+ * collider_stiffness, and Coulomb friction at commit with the material's friction on the vertex's velocity relative to
+ * the triangle's point Σ b_i v_i, applied to both sides (the panel's momentum is conserved). Pairs are found by the
+ * broad phase of src/contact at the step's start (a vertex within the thickness of a triangle, or coming within it at
+ * the current velocities) and in the active-set passes (a vertex that the solve takes through a triangle, or within
+ * the thickness of it). A vertex meets a triangle only where its projection falls on the triangle (or within the
+ * thickness of its edges); edge–edge crossings are not detected (src/cloth/self_contact.h says when that suffices),
+ * and pairs within the thickness of each other in the rest shape never touch. The group goes into the panel's banded
+ * block when its four vertices lie within the band, else into the system's coupling matrix (a fold brings
+ * far-numbered vertices together there, and the solve then takes CG iterations).
+ *
  * A panel alone steps its own system (dr_cloth_step = predict + solve + commit); in a shared system (desc.system) the
  * owner drives the phases as for the rod set. Results are bit-identical for any thread count. */
 #ifndef DR_CLOTH_H
@@ -44,8 +58,11 @@ typedef struct DrClothMaterial {
     double poisson;        /* in [0, 0.5); default 0.3 */
     double bend_scale;     /* multiplies the plate's bending stiffness E h³/(24(1 − ν²)), ≥ 0; default 1 */
     double damping;        /* s, ≥ 0: each group's viscous twin has C_v⁻¹ = damping · C⁻¹; default 0 */
-    double friction;       /* Coulomb coefficient against colliders (the larger of this and the collider's) */
-    double collision_thickness; /* m, ≥ 0: distance kept from colliders (with the collider's own); default 1e-3 */
+    double friction;       /* Coulomb coefficient against colliders (the larger of this and the collider's) and
+                              between the panel's own layers */
+    double collision_thickness; /* m, ≥ 0: distance kept from colliders (with the collider's own) and, with
+                                   self_contact, between the panel's own layers; default 1e-3 */
+    bool self_contact;          /* vertex–triangle contact of the panel with itself (see above); default true */
     DrClothBending bending;     /* default DR_CLOTH_BEND_SHAPE_OPERATOR */
 } DrClothMaterial;
 void dr_cloth_material_default(DrClothMaterial *m);
@@ -98,6 +115,7 @@ typedef struct DrClothStats {
     int iterations;          /* CG iterations of the step (every solve) */
     bool converged;
     int collider_contacts;   /* vertex–collider contacts of the last step */
+    int self_contacts;       /* vertex–triangle self contacts of the last step (its final active set) */
     double seconds;
 } DrClothStats;
 
