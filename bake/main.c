@@ -594,8 +594,8 @@ int main(int argc, char **argv)
             snprintf(bem, sizeof bem, " bem %d steps %ld max|u| %.3g m", fs.bem.bodies, fs.bem.steps,
                      fs.bem.max_displacement);
         if (fs.cloth.present)
-            snprintf(cloth, sizeof cloth, " cloth %ld steps %d cg %ld contacts %d", fs.cloth.vertices, fs.cloth.substeps,
-                     fs.cloth.cg_iterations, fs.cloth.collider_contacts);
+            snprintf(cloth, sizeof cloth, " cloth %ld steps %d cg %ld contacts %d+%d", fs.cloth.vertices,
+                     fs.cloth.substeps, fs.cloth.cg_iterations, fs.cloth.collider_contacts, fs.cloth.self_contacts);
         char cpl[64] = "";
         if (fs.coupling.steps > 0)
             snprintf(cpl, sizeof cpl, " couple %.1f it/step", (double)fs.coupling.iterations / fs.coupling.steps);

@@ -582,6 +582,9 @@ static const DrFieldSpec cloth_material_fields[] = {
             "stiffness: values well below 1 are common); 0 = no bending"},
     {.name = "damping", .kind = DR_FIELD_NUMBER, .unit = "s", .def = {0}, RANGE(0, 10),
      .doc = "internal viscosity as a Kelvin-Voigt time constant on stretching and bending; 0 = none"},
+    {.name = "self_contact", .kind = DR_FIELD_BOOL, .unit = "", .def = {1},
+     .doc = "the panel's layers keep Collider.thickness (default 1 mm) apart: vertex-triangle contacts within the panel, "
+            "with Collider.friction (a fold, a sheet landing on itself)"},
     {.name = "bending", .kind = DR_FIELD_ENUM, .unit = "", .def_str = "shape_operator", .choices = "shape_operator|hinge",
      .doc = "bending discretisation: shape_operator (each triangle's discrete shape operator from its edges' "
             "dihedral angles: Kirchhoff's plate energy with the material's nu on regular meshes) or hinge (one term "

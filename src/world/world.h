@@ -119,6 +119,7 @@ typedef struct DrClothFrameStats {
     long cg_iterations;      /* summed over the panels' solves in the frame */
     int not_converged;       /* solves stopped at ClothSolver.max_iterations (a warning) */
     int collider_contacts;   /* vertex contacts of the last step, every panel */
+    int self_contacts;       /* vertex–triangle contacts of the panels with themselves, last step */
     double kinetic_energy, membrane_energy, bending_energy, gravity_energy; /* J, at the frame's end */
     double max_speed;        /* m/s, the fastest vertex at the frame's end */
     double seconds;

@@ -49,7 +49,7 @@ typedef struct WorldCloth {
     int substeps, max_steps;
     double cfl;
     /* the frame being advanced */
-    int steps, not_converged, capped, contacts;
+    int steps, not_converged, capped, contacts, self_contacts;
     long iterations;
     double seconds;
     DrClothFrameStats last;  /* the last completed frame's */
@@ -139,6 +139,7 @@ static DrStatus build_panel(const WorldCtx *c, const DrElement *e, WorldPanel *p
     mat.damping = dr_component_num(mc, "damping");
     mat.bending = strcmp(dr_component_str(mc, "bending"), "hinge") == 0 ? DR_CLOTH_BEND_HINGE
                                                                          : DR_CLOTH_BEND_SHAPE_OPERATOR;
+    mat.self_contact = dr_component_bool(mc, "self_contact");
     mat.friction = dr_component_num(col, "friction");
     double th = dr_component_num(col, "thickness");
     if (th > 0) mat.collision_thickness = th;
@@ -289,7 +290,7 @@ static void cloth_begin_frame(void *self, const WorldCtx *c)
 {
     (void)c;
     WorldCloth *w = self;
-    w->steps = w->not_converged = w->capped = w->contacts = 0;
+    w->steps = w->not_converged = w->capped = w->contacts = w->self_contacts = 0;
     w->iterations = 0;
     w->seconds = 0.0;
 }
@@ -346,13 +347,14 @@ static DrStatus cloth_step(void *self, const WorldCtx *c, double t, double t_nex
     (void)c;
     WorldCloth *w = self;
     double t0 = dr_time_now();
-    w->contacts = 0;
+    w->contacts = w->self_contacts = 0;
     for (int i = 0; i < w->n; i++) {
         DrClothStats st;
         DR_TRY(move_pins(&w->panels[i], t, t_next, err));
         DR_TRY(panel_status(w, dr_cloth_step(w->panels[i].cloth, t_next - t, w->colliders, w->ncolliders, &st, err)));
         w->iterations += st.iterations;
         w->contacts += st.collider_contacts;
+        w->self_contacts += st.self_contacts;
     }
     w->steps++;
     w->seconds += dr_time_now() - t0;
@@ -424,13 +426,14 @@ static DrStatus cloth_solid_commit(void *self, const WorldCtx *c, double t, doub
     (void)c, (void)t, (void)t_next;
     WorldCloth *w = self;
     double t0 = dr_time_now();
-    w->contacts = 0;
+    w->contacts = w->self_contacts = 0;
     for (int i = 0; i < w->n; i++) {
         DrClothStats st;
         DrStatus s = dr_cloth_commit(w->panels[i].cloth, &st, err);
         if (s < 0) return s;
         w->iterations += st.iterations;
         w->contacts += st.collider_contacts;
+        w->self_contacts += st.self_contacts;
     }
     w->steps++;
     w->seconds += dr_time_now() - t0;
@@ -483,6 +486,7 @@ static DrStatus cloth_end_frame(void *self, const WorldCtx *c, DrFrameStats *sta
     b->cg_iterations = w->iterations;
     b->not_converged = w->not_converged;
     b->collider_contacts = w->contacts;
+    b->self_contacts = w->self_contacts;
     b->seconds = w->seconds;
     b->max_speed = max_speed(w);
     measure(w, b);

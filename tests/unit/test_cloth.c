@@ -477,7 +477,7 @@ static void two_sheet_mesh(double gap, DrTriMesh *m)
     DrTriMesh lo, hi;
     assert_int_equal(cloth_grid(6, 6, 0.1, 0.1, 0.0, &lo), 0);
     assert_int_equal(cloth_grid(6, 6, 0.1, 0.1, gap, &hi), 0);
-    m->nv = 72, m->nt = 100, m->n = NULL;
+    m->nv = 72, m->nt = 100, m->n = NULL, m->uv = NULL;
     m->v = malloc(3 * 72 * sizeof(double));
     m->tri = malloc(3 * 100 * sizeof(int));
     memcpy(m->v, lo.v, 3 * 36 * sizeof(double));
