@@ -522,23 +522,6 @@ DrStatus dr_cloth_pin(DrCloth *c, int v, bool pinned, const double *vel, DrError
 
 static inline int vdof(const DrCloth *c, int v) { return c->dof0 + 3 * c->rank[v]; }
 
-/* Adds g and, with damping, its viscous twin. */
-static DrStatus add_with_damping(DrLag *lag, DrLagGroup *g, double damping, DrError *err)
-{
-    DR_TRY(dr_lag_add(lag, g, err));
-    if (damping > 0) {
-        DrLagGroup gv = *g;
-        gv.kind = DR_LAG_VISCOUS;
-        gv.G = NULL;
-        gv.lambda = NULL;
-        for (int r = 0; r < g->nrows; r++) {
-            gv.phi[r] = 0;
-            gv.cinv[r] = damping * g->cinv[r];
-        }
-        DR_TRY(dr_lag_add(lag, &gv, err));
-    }
-    return DR_OK;
-}
 
 /* The panel's DOF arrays for a step of h: mass, velocity, gravity, pins. */
 static void fill_dofs(DrCloth *c, const DrLagDofs *d, double h)
@@ -623,14 +606,14 @@ static DrStatus add_groups(DrCloth *c, DrError *err)
         dr_shell_membrane_group(c->x + 3 * tv[0], c->x + 3 * tv[1], c->x + 3 * tv[2], c->Bm + 4 * t, c->area[t],
                                 c->k_membrane, c->nu, dof, geo ? lam : NULL, true, geo ? G : NULL, &g);
         g.lambda = lam;
-        DR_TRY(add_with_damping(c->lag, &g, damping, err));
+        DR_TRY(dr_lag_add_with_twin(c->lag, &g, damping, err));
     }
     if (c->k_bend > 0 && c->mat.bending == DR_CLOTH_BEND_SHAPE_OPERATOR) {
         hinge_angles(c);
         for (int t = 0; t < c->T; t++) {
             if (c->bend_rows[t] == 0) continue;
             shape_group(c, t, &g);
-            DR_TRY(add_with_damping(c->lag, &g, damping, err));
+            DR_TRY(dr_lag_add_with_twin(c->lag, &g, damping, err));
         }
     }
     if (c->k_bend > 0 && c->mat.bending == DR_CLOTH_BEND_HINGE)
@@ -639,7 +622,7 @@ static DrStatus add_groups(DrCloth *c, DrError *err)
             int dof[4] = {vdof(c, hg[0]), vdof(c, hg[1]), vdof(c, hg[2]), vdof(c, hg[3])};
             dr_shell_hinge_group(c->x + 3 * hg[0], c->x + 3 * hg[1], c->x + 3 * hg[2], c->x + 3 * hg[3],
                                  c->theta_bar[q], c->hinge_cinv[q], dof, &g);
-            DR_TRY(add_with_damping(c->lag, &g, damping, err));
+            DR_TRY(dr_lag_add_with_twin(c->lag, &g, damping, err));
         }
     /* vertex–collider contacts, as detect_contacts and update_contacts left them */
     int nc = 0;

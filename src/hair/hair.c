@@ -494,24 +494,6 @@ typedef struct BuildCtx {
     int *ncontacts;    /* per strand */
 } BuildCtx;
 
-/* Adds a group and, with internal damping, its viscous copy (J_v = J, c = 0, C_v⁻¹ = damping · C⁻¹). */
-static DrStatus add_with_damping(DrLag *lag, DrLagGroup *g, double damping, DrError *err)
-{
-    DR_TRY(dr_lag_add(lag, g, err));
-    if (damping > 0) {
-        DrLagGroup gv = *g;
-        gv.kind = DR_LAG_VISCOUS;
-        gv.G = NULL;
-        gv.lambda = NULL;
-        for (int k = 0; k < g->nrows; k++) {
-            gv.phi[k] = 0;
-            gv.cinv[k] = damping * g->cinv[k];
-        }
-        DR_TRY(dr_lag_add(lag, &gv, err));
-    }
-    return DR_OK;
-}
-
 static DrStatus build_strand(DrRodSet *r, int k, double h, const DrRodCollider *col, int ncol, int *ncontacts,
                              DrError *err)
 {
@@ -527,7 +509,7 @@ static DrStatus build_strand(DrRodSet *r, int k, double h, const DrRodCollider *
         double *lam = r->lambda + e0 + j;
         dr_rod_stretch_group(x, j, r->lbar[e0 + j], r->eks[e0 + j], d0, geo ? lam : NULL, geo ? G : NULL, &g);
         g.lambda = lam;
-        DR_TRY(add_with_damping(r->lag, &g, mt->damping, err));
+        DR_TRY(dr_lag_add_with_twin(r->lag, &g, mt->damping, err));
     }
     for (int i = 1; i < nv - 1; i++) {
         int ii = i0 + i - 1;
@@ -535,11 +517,11 @@ static DrStatus build_strand(DrRodSet *r, int k, double h, const DrRodCollider *
         dr_rod_bend_group(x, th, &ref, i, r->kbar + 4 * ii, r->lv[ii], r->ibend[ii], d0, geo ? lb : NULL,
                           geo ? G : NULL, &g);
         g.lambda = lb;
-        DR_TRY(add_with_damping(r->lag, &g, mt->damping, err));
+        DR_TRY(dr_lag_add_with_twin(r->lag, &g, mt->damping, err));
         dr_rod_twist_group(x, th, &ref, i, r->tbar[ii], r->lv[ii], r->itwist[ii], d0, geo ? lt : NULL,
                            geo ? G : NULL, &g);
         g.lambda = lt;
-        DR_TRY(add_with_damping(r->lag, &g, mt->damping, err));
+        DR_TRY(dr_lag_add_with_twin(r->lag, &g, mt->damping, err));
     }
     /* vertex–collider contacts: a vertex that is inside, or would be within this step at its current velocity,
        gets the constraint φ = d − (r + thickness) ≥ 0 linearised along the collider's normal, relative to the

@@ -472,6 +472,21 @@ DrStatus dr_lag_add(DrLag *s, const DrLagGroup *g, DrError *err)
     return record(&o->rec, g, g->kind == DR_LAG_POSITIONAL ? s->h : 1.0, err);
 }
 
+DrStatus dr_lag_add_with_twin(DrLag *s, const DrLagGroup *g, double damping, DrError *err)
+{
+    DR_TRY(dr_lag_add(s, g, err));
+    if (!(damping > 0)) return DR_OK;
+    DrLagGroup gv = *g;
+    gv.kind = DR_LAG_VISCOUS;
+    gv.G = NULL;
+    gv.lambda = NULL;
+    for (int k = 0; k < g->nrows; k++) {
+        gv.phi[k] = 0;
+        gv.cinv[k] = damping * g->cinv[k];
+    }
+    return dr_lag_add(s, &gv, err);
+}
+
 DrStatus dr_lag_add_global(DrLag *s, const DrLagGroup *g, DrError *err)
 {
     assert(s->begun && !s->assembled);

@@ -162,6 +162,10 @@ DR_NODISCARD DrStatus dr_lag_begin(DrLag *s, double h, const double *mass, const
 /* Adds a group (see the threading note above). A group outside one object's band is DR_ERR_INPUT here;
  * add it with dr_lag_add_global. Non-finite φ, J, C⁻¹ or G is DR_ERR_RUNTIME naming the DOFs. */
 DR_NODISCARD DrStatus dr_lag_add(DrLag *s, const DrLagGroup *g, DrError *err);
+/* dr_lag_add of g and, when damping > 0 (s), of its viscous twin: the same rows and Jacobian on the velocities,
+   C_v⁻¹ = damping · C⁻¹ (a Kelvin–Voigt time constant: the viscous force is damping times the elastic force's rate),
+   no constant, no geometric stiffness, no multipliers kept. */
+DR_NODISCARD DrStatus dr_lag_add_with_twin(DrLag *s, const DrLagGroup *g, double damping, DrError *err);
 /* Adds a group to K_G (any DOFs); one thread at a time. */
 DR_NODISCARD DrStatus dr_lag_add_global(DrLag *s, const DrLagGroup *g, DrError *err);
 
