@@ -53,3 +53,27 @@ function to_body(p, j, r, t, q,    d, v) {
   for (d = 1; d <= 3; d++) q[d] = r[d] * v[1] + r[3 + d] * v[2] + r[6 + d] * v[3]
 }
 '
+# bem_gaps FRAME-FILE BODY SOLID CONTACT: the distance of each vertex of SOLID (/SOLID/position, hair or cloth) from
+# bem_solid BODY's deformed surface x̄ + u (convex: the largest of the face-plane distances, never more than the true
+# distance outside), in the body frame q = Rᵀ(p − T). Prints the smallest distance, the vertices within 2·CONTACT and
+# the fastest of those.
+bem_gaps() {
+  local f="$1"
+  h5 "$f" "/$3/position" |
+  awk -v R="$(h5 "$f" /$2/rotation)" -v T="$(h5 "$f" /$2/translation)" -v X="$(h5 "$f" /$2/reference)" \
+      -v U="$(h5 "$f" /$2/displacement)" -v K="$(h5 "$f" /$2/triangles)" -v V="$(h5 "$f" /$3/velocity)" -v C="$4" \
+      "$AWK_SURFACE"'BEGIN {
+    split(R, r, " "); split(T, t, " "); split(X, x, " "); split(U, u, " "); nt = split(K, k, " ") / 3
+    for (i in x) x[i] += u[i]
+    face_planes(x, k, nt)
+    split(V, vel, " ") }
+  { np = split($0, p, " ") / 3; gmin = 1e9; near = 0; vmax = 0
+    for (j = 0; j < np; j++) {
+      to_body(p, j, r, t, q)
+      g = -1e9
+      for (i = 0; i < nt; i++) { s = N[i, 1] * q[1] + N[i, 2] * q[2] + N[i, 3] * q[3] - O[i]; if (s > g) g = s }
+      if (g < gmin) gmin = g
+      if (g < 2 * C) { near++; sp = sqrt(vel[3*j+1]^2 + vel[3*j+2]^2 + vel[3*j+3]^2); if (sp > vmax) vmax = sp }
+    }
+    printf "%.6e %d %.3e\n", gmin, near, vmax }'
+}

@@ -9,29 +9,6 @@ source "$(dirname "$0")/lib.sh"
 h5() { h5dump -y -w 0 -A 0 -m '%.17g' -d "$2" "$1" 2>/dev/null | awk '/DATA \{/{on=1; next} on && /^ *\}/{on=0} on { gsub(/,/, " "); printf "%s ", $0 } END { print "" }'; }
 CONTACT=0.00105 # strand radius 5e-5 m + Collider.thickness 1e-3 m
 
-# Distance of each strand vertex from the bem body's deformed surface x̄ + u (convex: the largest of the face-plane
-# distances, never more than the true distance outside), in the body frame q = Rᵀ(p − T). Prints the smallest
-# distance, the vertices within 2·CONTACT and the fastest of those.
-bem_gaps() { # FRAME-FILE BODY HAIR
-  local f="$1"
-  h5 "$f" "/$3/position" |
-  awk -v R="$(h5 "$f" /$2/rotation)" -v T="$(h5 "$f" /$2/translation)" -v X="$(h5 "$f" /$2/reference)" \
-      -v U="$(h5 "$f" /$2/displacement)" -v K="$(h5 "$f" /$2/triangles)" -v V="$(h5 "$f" /$3/velocity)" -v C=$CONTACT \
-      "$AWK_SURFACE"'BEGIN {
-    split(R, r, " "); split(T, t, " "); split(X, x, " "); split(U, u, " "); nt = split(K, k, " ") / 3
-    for (i in x) x[i] += u[i]
-    face_planes(x, k, nt)
-    split(V, vel, " ") }
-  { np = split($0, p, " ") / 3; gmin = 1e9; near = 0; vmax = 0
-    for (j = 0; j < np; j++) {
-      to_body(p, j, r, t, q)
-      g = -1e9
-      for (i = 0; i < nt; i++) { s = N[i, 1] * q[1] + N[i, 2] * q[2] + N[i, 3] * q[3] - O[i]; if (s > g) g = s }
-      if (g < gmin) gmin = g
-      if (g < 2 * C) { near++; sp = sqrt(vel[3*j+1]^2 + vel[3*j+2]^2 + vel[3*j+3]^2); if (sp > vmax) vmax = sp }
-    }
-    printf "%.6e %d %.3e\n", gmin, near, vmax }'
-}
 rests() { # NAME GAPS: the gap, the contact and the rest
   local g n v
   read -r g n v <<<"$2"
@@ -45,7 +22,7 @@ out=$("$BIN/bake" "$scene" -j 2 --out "$WORK/bem" 2>&1); rc=$?
 [ "$rc" -eq 0 ] || echo "$out" | tail -5
 check "a strand over a bem_solid bakes" test "$rc" -eq 0
 check "the hair sees the bem_solid body" grep -q "the hair sees 1 bem_solid body" <<<"$out"
-gaps=$(bem_gaps "$WORK/bem/hair_drape_bem/bake/frame.0036.h5" rock strand)
+gaps=$(bem_gaps "$WORK/bem/hair_drape_bem/bake/frame.0036.h5" rock strand $CONTACT)
 check "the strand rests on the bem_solid's deformed surface, no deeper than 10% of the contact thickness" rests "bem_solid" "$gaps"
 
 # Distance of each strand vertex from an mpm_solid's particles, each the ball of radius r = ½ V^(1/3) (V its volume:
