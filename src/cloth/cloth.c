@@ -39,6 +39,9 @@ struct DrCloth {
     double *lambda;     /* 3T membrane multipliers */
     unsigned char *pinned; /* V */
     double *pin_vel;    /* 3V */
+    unsigned char *slide; /* V: vertices held on the slide curve */
+    double *curve;      /* 3 ncurve: the slide curve's points (a polyline), m */
+    int ncurve;
     /* contacts of the step */
     unsigned char *cflag;
     double *cnormal, *cvel, *cfric, *clambda;
@@ -116,6 +119,8 @@ void dr_cloth_destroy(DrCloth **cp)
     free(c->lambda);
     free(c->pinned);
     free(c->pin_vel);
+    free(c->slide);
+    free(c->curve);
     free(c->cflag);
     free(c->cnormal);
     free(c->cvel);
@@ -326,6 +331,7 @@ DrStatus dr_cloth_create(const DrClothDesc *desc, const DrTriMesh *mesh, const D
     ALLOC(c->lambda, 3 * T);
     ALLOC(c->pinned, V);
     ALLOC(c->pin_vel, 3 * V);
+    ALLOC(c->slide, V);
     ALLOC(c->cflag, V);
     ALLOC(c->cnormal, 3 * V);
     ALLOC(c->cvel, 3 * V);
@@ -517,7 +523,66 @@ DrStatus dr_cloth_pin(DrCloth *c, int v, bool pinned, const double *vel, DrError
     return DR_OK;
 }
 
+DrStatus dr_cloth_set_slide_curve(DrCloth *c, const double *points, int npoints, DrError *err)
+{
+    if (npoints < 2)
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "%s: a slide curve needs 2 points or more, got %d", c->name,
+                            npoints);
+    for (int i = 0; i < 3 * npoints; i++)
+        if (!isfinite(points[i]))
+            return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "%s: point %d of the slide curve is not finite", c->name,
+                                i / 3);
+    for (int i = 0; i + 1 < npoints; i++) {
+        const double *a = points + 3 * i, *b = a + 3;
+        if (!((b[0] - a[0]) * (b[0] - a[0]) + (b[1] - a[1]) * (b[1] - a[1]) + (b[2] - a[2]) * (b[2] - a[2]) > 0))
+            return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                                "%s: points %d and %d of the slide curve coincide; remove one", c->name, i, i + 1);
+    }
+    double *copy = NULL;
+    DR_TRY(dr_calloc(3 * (size_t)npoints, sizeof(double), &copy, err));
+    memcpy(copy, points, 3 * (size_t)npoints * sizeof(double));
+    free(c->curve);
+    c->curve = copy;
+    c->ncurve = npoints;
+    return DR_OK;
+}
+
+DrStatus dr_cloth_slide(DrCloth *c, int v, bool on, DrError *err)
+{
+    if (v < 0 || v >= c->V)
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "%s: vertex %d to slide is out of range (the panel has %d)",
+                            c->name, v, c->V);
+    if (on && c->ncurve < 2)
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "%s: vertex %d slides, but the panel has no slide curve",
+                            c->name, v);
+    c->slide[v] = on;
+    return DR_OK;
+}
+
+/* The point of the slide curve nearest to x (the first of equally near ones) and the unit tangent of its segment. */
+static void nearest_on_curve(const DrCloth *c, DrVec3 x, DrVec3 *p, DrVec3 *t)
+{
+    double best = INFINITY;
+    *p = dr_v3(c->curve[0], c->curve[1], c->curve[2]);
+    *t = dr_v3(1, 0, 0);
+    for (int i = 0; i + 1 < c->ncurve; i++) {
+        DrVec3 a = dr_v3(c->curve[3 * i], c->curve[3 * i + 1], c->curve[3 * i + 2]);
+        DrVec3 b = dr_v3(c->curve[3 * i + 3], c->curve[3 * i + 4], c->curve[3 * i + 5]);
+        DrVec3 e = dr_v3_sub(b, a);
+        double s = dr_v3_dot(dr_v3_sub(x, a), e) / dr_v3_dot(e, e);
+        s = s < 0 ? 0 : (s > 1 ? 1 : s);
+        DrVec3 q = dr_v3_add(a, dr_v3_scale(e, s));
+        double d = dr_v3_norm(dr_v3_sub(x, q));
+        if (d < best) {
+            best = d;
+            *p = q;
+            *t = dr_v3_normalize(e);
+        }
+    }
+}
+
 /* Solves of one step at most: the contacts' active set (update_contacts) settles within them or is used as it stands. */
+#define SLIDE_STIFFNESS 1e8 /* N/m of a slide attachment's rows */
 #define CONTACT_PASSES 8
 
 static inline int vdof(const DrCloth *c, int v) { return c->dof0 + 3 * c->rank[v]; }
@@ -645,6 +710,31 @@ static DrStatus add_groups(DrCloth *c, DrError *err)
         nc++;
     }
     c->ncontacts = nc;
+    /* slide attachments: two rows per vertex, its distance from the curve along the two directions across the curve's
+       tangent at the nearest point, φ_k = n_k·(x − p), held at SLIDE_STIFFNESS (a stiff spring: the vertex stays within
+       its load over the stiffness of the curve, 1e-8 m per N; on a curved rail the step's chord adds (h v)²/(2R)) */
+    for (int v = 0; v < c->V; v++) {
+        if (!c->slide[v] || c->pinned[v]) continue;
+        DrVec3 x = dr_v3(c->x[3 * v], c->x[3 * v + 1], c->x[3 * v + 2]), p = x, t = dr_v3(1, 0, 0);
+        nearest_on_curve(c, x, &p, &t);
+        DrVec3 a = fabs(t.x) < 0.9 ? dr_v3(1, 0, 0) : dr_v3(0, 1, 0);
+        DrVec3 n1 = dr_v3_normalize(dr_v3_cross(t, a)), n2 = dr_v3_cross(t, n1);
+        memset(&g, 0, sizeof g);
+        g.kind = DR_LAG_POSITIONAL;
+        g.nrows = 2;
+        g.ndof = 3;
+        int d0 = vdof(c, v);
+        const DrVec3 n[2] = {n1, n2};
+        DrVec3 r = dr_v3_sub(x, p);
+        for (int k = 0; k < 2; k++) {
+            g.phi[k] = dr_v3_dot(n[k], r);
+            g.cinv[k] = SLIDE_STIFFNESS;
+            const double nk[3] = {n[k].x, n[k].y, n[k].z};
+            for (int a3 = 0; a3 < 3; a3++) g.J[3 * k + a3] = nk[a3];
+        }
+        for (int a3 = 0; a3 < 3; a3++) g.dof[a3] = d0 + a3;
+        DR_TRY(dr_lag_add(c->lag, &g, err));
+    }
     if (c->self) DR_TRY(dr_cloth_self_add(c->self, c->lag, err));
     return DR_OK;
 }

@@ -111,6 +111,14 @@ const double *dr_cloth_masses(const DrCloth *c);    /* kg per vertex */
    frees it. DR_ERR_INPUT for a vertex out of range. */
 DR_NODISCARD DrStatus dr_cloth_pin(DrCloth *c, int v, bool pinned, const double *vel, DrError *err);
 
+/* Slide attachments: vertices held on a curve (a polyline of npoints ≥ 2 distinct points, m; copied), free to move
+   along it (a curtain on its rail). Each sliding vertex gets two stiff rows (1e8 N/m), its distance from the nearest
+   point of the curve across the curve's tangent there: it stays within its load over 1e8 N/m of the curve (plus the
+   step's chord on a curved rail). A pinned vertex's pin wins. DR_ERR_INPUT for a curve with fewer than 2 points,
+   coinciding neighbours or a non-finite point, a vertex out of range, or a vertex made to slide without a curve. */
+DR_NODISCARD DrStatus dr_cloth_set_slide_curve(DrCloth *c, const double *points, int npoints, DrError *err);
+DR_NODISCARD DrStatus dr_cloth_slide(DrCloth *c, int v, bool on, DrError *err);
+
 typedef struct DrClothStats {
     int iterations;          /* CG iterations of the step (every solve) */
     bool converged;

@@ -280,6 +280,14 @@ static const DrFieldSpec fixed_vertices_fields[] = {
             "(a bem_solid's, or a cloth's: pinned); the box must hold at least one vertex"},
 };
 
+static const DrFieldSpec slide_vertices_fields[] = {
+    {.name = "box", .kind = DR_FIELD_BOX, .unit = "m", .required = true, POS_RANGE,
+     .doc = "every vertex inside this box in the placed rest pose (after Transform) slides on the curve: held on it, free "
+            "to move along it (a curtain on its rail); the box must hold at least one vertex"},
+    {.name = "curve", .kind = DR_FIELD_TABLE, .unit = "m", .arity = 3, POS_RANGE,
+     .doc = "the curve, a polyline [[x, y, z], ...] of 2 points or more, in world space (not moved by Transform)"},
+};
+
 static const DrFieldSpec joint_fields[] = {
     {.name = "body_a", .kind = DR_FIELD_NAME, .unit = "", .required = true,
      .doc = "name of a bem_solid element"},
@@ -674,6 +682,8 @@ const DrComponentSpec dr_scene_components_[] = {
     {"FixedVertices", "vertices of a boundary-element body held where they start", fixed_vertices_fields,
      COUNT(fixed_vertices_fields)},
     {"Joint", "two boundary-element bodies held together at vertices", joint_fields, COUNT(joint_fields)},
+    {"SlideVertices", "vertices of a cloth held on a curve, free to slide along it (an attachment: a curtain on its rail)",
+     slide_vertices_fields, COUNT(slide_vertices_fields)},
     {"Transform", "rest placement of the mesh (of an mpm_solid: of its MpmShape; of hair: of its scalp or curves; of a "
                   "bem_solid: its pose at t=0, scale 1 only): scale, then rotate, then translate",
      transform_fields, COUNT(transform_fields)},
@@ -752,8 +762,8 @@ static const char *const bem_solid_components[] = {"Mesh",      "LinearElastic",
 static const char *const bem_solid_required[] = {"Mesh"};
 static const char *const bem_joint_components[] = {"Joint"};
 static const char *const air_components[] = {"AirDomain", "AirMaterial", "Wind"};
-static const char *const cloth_components[] = {"Mesh",     "Transform", "ClothMaterial", "ClothSolver",
-                                               "ClothDrag", "Collider",  "FixedVertices", "Motion"};
+static const char *const cloth_components[] = {"Mesh",     "Transform", "ClothMaterial", "ClothSolver",  "ClothDrag",
+                                               "Collider", "FixedVertices", "SlideVertices", "Motion"};
 static const char *const cloth_required[] = {"Mesh"};
 static const char *const air_required[] = {"AirDomain"};
 

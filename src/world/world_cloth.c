@@ -2,6 +2,8 @@
  * colliders, the bem_solid bodies and the MPM solids as what holds it up, and, with ClothDrag and a fluid in the
  * scene, as a solid of the coupled loop (src/couple) with one face element per vertex.
  *
+ * SlideVertices holds the vertices in its box on a curve (dr_cloth_slide).
+ *
  * Steps. Every panel takes the same steps: ClothSolver.substeps a frame at least, more when a vertex would move by
  * more than ClothSolver.cfl shortest edges of its panel in one (at most max_substeps a frame; reaching it is a
  * warning). The scene checks that every cloth element gives the same substeps, cfl and max_substeps.
@@ -120,6 +122,37 @@ static DrStatus pin_box(const DrElement *e, const DrTriMesh *m, WorldPanel *p, D
     return DR_OK;
 }
 
+/* SlideVertices: the vertices inside its box (placed rest pose) slide on its curve; the box must hold one and the
+   curve have 2 points or more. */
+static DrStatus slide_box(const DrElement *e, const DrTriMesh *m, DrCloth *cl, DrError *err)
+{
+    const DrComponent *sc = dr_element_component(e, "SlideVertices");
+    if (!dr_component_present(sc)) return DR_OK;
+    const double *rows = NULL;
+    int n = dr_component_table(sc, "curve", &rows);
+    if (n < 2)
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                            "%s.SlideVertices.curve has %d point(s); give the curve as 2 points or more "
+                            "[[x, y, z], [x, y, z], ...]",
+                            e->name, n);
+    DR_TRY(dr_error_prefix(dr_cloth_set_slide_curve(cl, rows, n, err), err, "%s.SlideVertices.curve", e->name));
+    DrVec3 lo, hi;
+    dr_component_box(sc, "box", &lo, &hi);
+    int held = 0;
+    for (int v = 0; v < m->nv; v++) {
+        const double *q = m->v + 3 * v;
+        if (q[0] < lo.x || q[0] > hi.x || q[1] < lo.y || q[1] > hi.y || q[2] < lo.z || q[2] > hi.z) continue;
+        DR_TRY(dr_cloth_slide(cl, v, true, err));
+        held++;
+    }
+    if (held == 0)
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                            "%s.SlideVertices.box holds none of the cloth's %d vertices (in the placed rest pose); "
+                            "move or enlarge the box",
+                            e->name, m->nv);
+    return DR_OK;
+}
+
 static DrStatus build_panel(const WorldCtx *c, const DrElement *e, WorldPanel *p, DrError *err)
 {
     p->element = e;
@@ -152,6 +185,7 @@ static DrStatus build_panel(const WorldCtx *c, const DrElement *e, WorldPanel *p
     desc.collider_stiffness = dr_component_num(sc, "collider_stiffness");
     DrStatus s = dr_cloth_create(&desc, &m, &mat, e->name, &p->cloth, err);
     if (s == DR_OK) s = pin_box(e, &m, p, err);
+    if (s == DR_OK) s = slide_box(e, &m, p->cloth, err);
     if (s == DR_OK) s = dr_stage_motion_keys(e, c->first_frame, c->fps, &p->keys, &p->nkeys, err);
     if (s == DR_OK) s = dr_calloc((size_t)m.nv, sizeof(double), &p->area, err);
     p->min_edge = INFINITY;

@@ -103,6 +103,29 @@ blown() {
 }
 check "the wind carries the flag downstream of where it hangs in still air" blown
 
+# a curtain: the panel's edge z = -0.5 slides on a rail along x (SlideVertices), the panel swinging down from it
+python3 - "$ROOT" "$S" <<'PY'
+import json, sys
+root, d = sys.argv[1], sys.argv[2]
+s = {"shot": {"name": "curtain", "fps": 24, "frames": [1, 6]},
+     "elements": [{"name": "curtain", "type": "cloth", "components": {
+         "Mesh": {"file": root + "/assets/meshes/cloth_panel.obj"}, "Transform": {"translate": [0, 1, 0]},
+         "ClothMaterial": {"self_contact": False}, "ClothSolver": {"substeps": 8},
+         "SlideVertices": {"box": [[-1, 0.9, -0.51], [1, 1.1, -0.49]], "curve": [[-2, 1, -0.5], [2, 1, -0.5]]}}}]}
+json.dump(s, open(d + "/curtain.json", "w"))
+s["shot"]["name"] = "rail1"; s["elements"][0]["components"]["SlideVertices"]["curve"] = [[0, 1, -0.5]]
+json.dump(s, open(d + "/rail1.json", "w"))
+PY
+"$BIN/bake" "$S/curtain.json" -j 2 --out "$b2" >"$WORK/curtain.log" 2>&1; rc=$?
+on_rail() {
+  h5 "$b2/curtain/bake/frame.0006.h5" /curtain/position | tr ' ' '\n' | awk 'NF' | paste - - - |
+    awk '$3 < -0.49 { n++; d = sqrt(($2 - 1) ^ 2 + ($3 + 0.5) ^ 2); if (d > w) w = d } $2 < low || NR == 1 { low = $2 }
+         END { printf "%d vertices on the rail, at most %.3g m off it; the lowest vertex at %.3f m\n", n, w, low
+               exit !(n == 33 && w < 1e-6 && low < 0.7) }'
+}
+check "the curtain bakes without a warning" bash -c "[ $rc -eq 0 ] && ! grep -qi warn '$WORK/curtain.log'"
+check "a SlideVertices edge stays on its rail (within 1e-6 m) while the curtain swings down" on_rail
+
 # a sheet dropped onto a bem_solid icosphere (radius 0.1 m, its lower half held by FixedVertices, the same body as
 # test_hair_bodies.sh's) rests on its deformed surface: after 1.5 s no vertex is nearer its faces' planes than 0.8 of the
 # 1 mm contact distance (the contact keeps the Euclidean distance to the surface, which beside an edge or a corner of
@@ -166,6 +189,8 @@ expect_exit "a FixedVertices box holding no vertex exits 2 with the fix" 2 "towe
   "$BIN/bake" "$S/nopin.json" --frames 1-1
 expect_exit "a Poisson ratio out of range exits 2 naming the field and the range" 2 "towel\.ClothMaterial\.poisson" \
   "$BIN/bake" "$S/nu.json" --frames 1-1
+expect_exit "a slide curve of one point exits 2 naming the field and the fix" 2 \
+  "curtain\.SlideVertices\.curve has 1 point.*2 points or more" "$BIN/bake" "$S/rail1.json" --frames 1-1
 expect_exit "two cloth elements stepped differently exit 2 naming both and the fix" 2 \
   "rag\.ClothSolver\.substeps = 4 differs from towel\.ClothSolver\.substeps = 8.*give both elements the same" \
   "$BIN/bake" "$S/two.json" --frames 1-1
