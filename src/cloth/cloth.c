@@ -34,7 +34,6 @@ struct DrCloth {
     int band;
     /* the Lagrangian system */
     DrLag *lag;
-    bool own_system;
     int object, dof0;
     double *lambda;     /* 3T membrane multipliers */
     unsigned char *pinned; /* V */
@@ -82,7 +81,6 @@ void dr_cloth_desc_default(DrClothDesc *d)
     dr_lag_desc_default(&d->solver);
     d->geometric_stiffness = true;
     d->collider_stiffness = 1e4;
-    d->system = NULL;
 }
 
 int dr_cloth_vertex_count(const DrCloth *c) { return c->V; }
@@ -134,7 +132,7 @@ void dr_cloth_destroy(DrCloth **cp)
     free(c->save);
     free(c->vsolve);
     free(c->block_dof);
-    if (c->own_system) dr_lag_destroy(&c->lag);
+    dr_lag_destroy(&c->lag);
     free(c);
     *cp = NULL;
 }
@@ -474,13 +472,8 @@ DrStatus dr_cloth_create(const DrClothDesc *desc, const DrTriMesh *mesh, const D
         }
     }
     c->band = band;
-    if (c->desc.system) {
-        c->lag = c->desc.system;
-    } else {
-        st = dr_lag_create(&c->desc.solver, &c->lag, err);
-        if (st != DR_OK) goto fail;
-        c->own_system = true;
-    }
+    st = dr_lag_create(&c->desc.solver, &c->lag, err);
+    if (st != DR_OK) goto fail;
     for (int v = 0; v < V; v++) c->vsolve[3 * v] = c->vsolve[3 * v + 1] = c->vsolve[3 * v + 2] = 0.0;
     int kd = 3 * band + 2;
     if (kd >= 3 * V) kd = 3 * V - 1;
@@ -589,9 +582,8 @@ static inline int vdof(const DrCloth *c, int v) { return c->dof0 + 3 * c->rank[v
 
 
 /* The panel's DOF arrays for a step of h: mass, velocity, gravity, pins. */
-static void fill_dofs(DrCloth *c, const DrLagDofs *d, double h)
+static void fill_dofs(DrCloth *c, const DrLagDofs *d)
 {
-    (void)h;
     DrVec3 gv = c->desc.gravity;
     const double g[3] = {gv.x, gv.y, gv.z};
     for (int v = 0; v < c->V; v++) {
@@ -880,7 +872,7 @@ DrStatus dr_cloth_predict(DrCloth *c, double h, const DrClothCollider *colliders
     double t0 = dr_time_now();
     DrLagDofs d;
     DR_TRY(dr_lag_dofs(c->lag, &d, err));
-    fill_dofs(c, &d, h);
+    fill_dofs(c, &d);
     detect_contacts(c, h, colliders, ncolliders);
     if (c->self) DR_TRY(dr_cloth_self_detect(c->self, h, c->x, c->v, err));
     DrLagStats ls;
@@ -937,7 +929,7 @@ DrStatus dr_cloth_commit(DrCloth *c, DrClothStats *stats, DrError *err)
     DrLagDofs d;
     DR_TRY(dr_lag_dofs(c->lag, &d, err));
     c->phase = CLOTH_IDLE;
-    if (c->own_system) dr_lag_update_multipliers(c->lag, d.qdot_out);
+    dr_lag_update_multipliers(c->lag, d.qdot_out);
     if (!advance(c, c->h_step, d.qdot_out))
         return dr_error_set(err, DR_ERR_RUNTIME, NULL, 0, 0,
                             "%s: the cloth's state became non-finite (time step %g s too large for its stiffness, or a "
@@ -957,7 +949,7 @@ DrStatus dr_cloth_commit(DrCloth *c, DrClothStats *stats, DrError *err)
 DrStatus dr_cloth_step(DrCloth *c, double h, const DrClothCollider *colliders, int ncolliders, DrClothStats *stats,
                        DrError *err)
 {
-    assert(c->own_system && h > 0);
+    assert(h > 0);
     DrStatus st = dr_cloth_predict(c, h, colliders, ncolliders, err);
     if (st < 0) return st;
     return dr_cloth_commit(c, stats, err);

@@ -38,8 +38,8 @@
  * block when its four vertices lie within the band, else into the system's coupling matrix (a fold brings
  * far-numbered vertices together there, and the solve then takes CG iterations).
  *
- * A panel alone steps its own system (dr_cloth_step = predict + solve + commit); in a shared system (desc.system) the
- * owner drives the phases as for the rod set. Results are bit-identical for any thread count. */
+ * Each panel steps a Lagrangian system of its own (dr_cloth_step = predict + commit, or the phases below); joining
+ * the world's one system with the hair (DESIGN §8) is still to come. Results are bit-identical for any thread count. */
 #ifndef DR_CLOTH_H
 #define DR_CLOTH_H
 
@@ -78,10 +78,9 @@ typedef struct DrClothCollider {
 
 typedef struct DrClothDesc {
     DrVec3 gravity;              /* m/s², default (0, −9.81, 0) */
-    DrLagDesc solver;            /* for a panel stepping its own system */
+    DrLagDesc solver;            /* the panel's own system's */
     bool geometric_stiffness;    /* the membrane's λ-weighted Hessians (eq. S27); default true */
     double collider_stiffness;   /* N/m of a vertex–collider contact; default 1e4 */
-    DrLag *system;               /* NULL (default): a system of its own. Else the shared system (DESIGN §8) */
 } DrClothDesc;
 void dr_cloth_desc_default(DrClothDesc *d);
 
@@ -127,7 +126,7 @@ typedef struct DrClothStats {
     double seconds;
 } DrClothStats;
 
-/* One step of h > 0 s alone (own system only). DR_WARN_NOT_CONVERGED when CG stopped at its cap; DR_ERR_RUNTIME
+/* One step of h > 0 s alone . DR_WARN_NOT_CONVERGED when CG stopped at its cap; DR_ERR_RUNTIME
    when the state turned non-finite (the state is then left as it was before the step). */
 DR_NODISCARD DrStatus dr_cloth_step(DrCloth *c, double h, const DrClothCollider *colliders, int ncolliders,
                                     DrClothStats *stats, DrError *err);
