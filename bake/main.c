@@ -144,11 +144,12 @@ static void append_progress(const char *path, const DrFrameStats *fs, const Fram
         fprintf(f,
                 "\"cloth_vertices\":%ld,\"cloth_substeps\":%d,\"cloth_cg_iterations\":%ld,\"cloth_not_converged\":%d,"
                 "\"cloth_kinetic_energy\":%.9g,\"cloth_membrane_energy\":%.9g,\"cloth_bending_energy\":%.9g,"
-                "\"cloth_gravity_energy\":%.9g,\"cloth_total_energy\":%.9g,",
+                "\"cloth_gravity_energy\":%.9g,\"cloth_total_energy\":%.9g,\"cloth_collider_contacts\":%d,"
+                "\"cloth_self_contacts\":%d,",
                 fs->cloth.vertices, fs->cloth.substeps, fs->cloth.cg_iterations, fs->cloth.not_converged,
                 fs->cloth.kinetic_energy, fs->cloth.membrane_energy, fs->cloth.bending_energy, fs->cloth.gravity_energy,
                 fs->cloth.kinetic_energy + fs->cloth.membrane_energy + fs->cloth.bending_energy +
-                    fs->cloth.gravity_energy);
+                    fs->cloth.gravity_energy, fs->cloth.collider_contacts, fs->cloth.self_contacts);
     /* boundary-element bodies: the energies of their rigid frames (kinetic and gravity's) */
     if (fs->bem.present)
         fprintf(f,

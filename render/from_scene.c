@@ -335,6 +335,8 @@ DrStatus scene_preview(const DrScene *scene, const DrStageArgs *args, char *path
             break;
         case DR_ELEMENT_BEM_JOINT: break; /* no surface of its own */
         case DR_ELEMENT_AIR: break;       /* no surface */
+        case DR_ELEMENT_COLLISION:        /* interactions, no surface */
+        case DR_ELEMENT_ATTACHMENT: break;
         }
         dr_trimesh_free(&m);
     }

@@ -72,6 +72,10 @@ void dr_cloth_material_default(DrClothMaterial *m)
     m->friction = 0.0;
     m->collision_thickness = 1e-3;
     m->self_contact = true;
+    m->self_stiffness = 1e4;
+    m->self_friction = 0.0;
+    m->self_thickness = 1e-3;
+    m->self_damping = 0.0;
     m->bending = DR_CLOTH_BEND_SHAPE_OPERATOR;
 }
 
@@ -283,7 +287,9 @@ static bool material_ok(const DrClothMaterial *m)
            m->youngs_modulus > 0 && isfinite(m->youngs_modulus) && m->poisson >= 0 && m->poisson < 0.5 &&
            m->bend_scale >= 0 && isfinite(m->bend_scale) && m->damping >= 0 && isfinite(m->damping) &&
            m->friction >= 0 && isfinite(m->friction) && m->collision_thickness >= 0 &&
-           isfinite(m->collision_thickness) && (m->bending == DR_CLOTH_BEND_SHAPE_OPERATOR || m->bending == DR_CLOTH_BEND_HINGE);
+           isfinite(m->collision_thickness) && m->self_stiffness > 0 && isfinite(m->self_stiffness) &&
+           m->self_friction >= 0 && isfinite(m->self_friction) && m->self_thickness >= 0 &&
+           isfinite(m->self_thickness) && m->self_damping >= 0 && isfinite(m->self_damping) && (m->bending == DR_CLOTH_BEND_SHAPE_OPERATOR || m->bending == DR_CLOTH_BEND_HINGE);
 }
 
 DrStatus dr_cloth_create(const DrClothDesc *desc, const DrTriMesh *mesh, const DrClothMaterial *material,
@@ -297,7 +303,8 @@ DrStatus dr_cloth_create(const DrClothDesc *desc, const DrTriMesh *mesh, const D
     if (!material_ok(material))
         return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
                             "%s: cloth material out of range (density, thickness, Young's modulus > 0; Poisson's ratio "
-                            "in [0, 0.5); bend scale, damping, friction, collision thickness >= 0)",
+                            "in [0, 0.5); bend scale, damping, friction, collision thickness >= 0; self contact stiffness > 0, "
+                            "its friction, thickness and damping >= 0)",
                             nm);
     for (int i = 0; i < 3 * mesh->nt; i++)
         if (mesh->tri[i] < 0 || mesh->tri[i] >= mesh->nv)
@@ -482,7 +489,7 @@ DrStatus dr_cloth_create(const DrClothDesc *desc, const DrTriMesh *mesh, const D
     for (int v = 0; v < V; v++) c->block_dof[v] = c->dof0 + 3 * c->rank[v];
     if (m->self_contact) {
         DrClothSelfPanel sp = {V, T, c->tri, c->rest, c->mass, c->pinned, c->rank, c->band, c->dof0,
-                               m->collision_thickness, c->desc.collider_stiffness, m->friction};
+                               m->self_thickness, m->self_stiffness, m->self_friction, m->self_damping};
         st = dr_cloth_self_create(&sp, &c->self, err);
         if (st != DR_OK) goto fail;
     }

@@ -25,10 +25,11 @@
  * gave).
  *
  * Self contact (the material's self_contact, on by default). A vertex and a triangle of the same panel that does not
- * contain it keep the material's collision_thickness apart: the one-row constraint φ = n·(x_v − Σ b_i x_i) −
+ * contain it keep the material's self_thickness apart: the one-row constraint φ = n·(x_v − Σ b_i x_i) −
  * thickness ≥ 0 over the four vertices, n the triangle's unit normal at the step's start turned towards the vertex's
  * side, b the barycentric coordinates of the vertex's projection on the triangle (both held for the step), stiffness
- * collider_stiffness, and Coulomb friction at commit with the material's friction on the vertex's velocity relative to
+ * self_stiffness (with a viscous twin when self_damping > 0), and Coulomb friction at commit with self_friction on the
+ * vertex's velocity relative to
  * the triangle's point Σ b_i v_i, applied to both sides (the panel's momentum is conserved). Pairs are found by the
  * broad phase of src/contact at the step's start (a vertex within the thickness of a triangle, or coming within it at
  * the current velocities) and in the active-set passes (a vertex that the solve takes through a triangle, or within
@@ -58,11 +59,14 @@ typedef struct DrClothMaterial {
     double poisson;        /* in [0, 0.5); default 0.3 */
     double bend_scale;     /* multiplies the plate's bending stiffness E h³/(24(1 − ν²)), ≥ 0; default 1 */
     double damping;        /* s, ≥ 0: each group's viscous twin has C_v⁻¹ = damping · C⁻¹; default 0 */
-    double friction;       /* Coulomb coefficient against colliders (the larger of this and the collider's) and
-                              between the panel's own layers */
-    double collision_thickness; /* m, ≥ 0: distance kept from colliders (with the collider's own) and, with
-                                   self_contact, between the panel's own layers; default 1e-3 */
+    double friction;       /* Coulomb coefficient against colliders (the larger of this and the collider's); default 0 */
+    double collision_thickness; /* m, ≥ 0: distance kept from colliders (with the collider's own); default 1e-3 */
     bool self_contact;          /* vertex–triangle contact of the panel with itself (see above); default true */
+    double self_stiffness;      /* N/m of a self contact, > 0; default 1e4 (the default collider_stiffness) */
+    double self_friction;       /* Coulomb coefficient between the panel's own layers, ≥ 0; default 0 */
+    double self_thickness;      /* m, ≥ 0: distance kept between the panel's own layers; default 1e-3 */
+    double self_damping;        /* s, ≥ 0: a self contact's viscous twin along its normal has C_v⁻¹ = self_damping ·
+                                   self_stiffness; default 0 (none) */
     DrClothBending bending;     /* default DR_CLOTH_BEND_SHAPE_OPERATOR */
 } DrClothMaterial;
 void dr_cloth_material_default(DrClothMaterial *m);

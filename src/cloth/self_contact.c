@@ -457,8 +457,17 @@ DrStatus dr_cloth_self_add(DrClothSelf *s, DrLag *lag, DrError *err)
         g.cinv[0] = p->stiffness;
         c->lambda = 0;
         g.lambda = &c->lambda;
-        if (rhi - rlo <= p->band) DR_TRY(dr_lag_add(lag, &g, err));
+        bool in_band = rhi - rlo <= p->band;
+        if (in_band) DR_TRY(dr_lag_add(lag, &g, err));
         else DR_TRY(dr_lag_add_global(lag, &g, err));
+        if (!(p->damping > 0)) continue;
+        DrLagGroup d = g; /* the dashpot beside the contact's spring */
+        d.kind = DR_LAG_VISCOUS;
+        d.phi[0] = 0;
+        d.cinv[0] = p->damping * p->stiffness;
+        d.lambda = NULL;
+        if (in_band) DR_TRY(dr_lag_add(lag, &d, err));
+        else DR_TRY(dr_lag_add_global(lag, &d, err));
     }
     return DR_OK;
 }

@@ -46,9 +46,10 @@ typedef struct DrClothSelfPanel {
     const unsigned char *pinned; /* V */
     const int *rank;             /* V: place in the object's block */
     int band, dof0;              /* the block's half-bandwidth in vertices; the object's first DOF */
-    double thickness;            /* contact distance, m (the material's collision_thickness) */
+    double thickness;            /* contact distance, m (the material's self_thickness) */
     double stiffness;            /* C⁻¹, N/m */
     double friction;             /* Coulomb coefficient */
+    double damping;              /* s: a viscous twin along the normal with C_v⁻¹ = damping · stiffness; 0 = none */
 } DrClothSelfPanel;
 
 typedef struct DrClothSelf DrClothSelf;
@@ -68,8 +69,9 @@ DR_NODISCARD DrStatus dr_cloth_self_detect(DrClothSelf *s, double h, const doubl
 DR_NODISCARD DrStatus dr_cloth_self_update(DrClothSelf *s, double h, const double *x, const double *qdot, bool release,
                                            bool *changed, unsigned char *touch, DrError *err);
 
-/* Adds each contact's group (after dr_lag_begin): to the panel's block (dr_lag_add) when its four vertices lie within
-   the band, else to K_G (dr_lag_add_global). Its multiplier is kept here for the friction at commit. */
+/* Adds each contact's group (after dr_lag_begin), and its viscous twin when the panel has damping: to the panel's block
+   (dr_lag_add) when its four vertices lie within the band, else to K_G (dr_lag_add_global). Its multiplier is kept
+   here for the friction at commit. */
 DR_NODISCARD DrStatus dr_cloth_self_add(DrClothSelf *s, DrLag *lag, DrError *err);
 
 /* Coulomb friction at commit on the velocities v (3V, mesh order, in place), contact by contact in order: the

@@ -43,6 +43,7 @@ typedef struct HairContact {
     DrVec3 n;        /* unit, from edge e1's point towards e0's */
     double rr;       /* contact distance r_a + t_a + r_b + t_b */
     double k, mu;    /* stiffness, friction */
+    double damping;  /* s: viscous row along n with coefficient damping·k, 0 = none */
 } HairContact;
 
 struct DrRodSet {
@@ -52,6 +53,7 @@ struct DrRodSet {
     int nbatches;
     int *batch_offsets;        /* nbatches + 1 (strands) */
     unsigned *batch_group, *batch_mask;
+    DrRodPairResponse *pairs;  /* nbatches², or NULL: the batches' own settings (desc.pairs) */
     int *strand_batch;         /* S */
     DrRodMaterial *materials;  /* per batch */
     DrRodBatch *batch;         /* per batch (the groom pointers are not kept past create) */
@@ -135,7 +137,7 @@ void dr_rod_set_destroy(DrRodSet **rp)
 {
     if (!rp || !*rp) return;
     DrRodSet *r = *rp;
-    void *arrays[] = {r->offsets, r->batch_offsets, r->batch_group, r->batch_mask, r->strand_batch, r->materials, r->batch, r->roots,
+    void *arrays[] = {r->offsets, r->batch_offsets, r->batch_group, r->batch_mask, r->pairs, r->strand_batch, r->materials, r->batch, r->roots,
                       r->lbar, r->kbar, r->tbar, r->lv, r->vmass, r->tinertia, r->radius, r->vradius, r->eks,
                       r->ibend, r->itwist, r->root_rest,
                       r->m1_rest, r->tip_rest, r->t_old, r->edge_strand, r->edge_local, r->x, r->v, r->theta, r->theta_dot, r->a1, r->m, r->t, r->len, r->lambda,
@@ -196,6 +198,7 @@ DrStatus dr_rod_set_create(const DrRodSetDesc *desc, const DrRodBatch *batches, 
     ALLOC(r->batch_offsets, nbatches + 1);
     ALLOC(r->batch_group, nbatches);
     ALLOC(r->batch_mask, nbatches);
+    if (desc->pairs) ALLOC(r->pairs, (long)nbatches * nbatches);
     ALLOC(r->strand_batch, S);
     ALLOC(r->materials, nbatches);
     ALLOC(r->batch, nbatches);
@@ -260,6 +263,14 @@ DrStatus dr_rod_set_create(const DrRodSetDesc *desc, const DrRodBatch *batches, 
         r->materials[b] = batches[b].material;
         r->batch[b] = batches[b];
         r->batch[b].groom = NULL;
+        if (r->pairs) { /* the batch's thickness is the broad phase's reach: the largest of its pairs' */
+            double t = 0.0;
+            for (int o = 0; o < nbatches; o++) {
+                r->pairs[(long)b * nbatches + o] = desc->pairs[(long)b * nbatches + o];
+                t = fmax(t, desc->pairs[(long)b * nbatches + o].thickness);
+            }
+            r->batch[b].contact_thickness = t;
+        }
         r->roots[b] = desc->batch_roots ? desc->batch_roots[b] : desc->roots;
         const DrRodMaterial *mt = &batches[b].material;
         double rad = mt->radius;
@@ -674,18 +685,20 @@ static DrStatus find_hair_contacts(DrRodSet *r, DrError *err)
             ra = va[0] + s * (va[1] - va[0]);
             rb = vb[0] + t * (vb[1] - vb[0]);
         }
-        double rr = ra + rb + r->batch[r->strand_batch[sa]].contact_thickness +
-                    r->batch[r->strand_batch[sb]].contact_thickness;
+        const DrRodBatch *pa = &r->batch[r->strand_batch[sa]], *pb = &r->batch[r->strand_batch[sb]];
+        const DrRodPairResponse *pr = r->pairs ? &r->pairs[(long)r->strand_batch[sa] * r->nbatches + r->strand_batch[sb]]
+                                               : NULL;
+        double rr = pr ? ra + rb + pr->thickness + pr->thickness : ra + rb + pa->contact_thickness + pb->contact_thickness;
         if (d >= rr || d < 1e-12 * rr) continue;
         if (r->nhc == r->cap_hc) { /* doubled and kept */
             size_t cap = r->cap_hc ? 2 * r->cap_hc : 256;
             DR_TRY(dr_realloc(cap, sizeof *r->hc, &r->hc, err));
             r->cap_hc = cap;
         }
-        const DrRodBatch *pa = &r->batch[r->strand_batch[sa]], *pb = &r->batch[r->strand_batch[sb]];
         r->hc[r->nhc++] = (HairContact){ea, eb, s, t, d, dr_v3(nv[0] / d, nv[1] / d, nv[2] / d), rr,
-                                        fmin(pa->contact_stiffness, pb->contact_stiffness),
-                                        fmax(pa->contact_friction, pb->contact_friction)};
+                                        pr ? pr->stiffness : fmin(pa->contact_stiffness, pb->contact_stiffness),
+                                        pr ? pr->friction : fmax(pa->contact_friction, pb->contact_friction),
+                                        pr ? pr->damping : fmax(pa->contact_damping, pb->contact_damping)};
     }
     if (!r->hc_slack && 2 * r->nhc > r->cap_hc) { /* the first step leaves room for twice its contacts */
         DR_TRY(dr_realloc(2 * r->nhc, sizeof *r->hc, &r->hc, err));
@@ -707,7 +720,9 @@ static int edge_vertex_dof(const DrRodSet *r, int e, int end)
    μ F_n / max(|v_t|, v_ε), F_n = k |φ| the contact's force at the start of the step, resists sliding with
    μ F_n (Coulomb, the coefficient lagged by a step) and grips viscously below v_ε = μ|φ|/h. That floor caps
    the coefficient at h k, so the grip is never stiffer than the contact itself: an uncapped grip (h·coef ≫
-   the strands' masses) leaves the solve ill-conditioned, thousands of CG iterations for a few contacts. */
+   the strands' masses) leaves the solve ill-conditioned, thousands of CG iterations for a few contacts. A contact
+   with damping adds a viscous row along the normal (J the positional row's, coefficient damping·k): it resists the
+   strands' approach and separation alike, as a Kelvin–Voigt dashpot beside the contact's spring. */
 static DrStatus add_hair_contacts(DrRodSet *r, DrError *err)
 {
     for (size_t c = 0; c < r->nhc; c++) {
@@ -729,6 +744,14 @@ static DrStatus add_hair_contacts(DrRodSet *r, DrError *err)
         g.phi[0] = hc->dist - hc->rr; /* < 0 while they overlap */
         g.cinv[0] = hc->k;
         DR_TRY(dr_lag_add_global(r->lag, &g, err));
+        if (hc->damping > 0) { /* along the normal: −damping·k times the contact points' relative normal speed */
+            DrLagGroup dmp = g;
+            dmp.kind = DR_LAG_VISCOUS;
+            dmp.phi[0] = 0;
+            dmp.cinv[0] = hc->damping * hc->k;
+            dmp.lambda = NULL;
+            DR_TRY(dr_lag_add_global(r->lag, &dmp, err));
+        }
         if (hc->mu <= 0) continue;
         /* relative velocity of the contact points, and a tangent basis */
         double vr[3] = {0, 0, 0};

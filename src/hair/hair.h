@@ -107,6 +107,11 @@ typedef struct DrRodSetDesc {
     DrLagDesc solver;           /* preconditioner, tolerance, iteration cap */
     bool hair_contact;          /* search strand–strand contacts (spatial hash); default false */
     double collider_stiffness;  /* N/m of a vertex–collider contact; default 1e4 */
+    const struct DrRodPairResponse *pairs; /* NULL (default): strand–strand contacts take the batches' own settings
+                                   (see DrRodBatch). Else nbatches² entries, row-major and symmetric, read at create
+                                   only: entry a·nbatches + b is the response of contacts between batches a and b (a
+                                   collision element's); which pairs touch is still the batches' group, mask and
+                                   self_contact. */
     DrLag *system;              /* NULL (default): the set makes a system of its own and steps it itself. Else the
                                    shared system (DESIGN §8) the set adds its strands to as objects, one per strand,
                                    after those already there; the caller owns it and drives the step (see "in a shared
@@ -114,10 +119,18 @@ typedef struct DrRodSetDesc {
 } DrRodSetDesc;
 void dr_rod_set_desc_default(DrRodSetDesc *d);
 
+/* The response of strand–strand contacts between two batches: stiffness (N/m, > 0), Coulomb friction, the extra
+ * thickness around each strand (they touch at r_a + thickness + r_b + thickness) and damping (s, a time constant:
+ * a viscous row along the normal with coefficient damping·stiffness; 0 = none). */
+typedef struct DrRodPairResponse {
+    double stiffness, friction, thickness, damping;
+} DrRodPairResponse;
+
 /* One groom of the set (a hair element) with its material and contact settings. When desc.hair_contact is on,
  * strands of one batch touch each other when self_contact; strands of batches a and b when
  * (group_a & mask_b) != 0 and (group_b & mask_a) != 0. Two strands touch at r_a + t_a + r_b + t_b (t the
- * batches' contact_thickness); a contact has the smaller stiffness and the larger friction of the two. */
+ * batches' contact_thickness); a contact has the smaller stiffness and the larger friction and damping of the two
+ * (unless desc.pairs gives the pair's response). */
 typedef struct DrRodBatch {
     const DrGroom *groom;
     DrRodMaterial material;
@@ -128,6 +141,8 @@ typedef struct DrRodBatch {
     double contact_thickness;   /* m */
     double collider_friction;   /* against colliders: the larger of this and the collider's own coefficient */
     double collider_thickness;  /* m, added to the radius against colliders (with the collider's own) */
+    double contact_damping;     /* s: a viscous row along a strand–strand contact's normal, damping·stiffness (the
+                                   larger of the two batches'); 0 = none */
 } DrRodBatch;
 
 typedef struct DrRodSet DrRodSet;

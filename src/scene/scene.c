@@ -314,6 +314,36 @@ static DrStatus parse_field(Parser *p, const DrFieldSpec *f, const json_t *v, co
         out->nrows = (int)nrows;
         break;
     }
+    case DR_FIELD_NAMES: {
+        const char *shape = "a list of element names [\"a\", \"b\", ...]";
+        if (!json_is_array(v)) return fail(p, "%s: expected %s, got %s", where, shape, json_type_name(v));
+        size_t n = json_array_size(v);
+        if (n == 0) return fail(p, "%s: the list is empty; name at least one element, e.g. [\"fur\"]", where);
+        if (n > 4096) return fail(p, "%s: %zu names are too many", where, n);
+        const char **names = dr_arena_alloc(a, n, sizeof *names);
+        if (!names) return nomem(p);
+        for (size_t i = 0; i < n; i++) {
+            const json_t *x = json_array_get(v, i);
+            push_index(p, (int)i);
+            if (!json_is_string(x))
+                return fail(p, "%s[%zu]: expected an element name string, got %s", where, i, json_type_name(x));
+            char reason[64];
+            const char *why = name_problem(json_string_value(x), reason, sizeof reason);
+            if (why)
+                return fail(p, "%s[%zu]: '%s' is not a valid name (%s); use letters, digits, '_', '.' and '-'", where,
+                            i, json_string_value(x), why);
+            for (size_t j = 0; j < i; j++)
+                if (strcmp(names[j], json_string_value(x)) == 0)
+                    return fail(p, "%s[%zu]: '%s' is listed twice (also at [%zu]); list each element once", where, i,
+                                names[j], j);
+            names[i] = arena_strdup(a, json_string_value(x));
+            if (!names[i]) return nomem(p);
+            pop(p);
+        }
+        out->names = names;
+        out->nrows = (int)n;
+        break;
+    }
     }
     out->set = out->has = true;
     return DR_OK;
@@ -516,8 +546,23 @@ static const char *example_of(const DrFieldSpec *f)
     case DR_FIELD_BOX: return "[[x0, y0, z0], [x1, y1, z1]]";
     case DR_FIELD_PATH: return "\"path/to/mesh.obj\"";
     case DR_FIELD_VEC3: return "[x, y, z]";
+    case DR_FIELD_NAMES: return "[\"name\", ...]";
     default: return "...";
     }
+}
+
+/* What to write for a missing field: example_of's text, or for a choice its first choice and the others. */
+static void example_text(const DrFieldSpec *f, char *buf, size_t size)
+{
+    if (f->kind != DR_FIELD_ENUM) {
+        snprintf(buf, size, "%s", example_of(f));
+        return;
+    }
+    char split[256], list[256];
+    const char *names[16];
+    int n = dr_scene_split_choices_(f->choices, split, sizeof split, names, 16);
+    dr_scene_join_names_(names, n, list, sizeof list);
+    snprintf(buf, size, "\"%s\" (one of %s)", names[0], list);
 }
 
 /* The JSON object v at the current path into c (a component, or a section when `sections` is given:
@@ -557,9 +602,12 @@ static DrStatus parse_component(Parser *p, const json_t *v, DrComponent *c, cons
     }
     for (int i = 0; i < spec->field_count; i++) {
         const DrFieldSpec *f = &spec->fields[i];
-        if (f->required && !c->values[i].set)
+        if (f->required && !c->values[i].set) {
+            char ex[300];
+            example_text(f, ex, sizeof ex);
             return fail_key(p, "%s: missing required field '%s' (%s); add \"%s\": %s", where, f->name, f->doc,
-                            f->name, example_of(f));
+                            f->name, ex);
+        }
     }
     for (size_t i = 0; i < sizeof checks / sizeof checks[0]; i++) {
         if (strcmp(checks[i].spec, spec->name) != 0) continue;
@@ -762,6 +810,299 @@ static void at_joint_field(Parser *p, const DrElement *e, const char *field)
     push_key(p, field);
 }
 
+/* Locates an error at elements[e].components.<comp>.<field> (field NULL: the component; index >= 0: its entry). */
+static void at_field(Parser *p, const DrElement *e, const char *comp, const char *field, int index)
+{
+    push_index(p, e->index);
+    push_key(p, "components");
+    push_key(p, comp);
+    if (field) push_key(p, field);
+    if (index >= 0) push_index(p, index);
+}
+
+/* Collision elements: each member is a hair element (method edge_edge) or a
+   cloth element (vertex_face); a pair of members (or a member with itself) takes one response, so no two collision
+   elements of one method cover the same pair; vertex_face meets a panel with itself only (panels are solved one by
+   one); and once a scene has a collision element, the shorthand they replace (a hair's CollisionGroup and
+   CollisionResponse, a cloth's ClothMaterial.self_contact) is not written beside them. Runs once every element is
+   read. */
+static DrStatus check_collisions(Parser *p)
+{
+    const DrScene *s = p->s;
+    int ncol = 0, nhair = 0;
+    for (int i = 0; i < s->element_count; i++) {
+        ncol += s->elements[i].kind == DR_ELEMENT_COLLISION;
+        nhair += s->elements[i].kind == DR_ELEMENT_HAIR;
+    }
+    if (ncol == 0) return DR_OK;
+    const char **cand = dr_arena_alloc(s->arena, (size_t)s->element_count + 1, sizeof *cand);
+    if (!cand) return nomem(p);
+    int nc = 0;
+    for (int i = 0; i < s->element_count; i++)
+        if (s->elements[i].kind == DR_ELEMENT_HAIR || s->elements[i].kind == DR_ELEMENT_CLOTH)
+            cand[nc++] = s->elements[i].name;
+    char list[512];
+    dr_scene_join_names_(cand, nc, list, sizeof list);
+    for (int i = 0; i < s->element_count; i++) {
+        const DrElement *e = &s->elements[i];
+        if (e->kind == DR_ELEMENT_HAIR) {
+            const char *comp[2] = {"CollisionGroup", "CollisionResponse"};
+            for (int k = 0; k < 2; k++) {
+                if (!dr_component_present(dr_element_component(e, comp[k]))) continue;
+                at_field(p, e, comp[k], NULL, -1);
+                return fail(p, "%s.%s is the shorthand of collision elements, and this scene has collision elements: "
+                               "they alone say which strands touch. Remove %s.%s and list %s in a collision element's "
+                               "Collision.members (its CollisionResponse gives the response)",
+                            e->name, comp[k], e->name, comp[k], e->name);
+            }
+        }
+        if (e->kind == DR_ELEMENT_CLOTH && dr_component_is_set(dr_element_component(e, "ClothMaterial"), "self_contact")) {
+            at_field(p, e, "ClothMaterial", "self_contact", -1);
+            return fail(p, "%s.ClothMaterial.self_contact is the shorthand of collision elements, and this scene has "
+                           "collision elements: they alone say which panels touch themselves. Remove it and list %s in "
+                           "a collision element with method \"vertex_face\" for self contact",
+                        e->name, e->name);
+        }
+    }
+    if (nhair > 31) {
+        for (int i = 0; i < s->element_count; i++)
+            if (s->elements[i].kind == DR_ELEMENT_COLLISION) {
+                at_field(p, &s->elements[i], "Collision", "members", -1);
+                break;
+            }
+        return fail(p, "this scene has %d hair elements; collision elements handle at most 31 (merge grooms into fewer "
+                       "hair elements)", nhair);
+    }
+    for (int i = 0; i < s->element_count; i++) {
+        const DrElement *e = &s->elements[i];
+        if (e->kind != DR_ELEMENT_COLLISION) continue;
+        const DrComponent *c = dr_element_component(e, "Collision");
+        const char *const *m = NULL;
+        int n = dr_component_names(c, "members", &m);
+        const char *method = value_at(c, "method")->str, *pairs = value_at(c, "pairs")->str;
+        bool edge = strcmp(method, "edge_edge") == 0;
+        for (int k = 0; k < n; k++) {
+            const DrElement *b = dr_scene_find(s, m[k]);
+            if (b && (b->kind == DR_ELEMENT_HAIR || b->kind == DR_ELEMENT_CLOTH)) {
+                if (edge == (b->kind == DR_ELEMENT_HAIR)) continue;
+                at_field(p, e, "Collision", "members", k);
+                if (edge)
+                    return fail(p, "%s.Collision.members[%d] = '%s' is a cloth element, and method \"edge_edge\" meets "
+                                   "strand segments: a cloth panel meets itself with method \"vertex_face\" in a "
+                                   "collision element of its own", e->name, k, m[k]);
+                return fail(p, "%s.Collision.members[%d] = '%s' is a hair element, and method \"vertex_face\" meets a "
+                               "cloth panel's vertices and triangles (contact between hair and cloth is not built yet); "
+                               "strands meet with method \"edge_edge\" in a collision element of their own",
+                            e->name, k, m[k]);
+            }
+            char sug[256];
+            suggestion(m[k], cand, nc, sug, sizeof sug);
+            at_field(p, e, "Collision", "members", k);
+            if (b)
+                return fail(p, "%s.Collision.members[%d] = '%s' is a %s element; members are hair or cloth elements "
+                               "(colliders meet every one of them)%s Hair and cloth elements: %s",
+                            e->name, k, m[k], b->type, sug, nc ? list : "none");
+            return fail(p, "%s.Collision.members[%d] = '%s': no hair or cloth element has this name%s Hair and cloth "
+                           "elements: %s", e->name, k, m[k], sug, nc ? list : "none");
+        }
+        if (strcmp(pairs, "between") == 0 && n < 2) {
+            at_field(p, e, "Collision", "pairs", -1);
+            return fail(p, "%s.Collision.pairs = \"between\" meets different members only, and it has one member: list "
+                           "at least two, or use pairs \"self\"", e->name);
+        }
+        if (!edge && n > 1 && strcmp(pairs, "self") != 0) {
+            at_field(p, e, "Collision", "pairs", -1);
+            return fail(p, "%s.Collision: contact between two cloth panels is not built yet (each panel is solved on "
+                           "its own); with method \"vertex_face\" and several members give pairs \"self\" (each panel "
+                           "with itself)", e->name);
+        }
+        /* a pair covered by an earlier collision element of the same method */
+        for (int j = 0; j < i; j++) {
+            const DrElement *o = &s->elements[j];
+            if (o->kind != DR_ELEMENT_COLLISION) continue;
+            const DrComponent *oc = dr_element_component(o, "Collision");
+            if (strcmp(value_at(oc, "method")->str, method) != 0) continue;
+            const char *const *om = NULL;
+            int on = dr_component_names(oc, "members", &om);
+            const char *opairs = value_at(oc, "pairs")->str;
+            for (int a = 0; a < n; a++)
+                for (int b = a; b < n; b++) {
+                    bool self = a == b;
+                    if (self ? strcmp(pairs, "between") == 0 : strcmp(pairs, "self") == 0) continue;
+                    int oa = -1, ob = -1;
+                    for (int k = 0; k < on; k++) {
+                        if (strcmp(om[k], m[a]) == 0) oa = k;
+                        if (strcmp(om[k], m[b]) == 0) ob = k;
+                    }
+                    if (oa < 0 || ob < 0) continue;
+                    if (self ? strcmp(opairs, "between") == 0 : strcmp(opairs, "self") == 0) continue;
+                    at_field(p, e, "Collision", "members", b);
+                    if (self)
+                        return fail(p, "%s and %s both meet %s with itself (method \"%s\"); a pair takes one response: "
+                                       "leave it in one of them (pairs \"between\" leaves each member's own contacts out)",
+                                    o->name, e->name, m[a], method);
+                    return fail(p, "%s and %s both meet %s with %s (method \"%s\"); a pair takes one response: leave it "
+                                   "in one of them", o->name, e->name, m[a], m[b], method);
+                }
+        }
+    }
+    return DR_OK;
+}
+
+/* Attachment elements: members are cloth or hair elements; a cloth member's vertices are those in the box; a hair
+   member is held by its roots, which only a rigid attachment can carry (in place of the hair's own Motion, and by one
+   attachment); slide needs a curve of 2 points or more, rigid a target that is a collider or a bem_solid; and a panel
+   slides on one curve (its SlideVertices or one slide attachment). Runs once every element is read. */
+static DrStatus check_attachments(Parser *p)
+{
+    const DrScene *s = p->s;
+    const char **cand = NULL, **targets = NULL;
+    int nc = 0, nt = 0;
+    cand = dr_arena_alloc(s->arena, (size_t)s->element_count + 1, sizeof *cand);
+    targets = dr_arena_alloc(s->arena, (size_t)s->element_count + 1, sizeof *targets);
+    if (!cand || !targets) return nomem(p);
+    for (int i = 0; i < s->element_count; i++) {
+        DrElementKind k = s->elements[i].kind;
+        if (k == DR_ELEMENT_HAIR || k == DR_ELEMENT_CLOTH) cand[nc++] = s->elements[i].name;
+        if (k == DR_ELEMENT_COLLIDER || k == DR_ELEMENT_BEM_SOLID) targets[nt++] = s->elements[i].name;
+    }
+    char list[512], tlist[512];
+    dr_scene_join_names_(cand, nc, list, sizeof list);
+    dr_scene_join_names_(targets, nt, tlist, sizeof tlist);
+    for (int i = 0; i < s->element_count; i++) {
+        const DrElement *e = &s->elements[i];
+        if (e->kind != DR_ELEMENT_ATTACHMENT) continue;
+        const DrComponent *c = dr_element_component(e, "Attachment");
+        const char *const *m = NULL;
+        int n = dr_component_names(c, "members", &m);
+        const char *method = value_at(c, "method")->str;
+        bool rigid = strcmp(method, "rigid") == 0, slide = strcmp(method, "slide") == 0;
+        bool any_cloth = false;
+        for (int k = 0; k < n; k++) {
+            const DrElement *b = dr_scene_find(s, m[k]);
+            if (!b || (b->kind != DR_ELEMENT_HAIR && b->kind != DR_ELEMENT_CLOTH)) {
+                char sug[256];
+                suggestion(m[k], cand, nc, sug, sizeof sug);
+                at_field(p, e, "Attachment", "members", k);
+                if (b)
+                    return fail(p, "%s.Attachment.members[%d] = '%s' is a %s element; an attachment holds hair or cloth "
+                                   "elements%s Hair and cloth elements: %s",
+                                e->name, k, m[k], b->type, sug, nc ? list : "none");
+                return fail(p, "%s.Attachment.members[%d] = '%s': no hair or cloth element has this name%s Hair and "
+                               "cloth elements: %s", e->name, k, m[k], sug, nc ? list : "none");
+            }
+            if (b->kind == DR_ELEMENT_CLOTH) {
+                any_cloth = true;
+                continue;
+            }
+            if (!rigid) {
+                at_field(p, e, "Attachment", "method", -1);
+                return fail(p, "%s.Attachment.members[%d] = '%s' is a hair element, held by its roots (Groom.roots): "
+                               "method \"%s\" holds a cloth's vertices; use method \"rigid\" with a target to carry "
+                               "the roots with a collider or a body", e->name, k, m[k], method);
+            }
+            if (strcmp(value_at(dr_element_component(b, "Groom"), "roots")->str, "free") == 0) {
+                at_field(p, e, "Attachment", "members", k);
+                return fail(p, "%s.Attachment carries the roots of '%s', and %s.Groom.roots is \"free\" (nothing holds "
+                               "them); give %s.Groom.roots \"clamped\" or \"pinned\", or leave %s out of %s",
+                            e->name, m[k], m[k], m[k], m[k], e->name);
+            }
+            if (dr_component_present(dr_element_component(b, "Motion"))) {
+                at_field(p, e, "Attachment", "members", k);
+                return fail(p, "%s.Attachment carries the roots of '%s' with its target, and %s.Motion moves them too; "
+                               "remove %s.Motion (the target's motion moves the roots) or leave %s out of %s",
+                            e->name, m[k], m[k], m[k], m[k], e->name);
+            }
+            for (int j = 0; j < i; j++) { /* one rigid attachment per hair element */
+                const DrElement *o = &s->elements[j];
+                if (o->kind != DR_ELEMENT_ATTACHMENT) continue;
+                const char *const *om = NULL;
+                int on = dr_component_names(dr_element_component(o, "Attachment"), "members", &om);
+                for (int q = 0; q < on; q++)
+                    if (strcmp(om[q], m[k]) == 0) {
+                        at_field(p, e, "Attachment", "members", k);
+                        return fail(p, "%s and %s both carry the roots of '%s'; a hair element's roots follow one "
+                                       "target: leave it in one of them", o->name, e->name, m[k]);
+                    }
+            }
+        }
+        bool has_box = value_at(c, "box")->set, has_curve = value_at(c, "curve")->nrows > 0 || value_at(c, "curve")->set;
+        bool has_target = value_at(c, "target")->set;
+        if (any_cloth && !has_box) {
+            at_field(p, e, "Attachment", NULL, -1);
+            return fail(p, "%s.Attachment.box is required with a cloth member: the member's vertices inside it (in the "
+                           "placed rest pose) are held; add \"box\": [[x0, y0, z0], [x1, y1, z1]]", e->name);
+        }
+        if (!any_cloth && has_box) {
+            at_field(p, e, "Attachment", "box", -1);
+            return fail(p, "%s.Attachment.box selects a cloth member's vertices, and every member is a hair element "
+                           "(held by its roots); remove box", e->name);
+        }
+        if (slide && value_at(c, "curve")->nrows < 2) {
+            at_field(p, e, "Attachment", has_curve ? "curve" : NULL, -1);
+            return fail(p, "%s.Attachment.curve has %d point(s); method \"slide\" needs the curve as 2 points or more "
+                           "[[x, y, z], [x, y, z], ...]", e->name, value_at(c, "curve")->nrows);
+        }
+        if (!slide && has_curve) {
+            at_field(p, e, "Attachment", "curve", -1);
+            return fail(p, "%s.Attachment.curve applies to method \"slide\", not \"%s\"; remove curve", e->name,
+                        method);
+        }
+        if (rigid && !has_target) {
+            at_field(p, e, "Attachment", NULL, -1);
+            return fail(p, "%s.Attachment.target is required with method \"rigid\": the collider or bem_solid element "
+                           "that carries the vertices; add \"target\": \"name\" (colliders and bem_solid elements: %s)",
+                        e->name, nt ? tlist : "none");
+        }
+        if (!rigid && has_target) {
+            at_field(p, e, "Attachment", "target", -1);
+            return fail(p, "%s.Attachment.target applies to method \"rigid\", not \"%s\"; remove target", e->name,
+                        method);
+        }
+        if (rigid) {
+            const char *tn = value_at(c, "target")->str;
+            const DrElement *t = dr_scene_find(s, tn);
+            if (!t || (t->kind != DR_ELEMENT_COLLIDER && t->kind != DR_ELEMENT_BEM_SOLID)) {
+                char sug[256];
+                suggestion(tn, targets, nt, sug, sizeof sug);
+                at_field(p, e, "Attachment", "target", -1);
+                if (t)
+                    return fail(p, "%s.Attachment.target = '%s' is a %s element; a rigid attachment is carried by a "
+                                   "collider or a bem_solid%s Colliders and bem_solid elements: %s",
+                                e->name, tn, t->type, sug, nt ? tlist : "none");
+                return fail(p, "%s.Attachment.target = '%s': no collider or bem_solid element has this name%s "
+                               "Colliders and bem_solid elements: %s", e->name, tn, sug, nt ? tlist : "none");
+            }
+        }
+    }
+    /* a panel slides on one curve */
+    for (int i = 0; i < s->element_count; i++) {
+        const DrElement *b = &s->elements[i];
+        if (b->kind != DR_ELEMENT_CLOTH) continue;
+        const DrElement *first = NULL;
+        bool own = dr_component_present(dr_element_component(b, "SlideVertices"));
+        for (int j = 0; j < s->element_count; j++) {
+            const DrElement *e = &s->elements[j];
+            if (e->kind != DR_ELEMENT_ATTACHMENT) continue;
+            const DrComponent *c = dr_element_component(e, "Attachment");
+            if (strcmp(value_at(c, "method")->str, "slide") != 0) continue;
+            const char *const *m = NULL;
+            int n = dr_component_names(c, "members", &m);
+            bool listed = false;
+            for (int k = 0; k < n; k++) listed = listed || strcmp(m[k], b->name) == 0;
+            if (!listed) continue;
+            if (own || first) {
+                at_field(p, e, "Attachment", "method", -1);
+                return fail(p, "%s slides %s on a curve, and %s already does (a panel slides on one curve); give both "
+                               "boxes one slide attachment, or one curve", e->name, b->name,
+                            own ? "its SlideVertices" : first->name);
+            }
+            first = e;
+        }
+    }
+    return DR_OK;
+}
+
 /* A bem_joint names two different bem_solid elements that are stepped together (the same BemSolver.time_step: bodies
    of different steps never meet), and a point when its mode is point. Runs once every element is read, since a joint
    may come before its bodies. */
@@ -938,6 +1279,8 @@ static DrStatus check_cross_element(Parser *p)
     DR_TRY(check_shared(p, "mpm_solid", mpm, (int)(sizeof mpm / sizeof mpm[0]),
                         "every mpm_solid of a scene shares one grid and one time step"));
     DR_TRY(check_bem_joints(p));
+    DR_TRY(check_collisions(p));
+    DR_TRY(check_attachments(p));
     DR_TRY(check_wet_hair(p));
     DR_TRY(check_air(p));
     DR_TRY(check_drag_fluid(p));
@@ -1060,10 +1403,13 @@ static DrStatus parse_element(Parser *p, const json_t *v, int index)
                 snprintf(need, sizeof need, "%s", one_of_examples[k].example);
                 example = true;
             }
-        for (int f = 0; !example && f < c->spec->field_count; f++)
-            if (c->spec->fields[f].required)
+        for (int f = 0; !example && f < c->spec->field_count && used < sizeof need; f++)
+            if (c->spec->fields[f].required) {
+                char ex[300];
+                example_text(&c->spec->fields[f], ex, sizeof ex);
                 used += (size_t)snprintf(need + used, sizeof need - used, "%s\"%s\": %s", used ? ", " : "",
-                                         c->spec->fields[f].name, example_of(&c->spec->fields[f]));
+                                         c->spec->fields[f].name, ex);
+            }
         return fail(p, "%s: missing component '%s' (%s); add \"%s\": {%s} to its components", where, c->spec->name,
                     c->spec->doc, c->spec->name, need);
     }
@@ -1354,6 +1700,35 @@ int dr_component_table(const DrComponent *c, const char *field, const double **r
     const DrValue *v = getter(c, field, DR_FIELD_TABLE);
     *rows = v->nrows ? v->rows : NULL;
     return v->nrows;
+}
+
+int dr_component_names(const DrComponent *c, const char *field, const char *const **names)
+{
+    const DrValue *v = getter(c, field, DR_FIELD_NAMES);
+    *names = v->set ? v->names : NULL;
+    return v->set ? v->nrows : 0;
+}
+
+const DrElement *dr_scene_collision(const DrScene *s, const char *a, const char *b, const char *method)
+{
+    for (int i = 0; i < s->element_count; i++) {
+        const DrElement *e = &s->elements[i];
+        if (e->kind != DR_ELEMENT_COLLISION) continue;
+        const DrComponent *c = dr_element_component(e, "Collision");
+        if (strcmp(value_at(c, "method")->str, method) != 0) continue;
+        const char *pairs = value_at(c, "pairs")->str;
+        bool self = strcmp(a, b) == 0;
+        if (self ? strcmp(pairs, "between") == 0 : strcmp(pairs, "self") == 0) continue;
+        const char *const *m = NULL;
+        int n = dr_component_names(c, "members", &m);
+        bool ha = false, hb = false;
+        for (int k = 0; k < n; k++) {
+            ha = ha || strcmp(m[k], a) == 0;
+            hb = hb || strcmp(m[k], b) == 0;
+        }
+        if (ha && hb) return e;
+    }
+    return NULL;
 }
 
 /* ---- defaults applied ------------------------------------------------------------------------------------ */

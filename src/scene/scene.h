@@ -52,6 +52,7 @@ typedef enum DrFieldKind {
     DR_FIELD_INT2,   /* [a, b] of integers (frame range, resolution) */
     DR_FIELD_BOX,    /* [[x0,y0,z0],[x1,y1,z1]] with x0<x1, y0<y1, z0<z1 */
     DR_FIELD_TABLE,  /* [[...], ...]: rows of exactly `arity` numbers; default empty */
+    DR_FIELD_NAMES,  /* ["a", "b", ...]: one or more distinct NAMEs (element names); always required */
 } DrFieldKind;
 
 #define DR_SCENE_NAME_MAX 128
@@ -92,6 +93,8 @@ typedef enum DrElementKind {
     DR_ELEMENT_BEM_JOINT,
     DR_ELEMENT_AIR,
     DR_ELEMENT_CLOTH,
+    DR_ELEMENT_COLLISION,
+    DR_ELEMENT_ATTACHMENT,
 } DrElementKind;
 
 typedef struct DrElementSpec {
@@ -162,6 +165,12 @@ void dr_component_int2(const DrComponent *c, const char *field, int out[2]);
 void dr_component_box(const DrComponent *c, const char *field, DrVec3 *lo, DrVec3 *hi);
 /* Row count (0 when unset); *rows points at count*arity numbers, row-major (NULL when 0 rows). */
 int dr_component_table(const DrComponent *c, const char *field, const double **rows);
+/* NAMES: how many (0 when the component is absent); *names points at them, in the file's order. */
+int dr_component_names(const DrComponent *c, const char *field, const char *const **names);
+
+/* The collision element whose members a and b (element names; a == b for a member with itself) meet by `method`
+ * ("edge_edge", "vertex_face"), NULL when none does (the scene's rules allow at most one). */
+const DrElement *dr_scene_collision(const DrScene *s, const char *a, const char *b, const char *method);
 
 /* ---- defaults a scene applied ---------------------------------------------------------------------------- */
 

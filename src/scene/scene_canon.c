@@ -78,6 +78,14 @@ static void put_value(Buf *b, const DrFieldSpec *f, const DrValue *v)
         }
         puts_(b, "]");
         return;
+    case DR_FIELD_NAMES:
+        puts_(b, "[");
+        for (int i = 0; i < v->nrows; i++) {
+            if (i) puts_(b, ",");
+            put_str(b, v->names[i]);
+        }
+        puts_(b, "]");
+        return;
     case DR_FIELD_BOX:
         puts_(b, "[[");
         for (int i = 0; i < 6; i++) {

@@ -28,6 +28,7 @@ typedef struct DrValue {
     const char *str;   /* ENUM/NAME/PATH; PATH: resolved */
     const char *raw;   /* PATH as written (the canonical JSON uses it) */
     const double *rows; /* TABLE, nrows*arity */
+    const char **names; /* NAMES, nrows of them */
     int nrows;
 } DrValue;
 

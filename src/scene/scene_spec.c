@@ -288,6 +288,24 @@ static const DrFieldSpec slide_vertices_fields[] = {
      .doc = "the curve, a polyline [[x, y, z], ...] of 2 points or more, in world space (not moved by Transform)"},
 };
 
+/* An attachment element: vertices of hair or cloth held by a pin, on a curve, or rigidly to a collider or a body. */
+static const DrFieldSpec attachment_fields[] = {
+    {.name = "members", .kind = DR_FIELD_NAMES, .unit = "", .required = true,
+     .doc = "the cloth or hair elements it holds, by name"},
+    {.name = "method", .kind = DR_FIELD_ENUM, .unit = "", .required = true, .choices = "pin|slide|rigid",
+     .doc = "pin: held where they are (moved by the member's Motion, as FixedVertices); slide: held on the curve, free "
+            "to move along it (as SlideVertices); rigid: carried by the target's rigid motion (a cloth's vertices in "
+            "the box, or a hair's roots in place of its Motion)"},
+    {.name = "box", .kind = DR_FIELD_BOX, .unit = "m", .no_default = true, POS_RANGE,
+     .doc = "a cloth member's vertices inside this box in the placed rest pose are held (required for cloth; a hair "
+            "member is held by its roots, Groom.roots)"},
+    {.name = "curve", .kind = DR_FIELD_TABLE, .unit = "m", .arity = 3, POS_RANGE,
+     .doc = "slide: the curve, a polyline [[x, y, z], ...] of 2 points or more, in world space"},
+    {.name = "target", .kind = DR_FIELD_NAME, .unit = "", .no_default = true,
+     .doc = "rigid: the collider or bem_solid element that carries the vertices (a collider by its Motion, a body by "
+            "its rigid frame)"},
+};
+
 static const DrFieldSpec joint_fields[] = {
     {.name = "body_a", .kind = DR_FIELD_NAME, .unit = "", .required = true,
      .doc = "name of a bem_solid element"},
@@ -387,6 +405,23 @@ static const DrFieldSpec collision_response_fields[] = {
     {.name = "thickness", .kind = DR_FIELD_NUMBER, .unit = "m", .def = {0}, RANGE(0, 1),
      .doc = "extra thickness around each strand for strand-strand contact: two strands touch at r_a + t_a + r_b "
             "+ t_b"},
+    {.name = "damping", .kind = DR_FIELD_NUMBER, .unit = "s", .def = {0}, RANGE(0, 10),
+     .doc = "viscous damping along the contact normal as a time constant: a contact resists its approach or "
+            "separation speed with damping * stiffness * speed (between two elements: the larger of their values); "
+            "0 = none"},
+};
+
+/* A collision element: which hair and cloth elements meet, by which method (its CollisionResponse: with which
+   response). */
+static const DrFieldSpec collision_fields[] = {
+    {.name = "members", .kind = DR_FIELD_NAMES, .unit = "", .required = true,
+     .doc = "the hair or cloth elements of the group, by name"},
+    {.name = "method", .kind = DR_FIELD_ENUM, .unit = "", .required = true, .choices = "edge_edge|vertex_face",
+     .doc = "how contacts are found: edge_edge between strand segments (hair members), vertex_face between a "
+            "panel's vertices and its triangles (cloth members)"},
+    {.name = "pairs", .kind = DR_FIELD_ENUM, .unit = "", .def_str = "all", .choices = "all|self|between",
+     .doc = "which members meet: all (each with itself and with every other), self (each with itself only) or "
+            "between (different members only)"},
 };
 
 static const DrFieldSpec hair_solver_fields[] = {
@@ -592,7 +627,8 @@ static const DrFieldSpec cloth_material_fields[] = {
      .doc = "internal viscosity as a Kelvin-Voigt time constant on stretching and bending; 0 = none"},
     {.name = "self_contact", .kind = DR_FIELD_BOOL, .unit = "", .def = {1},
      .doc = "the panel's layers keep Collider.thickness (default 1 mm) apart: vertex-triangle contacts within the panel, "
-            "with Collider.friction (a fold, a sheet landing on itself)"},
+            "with Collider.friction (a fold, a sheet landing on itself); the shorthand of a vertex_face collision "
+            "element, and not written in a scene that has collision elements"},
     {.name = "bending", .kind = DR_FIELD_ENUM, .unit = "", .def_str = "shape_operator", .choices = "shape_operator|hinge",
      .doc = "bending discretisation: shape_operator (each triangle's discrete shape operator from its edges' "
             "dihedral angles: Kirchhoff's plate energy with the material's nu on regular meshes) or hinge (one term "
@@ -679,10 +715,12 @@ const DrComponentSpec dr_scene_components_[] = {
                  "hair, how its strands meet every collider; on a bem_solid, how its vertices meet every collider "
                  "(friction: the larger of the two elements' values) and the other bodies",
      collider_fields, COUNT(collider_fields)},
-    {"FixedVertices", "vertices of a boundary-element body held where they start", fixed_vertices_fields,
-     COUNT(fixed_vertices_fields)},
+    {"FixedVertices", "vertices of a boundary-element body or a cloth held where they start (of a cloth: the shorthand "
+                      "of a pin attachment element)",
+     fixed_vertices_fields, COUNT(fixed_vertices_fields)},
     {"Joint", "two boundary-element bodies held together at vertices", joint_fields, COUNT(joint_fields)},
-    {"SlideVertices", "vertices of a cloth held on a curve, free to slide along it (an attachment: a curtain on its rail)",
+    {"SlideVertices", "vertices of a cloth held on a curve, free to slide along it (a curtain on its rail; the shorthand "
+                      "of a slide attachment element)",
      slide_vertices_fields, COUNT(slide_vertices_fields)},
     {"Transform", "rest placement of the mesh (of an mpm_solid: of its MpmShape; of hair: of its scalp or curves; of a "
                   "bem_solid: its pose at t=0, scale 1 only): scale, then rotate, then translate",
@@ -703,8 +741,13 @@ const DrComponentSpec dr_scene_components_[] = {
     {"CollisionGroup", "which hair elements this one's strands collide with, and whether they collide with each "
                        "other; colliders meet every hair element",
      collision_group_fields, COUNT(collision_group_fields)},
-    {"CollisionResponse", "strand-strand contact: stiffness, friction and thickness", collision_response_fields,
-     COUNT(collision_response_fields)},
+    {"CollisionResponse", "contact response: stiffness, damping, friction and thickness (of a hair element's "
+                          "strand-strand contacts, or of a collision element's contacts)",
+     collision_response_fields, COUNT(collision_response_fields)},
+    {"Collision", "the members of a collision element and the method that finds their contacts",
+     collision_fields, COUNT(collision_fields)},
+    {"Attachment", "what an attachment element holds (members, and a cloth's vertices in box) and how: pin, slide "
+                   "or rigid", attachment_fields, COUNT(attachment_fields)},
     {"HairSolver", "the linear solve of a hair step (the same for every hair element: they are solved together)",
      hair_solver_fields, COUNT(hair_solver_fields)},
     {"Wetting", "makes a hair element wet: the liquid its strands carry (the same on every wet hair element)",
@@ -766,6 +809,9 @@ static const char *const cloth_components[] = {"Mesh",     "Transform", "ClothMa
                                                "Collider", "FixedVertices", "SlideVertices", "Motion"};
 static const char *const cloth_required[] = {"Mesh"};
 static const char *const air_required[] = {"AirDomain"};
+static const char *const collision_components[] = {"Collision", "CollisionResponse"};
+static const char *const collision_required[] = {"Collision"};
+static const char *const attachment_components[] = {"Attachment"};
 
 const DrElementSpec dr_scene_types_[] = {
     {"liquid", "a body of incompressible liquid (APIC/FLIP/PIC particles on a MAC grid inside its Domain)",
@@ -796,9 +842,21 @@ const DrElementSpec dr_scene_types_[] = {
      "Lagrangian solver; FixedVertices pins it, colliders, bem_solid and MPM bodies hold it up, ClothDrag couples it "
      "with the liquid or the air",
      cloth_components, COUNT(cloth_components), cloth_required, COUNT(cloth_required), false, DR_ELEMENT_CLOTH},
+    {"collision",
+     "a collision group: its members (hair or cloth elements) meet each other or themselves by one method with the "
+     "response of its CollisionResponse; several give several methods or responses. Once a scene has one, collision "
+     "elements alone say which strands and panels touch (a hair's CollisionGroup and CollisionResponse and a cloth's "
+     "ClothMaterial.self_contact are their shorthand, for scenes without them)",
+     collision_components, COUNT(collision_components), collision_required, COUNT(collision_required), false,
+     DR_ELEMENT_COLLISION},
+    {"attachment",
+     "an attachment: vertices of its members held by a pin, on a curve (slide) or rigidly to a collider or a bem_solid "
+     "body; a cloth's FixedVertices and SlideVertices are its shorthand",
+     attachment_components, COUNT(attachment_components), attachment_components, COUNT(attachment_components), false,
+     DR_ELEMENT_ATTACHMENT},
 };
 const int dr_scene_type_count_ = COUNT(dr_scene_types_);
-_Static_assert(COUNT(dr_scene_types_) == DR_ELEMENT_CLOTH + 1, "one DrElementKind per element type");
+_Static_assert(COUNT(dr_scene_types_) == DR_ELEMENT_ATTACHMENT + 1, "one DrElementKind per element type");
 
 /* ---- lookups ---------------------------------------------------------------------------------------------- */
 
@@ -848,6 +906,7 @@ int dr_scene_kind_width_(const DrFieldSpec *f)
     case DR_FIELD_TABLE: return f->arity;
     case DR_FIELD_ENUM:
     case DR_FIELD_NAME:
+    case DR_FIELD_NAMES:
     case DR_FIELD_PATH: return 0;
     }
     return 0;
@@ -894,6 +953,7 @@ static void check_component_spec(const DrComponentSpec *c)
         int w = dr_scene_kind_width_(f);
         bool has_def = !f->required && !f->no_default;
         if (f->kind == DR_FIELD_TABLE) assert(f->arity >= 1 && !f->required);
+        if (f->kind == DR_FIELD_NAMES) assert(f->required && "a list of names is always required");
         if (f->kind == DR_FIELD_ENUM) assert(f->choices && (!has_def || choice_ok(f->choices, f->def_str)));
         if (f->kind == DR_FIELD_ENUM || f->kind == DR_FIELD_NAME) assert(!has_def || f->def_str);
         if (f->kind == DR_FIELD_INT || f->kind == DR_FIELD_INT2)
@@ -1010,6 +1070,7 @@ static void kind_text(const DrFieldSpec *f, char *buf, size_t size)
     case DR_FIELD_INT2: snprintf(buf, size, "[int, int]"); return;
     case DR_FIELD_BOX: snprintf(buf, size, "box [lo, hi]"); return;
     case DR_FIELD_TABLE: snprintf(buf, size, "rows of %d", f->arity); return;
+    case DR_FIELD_NAMES: snprintf(buf, size, "names"); return;
     case DR_FIELD_ENUM: {
         char split[256], list[256];
         const char *names[16];
@@ -1043,7 +1104,8 @@ void dr_scene_default_text_(const DrFieldSpec *f, char *buf, size_t size)
     case DR_FIELD_INT2: snprintf(buf, size, "[%s, %s]", a, b); return;
     case DR_FIELD_BOX: snprintf(buf, size, "[[%s, %s, %s], [%s, %s, %s]]", a, b, c, d, e, g); return;
     case DR_FIELD_PATH:
-    case DR_FIELD_TABLE: return;
+    case DR_FIELD_TABLE:
+    case DR_FIELD_NAMES: return;
     }
 }
 

@@ -62,6 +62,11 @@ int world_kinematics_liquid_colliders(const WorldKinematics *k, const DrCollider
 /* Every live collider posed at t (the shared array the MPM, hair and cloth colliders point into), and the bodies. */
 WorldPosedCollider *world_kinematics_posed(WorldKinematics *k);
 void world_kinematics_pose(WorldKinematics *k, double t);
+/* The rigid motion that carries what is attached to `target` (a collider or bem_solid element) from the placed rest
+   pose to time t: a collider's Motion pose at t; a body's frame at t (as its keys so far carry it) composed with the
+   inverse of its frame at t = 0, so that a point q of the rest pose goes to R(t) R₀ᵀ (q − T₀) + T(t). False when the
+   kinematics keep no collider for it. t within the clock step being taken. */
+bool world_kinematics_carry(const WorldKinematics *k, const DrElement *target, double t, DrXform *out);
 /* The bem_solid bodies as the hair and the cloth see them (their deformed surface, posed with the colliders); 0
    without hair, cloth and liquid. The array stays in place; each entry's collider changes at every BEM step. */
 int world_kinematics_bodies_posed(WorldKinematics *k, WorldPosedCollider **out);

@@ -35,8 +35,11 @@ typedef struct WorldPanel {
     double thickness;
     int first;           /* its first element in the coupled samples */
     int npins;
-    int *pins;           /* the pinned vertices (FixedVertices) */
+    int *pins;           /* the pinned vertices (FixedVertices, pin and rigid attachments) */
     double *pin_rest;    /* 3 npins: where they are in the placed rest pose */
+    int *pin_carrier;    /* npins: −1, moved by the panel's Motion; else the index in carriers of what carries it */
+    const DrElement **carriers; /* the targets of the panel's rigid attachments */
+    int ncarriers;
     double *keys;        /* Motion keys (rows of 7), moving the pins rigidly from the rest pose */
     int nkeys;
     double *uv;          /* 6T: the mesh's texture coordinates per triangle corner, NULL without */
@@ -76,6 +79,8 @@ static void cloth_destroy(void *self)
         free(w->panels[i].area);
         free(w->panels[i].pins);
         free(w->panels[i].pin_rest);
+        free(w->panels[i].pin_carrier);
+        free(w->panels[i].carriers);
         free(w->panels[i].keys);
         free(w->panels[i].uv);
     }
@@ -95,61 +100,127 @@ static void cloth_destroy(void *self)
     free(w);
 }
 
-/* Pins every vertex inside FixedVertices.box (placed rest pose); the box must hold one. */
-static DrStatus pin_box(const DrElement *e, const DrTriMesh *m, WorldPanel *p, DrError *err)
+/* Whether rest position q lies inside the box [lo, hi]. */
+static bool in_box(const double *q, DrVec3 lo, DrVec3 hi)
 {
-    const DrComponent *fixed = dr_element_component(e, "FixedVertices");
-    if (!dr_component_present(fixed)) return DR_OK;
-    DrVec3 lo, hi;
-    dr_component_box(fixed, "box", &lo, &hi);
+    return q[0] >= lo.x && q[0] <= hi.x && q[1] >= lo.y && q[1] <= hi.y && q[2] >= lo.z && q[2] <= hi.z;
+}
+
+/* Pins every vertex inside box (placed rest pose), moved by the panel's Motion (carrier NULL) or carried by a rigid
+   attachment's target; `by` is the element that asks (the cloth for its FixedVertices, else the attachment) and
+   `where` its field for messages. The box must hold a vertex, and no vertex is held by two attachments that move it
+   differently. */
+static DrStatus pin_box(const DrElement *e, const DrElement *by, const char *where, DrVec3 lo, DrVec3 hi,
+                        const DrElement *carrier, const DrTriMesh *m, WorldPanel *p, DrError *err)
+{
+    if (!p->pins) {
+        DR_TRY(dr_calloc((size_t)m->nv, sizeof(int), &p->pins, err));
+        DR_TRY(dr_calloc(3 * (size_t)m->nv, sizeof(double), &p->pin_rest, err));
+        DR_TRY(dr_calloc((size_t)m->nv, sizeof(int), &p->pin_carrier, err));
+    }
+    int ci = -1;
+    if (carrier) {
+        for (int k = 0; k < p->ncarriers; k++)
+            if (p->carriers[k] == carrier) ci = k;
+        if (ci < 0) {
+            DR_TRY(dr_realloc((size_t)p->ncarriers + 1, sizeof *p->carriers, &p->carriers, err));
+            ci = p->ncarriers++;
+            p->carriers[ci] = carrier;
+        }
+    }
     int pinned = 0;
-    DR_TRY(dr_calloc((size_t)m->nv, sizeof(int), &p->pins, err));
-    DR_TRY(dr_calloc(3 * (size_t)m->nv, sizeof(double), &p->pin_rest, err));
     for (int v = 0; v < m->nv; v++) {
         const double *q = m->v + 3 * v;
-        if (q[0] < lo.x || q[0] > hi.x || q[1] < lo.y || q[1] > hi.y || q[2] < lo.z || q[2] > hi.z) continue;
-        DR_TRY(dr_cloth_pin(p->cloth, v, true, NULL, err));
-        p->pins[pinned] = v;
-        memcpy(p->pin_rest + 3 * pinned, q, 3 * sizeof(double));
+        if (!in_box(q, lo, hi)) continue;
         pinned++;
+        int k = 0;
+        while (k < p->npins && p->pins[k] != v) k++;
+        if (k < p->npins) { /* held already: by the same motion, or a conflict */
+            if (p->pin_carrier[k] == ci) continue;
+            return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
+                                "%s: vertex %d of %s (at %g, %g, %g in the placed rest pose) is held by %s.%s and by "
+                                "another attachment that moves it otherwise (%s); shrink one of the boxes so that "
+                                "they do not overlap",
+                                by->name, v, e->name, q[0], q[1], q[2], by->name, where,
+                                p->pin_carrier[k] < 0 ? "a pin" : p->carriers[p->pin_carrier[k]]->name);
+        }
+        DR_TRY(dr_cloth_pin(p->cloth, v, true, NULL, err));
+        p->pins[p->npins] = v;
+        p->pin_carrier[p->npins] = ci;
+        memcpy(p->pin_rest + 3 * p->npins, q, 3 * sizeof(double));
+        p->npins++;
     }
-    p->npins = pinned;
     if (pinned == 0)
         return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
-                            "%s.FixedVertices.box holds none of the cloth's %d vertices (in the placed rest pose); "
-                            "move or enlarge the box",
-                            e->name, m->nv);
+                            "%s.%s holds none of the %d vertices of %s (in the placed rest pose); move or enlarge "
+                            "the box", by->name, where, m->nv, e->name);
     return DR_OK;
 }
 
-/* SlideVertices: the vertices inside its box (placed rest pose) slide on its curve; the box must hold one and the
-   curve have 2 points or more. */
-static DrStatus slide_box(const DrElement *e, const DrTriMesh *m, DrCloth *cl, DrError *err)
+/* The vertices inside box (placed rest pose) slide on the curve (rows of 3); the box must hold one and the curve have
+   2 points or more. `by` and `where` as pin_box's. */
+static DrStatus slide_box(const DrElement *e, const DrElement *by, const char *where, DrVec3 lo, DrVec3 hi,
+                          const double *rows, int n, const DrTriMesh *m, DrCloth *cl, DrError *err)
 {
-    const DrComponent *sc = dr_element_component(e, "SlideVertices");
-    if (!dr_component_present(sc)) return DR_OK;
-    const double *rows = NULL;
-    int n = dr_component_table(sc, "curve", &rows);
     if (n < 2)
         return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
-                            "%s.SlideVertices.curve has %d point(s); give the curve as 2 points or more "
+                            "%s.%s.curve has %d point(s); give the curve as 2 points or more "
                             "[[x, y, z], [x, y, z], ...]",
-                            e->name, n);
-    DR_TRY(dr_error_prefix(dr_cloth_set_slide_curve(cl, rows, n, err), err, "%s.SlideVertices.curve", e->name));
-    DrVec3 lo, hi;
-    dr_component_box(sc, "box", &lo, &hi);
+                            by->name, where, n);
+    DR_TRY(dr_error_prefix(dr_cloth_set_slide_curve(cl, rows, n, err), err, "%s.%s.curve", by->name, where));
     int held = 0;
     for (int v = 0; v < m->nv; v++) {
-        const double *q = m->v + 3 * v;
-        if (q[0] < lo.x || q[0] > hi.x || q[1] < lo.y || q[1] > hi.y || q[2] < lo.z || q[2] > hi.z) continue;
+        if (!in_box(m->v + 3 * v, lo, hi)) continue;
         DR_TRY(dr_cloth_slide(cl, v, true, err));
         held++;
     }
     if (held == 0)
         return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0,
-                            "%s.SlideVertices.box holds none of the cloth's %d vertices (in the placed rest pose); "
-                            "move or enlarge the box",
-                            e->name, m->nv);
+                            "%s.%s.box holds none of the %d vertices of %s (in the placed rest pose); move or enlarge "
+                            "the box", by->name, where, m->nv, e->name);
+    return DR_OK;
+}
+
+/* What holds the panel: its FixedVertices and SlideVertices, then the scene's attachment elements that list it, in
+   element order (pin: moved by the panel's Motion as FixedVertices; slide: as SlideVertices; rigid: carried by the
+   target). */
+static DrStatus attach(const WorldCtx *c, const DrElement *e, const DrTriMesh *m, WorldPanel *p, DrError *err)
+{
+    DrVec3 lo, hi;
+    const DrComponent *fixed = dr_element_component(e, "FixedVertices");
+    if (dr_component_present(fixed)) {
+        dr_component_box(fixed, "box", &lo, &hi);
+        DR_TRY(pin_box(e, e, "FixedVertices.box", lo, hi, NULL, m, p, err));
+    }
+    const DrComponent *sc = dr_element_component(e, "SlideVertices");
+    if (dr_component_present(sc)) {
+        const double *rows = NULL;
+        int n = dr_component_table(sc, "curve", &rows);
+        dr_component_box(sc, "box", &lo, &hi);
+        DR_TRY(slide_box(e, e, "SlideVertices", lo, hi, rows, n, m, p->cloth, err));
+    }
+    for (int i = 0; i < dr_scene_element_count(c->scene); i++) {
+        const DrElement *a = dr_scene_element(c->scene, i);
+        if (a->kind != DR_ELEMENT_ATTACHMENT) continue;
+        const DrComponent *ac = dr_element_component(a, "Attachment");
+        const char *const *mem = NULL;
+        int n = dr_component_names(ac, "members", &mem);
+        bool listed = false;
+        for (int k = 0; k < n; k++) listed = listed || strcmp(mem[k], e->name) == 0;
+        if (!listed) continue;
+        dr_component_box(ac, "box", &lo, &hi);
+        const char *method = dr_component_str(ac, "method");
+        if (strcmp(method, "slide") == 0) {
+            const double *rows = NULL;
+            int nr = dr_component_table(ac, "curve", &rows);
+            DR_TRY(slide_box(e, a, "Attachment", lo, hi, rows, nr, m, p->cloth, err));
+        } else if (strcmp(method, "pin") == 0) {
+            DR_TRY(pin_box(e, a, "Attachment.box", lo, hi, NULL, m, p, err));
+        } else {
+            const DrElement *t = dr_scene_find(c->scene, dr_component_str(ac, "target"));
+            DR_TRY(pin_box(e, a, "Attachment.box", lo, hi, t, m, p, err));
+        }
+    }
     return DR_OK;
 }
 
@@ -183,9 +254,26 @@ static DrStatus build_panel(const WorldCtx *c, const DrElement *e, WorldPanel *p
     desc.solver.tol = dr_component_num(sc, "tolerance");
     desc.solver.max_iter = dr_component_int(sc, "max_iterations");
     desc.collider_stiffness = dr_component_num(sc, "collider_stiffness");
+    /* self contact: ClothMaterial.self_contact with the collider contacts' stiffness, friction and thickness, or, in a
+       scene with collision elements, the vertex_face one that meets the panel with itself, whose CollisionResponse's
+       written fields take their place */
+    mat.self_stiffness = desc.collider_stiffness;
+    mat.self_friction = mat.friction;
+    mat.self_thickness = mat.collision_thickness;
+    mat.self_damping = 0.0;
+    if (dr_scene_count_kind(c->scene, DR_ELEMENT_COLLISION) > 0) {
+        const DrElement *ce = dr_scene_collision(c->scene, e->name, e->name, "vertex_face");
+        mat.self_contact = ce != NULL;
+        if (ce) {
+            const DrComponent *r = dr_element_component(ce, "CollisionResponse");
+            if (dr_component_is_set(r, "stiffness")) mat.self_stiffness = dr_component_num(r, "stiffness");
+            if (dr_component_is_set(r, "friction")) mat.self_friction = dr_component_num(r, "friction");
+            if (dr_component_is_set(r, "thickness")) mat.self_thickness = dr_component_num(r, "thickness");
+            mat.self_damping = dr_component_num(r, "damping");
+        }
+    }
     DrStatus s = dr_cloth_create(&desc, &m, &mat, e->name, &p->cloth, err);
-    if (s == DR_OK) s = pin_box(e, &m, p, err);
-    if (s == DR_OK) s = slide_box(e, &m, p->cloth, err);
+    if (s == DR_OK) s = attach(c, e, &m, p, err);
     if (s == DR_OK) s = dr_stage_motion_keys(e, c->first_frame, c->fps, &p->keys, &p->nkeys, err);
     if (s == DR_OK) s = dr_calloc((size_t)m.nv, sizeof(double), &p->area, err);
     p->min_edge = INFINITY;
@@ -352,19 +440,27 @@ static DrStatus cloth_next_time(void *self, const WorldCtx *c, double t, double 
 
 /* With Motion, the pinned vertices' velocities over the step to t_next: each lands exactly where the motion's pose
    at t_next puts its rest position. */
-static DrStatus move_pins(WorldPanel *p, double t, double t_next, DrError *err)
+static DrStatus move_pins(const WorldCtx *c, WorldPanel *p, double t, double t_next, DrError *err)
 {
-    if (p->nkeys == 0 || p->npins == 0) return DR_OK;
+    if ((p->nkeys == 0 && p->ncarriers == 0) || p->npins == 0) return DR_OK;
     DrXform pose = dr_motion_pose(p->keys, p->nkeys, t_next);
+    DrXform carry[8], *cp = carry;
+    if (p->ncarriers > 8) DR_TRY(dr_calloc((size_t)p->ncarriers, sizeof *cp, &cp, err));
+    for (int k = 0; k < p->ncarriers; k++)
+        if (!world_kinematics_carry(c->kin, p->carriers[k], t_next, &cp[k])) cp[k] = dr_xform_identity();
     const double *x = dr_cloth_positions(p->cloth);
-    for (int k = 0; k < p->npins; k++) {
+    DrStatus s = DR_OK;
+    for (int k = 0; s == DR_OK && k < p->npins; k++) {
         int v = p->pins[k];
-        DrVec3 to = dr_xform_apply(pose, dr_v3(p->pin_rest[3 * k], p->pin_rest[3 * k + 1], p->pin_rest[3 * k + 2]));
+        if (p->pin_carrier[k] < 0 && p->nkeys == 0) continue; /* held where it is */
+        DrXform X = p->pin_carrier[k] < 0 ? pose : cp[p->pin_carrier[k]];
+        DrVec3 to = dr_xform_apply(X, dr_v3(p->pin_rest[3 * k], p->pin_rest[3 * k + 1], p->pin_rest[3 * k + 2]));
         double vel[3] = {(to.x - x[3 * v]) / (t_next - t), (to.y - x[3 * v + 1]) / (t_next - t),
                          (to.z - x[3 * v + 2]) / (t_next - t)};
-        DR_TRY(dr_cloth_pin(p->cloth, v, true, vel, err));
+        s = dr_cloth_pin(p->cloth, v, true, vel, err);
     }
-    return DR_OK;
+    if (cp != carry) free(cp);
+    return s;
 }
 
 static DrStatus panel_status(WorldCloth *w, DrStatus s)
@@ -378,13 +474,12 @@ static DrStatus panel_status(WorldCloth *w, DrStatus s)
 
 static DrStatus cloth_step(void *self, const WorldCtx *c, double t, double t_next, DrError *err)
 {
-    (void)c;
     WorldCloth *w = self;
     double t0 = dr_time_now();
     w->contacts = w->self_contacts = 0;
     for (int i = 0; i < w->n; i++) {
         DrClothStats st;
-        DR_TRY(move_pins(&w->panels[i], t, t_next, err));
+        DR_TRY(move_pins(c, &w->panels[i], t, t_next, err));
         DR_TRY(panel_status(w, dr_cloth_step(w->panels[i].cloth, t_next - t, w->colliders, w->ncolliders, &st, err)));
         w->iterations += st.iterations;
         w->contacts += st.collider_contacts;
@@ -431,12 +526,11 @@ static bool cloth_couples(const void *self) { return ((const WorldCloth *)self)-
 static DrStatus cloth_solid_predict(void *self, const WorldCtx *c, double t, double t_next, DrCoupleSolid *solid,
                                     DrError *err)
 {
-    (void)c;
     WorldCloth *w = self;
     double t0 = dr_time_now();
     for (int i = 0; i < w->n; i++) {
         WorldPanel *p = &w->panels[i];
-        DR_TRY(move_pins(p, t, t_next, err));
+        DR_TRY(move_pins(c, p, t, t_next, err));
         DR_TRY(panel_status(w, dr_cloth_predict(p->cloth, t_next - t, w->colliders, w->ncolliders, err)));
         int nv = dr_cloth_vertex_count(p->cloth);
         memcpy(w->x + 3 * (size_t)p->first, dr_cloth_positions(p->cloth), 3 * (size_t)nv * sizeof(double));

@@ -29,6 +29,7 @@ typedef struct WorldBodyCollider {
     double dx;
     double *built_u;         /* u when the SDF was built (3N) */
     DrXform start;           /* the body's frame (R, T) at the start of the step being taken */
+    DrXform start0;          /* and at t = 0: R₀ the element's Transform rotation, T₀ = R₀x̄ + t (world_bem.c) */
     DrVec3 start_velocity;   /* and its Ṫ */
     double *keys;            /* the frame's key rows so far (7 each) */
     int nkeys, cap_keys;
@@ -354,6 +355,10 @@ DrStatus world_kinematics_add_bodies(WorldKinematics *k, const DrScene *scene, c
         DR_TRY(dr_calloc(7 * (BODY_KEY_INTERVALS + 2), sizeof(double), &bc->keys, err));
         bc->cap_keys = BODY_KEY_INTERVALS + 2;
         body_frame(bc->solid, &bc->start, &bc->start_velocity);
+        double scale;
+        DrXform X = dr_stage_element_transform(bc->element, &scale);
+        const double *xb = dr_bem_solid_matrices(bc->solid)->body.centroid;
+        bc->start0 = (DrXform){X.R, dr_v3_add(dr_m3_apply(X.R, dr_v3(xb[0], xb[1], xb[2])), X.t)};
         put_key(bc->keys, 0.0, bc->start.t, euler_near(bc->start.R, dr_v3(0, 0, 0)));
         bc->nkeys = 1; /* at rest where the Transform put it: no liquid is seeded inside it */
         DR_TRY(pose_body_collider(bc, err));
@@ -784,6 +789,24 @@ void world_kinematics_pose(WorldKinematics *k, double t)
     for (int i = 0; i < k->nlive; i++)
         if (k->posed[i].moving) k->posed[i].frame = dr_collider_frame(k->posed[i].collider, t);
     for (int i = 0; i < k->nbodies; i++) k->body_posed[i].frame = dr_collider_frame(k->body_posed[i].collider, t);
+}
+
+bool world_kinematics_carry(const WorldKinematics *k, const DrElement *target, double t, DrXform *out)
+{
+    for (int i = 0; i < k->ncolliders; i++)
+        if (k->colliders[i].element == target && k->colliders[i].collider) {
+            *out = dr_collider_pose(k->colliders[i].collider, t);
+            return true;
+        }
+    for (int i = 0; i < k->nbodies; i++)
+        if (k->bodies[i].element == target) {
+            const WorldBodyCollider *bc = &k->bodies[i];
+            DrXform P = dr_collider_pose(bc->collider, t);
+            DrMat3 R = dr_m3_mul(P.R, dr_m3_transpose(bc->start0.R));
+            *out = (DrXform){R, dr_v3_sub(P.t, dr_m3_apply(R, bc->start0.t))};
+            return true;
+        }
+    return false;
 }
 
 int world_kinematics_bodies_posed(WorldKinematics *k, WorldPosedCollider **out)

@@ -69,6 +69,7 @@ typedef struct WorldWet {
     WorldMomentum momentum;    /* the momentum ledger of liquid, strands and film (with the exchange) */
 } WorldWet;
 
+
 /* Hair coupled two ways with a fluid (elements with a Drag component; src/couple): per vertex the element's law, the
    volume, diameter and slenderness the laws read, and the coupling's load added to the film's. */
 typedef struct WorldCouple {
@@ -99,7 +100,13 @@ typedef struct WorldHair {
     WorldCouple *cpl;        /* NULL: no hair element has a Drag component */
     const DrElement **elements;
     int nelements;
+    /* per element: which strands touch (the rod set's group, mask and self_contact) and the thickness bridges keep,
+       from the element's CollisionGroup and CollisionResponse or from the scene's collision elements */
+    unsigned *cgroup, *cmask;
+    unsigned char *cself;
+    double *cthick;
     double **keys;           /* per element: scalp motion keys (rows of 7: s, m, rad) */
+    const DrElement **carrier; /* per element: the target of the rigid attachment that carries its roots, or NULL */
     int *nkeys;
     bool any_motion;
     DrXform *poses;          /* per element, the step's end pose */
@@ -169,11 +176,77 @@ static void hair_destroy(void *self)
     free(h->fint);
     for (int i = 0; h->keys && i < h->nelements; i++) free(h->keys[i]);
     free(h->keys);
+    free(h->carrier);
     free(h->nkeys);
     free(h->elements);
+    free(h->cgroup);
+    free(h->cmask);
+    free(h->cself);
+    free(h->cthick);
     free(h->poses);
     free(h->colliders);
     free(h);
+}
+
+/* Which hair elements' strands touch, and with what response, in a scene with collision elements: batch b is group bit
+   b, its mask holds the bits of the batches an edge_edge collision element pairs it with (itself: self_contact), and
+   pairs[a·B + b] that element's CollisionResponse, each strand thickened by its thickness (as two elements that each
+   have a CollisionResponse). The thickness bridges keep (per element) is its own pair's, else the largest of its pairs'.
+   Without collision elements pairs stays NULL and the elements' own CollisionGroup and CollisionResponse apply. */
+static DrStatus collision_elements(const DrScene *scene, WorldHair *h, DrRodBatch *batches, DrRodPairResponse **pairs,
+                                   DrError *err)
+{
+    int B = h->nelements;
+    *pairs = NULL;
+    if (dr_scene_count_kind(scene, DR_ELEMENT_COLLISION) == 0) return DR_OK;
+    assert(B <= 31); /* the scene's rules */
+    DR_TRY(dr_calloc((size_t)B * (size_t)B, sizeof **pairs, pairs, err));
+    for (int a = 0; a < B; a++) {
+        batches[a].group = 1u << a;
+        batches[a].mask = 0;
+        batches[a].self_contact = false;
+        double own = -1.0, most = 0.0;
+        for (int b = 0; b < B; b++) {
+            const DrElement *ce = dr_scene_collision(scene, h->elements[a]->name, h->elements[b]->name, "edge_edge");
+            if (!ce) continue;
+            const DrComponent *r = dr_element_component(ce, "CollisionResponse");
+            DrRodPairResponse *p = &(*pairs)[(size_t)a * (size_t)B + (size_t)b];
+            *p = (DrRodPairResponse){dr_component_num(r, "stiffness"), dr_component_num(r, "friction"),
+                                     dr_component_num(r, "thickness"), dr_component_num(r, "damping")};
+            if (a == b) {
+                batches[a].self_contact = true;
+                own = p->thickness;
+            } else {
+                batches[a].mask |= 1u << b;
+            }
+            most = fmax(most, p->thickness);
+        }
+        batches[a].contact_thickness = own >= 0 ? own : most;
+    }
+    return DR_OK;
+}
+
+/* The target of the rigid attachment element that carries hair element e's roots (the scene allows one), or NULL. */
+static const DrElement *root_carrier(const DrScene *scene, const DrElement *e)
+{
+    for (int i = 0; i < dr_scene_element_count(scene); i++) {
+        const DrElement *a = dr_scene_element(scene, i);
+        if (a->kind != DR_ELEMENT_ATTACHMENT) continue;
+        const DrComponent *ac = dr_element_component(a, "Attachment");
+        const char *const *m = NULL;
+        int n = dr_component_names(ac, "members", &m);
+        for (int k = 0; k < n; k++)
+            if (strcmp(m[k], e->name) == 0) return dr_scene_find(scene, dr_component_str(ac, "target"));
+    }
+    return NULL;
+}
+
+/* Each element's scalp pose at t: its Motion's, or its rigid attachment's target's. */
+static void scalp_poses(WorldHair *h, const WorldCtx *c, double t)
+{
+    for (int b = 0; b < h->nelements; b++)
+        if (!h->carrier[b] || !world_kinematics_carry(c->kin, h->carrier[b], t, &h->poses[b]))
+            h->poses[b] = dr_motion_pose(h->keys[b], h->nkeys[b], t);
 }
 
 static DrStatus build_hair(const WorldCtx *c, WorldHair *h, int n, DrError *err)
@@ -182,6 +255,7 @@ static DrStatus build_hair(const WorldCtx *c, WorldHair *h, int n, DrError *err)
     DR_TRY(dr_calloc((size_t)n, sizeof *h->elements, &h->elements, err));
     DR_TRY(dr_calloc((size_t)n, sizeof *h->keys, &h->keys, err));
     DR_TRY(dr_calloc((size_t)n, sizeof *h->nkeys, &h->nkeys, err));
+    DR_TRY(dr_calloc((size_t)n, sizeof *h->carrier, &h->carrier, err));
     DR_TRY(dr_calloc((size_t)n, sizeof *h->poses, &h->poses, err));
     DrGroom *grooms = NULL;
     DrRodBatch *batches = NULL;
@@ -214,16 +288,35 @@ static DrStatus build_hair(const WorldCtx *c, WorldHair *h, int n, DrError *err)
         bt->contact_stiffness = dr_component_num(cr, "stiffness");
         bt->contact_friction = dr_component_num(cr, "friction");
         bt->contact_thickness = dr_component_num(cr, "thickness");
+        bt->contact_damping = dr_component_num(cr, "damping");
         bt->collider_friction = dr_component_num(co, "friction");
         bt->collider_thickness = dr_component_num(co, "thickness");
         const char *rt = dr_component_str(dr_element_component(e, "Groom"), "roots");
         roots[b] = strcmp(rt, "free") == 0     ? DR_ROD_ROOTS_FREE
                    : strcmp(rt, "pinned") == 0 ? DR_ROD_ROOTS_PINNED
                                                : DR_ROD_ROOTS_CLAMPED;
-        contact = contact || bt->self_contact || n > 1;
+
         /* scalp motion keys: times in s, angles in radians, as the colliders take them */
         if (s == DR_OK) s = dr_stage_motion_keys(e, c->first_frame, c->fps, &h->keys[b], &h->nkeys[b], err);
         if (s == DR_OK && h->nkeys[b] > 0) h->any_motion = true;
+        h->carrier[b] = root_carrier(scene, e);
+        if (h->carrier[b]) h->any_motion = true;
+    }
+    DrRodPairResponse *pairs = NULL;
+    if (s == DR_OK) s = collision_elements(scene, h, batches, &pairs, err);
+    if (s == DR_OK) s = dr_calloc((size_t)n, sizeof *h->cgroup, &h->cgroup, err);
+    if (s == DR_OK) s = dr_calloc((size_t)n, sizeof *h->cmask, &h->cmask, err);
+    if (s == DR_OK) s = dr_calloc((size_t)n, sizeof *h->cself, &h->cself, err);
+    if (s == DR_OK) s = dr_calloc((size_t)n, sizeof *h->cthick, &h->cthick, err);
+    for (int b = 0; s == DR_OK && b < h->nelements; b++) {
+        const DrRodBatch *bt = &batches[b];
+        h->cgroup[b] = bt->group;
+        h->cmask[b] = bt->mask;
+        h->cself[b] = bt->self_contact;
+        h->cthick[b] = bt->contact_thickness;
+        /* with the elements' own filters, any two elements may touch (their masks decide); with collision elements,
+           only the pairs they list */
+        contact = contact || bt->self_contact || (pairs ? bt->mask != 0 : h->nelements > 1);
     }
     if (s == DR_OK) {
         DrRodSetDesc d;
@@ -231,6 +324,7 @@ static DrStatus build_hair(const WorldCtx *c, WorldHair *h, int n, DrError *err)
         d.gravity = c->gravity;
         d.batch_roots = roots;
         d.hair_contact = contact;
+        d.pairs = pairs;
         d.geometric_stiffness = dr_component_bool(solver, "geometric_stiffness");
         const char *pc = dr_component_str(solver, "preconditioner");
         d.solver.precond = strcmp(pc, "jacobi") == 0    ? DR_LAG_PRECOND_JACOBI
@@ -251,6 +345,7 @@ static DrStatus build_hair(const WorldCtx *c, WorldHair *h, int n, DrError *err)
     free(grooms);
     free(batches);
     free(roots);
+    free(pairs);
     if (s != DR_OK) return s;
     /* the live colliders, then the bem_solid bodies' deformed surfaces and the MPM solids' particles (frictionless
        themselves: the hair's own Collider.friction applies), all where the kinematics put them at every clock
@@ -368,13 +463,12 @@ static DrStatus build_wet(const WorldCtx *c, WorldHair *h, const char *cache_roo
     DR_TRY(dr_calloc((size_t)S, sizeof(double), &ratio, err));
     for (int b = 0; b < B; b++) {
         const DrElement *e = h->elements[b];
-        const DrComponent *cg = dr_element_component(e, "CollisionGroup");
-        w->group[b] = 1u << dr_component_int(cg, "group");
-        w->mask[b] = (unsigned)dr_component_int(cg, "collides_with");
-        w->self[b] = dr_component_bool(cg, "self_collision");
+        w->group[b] = h->cgroup[b];
+        w->mask[b] = h->cmask[b];
+        w->self[b] = h->cself[b];
         bool wet = dr_component_present(dr_element_component(e, "Wetting"));
         double r0 = wet ? dr_component_num(dr_element_component(e, "Film"), "initial_ratio") : 1.0;
-        double tk = dr_component_num(dr_element_component(e, "CollisionResponse"), "thickness");
+        double tk = h->cthick[b];
         for (int k = rs.batch_offsets[b]; k < rs.batch_offsets[b + 1]; k++) {
             w->batch[k] = b;
             w->thickness[k] = tk;
@@ -665,7 +759,7 @@ static DrStatus hair_step(void *self, const WorldCtx *c, double t, double t_next
 {
     WorldHair *h = self;
     double t_start = dr_time_now();
-    for (int b = 0; b < h->nelements; b++) h->poses[b] = dr_motion_pose(h->keys[b], h->nkeys[b], t_next);
+    scalp_poses(h, c, t_next);
     DrStatus s = step_system(h, t_next - t, err);
     h->seconds += dr_time_now() - t_start;
     return after_step(h, c, t_next, s);
@@ -793,14 +887,13 @@ static bool hair_couples(const void *self) { return ((const WorldHair *)self)->c
 static DrStatus hair_solid_predict(void *self, const WorldCtx *c, double t, double t_next, DrCoupleSolid *solid,
                                    DrError *err)
 {
-    (void)c;
     WorldHair *h = self;
     h->cpl->dt = t_next - t;
     h->cpl->not_converged = false;
     size_t nv3 = 3 * (size_t)dr_rod_set_state(h->rods).nverts;
     memcpy(h->cpl->pending, h->cpl->next, nv3 * sizeof(double)); /* the last step's corrections act in this one */
     memset(h->cpl->next, 0, nv3 * sizeof(double));
-    for (int b = 0; b < h->nelements; b++) h->poses[b] = dr_motion_pose(h->keys[b], h->nkeys[b], t_next);
+    scalp_poses(h, c, t_next);
     double t_start = dr_time_now();
     DR_TRY(system_predict(h, t_next - t, err));
     h->seconds += dr_time_now() - t_start;

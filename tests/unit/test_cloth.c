@@ -501,7 +501,7 @@ static TwoSheets two_sheets(bool self_contact, double friction, double slide, in
     DrClothMaterial mat;
     dr_cloth_material_default(&mat);
     mat.self_contact = self_contact;
-    mat.friction = friction;
+    mat.self_friction = friction; /* between the two sheets */
     DrClothDesc desc;
     dr_cloth_desc_default(&desc);
     desc.gravity = dr_v3(0, 0, 0);

@@ -230,7 +230,7 @@ static void test_falling_rod_terminal_velocity(void **state)
     DrRodMaterial m;
     dr_rod_material_default(&m);
     m.radius = 5e-5;
-    DrRodBatch b = {&gr, m, 1, 1, false, 10, 0, 0, 0, 0};
+    DrRodBatch b = {&gr, m, 1, 1, false, 10, 0, 0, 0, 0, 0};
     DrRodSetDesc d;
     dr_rod_set_desc_default(&d);
     d.roots = DR_ROD_ROOTS_FREE;
@@ -514,7 +514,7 @@ static void run_closed_box(int iterations, double *hair_speed)
     dr_rod_material_default(&m);
     m.radius = 2e-4;
     m.youngs = 1e8;
-    DrRodBatch b = {&gr, m, 1, 1, false, 10, 0, 0, 0, 0};
+    DrRodBatch b = {&gr, m, 1, 1, false, 10, 0, 0, 0, 0, 0};
     DrRodSetDesc rd;
     dr_rod_set_desc_default(&rd);
     rd.roots = DR_ROD_ROOTS_FREE;
@@ -736,7 +736,7 @@ static void patch_make(Patch *p, double rho, double mu, double U, double xi_d)
     dr_rod_material_default(&m);
     m.radius = 1e-4;
     m.youngs = 1e8;
-    DrRodBatch b = {&p->gr, m, 1, 1, false, 10, 0, 0, 0, 0};
+    DrRodBatch b = {&p->gr, m, 1, 1, false, 10, 0, 0, 0, 0, 0};
     DrRodSetDesc rd;
     dr_rod_set_desc_default(&rd);
     rd.gravity = dr_v3(0, 0, 0);

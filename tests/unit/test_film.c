@@ -115,7 +115,7 @@ static void rig_make(Rig *rg, int S, int n, const double *x, DrRodRoots roots, D
     DrRodMaterial m;
     dr_rod_material_default(&m);
     if (g_rig_youngs > 0) m.youngs = g_rig_youngs, m.shear = g_rig_youngs / 3;
-    DrRodBatch b = {&rg->g, m, 1, 1, false, 10, 0, 0, 0, 0};
+    DrRodBatch b = {&rg->g, m, 1, 1, false, 10, 0, 0, 0, 0, 0};
     CHECK(dr_rod_set_create(&d, &b, 1, &rg->r, ERR));
     rg->rad = radii(rg->V);
     double *ratios = malloc((size_t)S * sizeof(double));

@@ -128,8 +128,8 @@ static void furry_make(Furry *f, const DrRodSetDesc *d)
     m.radius = 1e-4;
     m.youngs = 1e8;
     m.damping = 0.002;
-    DrRodBatch b[2] = {{&f->g[0], m, 1, 3, true, 10, 0.3, 0.002, 0.3, 0.0005},
-                       {&f->g[1], m, 2, 3, true, 20, 0.1, 0.001, 0.2, 0}};
+    DrRodBatch b[2] = {{&f->g[0], m, 1, 3, true, 10, 0.3, 0.002, 0.3, 0.0005, 0},
+                       {&f->g[1], m, 2, 3, true, 20, 0.1, 0.001, 0.2, 0, 0}};
     CHECK(dr_rod_set_create(d, b, 2, &f->r, ERR));
 }
 
@@ -343,7 +343,7 @@ static DrRodSet *free_strand(DrGroom *g, double tol)
     m.radius = 1e-4;
     m.youngs = 1e8;
     m.damping = 0.001;
-    DrRodBatch b = {g, m, 1, 1, false, 10, 0, 0, 0, 0};
+    DrRodBatch b = {g, m, 1, 1, false, 10, 0, 0, 0, 0, 0};
     DrRodSetDesc d;
     dr_rod_set_desc_default(&d);
     d.roots = DR_ROD_ROOTS_FREE;
@@ -669,7 +669,7 @@ static void test_two_sets_in_one_system(void **state)
     CHECK(dr_lag_create(&d.solver, &sys, ERR));
     DrRodSet *alone[2] = {NULL, NULL}, *shared[2] = {NULL, NULL};
     for (int i = 0; i < 2; i++) {
-        DrRodBatch b = {&g[i], m, 1, 1, false, 10, 0, 0, 0.3, 0};
+        DrRodBatch b = {&g[i], m, 1, 1, false, 10, 0, 0, 0.3, 0, 0};
         d.system = NULL;
         CHECK(dr_rod_set_create(&d, &b, 1, &alone[i], ERR));
         d.system = sys;

@@ -931,6 +931,173 @@ static void test_air(void **state)
     }
 }
 
+/* Collision elements: members by name, a method, pairs; the pair lookup the world uses; and every rule's error. */
+#define COLL_HAIR(n) "{\"name\":\"" n "\",\"type\":\"hair\",\"components\":{\"Groom\":{\"scalp\":\"meshes/tri.obj\"}}}"
+#define COLL_CLOTH(n) "{\"name\":\"" n "\",\"type\":\"cloth\",\"components\":{\"Mesh\":{\"file\":\"meshes/tri.obj\"}}}"
+#define COLL(n, body) "{\"name\":\"" n "\",\"type\":\"collision\",\"components\":{" body "}}"
+
+static void test_collision_elements(void **state)
+{
+    (void)state;
+    DrScene *s = load_text("{\"elements\":[" COLL_HAIR("a") "," COLL_HAIR("b") "," COLL_CLOTH("c") ","
+                           COLL("ab", "\"Collision\":{\"members\":[\"a\",\"b\"],\"method\":\"edge_edge\","
+                                      "\"pairs\":\"between\"},\"CollisionResponse\":{\"stiffness\":20,\"damping\":0.01}")
+                           "," COLL("aa", "\"Collision\":{\"members\":[\"a\"],\"method\":\"edge_edge\"}") ","
+                           COLL("cc", "\"Collision\":{\"members\":[\"c\"],\"method\":\"vertex_face\"}") "]}");
+    const DrElement *ab = dr_scene_find(s, "ab");
+    assert_int_equal(ab->kind, DR_ELEMENT_COLLISION);
+    const char *const *m = NULL;
+    assert_int_equal(dr_component_names(dr_element_component(ab, "Collision"), "members", &m), 2);
+    assert_string_equal(m[0], "a");
+    assert_string_equal(m[1], "b");
+    assert_float_equal(dr_component_num(dr_element_component(ab, "CollisionResponse"), "damping"), 0.01, 0);
+    assert_ptr_equal(dr_scene_collision(s, "a", "b", "edge_edge"), ab);
+    assert_ptr_equal(dr_scene_collision(s, "b", "a", "edge_edge"), ab);
+    assert_ptr_equal(dr_scene_collision(s, "a", "a", "edge_edge"), dr_scene_find(s, "aa"));
+    assert_null(dr_scene_collision(s, "b", "b", "edge_edge")); /* pairs "between" leaves b's own contacts out */
+    assert_null(dr_scene_collision(s, "a", "b", "vertex_face"));
+    assert_ptr_equal(dr_scene_collision(s, "c", "c", "vertex_face"), dr_scene_find(s, "cc"));
+    char *canon = dr_scene_canonical(s, "elements");
+    assert_non_null(strstr(canon, "\"Collision\":{\"members\":[\"a\",\"b\"],\"method\":\"edge_edge\",\"pairs\":\"between\"}"));
+    free(canon);
+    dr_scene_destroy(&s);
+
+    struct {
+        const char *text, *expect;
+    } cases[] = {
+        {"{\"elements\":[" COLL_HAIR("a") "," COLL("k", "\"Collision\":{\"members\":[\"fur\"],\"method\":\"edge_edge\"}")
+         "]}", "k.Collision.members[0] = 'fur': no hair or cloth element has this name. Hair and cloth elements: a"},
+        {"{\"elements\":[" COLL_HAIR("fur") "," COLL("k", "\"Collision\":{\"members\":[\"fru\"],\"method\":\"edge_edge\"}")
+         "]}", "k.Collision.members[0] = 'fru': no hair or cloth element has this name; did you mean 'fur'?"},
+        {"{\"elements\":[" COLL_HAIR("a") ",{\"name\":\"head\",\"type\":\"collider\",\"components\":{\"Mesh\":{\"file\":"
+         "\"meshes/tri.obj\"}}}," COLL("k", "\"Collision\":{\"members\":[\"a\",\"head\"],\"method\":\"edge_edge\"}") "]}",
+         "k.Collision.members[1] = 'head' is a collider element; members are hair or cloth elements"},
+        {"{\"elements\":[" COLL_CLOTH("c") "," COLL("k", "\"Collision\":{\"members\":[\"c\"],\"method\":\"edge_edge\"}")
+         "]}", "k.Collision.members[0] = 'c' is a cloth element, and method \"edge_edge\" meets strand segments"},
+        {"{\"elements\":[" COLL_HAIR("a") "," COLL("k", "\"Collision\":{\"members\":[\"a\"],\"method\":\"vertex_face\"}")
+         "]}", "k.Collision.members[0] = 'a' is a hair element, and method \"vertex_face\" meets a cloth panel's"},
+        {"{\"elements\":[" COLL_HAIR("a") "," COLL("k", "\"Collision\":{\"members\":[\"a\"],\"method\":\"edge_edge\","
+         "\"pairs\":\"between\"}") "]}", "k.Collision.pairs = \"between\" meets different members only"},
+        {"{\"elements\":[" COLL_CLOTH("c") "," COLL_CLOTH("d") "," COLL("k", "\"Collision\":{\"members\":[\"c\",\"d\"],"
+         "\"method\":\"vertex_face\"}") "]}", "k.Collision: contact between two cloth panels is not built yet"},
+        {"{\"elements\":[" COLL_HAIR("a") "," COLL_HAIR("b") "," COLL("k", "\"Collision\":{\"members\":[\"a\",\"b\"],"
+         "\"method\":\"edge_edge\"}") "," COLL("q", "\"Collision\":{\"members\":[\"b\"],\"method\":\"edge_edge\"}") "]}",
+         "k and q both meet b with itself (method \"edge_edge\"); a pair takes one response"},
+        {"{\"elements\":[" COLL_HAIR("a") "," COLL_HAIR("b") "," COLL("k", "\"Collision\":{\"members\":[\"a\",\"b\"],"
+         "\"method\":\"edge_edge\",\"pairs\":\"between\"}") "," COLL("q", "\"Collision\":{\"members\":[\"b\",\"a\"],"
+         "\"method\":\"edge_edge\"}") "]}", "k and q both meet b with a (method \"edge_edge\")"},
+        {"{\"elements\":[{\"name\":\"a\",\"type\":\"hair\",\"components\":{\"Groom\":{\"scalp\":\"meshes/tri.obj\"},"
+         "\"CollisionGroup\":{\"group\":1}}}," COLL("k", "\"Collision\":{\"members\":[\"a\"],\"method\":\"edge_edge\"}")
+         "]}", "a.CollisionGroup is the shorthand of collision elements, and this scene has collision elements"},
+        {"{\"elements\":[{\"name\":\"c\",\"type\":\"cloth\",\"components\":{\"Mesh\":{\"file\":\"meshes/tri.obj\"},"
+         "\"ClothMaterial\":{\"self_contact\":true}}}," COLL("k", "\"Collision\":{\"members\":[\"c\"],\"method\":"
+         "\"vertex_face\"}") "]}", "c.ClothMaterial.self_contact is the shorthand of collision elements"},
+        {"{\"elements\":[" COLL_HAIR("a") "," COLL("k", "\"Collision\":{\"members\":[],\"method\":\"edge_edge\"}") "]}",
+         "k.Collision.members: the list is empty; name at least one element"},
+        {"{\"elements\":[" COLL_HAIR("a") "," COLL("k", "\"Collision\":{\"members\":\"a\",\"method\":\"edge_edge\"}") "]}",
+         "k.Collision.members: expected a list of element names [\"a\", \"b\", ...], got string"},
+        {"{\"elements\":[" COLL_HAIR("a") "," COLL("k", "\"Collision\":{\"members\":[\"a\",\"a\"],\"method\":"
+         "\"edge_edge\"}") "]}", "k.Collision.members[1]: 'a' is listed twice (also at [0]); list each element once"},
+        {"{\"elements\":[" COLL_HAIR("a") "," COLL("k", "\"Collision\":{\"members\":[\"a\"]}") "]}",
+         "k.Collision: missing required field 'method' (how contacts are found: edge_edge between strand segments "
+         "(hair members), vertex_face between a panel's vertices and its triangles (cloth members)); add \"method\": "
+         "\"edge_edge\" (one of edge_edge, vertex_face)"},
+        {"{\"elements\":[" COLL_HAIR("a") "," COLL("k", "\"Collision\":{\"members\":[\"a\"],\"method\":\"edge_edge\"},"
+         "\"CollisionResponse\":{\"damping\":-1}") "]}", "k.CollisionResponse.damping = -1 is out of range [0, 10] s"},
+        {"{\"elements\":[" COLL_HAIR("a") "," COLL("k", "\"CollisionResponse\":{}") "]}",
+         "element 'k' (collision): missing component 'Collision' (the members of a collision element and the method "
+         "that finds their contacts); add \"Collision\": {\"members\": [\"name\", ...], \"method\": \"edge_edge\" (one "
+         "of edge_edge, vertex_face)} to its components"},
+    };
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+        DrError err;
+        if (load_bad(cases[i].text, &err) != DR_ERR_INPUT) fail_msg("case %zu: not an input error", i);
+        if (!strstr(err.message, cases[i].expect))
+            fail_msg("case %zu: expected \"%s\" in \"%s\"", i, cases[i].expect, err.message);
+        if (err.line < 1 || err.col < 1) fail_msg("case %zu: no position for %s", i, err.message);
+    }
+    /* the error points at the member it names */
+    const char *text = "{\"elements\": [\n" COLL_HAIR("a") ",\n"
+                       "  {\"name\": \"k\", \"type\": \"collision\", \"components\": {\n"
+                       "     \"Collision\": {\"members\": [\"a\", \"b\"], \"method\": \"edge_edge\"}}}]}\n";
+    assert_error_at(text, "\"b\"", "k.Collision.members[1] = 'b'");
+}
+
+/* Attachment elements: members, method, box, curve, target; every rule's error. */
+#define ATT(n, body) "{\"name\":\"" n "\",\"type\":\"attachment\",\"components\":{\"Attachment\":{" body "}}}"
+#define ATT_BOX "\"box\":[[0,0,0],[1,1,1]]"
+#define ATT_BODY "{\"name\":\"rock\",\"type\":\"collider\",\"components\":{\"Mesh\":{\"file\":\"meshes/tri.obj\"}}}"
+
+static void test_attachment_elements(void **state)
+{
+    (void)state;
+    DrScene *s = load_text("{\"elements\":[" COLL_HAIR("a") "," COLL_CLOTH("c") "," ATT_BODY ","
+                           ATT("hook", "\"members\":[\"c\",\"a\"],\"method\":\"rigid\"," ATT_BOX ",\"target\":\"rock\"")
+                           "," ATT("rail", "\"members\":[\"c\"],\"method\":\"slide\"," ATT_BOX
+                                   ",\"curve\":[[0,1,0],[1,1,0]]") "]}");
+    const DrElement *hook = dr_scene_find(s, "hook");
+    assert_int_equal(hook->kind, DR_ELEMENT_ATTACHMENT);
+    const DrComponent *a = dr_element_component(hook, "Attachment");
+    const char *const *m = NULL;
+    assert_int_equal(dr_component_names(a, "members", &m), 2);
+    assert_string_equal(dr_component_str(a, "target"), "rock");
+    const double *rows = NULL;
+    assert_int_equal(dr_component_table(dr_element_component(dr_scene_find(s, "rail"), "Attachment"), "curve", &rows), 2);
+    dr_scene_destroy(&s);
+
+    struct {
+        const char *text, *expect;
+    } cases[] = {
+        {"{\"elements\":[" COLL_CLOTH("c") "," ATT("k", "\"members\":[\"cc\"],\"method\":\"pin\"," ATT_BOX) "]}",
+         "k.Attachment.members[0] = 'cc': no hair or cloth element has this name; did you mean 'c'?"},
+        {"{\"elements\":[" COLL_CLOTH("c") "," ATT_BODY "," ATT("k", "\"members\":[\"rock\"],\"method\":\"pin\","
+         ATT_BOX) "]}", "k.Attachment.members[0] = 'rock' is a collider element; an attachment holds hair or cloth"},
+        {"{\"elements\":[" COLL_CLOTH("c") "," ATT("k", "\"members\":[\"c\"],\"method\":\"pin\"") "]}",
+         "k.Attachment.box is required with a cloth member"},
+        {"{\"elements\":[" COLL_HAIR("a") "," ATT("k", "\"members\":[\"a\"],\"method\":\"pin\"") "]}",
+         "k.Attachment.members[0] = 'a' is a hair element, held by its roots (Groom.roots): method \"pin\" holds a "
+         "cloth's vertices"},
+        {"{\"elements\":[" COLL_HAIR("a") "," ATT_BODY "," ATT("k", "\"members\":[\"a\"],\"method\":\"rigid\","
+         "\"target\":\"rock\"," ATT_BOX) "]}", "k.Attachment.box selects a cloth member's vertices"},
+        {"{\"elements\":[" COLL_CLOTH("c") "," ATT("k", "\"members\":[\"c\"],\"method\":\"slide\"," ATT_BOX
+         ",\"curve\":[[0,0,0]]") "]}", "k.Attachment.curve has 1 point(s); method \"slide\" needs the curve as 2 points"},
+        {"{\"elements\":[" COLL_CLOTH("c") "," ATT("k", "\"members\":[\"c\"],\"method\":\"pin\"," ATT_BOX
+         ",\"curve\":[[0,0,0],[1,0,0]]") "]}", "k.Attachment.curve applies to method \"slide\", not \"pin\""},
+        {"{\"elements\":[" COLL_CLOTH("c") "," ATT_BODY "," ATT("k", "\"members\":[\"c\"],\"method\":\"rigid\","
+         ATT_BOX) "]}", "k.Attachment.target is required with method \"rigid\"", },
+        {"{\"elements\":[" COLL_CLOTH("c") "," ATT_BODY "," ATT("k", "\"members\":[\"c\"],\"method\":\"pin\","
+         ATT_BOX ",\"target\":\"rock\"") "]}", "k.Attachment.target applies to method \"rigid\", not \"pin\""},
+        {"{\"elements\":[" COLL_CLOTH("c") "," ATT_BODY "," ATT("k", "\"members\":[\"c\"],\"method\":\"rigid\","
+         ATT_BOX ",\"target\":\"rok\"") "]}", "k.Attachment.target = 'rok': no collider or bem_solid element has this "
+         "name; did you mean 'rock'?"},
+        {"{\"elements\":[" COLL_CLOTH("c") "," COLL_CLOTH("d") "," ATT("k", "\"members\":[\"c\"],\"method\":\"rigid\","
+         ATT_BOX ",\"target\":\"d\"") "]}", "k.Attachment.target = 'd' is a cloth element; a rigid attachment is carried "
+         "by a collider or a bem_solid"},
+        {"{\"elements\":[{\"name\":\"a\",\"type\":\"hair\",\"components\":{\"Groom\":{\"scalp\":\"meshes/tri.obj\"},"
+         "\"Motion\":{\"keys\":[[0,0,0,0,0,0,0]]}}}," ATT_BODY "," ATT("k", "\"members\":[\"a\"],\"method\":\"rigid\","
+         "\"target\":\"rock\"") "]}", "k.Attachment carries the roots of 'a' with its target, and a.Motion moves them too"},
+        {"{\"elements\":[{\"name\":\"a\",\"type\":\"hair\",\"components\":{\"Groom\":{\"scalp\":\"meshes/tri.obj\","
+         "\"roots\":\"free\"}}}," ATT_BODY "," ATT("k", "\"members\":[\"a\"],\"method\":\"rigid\",\"target\":\"rock\"")
+         "]}", "k.Attachment carries the roots of 'a', and a.Groom.roots is \"free\""},
+        {"{\"elements\":[" COLL_HAIR("a") "," ATT_BODY "," ATT("k", "\"members\":[\"a\"],\"method\":\"rigid\","
+         "\"target\":\"rock\"") "," ATT("q", "\"members\":[\"a\"],\"method\":\"rigid\",\"target\":\"rock\"") "]}",
+         "k and q both carry the roots of 'a'"},
+        {"{\"elements\":[{\"name\":\"c\",\"type\":\"cloth\",\"components\":{\"Mesh\":{\"file\":\"meshes/tri.obj\"},"
+         "\"SlideVertices\":{" ATT_BOX ",\"curve\":[[0,0,0],[1,0,0]]}}}," ATT("k", "\"members\":[\"c\"],\"method\":"
+         "\"slide\"," ATT_BOX ",\"curve\":[[0,0,0],[1,0,0]]") "]}",
+         "k slides c on a curve, and its SlideVertices already does (a panel slides on one curve)"},
+        {"{\"elements\":[" COLL_CLOTH("c") "," ATT("k", "\"members\":[\"c\"],\"method\":\"glue\"," ATT_BOX) "]}",
+         "k.Attachment.method: 'glue' is not a valid choice"},
+    };
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+        DrError err;
+        if (load_bad(cases[i].text, &err) != DR_ERR_INPUT) fail_msg("case %zu: not an input error", i);
+        if (!strstr(err.message, cases[i].expect))
+            fail_msg("case %zu: expected \"%s\" in \"%s\"", i, cases[i].expect, err.message);
+        if (err.line < 1 || err.col < 1) fail_msg("case %zu: no position for %s", i, err.message);
+    }
+}
+
 static void test_bem_solid_defaults(void **state)
 {
     (void)state;
@@ -1579,6 +1746,8 @@ int main(void)
         cmocka_unit_test(test_hair_defaults),
         cmocka_unit_test(test_hair_bad_input),
         cmocka_unit_test(test_air),
+        cmocka_unit_test(test_collision_elements),
+        cmocka_unit_test(test_attachment_elements),
         cmocka_unit_test(test_bem_solid_defaults),
         cmocka_unit_test(test_bem_solid_bad_input),
         cmocka_unit_test(test_bem_solid_keys),

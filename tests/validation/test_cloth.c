@@ -341,7 +341,8 @@ static FoldDrop fold_drop(bool self_contact, int steps)
     assert_int_equal(cloth_grid(21, 21, 0.4, 0.4, y0, &m), 0);
     DrClothMaterial mat;
     dr_cloth_material_default(&mat);
-    mat.friction = 0.3;
+    mat.friction = 0.3; /* on the floor */
+    mat.self_friction = 0.3; /* between the layers */
     mat.damping = 0.02;
     mat.self_contact = self_contact;
     DrCloth *c = NULL;

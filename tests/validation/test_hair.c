@@ -51,7 +51,7 @@ static DrGroom straight_groom(int nstrands, int segments, double L, const double
 
 static DrRodSet *make_set_thick(const DrRodSetDesc *d, const DrGroom *g, const DrRodMaterial *m, double thickness)
 {
-    DrRodBatch b = {g, *m, 1, 1, true, 10, 0.2, thickness, 0, 0};
+    DrRodBatch b = {g, *m, 1, 1, true, 10, 0.2, thickness, 0, 0, 0};
     DrRodSet *r = NULL;
     DrError err;
     DrStatus s = dr_rod_set_create(d, &b, 1, &r, &err);

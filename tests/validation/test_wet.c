@@ -84,7 +84,7 @@ static void wet_make(Wet *w, DrGroom g, DrRodRoots roots, DrRodRoots tips, DrVec
     d.gravity = gravity;
     d.solver = ld;
     d.system = w->sys;
-    DrRodBatch b = {&w->groom, m, 1, 1, true, 10, 0, 0, 0, 0};
+    DrRodBatch b = {&w->groom, m, 1, 1, true, 10, 0, 0, 0, 0, 0};
     CHECK(dr_rod_set_create(&d, &b, 1, &w->rods, ERR));
     DrRodState rs = dr_rod_set_state(w->rods);
     int V = rs.nverts;
