@@ -856,12 +856,20 @@ static DrStatus check_collisions(Parser *p)
                             e->name, comp[k], e->name, comp[k], e->name);
             }
         }
-        if (e->kind == DR_ELEMENT_CLOTH && dr_component_is_set(dr_element_component(e, "ClothMaterial"), "self_contact")) {
-            at_field(p, e, "ClothMaterial", "self_contact", -1);
-            return fail(p, "%s.ClothMaterial.self_contact is the shorthand of collision elements, and this scene has "
-                           "collision elements: they alone say which panels touch themselves. Remove it and list %s in "
-                           "a collision element with method \"vertex_face\" for self contact",
-                        e->name, e->name);
+        const DrComponent *cm = e->kind == DR_ELEMENT_CLOTH ? dr_element_component(e, "ClothMaterial") : NULL;
+        if (cm && dr_component_is_set(cm, "self_contact")) { /* written: it must say what the collision elements say */
+            const DrElement *ce = dr_scene_collision(s, e->name, e->name, "vertex_face");
+            bool on = value_at(cm, "self_contact")->num[0] != 0.0;
+            if (on != (ce != NULL)) {
+                at_field(p, e, "ClothMaterial", "self_contact", -1);
+                if (on)
+                    return fail(p, "%s.ClothMaterial.self_contact = true, and no collision element meets %s with itself: "
+                                   "in a scene with collision elements they alone say which panels touch themselves. "
+                                   "List %s in a collision element with method \"vertex_face\", or remove self_contact",
+                                e->name, e->name, e->name);
+                return fail(p, "%s.ClothMaterial.self_contact = false, and collision element %s meets %s with itself; "
+                               "remove one of them", e->name, ce->name, e->name);
+            }
         }
     }
     if (nhair > 31) {

@@ -628,7 +628,7 @@ static const DrFieldSpec cloth_material_fields[] = {
     {.name = "self_contact", .kind = DR_FIELD_BOOL, .unit = "", .def = {1},
      .doc = "the panel's layers keep Collider.thickness (default 1 mm) apart: vertex-triangle contacts within the panel, "
             "with Collider.friction (a fold, a sheet landing on itself); the shorthand of a vertex_face collision "
-            "element, and not written in a scene that has collision elements"},
+            "element: in a scene that has collision elements they decide, and a written value must agree"},
     {.name = "bending", .kind = DR_FIELD_ENUM, .unit = "", .def_str = "shape_operator", .choices = "shape_operator|hinge",
      .doc = "bending discretisation: shape_operator (each triangle's discrete shape operator from its edges' "
             "dihedral angles: Kirchhoff's plate energy with the material's nu on regular meshes) or hinge (one term "

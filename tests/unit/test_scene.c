@@ -991,7 +991,11 @@ static void test_collision_elements(void **state)
          "]}", "a.CollisionGroup is the shorthand of collision elements, and this scene has collision elements"},
         {"{\"elements\":[{\"name\":\"c\",\"type\":\"cloth\",\"components\":{\"Mesh\":{\"file\":\"meshes/tri.obj\"},"
          "\"ClothMaterial\":{\"self_contact\":true}}}," COLL("k", "\"Collision\":{\"members\":[\"c\"],\"method\":"
-         "\"vertex_face\"}") "]}", "c.ClothMaterial.self_contact is the shorthand of collision elements"},
+         "\"vertex_face\",\"pairs\":\"between\"},\"CollisionResponse\":{}") "," COLL_CLOTH("d") "]}",
+         "c.ClothMaterial.self_contact = true, and no collision element meets c with itself"},
+        {"{\"elements\":[{\"name\":\"c\",\"type\":\"cloth\",\"components\":{\"Mesh\":{\"file\":\"meshes/tri.obj\"},"
+         "\"ClothMaterial\":{\"self_contact\":false}}}," COLL("k", "\"Collision\":{\"members\":[\"c\"],\"method\":"
+         "\"vertex_face\"}") "]}", "c.ClothMaterial.self_contact = false, and collision element k meets c with itself"},
         {"{\"elements\":[" COLL_HAIR("a") "," COLL("k", "\"Collision\":{\"members\":[],\"method\":\"edge_edge\"}") "]}",
          "k.Collision.members: the list is empty; name at least one element"},
         {"{\"elements\":[" COLL_HAIR("a") "," COLL("k", "\"Collision\":{\"members\":\"a\",\"method\":\"edge_edge\"}") "]}",
