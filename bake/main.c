@@ -185,6 +185,8 @@ static void append_progress(const char *path, const DrFrameStats *fs, const Fram
                 fs->hair.vertices, fs->hair.substeps, fs->hair.cg_iterations, fs->hair.residual, fs->hair.not_converged,
                 fs->hair.collider_contacts, fs->hair.contacts, fs->hair.kinetic_energy, fs->hair.elastic_energy,
                 fs->hair.gravity_energy, fs->hair.kinetic_energy + fs->hair.elastic_energy + fs->hair.gravity_energy);
+    if (fs->hair.present && fs->hair.meets_cloth)
+        fprintf(f, "\"hair_cloth_contacts\":%d,", fs->hair.cloth_contacts);
     if (fs->hair.present)
         fprintf(f, "\"hair_scalp_work\":%.9g,\"hair_max_speed\":%.9g,\"hair_max_speed_growth\":%.6g,", fs->hair.scalp_work,
                 fs->hair.max_speed, fs->hair.max_speed_growth);

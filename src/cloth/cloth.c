@@ -81,6 +81,7 @@ void dr_cloth_material_default(DrClothMaterial *m)
 
 void dr_cloth_desc_default(DrClothDesc *d)
 {
+    memset(d, 0, sizeof *d);
     d->gravity = dr_v3(0, -9.81, 0);
     dr_lag_desc_default(&d->solver);
     d->geometric_stiffness = true;
@@ -136,7 +137,7 @@ void dr_cloth_destroy(DrCloth **cp)
     free(c->save);
     free(c->vsolve);
     free(c->block_dof);
-    dr_lag_destroy(&c->lag);
+    if (!c->desc.system) dr_lag_destroy(&c->lag);
     free(c);
     *cp = NULL;
 }
@@ -479,7 +480,8 @@ DrStatus dr_cloth_create(const DrClothDesc *desc, const DrTriMesh *mesh, const D
         }
     }
     c->band = band;
-    st = dr_lag_create(&c->desc.solver, &c->lag, err);
+    if (c->desc.system) c->lag = c->desc.system;
+    else st = dr_lag_create(&c->desc.solver, &c->lag, err);
     if (st != DR_OK) goto fail;
     for (int v = 0; v < V; v++) c->vsolve[3 * v] = c->vsolve[3 * v + 1] = c->vsolve[3 * v + 2] = 0.0;
     int kd = 3 * band + 2;
@@ -873,9 +875,48 @@ static bool advance(DrCloth *c, double h, const double *qdot)
     return finite;
 }
 
+DrStatus dr_cloth_predict_dofs(DrCloth *c, double h, const DrClothCollider *colliders, int ncolliders, DrError *err)
+{
+    assert(h > 0 && c->phase == CLOTH_IDLE && c->desc.system);
+    DrLagDofs d;
+    DR_TRY(dr_lag_dofs(c->lag, &d, err));
+    fill_dofs(c, &d);
+    detect_contacts(c, h, colliders, ncolliders);
+    if (c->self) DR_TRY(dr_cloth_self_detect(c->self, h, c->x, c->v, err));
+    c->iterations = 0;
+    c->converged = true;
+    c->h_step = h;
+    return DR_OK;
+}
+
+DrStatus dr_cloth_predict_groups(DrCloth *c, DrError *err) { return add_groups(c, err); }
+
+DrStatus dr_cloth_update_contacts(DrCloth *c, const DrClothCollider *colliders, int ncolliders, int pass, bool *changed,
+                                  DrError *err)
+{
+    DrLagDofs d;
+    DR_TRY(dr_lag_dofs(c->lag, &d, err));
+    bool self_changed = false;
+    if (c->self) DR_TRY(dr_cloth_self_update(c->self, c->h_step, c->x, d.qdot_out, pass == 0, &self_changed, c->touch, err));
+    *changed = update_contacts(c, c->h_step, colliders, ncolliders, d.qdot_out, pass == 0, c->self ? c->touch : NULL) ||
+               self_changed;
+    return DR_OK;
+}
+
+void dr_cloth_take(DrCloth *c)
+{
+    DrLagDofs d;
+    DrError e;
+    if (dr_lag_dofs(c->lag, &d, &e) != DR_OK) return; /* sized since predict_dofs: cannot fail */
+    gather_velocities(c, d.qdot_out);
+    c->phase = CLOTH_PREDICTED;
+}
+
+int dr_cloth_vertex_dof(const DrCloth *c, int v) { return vdof(c, v); }
+
 DrStatus dr_cloth_predict(DrCloth *c, double h, const DrClothCollider *colliders, int ncolliders, DrError *err)
 {
-    assert(h > 0 && c->phase == CLOTH_IDLE);
+    assert(h > 0 && c->phase == CLOTH_IDLE && !c->desc.system);
     double t0 = dr_time_now();
     DrLagDofs d;
     DR_TRY(dr_lag_dofs(c->lag, &d, err));
@@ -936,7 +977,7 @@ DrStatus dr_cloth_commit(DrCloth *c, DrClothStats *stats, DrError *err)
     DrLagDofs d;
     DR_TRY(dr_lag_dofs(c->lag, &d, err));
     c->phase = CLOTH_IDLE;
-    dr_lag_update_multipliers(c->lag, d.qdot_out);
+    if (!c->desc.system) dr_lag_update_multipliers(c->lag, d.qdot_out); /* else the system's owner did */
     if (!advance(c, c->h_step, d.qdot_out))
         return dr_error_set(err, DR_ERR_RUNTIME, NULL, 0, 0,
                             "%s: the cloth's state became non-finite (time step %g s too large for its stiffness, or a "

@@ -85,6 +85,9 @@ typedef struct DrClothDesc {
     DrLagDesc solver;            /* the panel's own system's */
     bool geometric_stiffness;    /* the membrane's λ-weighted Hessians (eq. S27); default true */
     double collider_stiffness;   /* N/m of a vertex–collider contact; default 1e4 */
+    DrLag *system;               /* NULL (default): the panel makes a system of its own and steps it itself. Else the
+                                    shared system (DESIGN §8) the panel adds its object to, after those already there;
+                                    the caller owns it and drives the step (see "in a shared system" below) */
 } DrClothDesc;
 void dr_cloth_desc_default(DrClothDesc *d);
 
@@ -145,6 +148,26 @@ DR_NODISCARD DrStatus dr_cloth_predict(DrCloth *c, double h, const DrClothCollid
 DR_NODISCARD DrStatus dr_cloth_solve(DrCloth *c, const double *force, const double *dforce_dv, DrError *err);
 const double *dr_cloth_solved_velocities(const DrCloth *c); /* 3V, mesh order: the last solve's (or prediction's) */
 DR_NODISCARD DrStatus dr_cloth_commit(DrCloth *c, DrClothStats *stats, DrError *err);
+
+/* ---- in a shared system (desc.system set) -------------------------------------------------------------------------
+ * The system's owner steps every model in it together, as for the rod set (hair.h):
+ *     dr_cloth_predict_dofs (every panel)         its DOF ranges of dr_lag_dofs's arrays, and its contacts found
+ *     repeat up to 8 times:
+ *         dr_lag_begin(system, h, dofs.mass, dofs.qdot, dofs.fext, dofs.prescribed, dofs.qdot_prescribed)
+ *         dr_cloth_predict_groups (every panel), the other models' groups and those between models
+ *         dr_lag_solve_load(system, …, dofs.qdot_out)
+ *         dr_cloth_update_contacts (every panel): the active set from that solve; stop when no panel's changed
+ *     dr_cloth_take (every panel); dr_lag_update_multipliers(system, dofs.qdot_out); dr_cloth_commit (every panel)
+ * A panel alone in a shared system, stepped so, takes the bits of dr_cloth_step on a system of its own.
+ * dr_cloth_predict, dr_cloth_solve and dr_cloth_step are for a panel with a system of its own only. */
+DR_NODISCARD DrStatus dr_cloth_predict_dofs(DrCloth *c, double h, const DrClothCollider *colliders, int ncolliders,
+                                            DrError *err);
+DR_NODISCARD DrStatus dr_cloth_predict_groups(DrCloth *c, DrError *err);
+DR_NODISCARD DrStatus dr_cloth_update_contacts(DrCloth *c, const DrClothCollider *colliders, int ncolliders, int pass,
+                                               bool *changed, DrError *err);
+void dr_cloth_take(DrCloth *c);
+/* The first DOF of each vertex in the system (3 each, mesh order; fixed from create on). */
+int dr_cloth_vertex_dof(const DrCloth *c, int v);
 
 /* The panel's vertices as the coupled loop sees them between predict and commit (borrowed): positions at the step's
    start, the last solve's velocities, masses, pinned flags. */

@@ -1,6 +1,8 @@
 /* The shape vocabulary and the sorted-cell broad phase (contact.h). */
 #include "contact/contact.h"
 
+#include "lagrangian/lagrangian.h"
+
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -351,4 +353,260 @@ DrVec3 dr_point_field_velocity(const DrPointField *pf, DrVec3 x)
     double w = field_sums(pf, x, sx, &sr, sv);
     if (!(w > 0.0)) return dr_v3(0, 0, 0);
     return dr_v3(sv[0] / w, sv[1] / w, sv[2] / w);
+}
+
+/* ---- a triangle mesh as a surface ------------------------------------------------------------------------------ */
+
+typedef struct TriEntry { int cx, cy, cz, t; } TriEntry;
+
+static inline bool tri_less(const TriEntry *a, const TriEntry *b)
+{
+    if (a->cx != b->cx) return a->cx < b->cx;
+    if (a->cy != b->cy) return a->cy < b->cy;
+    if (a->cz != b->cz) return a->cz < b->cz;
+    return a->t < b->t;
+}
+
+DR_DEFINE_STABLE_SORT(tris_sort, TriEntry, tri_less)
+
+struct DrTriField {
+    int nt;
+    const int *tri;          /* borrowed */
+    const double *x, *v;     /* borrowed */
+    double reach;
+    TriEntry *entries, *tmp;
+    size_t n, cap;
+};
+
+DrStatus dr_tri_field_create(DrTriField **out, DrError *err) { return dr_calloc(1, sizeof **out, out, err); }
+
+void dr_tri_field_destroy(DrTriField **tf)
+{
+    if (!tf || !*tf) return;
+    free((*tf)->entries);
+    free((*tf)->tmp);
+    free(*tf);
+    *tf = NULL;
+}
+
+DrStatus dr_tri_field_build(DrTriField *tf, int nt, const int *tri, const double *x, const double *v, double reach,
+                            DrError *err)
+{
+    tf->nt = 0;
+    tf->n = 0;
+    if (!(reach > 0.0) || !isfinite(reach))
+        return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "contact: a triangle field's reach is %g m; it must be "
+                            "positive", reach);
+    /* the cells each triangle's inflated box covers: counted, then filled */
+    size_t n = 0;
+    for (int pass = 0; pass < 2; pass++) {
+        n = 0;
+        for (int t = 0; t < nt; t++) {
+            int lo[3], hi[3];
+            for (int a = 0; a < 3; a++) {
+                double mn = INFINITY, mx = -INFINITY;
+                for (int k = 0; k < 3; k++) {
+                    double q = x[3 * tri[3 * t + k] + a];
+                    mn = fmin(mn, q);
+                    mx = fmax(mx, q);
+                }
+                double l = floor((mn - reach) / reach), h = floor((mx + reach) / reach);
+                if (!(fabs(l) < CELL_LIMIT) || !(fabs(h) < CELL_LIMIT))
+                    return dr_error_set(err, DR_ERR_INPUT, NULL, 0, 0, "contact: triangle %d of a triangle field is "
+                                        "not finite, or more than 2^30 cells of %g m from the origin", t, reach);
+                lo[a] = (int)l;
+                hi[a] = (int)h;
+            }
+            for (int i = lo[0]; i <= hi[0]; i++)
+                for (int j = lo[1]; j <= hi[1]; j++)
+                    for (int k = lo[2]; k <= hi[2]; k++) {
+                        if (pass == 1) tf->entries[n] = (TriEntry){i, j, k, t};
+                        n++;
+                    }
+        }
+        if (pass == 0 && n > tf->cap) {
+            size_t cap = tf->cap ? tf->cap : 1024;
+            while (cap < n) cap *= 2;
+            DR_TRY(dr_realloc(cap, sizeof(TriEntry), &tf->entries, err));
+            DR_TRY(dr_realloc(cap, sizeof(TriEntry), &tf->tmp, err));
+            tf->cap = cap;
+        }
+    }
+    tris_sort(tf->entries, tf->tmp, n);
+    tf->n = n;
+    tf->nt = nt;
+    tf->tri = tri;
+    tf->x = x;
+    tf->v = v;
+    tf->reach = reach;
+    return DR_OK;
+}
+
+/* The point of triangle (a, b, c) nearest to p, as barycentric coordinates w (Ericson, Real-Time Collision Detection
+   §5.1.5: by the Voronoi region of p). */
+static void nearest_on_triangle(const double *p, const double *a, const double *b, const double *c, double w[3])
+{
+    double ab[3], ac[3], ap[3];
+    for (int k = 0; k < 3; k++) ab[k] = b[k] - a[k], ac[k] = c[k] - a[k], ap[k] = p[k] - a[k];
+#define DOT(u, v) ((u)[0] * (v)[0] + (u)[1] * (v)[1] + (u)[2] * (v)[2])
+    double d1 = DOT(ab, ap), d2 = DOT(ac, ap);
+    if (d1 <= 0 && d2 <= 0) { w[0] = 1, w[1] = 0, w[2] = 0; return; }
+    double bp[3], cp[3];
+    for (int k = 0; k < 3; k++) bp[k] = p[k] - b[k], cp[k] = p[k] - c[k];
+    double d3 = DOT(ab, bp), d4 = DOT(ac, bp);
+    if (d3 >= 0 && d4 <= d3) { w[0] = 0, w[1] = 1, w[2] = 0; return; }
+    double vc = d1 * d4 - d3 * d2;
+    if (vc <= 0 && d1 >= 0 && d3 <= 0) {
+        double s = d1 / (d1 - d3);
+        w[0] = 1 - s, w[1] = s, w[2] = 0;
+        return;
+    }
+    double d5 = DOT(ab, cp), d6 = DOT(ac, cp);
+    if (d6 >= 0 && d5 <= d6) { w[0] = 0, w[1] = 0, w[2] = 1; return; }
+    double vb = d5 * d2 - d1 * d6;
+    if (vb <= 0 && d2 >= 0 && d6 <= 0) {
+        double s = d2 / (d2 - d6);
+        w[0] = 1 - s, w[1] = 0, w[2] = s;
+        return;
+    }
+    double va = d3 * d6 - d5 * d4;
+    if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) {
+        double s = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+        w[0] = 0, w[1] = 1 - s, w[2] = s;
+        return;
+    }
+    double den = 1.0 / (va + vb + vc);
+    w[1] = vb * den, w[2] = vc * den, w[0] = 1 - w[1] - w[2];
+#undef DOT
+}
+
+/* The nearest triangle to q within reach (−1 when none), its barycentric w and the distance *d. */
+static int tri_nearest(const DrTriField *tf, const double q[3], double w[3], double *d)
+{
+    *d = INFINITY;
+    if (tf->n == 0) return -1;
+    int c[3];
+    for (int a = 0; a < 3; a++) {
+        double f = floor(q[a] / tf->reach);
+        if (!(fabs(f) < CELL_LIMIT)) return -1;
+        c[a] = (int)f;
+    }
+    TriEntry key = {c[0], c[1], c[2], -1};
+    size_t lo = 0, hi = tf->n;
+    while (lo < hi) {
+        size_t mid = lo + (hi - lo) / 2;
+        if (tri_less(&tf->entries[mid], &key)) lo = mid + 1;
+        else hi = mid;
+    }
+    int best = -1;
+    double best2 = tf->reach * tf->reach;
+    for (size_t e = lo; e < tf->n && tf->entries[e].cx == c[0] && tf->entries[e].cy == c[1] && tf->entries[e].cz == c[2];
+         e++) {
+        int t = tf->entries[e].t;
+        const int *tv = tf->tri + 3 * t;
+        const double *a = tf->x + 3 * tv[0], *b = tf->x + 3 * tv[1], *cc = tf->x + 3 * tv[2];
+        double ww[3];
+        nearest_on_triangle(q, a, b, cc, ww);
+        double d2 = 0;
+        for (int k = 0; k < 3; k++) {
+            double pk = ww[0] * a[k] + ww[1] * b[k] + ww[2] * cc[k] - q[k];
+            d2 += pk * pk;
+        }
+        if (d2 < best2) {
+            best2 = d2;
+            best = t;
+            w[0] = ww[0], w[1] = ww[1], w[2] = ww[2];
+        }
+    }
+    if (best >= 0) *d = sqrt(best2);
+    return best;
+}
+
+double dr_tri_field_phi(const DrTriField *tf, DrVec3 x, DrVec3 *normal)
+{
+    double q[3] = {x.x, x.y, x.z}, w[3], d;
+    int t = tri_nearest(tf, q, w, &d);
+    if (t < 0) {
+        if (normal) *normal = dr_v3(0, 1, 0);
+        return INFINITY;
+    }
+    if (normal) {
+        const int *tv = tf->tri + 3 * t;
+        double p[3];
+        for (int k = 0; k < 3; k++)
+            p[k] = q[k] - (w[0] * tf->x[3 * tv[0] + k] + w[1] * tf->x[3 * tv[1] + k] + w[2] * tf->x[3 * tv[2] + k]);
+        if (d > 1e-12 * tf->reach) {
+            *normal = dr_v3(p[0] / d, p[1] / d, p[2] / d);
+        } else { /* on the sheet: its face normal */
+            const double *a = tf->x + 3 * tv[0], *b = tf->x + 3 * tv[1], *c = tf->x + 3 * tv[2];
+            DrVec3 n = dr_v3_cross(dr_v3(b[0] - a[0], b[1] - a[1], b[2] - a[2]), dr_v3(c[0] - a[0], c[1] - a[1], c[2] - a[2]));
+            double l = dr_v3_norm(n);
+            *normal = l > 0 ? dr_v3_scale(n, 1.0 / l) : dr_v3(0, 1, 0);
+        }
+    }
+    return d;
+}
+
+DrVec3 dr_tri_field_velocity(const DrTriField *tf, DrVec3 x)
+{
+    double q[3] = {x.x, x.y, x.z}, w[3], d;
+    int t = tri_nearest(tf, q, w, &d);
+    if (t < 0 || !tf->v) return dr_v3(0, 0, 0);
+    const int *tv = tf->tri + 3 * t;
+    double u[3];
+    for (int k = 0; k < 3; k++)
+        u[k] = w[0] * tf->v[3 * tv[0] + k] + w[1] * tf->v[3 * tv[1] + k] + w[2] * tf->v[3 * tv[2] + k];
+    return dr_v3(u[0], u[1], u[2]);
+}
+
+int dr_tri_field_nearest(const DrTriField *tf, DrVec3 x, double bary[3])
+{
+    double q[3] = {x.x, x.y, x.z}, d;
+    return tri_nearest(tf, q, bary, &d);
+}
+
+/* ---- points against a sheet, in one Lagrangian system ---------------------------------------------------------- */
+
+DrStatus dr_contact_points_sheet(DrLag *lag, double h, const DrContactPoints *p, const DrContactSheet *s,
+                                 double thickness, double stiffness, int *count, DrError *err)
+{
+    *count = 0;
+    for (int i = 0; i < p->n; i++) {
+        if (p->held && p->held[i]) continue;
+        DrVec3 q = dr_v3(p->x[3 * i], p->x[3 * i + 1], p->x[3 * i + 2]);
+        double b[3];
+        int t = dr_tri_field_nearest(s->field, q, b);
+        if (t < 0) continue;
+        const int *tv = s->tri + 3 * t;
+        double c[3], vc[3] = {0, 0, 0}, n[3];
+        for (int a = 0; a < 3; a++) {
+            c[a] = b[0] * s->x[3 * tv[0] + a] + b[1] * s->x[3 * tv[1] + a] + b[2] * s->x[3 * tv[2] + a];
+            if (s->v) vc[a] = b[0] * s->v[3 * tv[0] + a] + b[1] * s->v[3 * tv[1] + a] + b[2] * s->v[3 * tv[2] + a];
+            n[a] = p->x[3 * i + a] - c[a];
+        }
+        double d = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+        if (!(d > 0)) continue; /* on the sheet: no side to push it to */
+        for (int a = 0; a < 3; a++) n[a] /= d;
+        double phi = d - (p->radius[i] + thickness);
+        double approach = 0;
+        for (int a = 0; a < 3; a++) approach += h * n[a] * ((p->v ? p->v[3 * i + a] : 0) - vc[a]);
+        if (phi + fmin(approach, 0) >= 0) continue;
+        DrLagGroup g;
+        memset(&g, 0, sizeof g);
+        g.kind = DR_LAG_POSITIONAL;
+        g.nrows = 1;
+        g.ndof = 12;
+        const double w[4] = {1.0, -b[0], -b[1], -b[2]};
+        const int base[4] = {p->dof[i], s->dof[tv[0]], s->dof[tv[1]], s->dof[tv[2]]};
+        for (int k = 0; k < 4; k++)
+            for (int a = 0; a < 3; a++) {
+                g.dof[3 * k + a] = base[k] + a;
+                g.J[3 * k + a] = w[k] * n[a];
+            }
+        g.phi[0] = phi;
+        g.cinv[0] = stiffness;
+        DR_TRY(dr_lag_add_global(lag, &g, err));
+        (*count)++;
+    }
+    return DR_OK;
 }

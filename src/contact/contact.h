@@ -97,4 +97,53 @@ long dr_point_field_count(const DrPointField *pf);
 double dr_point_field_phi(const DrPointField *pf, DrVec3 x, DrVec3 *normal);
 DrVec3 dr_point_field_velocity(const DrPointField *pf, DrVec3 x);
 
+/* ---- a triangle mesh as a surface ----------------------------------------------------------------------------------
+ * A moving sheet (a cloth panel) for a solid that meets it through a distance (hair): φ(x) = the distance from x to the
+ * nearest triangle within `reach` (unsigned: a sheet has two sides), the normal from that nearest point towards x, the
+ * velocity there the barycentric mean of its triangle's vertex velocities; +∞ (normal +y, velocity 0) where no
+ * triangle is within reach. Triangles are binned on cells of edge `reach`, each into every cell its box inflated by
+ * `reach` overlaps, sorted (no hash), so a query reads one cell, the nearest of equally near triangles is the one of
+ * lowest index, and the result does not depend on the thread count. Queries are read-only (safe from several threads);
+ * rebuilding keeps the buffers. */
+typedef struct DrTriField DrTriField;
+DR_NODISCARD DrStatus dr_tri_field_create(DrTriField **out, DrError *err);
+void dr_tri_field_destroy(DrTriField **tf);
+/* From nt triangles (3 nt vertex indices) over vertex positions x and velocities v (3 per vertex; v may be NULL),
+   borrowed until the next build, and reach > 0 (m). DR_ERR_INPUT on a non-finite position or reach. */
+DR_NODISCARD DrStatus dr_tri_field_build(DrTriField *tf, int nt, const int *tri, const double *x, const double *v,
+                                         double reach, DrError *err);
+double dr_tri_field_phi(const DrTriField *tf, DrVec3 x, DrVec3 *normal);
+DrVec3 dr_tri_field_velocity(const DrTriField *tf, DrVec3 x);
+/* The nearest triangle within reach and the barycentric coordinates of the nearest point on it; −1 when none. */
+int dr_tri_field_nearest(const DrTriField *tf, DrVec3 x, double bary[3]);
+
+/* ---- points against a sheet, in one Lagrangian system ------------------------------------------------------------
+ * Hair vertices against a cloth panel whose DOFs are in the same system (DESIGN §8: contact adds pairs between any of
+ * its models). A point within reach of the sheet's field (built from the sheet's positions at the step's start) meets
+ * the nearest triangle as one positional row over the point's 3 DOFs and the triangle's 9:
+ *     φ = n·(x_p − Σ b_i x_i) − (r_p + thickness),   C⁻¹ = stiffness,
+ * n the unit normal from the nearest point towards the point and b its barycentric weights, both held for the step, so
+ * φ is linear in the positions (no geometric stiffness) and the row's forces on the four sum to zero: the two models
+ * exchange momentum exactly. A point is a contact when φ < 0 or when it would be by the step's end at the current
+ * relative velocity (φ + h n·(v_p − Σ b_i v_i) < 0); points on prescribed DOFs (held roots) are skipped, and a sheet's
+ * vertex that is prescribed (pinned) takes no force. Friction is not modelled yet. The rows go to the system's
+ * coupling matrix (dr_lag_add_global), in point order. */
+typedef struct DrContactPoints {
+    int n;
+    const double *x, *v;    /* 3n, m and m/s */
+    const double *radius;   /* n, m */
+    const int *dof;         /* n: each point's first of 3 DOFs in the system */
+    const unsigned char *held; /* n or NULL: points that do not move freely (skipped) */
+} DrContactPoints;
+typedef struct DrContactSheet {
+    const DrTriField *field; /* built on the sheet's positions x with its triangles tri */
+    const int *tri;
+    const double *x, *v;     /* 3 per vertex */
+    const int *dof;          /* per vertex: its first of 3 DOFs in the system */
+} DrContactSheet;
+struct DrLag;
+DR_NODISCARD DrStatus dr_contact_points_sheet(struct DrLag *lag, double h, const DrContactPoints *p,
+                                              const DrContactSheet *s, double thickness, double stiffness,
+                                              int *count, DrError *err);
+
 #endif

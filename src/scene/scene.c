@@ -892,15 +892,10 @@ static DrStatus check_collisions(Parser *p)
         for (int k = 0; k < n; k++) {
             const DrElement *b = dr_scene_find(s, m[k]);
             if (b && (b->kind == DR_ELEMENT_HAIR || b->kind == DR_ELEMENT_CLOTH)) {
-                if (edge == (b->kind == DR_ELEMENT_HAIR)) continue;
+                if (!edge || b->kind == DR_ELEMENT_HAIR) continue;
                 at_field(p, e, "Collision", "members", k);
-                if (edge)
-                    return fail(p, "%s.Collision.members[%d] = '%s' is a cloth element, and method \"edge_edge\" meets "
-                                   "strand segments: a cloth panel meets itself with method \"vertex_face\" in a "
-                                   "collision element of its own", e->name, k, m[k]);
-                return fail(p, "%s.Collision.members[%d] = '%s' is a hair element, and method \"vertex_face\" meets a "
-                               "cloth panel's vertices and triangles (contact between hair and cloth is not built yet); "
-                               "strands meet with method \"edge_edge\" in a collision element of their own",
+                return fail(p, "%s.Collision.members[%d] = '%s' is a cloth element, and method \"edge_edge\" meets "
+                               "strand segments: a cloth panel meets itself, and hair, with method \"vertex_face\"",
                             e->name, k, m[k]);
             }
             char sug[256];
@@ -918,11 +913,63 @@ static DrStatus check_collisions(Parser *p)
             return fail(p, "%s.Collision.pairs = \"between\" meets different members only, and it has one member: list "
                            "at least two, or use pairs \"self\"", e->name);
         }
-        if (!edge && n > 1 && strcmp(pairs, "self") != 0) {
+        int ncloth = 0, nhair_m = 0;
+        for (int k = 0; k < n; k++) {
+            const DrElement *b = dr_scene_find(s, m[k]);
+            ncloth += b->kind == DR_ELEMENT_CLOTH;
+            nhair_m += b->kind == DR_ELEMENT_HAIR;
+        }
+        if (!edge && ncloth > 1 && strcmp(pairs, "self") != 0) {
             at_field(p, e, "Collision", "pairs", -1);
             return fail(p, "%s.Collision: contact between two cloth panels is not built yet (each panel is solved on "
-                           "its own); with method \"vertex_face\" and several members give pairs \"self\" (each panel "
-                           "with itself)", e->name);
+                           "its own); with method \"vertex_face\" and several cloth members give pairs \"self\" (each "
+                           "panel with itself), and pair each panel with the hair in a collision element of its own",
+                        e->name);
+        }
+        if (!edge && nhair_m > 0 && (ncloth == 0 || strcmp(pairs, "self") == 0)) {
+            at_field(p, e, "Collision", ncloth == 0 ? "members" : "pairs", -1);
+            return fail(p, "%s.Collision: with method \"vertex_face\" a hair member meets the cloth members' triangles "
+                           "(strands meet strands with \"edge_edge\"), and %s; list a cloth element beside the hair "
+                           "with pairs \"all\" or \"between\"", e->name,
+                        ncloth == 0 ? "it lists no cloth element" : "pairs \"self\" pairs no hair with a panel");
+        }
+        if (!edge && nhair_m > 0) { /* hair against cloth is stepped outside the coupled loop only */
+            bool fluid = false, coupled = false;
+            for (int q = 0; q < s->element_count; q++)
+                fluid = fluid || s->elements[q].kind == DR_ELEMENT_LIQUID || s->elements[q].kind == DR_ELEMENT_AIR;
+            for (int k = 0; k < n; k++) {
+                const DrElement *b = dr_scene_find(s, m[k]);
+                coupled = coupled || dr_component_present(dr_element_component(b, b->kind == DR_ELEMENT_HAIR ? "Drag"
+                                                                                                          : "ClothDrag"));
+            }
+            for (int k = 0; k < n; k++) { /* the hair's step holds the panel's pins where they started */
+                const DrElement *b = dr_scene_find(s, m[k]);
+                if (b->kind != DR_ELEMENT_CLOTH) continue;
+                bool moving = dr_component_present(dr_element_component(b, "Motion")) &&
+                              dr_component_present(dr_element_component(b, "FixedVertices"));
+                for (int q = 0; !moving && q < s->element_count; q++) {
+                    const DrElement *a = &s->elements[q];
+                    if (a->kind != DR_ELEMENT_ATTACHMENT) continue;
+                    const DrComponent *ac = dr_element_component(a, "Attachment");
+                    if (strcmp(value_at(ac, "method")->str, "rigid") != 0) continue;
+                    const char *const *am = NULL;
+                    int an = dr_component_names(ac, "members", &am);
+                    for (int r = 0; r < an; r++) moving = moving || strcmp(am[r], b->name) == 0;
+                }
+                if (moving) {
+                    at_field(p, e, "Collision", "members", k);
+                    return fail(p, "%s.Collision pairs hair with cloth '%s', whose pins move (its Motion, or a rigid "
+                                   "attachment): a panel that meets hair is stepped with the hair, and its pins stay "
+                                   "where they start there (not built yet); hold %s still, or leave it out of %s",
+                                e->name, b->name, b->name, e->name);
+                }
+            }
+            if (fluid && coupled) {
+                at_field(p, e, "Collision", "members", -1);
+                return fail(p, "%s.Collision pairs hair with cloth, and one of them is coupled with the fluid (Drag or "
+                               "ClothDrag): contact between hair and cloth is not built in the coupled loop yet; remove "
+                               "the hair or the cloth from %s, or their Drag and ClothDrag", e->name, e->name);
+            }
         }
         /* a pair covered by an earlier collision element of the same method */
         for (int j = 0; j < i; j++) {
@@ -937,6 +984,9 @@ static DrStatus check_collisions(Parser *p)
                 for (int b = a; b < n; b++) {
                     bool self = a == b;
                     if (self ? strcmp(pairs, "between") == 0 : strcmp(pairs, "self") == 0) continue;
+                    if (!edge && dr_scene_find(s, m[a])->kind == DR_ELEMENT_HAIR &&
+                        dr_scene_find(s, m[b])->kind == DR_ELEMENT_HAIR)
+                        continue; /* not a contact of vertex_face */
                     int oa = -1, ob = -1;
                     for (int k = 0; k < on; k++) {
                         if (strcmp(om[k], m[a]) == 0) oa = k;

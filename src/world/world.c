@@ -224,6 +224,9 @@ static DrStatus build(DrWorld *w, const DrWorldDesc *desc, DrError *err)
         w->solvers[0].lockstep = true;
         if (w->hair) w->hair->lockstep = true;
     }
+    /* hair against cloth: the hair adapter steps the panels it meets with the hair, in one system, at every clock
+       step; the cloth adapter counts their steps at the same clock steps */
+    if (world_kinematics_cloth_link(w->kin)->n > 0 && w->hair && w->cloth) w->hair->lockstep = w->cloth->lockstep = true;
     /* MPM solids two-way with the first liquid: its substep hands them the pressure's impulse at every clock step */
     if (world_kinematics_mpm_coupled(w->kin) && w->nliquids > 0) w->solvers[0].lockstep = true;
     if (w->bem_built.self) {

@@ -60,6 +60,8 @@ typedef struct DrHairFrameStats {
     double residual;         /* last relative residual */
     int not_converged;       /* substeps whose solve stopped at its cap (a warning) */
     int collider_contacts, contacts; /* of the last substep */
+    bool meets_cloth;        /* a collision element pairs the hair with cloth */
+    int cloth_contacts;      /* rows between hair vertices and cloth triangles of the last substep */
     double kinetic_energy, elastic_energy, gravity_energy; /* J */
     double scalp_work;       /* J: done on the strands through their held roots (and tips) over the frame */
     double max_speed;        /* m/s: the largest |v| of a vertex at the frame's end */

@@ -8,6 +8,8 @@
 #include "world/world.h"
 
 #include "bem/bem.h"
+#include "cloth/cloth.h"
+#include "contact/contact.h"
 #include "couple/couple.h"
 #include "grid/grid.h"
 #include "io/io.h"
@@ -67,6 +69,30 @@ void world_kinematics_pose(WorldKinematics *k, double t);
    inverse of its frame at t = 0, so that a point q of the rest pose goes to R(t) R₀ᵀ (q − T₀) + T(t). False when the
    kinematics keep no collider for it. t within the clock step being taken. */
 bool world_kinematics_carry(const WorldKinematics *k, const DrElement *target, double t, DrXform *out);
+/* Hair against cloth (DESIGN §8, one Lagrangian system): each cloth element that a vertex_face collision element pairs
+   with a hair element is an object of the hair's system, stepped with the hair by the hair adapter at every clock step
+   (both step in lockstep), with the rows between the hair's vertices and its triangles (contact.h). The hair adapter
+   publishes its system when it builds; the cloth adapter then makes the panel in it and publishes the panel and its
+   colliders; the hair adapter leaves each step's figures for the cloth adapter to count. */
+typedef struct WorldClothPanelLink {
+    const DrElement *element; /* the cloth element */
+    DrCloth *cloth;           /* the panel (the cloth adapter's), NULL until it is built */
+    DrTriField *field;        /* the panel at a step's start, as the hair's rows find it (the hair adapter's) */
+    int *dof;                 /* per vertex: its first DOF in the system (the hair adapter's) */
+    DrClothStats last;        /* the panel's last step (hair adapter), and how many steps since the cloth adapter */
+    int steps;                /* last counted them */
+    long iterations;
+    int not_converged;
+} WorldClothPanelLink;
+typedef struct WorldClothLink {
+    int n;                    /* 0: no hair meets any cloth */
+    WorldClothPanelLink *panels;
+    DrLag *system;            /* the hair's system */
+    const DrClothCollider *colliders; /* what the panels meet (the cloth adapter's) */
+    int ncolliders;
+} WorldClothLink;
+WorldClothLink *world_kinematics_cloth_link(WorldKinematics *k);
+
 /* The bem_solid bodies as the hair and the cloth see them (their deformed surface, posed with the colliders); 0
    without hair, cloth and liquid. The array stays in place; each entry's collider changes at every BEM step. */
 int world_kinematics_bodies_posed(WorldKinematics *k, WorldPosedCollider **out);

@@ -43,6 +43,7 @@ typedef struct WorldPanel {
     double *keys;        /* Motion keys (rows of 7), moving the pins rigidly from the rest pose */
     int nkeys;
     double *uv;          /* 6T: the mesh's texture coordinates per triangle corner, NULL without */
+    WorldClothPanelLink *link; /* hair meets it: an object of the hair's system, stepped by the hair adapter */
 } WorldPanel;
 
 typedef struct WorldCloth {
@@ -272,7 +273,15 @@ static DrStatus build_panel(const WorldCtx *c, const DrElement *e, WorldPanel *p
             mat.self_damping = dr_component_num(r, "damping");
         }
     }
+    WorldClothLink *link = world_kinematics_cloth_link(c->kin);
+    for (int k = 0; k < link->n; k++)
+        if (link->panels[k].element == e) p->link = &link->panels[k];
+    if (p->link) {
+        assert(link->system); /* the hair adapter is built first */
+        desc.system = link->system;
+    }
     DrStatus s = dr_cloth_create(&desc, &m, &mat, e->name, &p->cloth, err);
+    if (s == DR_OK && p->link) p->link->cloth = p->cloth;
     if (s == DR_OK) s = attach(c, e, &m, p, err);
     if (s == DR_OK) s = dr_stage_motion_keys(e, c->first_frame, c->fps, &p->keys, &p->nkeys, err);
     if (s == DR_OK) s = dr_calloc((size_t)m.nv, sizeof(double), &p->area, err);
@@ -375,6 +384,9 @@ static DrStatus build_cloth(const WorldCtx *c, WorldCloth *w, DrError *err)
         w->colliders[nlive + k] = (DrClothCollider){world_posed_sdf, world_posed_velocity, &bodies[k], 0, 0};
     w->ncolliders = nlive + nbodies;
     if (with_mpm) w->colliders[w->ncolliders++] = mpm;
+    WorldClothLink *link = world_kinematics_cloth_link(c->kin);
+    link->colliders = w->colliders;
+    link->ncolliders = w->ncolliders;
     bool fluid = dr_scene_count_kind(scene, DR_ELEMENT_LIQUID) > 0 || dr_scene_count_kind(scene, DR_ELEMENT_AIR) > 0;
     w->couples = coupled && fluid;
     if (w->couples) DR_TRY(build_couple(w, err));
@@ -391,7 +403,7 @@ static DrStatus build_cloth(const WorldCtx *c, WorldCloth *w, DrError *err)
         }
         w->drop += mass * dr_v3_norm(c->gravity) * dr_v3_norm(dr_v3_sub(hi, lo));
     }
-    w->watched = nbodies == 0 && !with_mpm && !w->couples;
+    w->watched = nbodies == 0 && !with_mpm && !w->couples && link->n == 0;
     for (int i = 0; i < w->n; i++) w->watched = w->watched && w->panels[i].nkeys == 0;
     for (int k = 0; k < nlive; k++) w->watched = w->watched && dr_collider_static(live[k]);
     return DR_OK;
@@ -479,8 +491,18 @@ static DrStatus cloth_step(void *self, const WorldCtx *c, double t, double t_nex
     w->contacts = w->self_contacts = 0;
     for (int i = 0; i < w->n; i++) {
         DrClothStats st;
-        DR_TRY(move_pins(c, &w->panels[i], t, t_next, err));
-        DR_TRY(panel_status(w, dr_cloth_step(w->panels[i].cloth, t_next - t, w->colliders, w->ncolliders, &st, err)));
+        WorldPanel *p = &w->panels[i];
+        if (p->link) { /* the hair adapter stepped it with the hair in this clock step */
+            st = p->link->last;
+            st.iterations = p->link->iterations;
+            w->not_converged += p->link->not_converged;
+            p->link->iterations = 0;
+            p->link->not_converged = 0;
+            p->link->steps = 0;
+        } else {
+            DR_TRY(move_pins(c, p, t, t_next, err));
+            DR_TRY(panel_status(w, dr_cloth_step(p->cloth, t_next - t, w->colliders, w->ncolliders, &st, err)));
+        }
         w->iterations += st.iterations;
         w->contacts += st.collider_contacts;
         w->self_contacts += st.self_contacts;

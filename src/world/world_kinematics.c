@@ -64,6 +64,7 @@ struct WorldKinematics {
     DrPointField *mpm_surface; /* the MPM particles as a surface for the hair, NULL without hair or MPM */
     WorldMpmParticles mpm;   /* the MPM particles two-way with the first liquid (world_kinematics_mpm_couple) */
     WorldWetLink wet;        /* capture and dripping between the first liquid and the wet hair */
+    WorldClothLink cloth;    /* hair against cloth */
     DrVec3 gravity;          /* the shot's, m/s² (the bodies' proxies) */
     DrLiquidBody *lbodies;   /* the two-way bodies as the liquid's substep takes them, and their body indices */
     int *lb_body;
@@ -723,6 +724,22 @@ DrStatus world_kinematics_create(const DrScene *scene, int first_frame, double f
     if (s == DR_OK && dr_scene_count_kind(scene, DR_ELEMENT_HAIR) + dr_scene_count_kind(scene, DR_ELEMENT_CLOTH) > 0 &&
         dr_scene_count_kind(scene, DR_ELEMENT_MPM_SOLID) > 0)
         s = dr_point_field_create(&k->mpm_surface, err);
+    /* the cloth elements some hair element meets (vertex_face collision elements) */
+    for (int i = 0; s == DR_OK && i < dr_scene_element_count(scene); i++) {
+        const DrElement *e = dr_scene_element(scene, i);
+        if (e->kind != DR_ELEMENT_CLOTH) continue;
+        bool met = false;
+        for (int j = 0; !met && j < dr_scene_element_count(scene); j++) {
+            const DrElement *h = dr_scene_element(scene, j);
+            met = h->kind == DR_ELEMENT_HAIR && dr_scene_collision(scene, h->name, e->name, "vertex_face");
+        }
+        if (!met) continue;
+        s = dr_realloc((size_t)k->cloth.n + 1, sizeof *k->cloth.panels, &k->cloth.panels, err);
+        if (s != DR_OK) break;
+        WorldClothPanelLink *pl = &k->cloth.panels[k->cloth.n++];
+        *pl = (WorldClothPanelLink){.element = e};
+        s = dr_tri_field_create(&pl->field, err);
+    }
     if (s < 0) {
         world_kinematics_destroy(&k);
         return s;
@@ -750,6 +767,11 @@ void world_kinematics_destroy(WorldKinematics **kp)
     free(k->bodies);
     free(k->body_posed);
     dr_point_field_destroy(&k->mpm_surface);
+    for (int i = 0; i < k->cloth.n; i++) {
+        dr_tri_field_destroy(&k->cloth.panels[i].field);
+        free(k->cloth.panels[i].dof);
+    }
+    free(k->cloth.panels);
     free(k->mpm.x), free(k->mpm.v), free(k->mpm.mass), free(k->mpm.volume), free(k->mpm.dv);
     free(k->liquid);
     for (int i = 0; i < k->ncolliders; i++) dr_collider_destroy(&k->colliders[i].collider);
@@ -889,3 +911,4 @@ DrStatus world_kinematics_set_mpm_particles(WorldKinematics *k, long n, const do
 WorldMpmParticles *world_kinematics_mpm_particles(WorldKinematics *k) { return k->mpm.on ? &k->mpm : NULL; }
 
 WorldWetLink *world_kinematics_wet(WorldKinematics *k) { return &k->wet; }
+WorldClothLink *world_kinematics_cloth_link(WorldKinematics *k) { return &k->cloth; }

@@ -112,6 +112,17 @@ typedef struct WorldHair {
     DrXform *poses;          /* per element, the step's end pose */
     DrRodCollider *colliders;
     int ncolliders;
+    /* hair against cloth (world_kinematics_cloth_link): the panels are objects of this system, stepped here; one rows
+       set per panel and collision element, for the batches that element pairs with the panel */
+    WorldClothLink *link;
+    int ncross;
+    struct HairCross { int panel; double thickness, stiffness; unsigned char *batch_on; } *cross;
+    unsigned char *skip;     /* per vertex: not in the rows being added (held, or of another batch) */
+    int hair_dofs;           /* the system's DOFs that are the hair's (the panels' come after) */
+    long fint_cap;
+    int cross_contacts;      /* rows of the last step */
+    int last_cross;          /* the last frame's */
+    long solve_iterations;   /* of the last solve */
     int substeps;            /* HairSolver.substeps: the hair's steps per frame when nothing else is faster */
     double cfl;              /* HairSolver.cfl: a step moves no vertex (nor film) by more than cfl shortest segments;
                                 0: the substeps alone */
@@ -174,6 +185,9 @@ static void hair_destroy(void *self)
     dr_rod_set_destroy(&h->rods);
     dr_lag_destroy(&h->system);
     free(h->fint);
+    for (int k = 0; k < h->ncross; k++) free(h->cross[k].batch_on);
+    free(h->cross);
+    free(h->skip);
     for (int i = 0; h->keys && i < h->nelements; i++) free(h->keys[i]);
     free(h->keys);
     free(h->carrier);
@@ -247,6 +261,92 @@ static void scalp_poses(WorldHair *h, const WorldCtx *c, double t)
     for (int b = 0; b < h->nelements; b++)
         if (!h->carrier[b] || !world_kinematics_carry(c->kin, h->carrier[b], t, &h->poses[b]))
             h->poses[b] = dr_motion_pose(h->keys[b], h->nkeys[b], t);
+}
+
+/* Hair against cloth: the system goes to the link, for the cloth adapter to make the panels in; one set of rows per
+   panel and collision element, with its CollisionResponse's stiffness and thickness where written, else the hair's
+   collider stiffness and the panel's Collider.thickness (1 mm when 0, as the panel keeps from colliders). */
+static DrStatus link_cloth(const WorldCtx *c, WorldHair *h, DrError *err)
+{
+    WorldClothLink *link = world_kinematics_cloth_link(c->kin);
+    if (link->n == 0) return DR_OK;
+    h->link = link;
+    link->system = h->system;
+    int B = h->nelements;
+    DR_TRY(dr_calloc((size_t)(link->n * B), sizeof *h->cross, &h->cross, err));
+    for (int k = 0; k < link->n; k++) {
+        const DrElement *pe = link->panels[k].element;
+        for (int b = 0; b < B; b++) {
+            const DrElement *ce = dr_scene_collision(c->scene, h->elements[b]->name, pe->name, "vertex_face");
+            if (!ce) continue;
+            const DrComponent *r = dr_element_component(ce, "CollisionResponse");
+            double th = dr_component_num(dr_element_component(pe, "Collider"), "thickness");
+            double thickness = dr_component_is_set(r, "thickness") ? dr_component_num(r, "thickness") : th > 0 ? th : 1e-3;
+            double stiffness = dr_component_is_set(r, "stiffness") ? dr_component_num(r, "stiffness") : 1e4;
+            int j = 0;
+            while (j < h->ncross && !(h->cross[j].panel == k && h->cross[j].thickness == thickness &&
+                                      h->cross[j].stiffness == stiffness))
+                j++;
+            if (j == h->ncross) {
+                h->cross[j] = (struct HairCross){k, thickness, stiffness, NULL};
+                DR_TRY(dr_calloc((size_t)B, 1, &h->cross[j].batch_on, err));
+                h->ncross++;
+            }
+            h->cross[j].batch_on[b] = 1;
+        }
+    }
+    DR_TRY(dr_calloc((size_t)dr_rod_set_state(h->rods).nverts, 1, &h->skip, err));
+    return DR_OK;
+}
+
+/* The panels' DOFs (once, after the cloth adapter made them) and their steps' start: their DOF ranges. */
+static DrStatus panels_predict_dofs(WorldHair *h, double dt, DrError *err)
+{
+    for (int k = 0; h->link && k < h->link->n; k++) {
+        WorldClothPanelLink *pl = &h->link->panels[k];
+        if (!pl->dof) {
+            int V = dr_cloth_vertex_count(pl->cloth);
+            DR_TRY(dr_calloc((size_t)V, sizeof(int), &pl->dof, err));
+            for (int v = 0; v < V; v++) pl->dof[v] = dr_cloth_vertex_dof(pl->cloth, v);
+        }
+        DR_TRY(dr_error_prefix(dr_cloth_predict_dofs(pl->cloth, dt, h->link->colliders, h->link->ncolliders, err), err,
+                               "cloth '%s'", pl->element->name));
+    }
+    return DR_OK;
+}
+
+/* After the system began: the panels' groups, and the rows between the hair's vertices and each panel's triangles
+   (contact.h), the panel as it stands at the step's start. */
+static DrStatus panels_predict_groups(WorldHair *h, double dt, DrError *err)
+{
+    if (!h->link) return DR_OK;
+    h->cross_contacts = 0;
+    for (int k = 0; k < h->link->n; k++) {
+        WorldClothPanelLink *pl = &h->link->panels[k];
+        DR_TRY(dr_cloth_predict_groups(pl->cloth, err));
+        double reach = 0.02;
+        DR_TRY(dr_tri_field_build(pl->field, dr_cloth_triangle_count(pl->cloth), dr_cloth_triangles(pl->cloth),
+                                  dr_cloth_positions(pl->cloth), dr_cloth_velocities(pl->cloth), reach, err));
+    }
+    DrRodState rs = dr_rod_set_state(h->rods);
+    const int *vdof = dr_rod_set_vertex_dofs(h->rods);
+    DrLagDofs d;
+    DR_TRY(dr_lag_dofs(h->system, &d, err));
+    for (int j = 0; j < h->ncross; j++) {
+        const struct HairCross *x = &h->cross[j];
+        WorldClothPanelLink *pl = &h->link->panels[x->panel];
+        for (int b = 0; b < rs.nbatches; b++)
+            for (int s = rs.batch_offsets[b]; s < rs.batch_offsets[b + 1]; s++)
+                for (int i = rs.offsets[s]; i < rs.offsets[s + 1]; i++)
+                    h->skip[i] = !x->batch_on[b] || d.prescribed[vdof[i]];
+        DrContactPoints pts = {rs.nverts, rs.x, rs.v, rs.vertex_radius, vdof, h->skip};
+        DrContactSheet sh = {pl->field, dr_cloth_triangles(pl->cloth), dr_cloth_positions(pl->cloth),
+                             dr_cloth_velocities(pl->cloth), pl->dof};
+        int n = 0;
+        DR_TRY(dr_contact_points_sheet(h->system, dt, &pts, &sh, x->thickness, x->stiffness, &n, err));
+        h->cross_contacts += n;
+    }
+    return DR_OK;
 }
 
 static DrStatus build_hair(const WorldCtx *c, WorldHair *h, int n, DrError *err)
@@ -367,7 +467,7 @@ static DrStatus build_hair(const WorldCtx *c, WorldHair *h, int n, DrError *err)
         if (with_mpm) h->colliders[h->ncolliders++] = mpm; /* the MPM solids' particles as a surface */
     }
     world_watch_init(&h->watch, scene);
-    h->watched = !h->any_motion && nbodies == 0 && !with_mpm;
+    h->watched = !h->any_motion && nbodies == 0 && !with_mpm && world_kinematics_cloth_link(c->kin)->n == 0;
     for (int k = 0; k < nlive; k++) h->watched = h->watched && dr_collider_static(live[k]);
     DrRodState rs = dr_rod_set_state(h->rods);
     double mass = 0.0, longest = 0.0;
@@ -647,10 +747,12 @@ static DrStatus system_predict(WorldHair *h, double dt, DrError *err)
     DrRodState rs = dr_rod_set_state(h->rods);
     if (w && w->link) memcpy(w->v_start, rs.v, 3 * (size_t)rs.nverts * sizeof(double));
     DR_TRY(dr_rod_set_predict_dofs(h->rods, dt, h->any_motion ? h->poses : NULL, err));
+    DR_TRY(panels_predict_dofs(h, dt, err));
     DrLagDofs d;
     DR_TRY(dr_lag_dofs(h->system, &d, err));
     DR_TRY(dr_lag_begin(h->system, dt, d.mass, d.qdot, d.fext, d.prescribed, d.qdot_prescribed, err));
     DR_TRY(dr_rod_set_predict_groups(h->rods, h->colliders, h->ncolliders, err));
+    DR_TRY(panels_predict_groups(h, dt, err));
     if (w) {
         /* wet hair: the bridges (at the start of the step) join the system, the film rides on the strands */
         double tb = dr_time_now();
@@ -698,6 +800,11 @@ static DrStatus system_solve(WorldHair *h, const double *cforce, const double *c
     DrStatus solved = dr_lag_solve_load(h->system, loaded ? &load : NULL, d.qdot_out, &ls, err);
     if (solved < 0) return solved;
     dr_rod_set_take(h->rods);
+    for (int k = 0; h->link && k < h->link->n; k++) {
+        dr_cloth_take(h->link->panels[k].cloth);
+        h->link->panels[k].iterations += ls.iterations;
+        h->link->panels[k].not_converged += ls.converged ? 0 : 1;
+    }
     h->frame.iterations += ls.iterations;
     h->frame.residual = ls.residual;
     h->frame.not_converged += ls.converged ? 0 : 1;
@@ -714,14 +821,24 @@ static DrStatus system_commit(WorldHair *h, double dt, DrError *err)
     DR_TRY(dr_lag_dofs(h->system, &d, err));
     dr_lag_update_multipliers(h->system, d.qdot_out);
     /* the work the scalp (and any held tip) does on the strands over the step: the force that gives each held DOF its
-       prescribed velocity against gravity and the constraints, times its displacement h q̇₊ */
+       prescribed velocity against gravity and the constraints, times its displacement h q̇₊ (the hair's DOFs only) */
     int n = dr_lag_dof_count(h->system);
+    if (n > h->fint_cap) {
+        DR_TRY(dr_realloc((size_t)n, sizeof(double), &h->fint, err));
+        h->fint_cap = n;
+    }
     memset(h->fint, 0, (size_t)n * sizeof(double));
     dr_lag_constraint_forces(h->system, d.qdot_out, h->fint);
+    n = h->hair_dofs;
     for (int k = 0; k < n; k++)
         if (d.prescribed[k])
             h->scalp_work += (d.mass[k] * (d.qdot_out[k] - d.qdot[k]) - dt * (d.fext[k] + h->fint[k])) * d.qdot_out[k];
     DR_TRY(dr_rod_set_commit(h->rods, &h->frame, err));
+    for (int k = 0; h->link && k < h->link->n; k++) {
+        WorldClothPanelLink *pl = &h->link->panels[k];
+        DR_TRY(dr_error_prefix(dr_cloth_commit(pl->cloth, &pl->last, err), err, "cloth '%s'", pl->element->name));
+        pl->steps++;
+    }
     if (w) {
         /* the film follows the strands' step and flows; then across the bridges */
         double tf = dr_time_now();
@@ -937,6 +1054,7 @@ static DrStatus hair_end_frame(void *self, const WorldCtx *c, DrFrameStats *stat
                     "max_iterations or substeps",
                     h->not_converged_steps, h->steps, st->residual);
     h->last = *st;
+    h->last_cross = h->cross_contacts;
     h->last_scalp_work = h->scalp_work;
     h->last_speed = h->speed_prev;
     h->last_speed_growth = h->speed_growth;
@@ -958,6 +1076,8 @@ static DrStatus hair_end_frame(void *self, const WorldCtx *c, DrFrameStats *stat
     b->not_converged = h->not_converged_steps;
     b->collider_contacts = st->collider_contacts;
     b->contacts = st->hair_contacts;
+    b->cloth_contacts = h->cross_contacts;
+    b->meets_cloth = h->link != NULL;
     b->kinetic_energy = st->kinetic;
     b->elastic_energy = st->elastic;
     b->gravity_energy = st->gravity_potential;
@@ -1232,6 +1352,7 @@ static DrStatus hair_write(const void *self, const WorldCtx *c, DrH5 *hf, bool f
     DR_TRY(dr_h5_write_scalar(hf, g, "hair_not_converged", h->not_converged, "1", err));
     DR_TRY(dr_h5_write_scalar(hf, g, "hair_collider_contacts", h->last.collider_contacts, "1", err));
     DR_TRY(dr_h5_write_scalar(hf, g, "hair_contacts", h->last.hair_contacts, "1", err));
+    if (h->link) DR_TRY(dr_h5_write_scalar(hf, g, "hair_cloth_contacts", h->last_cross, "1", err));
     DR_TRY(dr_h5_write_scalar(hf, g, "hair_kinetic_energy", h->last.kinetic, "J", err));
     DR_TRY(dr_h5_write_scalar(hf, g, "hair_elastic_energy", h->last.elastic, "J", err));
     DR_TRY(dr_h5_write_scalar(hf, g, "hair_gravity_energy", h->last.gravity_potential, "J", err));
@@ -1441,6 +1562,9 @@ DrStatus world_lagrangian_adapter(const WorldCtx *c, const char *cache_root, Wor
     DR_TRY(dr_calloc(1, sizeof *h, &h, err));
     DrStatus s = build_hair(c, h, n, err);
     if (s == DR_OK) s = dr_calloc((size_t)dr_lag_dof_count(h->system), sizeof(double), &h->fint, err);
+    h->fint_cap = dr_lag_dof_count(h->system);
+    h->hair_dofs = dr_lag_dof_count(h->system);
+    if (s == DR_OK) s = link_cloth(c, h, err);
     if (s == DR_OK) s = build_wet(c, h, cache_root, err);
     if (s == DR_OK) s = build_couple(h, err);
     if (s < 0) {

@@ -276,6 +276,93 @@ static void test_point_field_flat_face(void **state)
     dr_point_field_destroy(&pf);
 }
 
+/* The triangle field against brute force: for random points near a random soup of triangles, the nearest distance,
+   the nearest point's barycentric weights, the normal and the velocity match the minimum over every triangle within
+   reach (the first of equally near ones); beyond reach nothing is seen. */
+static double tri_distance(const double *p, const double *a, const double *b, const double *c, double w[3])
+{
+    /* a search over the triangle's barycentric grid, refined four times: a check independent of the field's Voronoi
+       tests, exact to about 1e-7 m */
+    double best = INFINITY, bu = 0, bv = 0, step = 1.0 / 64;
+    for (int round = 0; round < 4; round++) {
+        double cu = bu, cv = bv;
+        for (int i = -64; i <= 64; i++)
+            for (int j = -64; j <= 64; j++) {
+                double u = (round ? cu : 0) + i * step, v = (round ? cv : 0) + j * step;
+                if (u < 0 || v < 0 || u + v > 1) continue;
+                double d2 = 0;
+                for (int k = 0; k < 3; k++) {
+                    double q = (1 - u - v) * a[k] + u * b[k] + v * c[k] - p[k];
+                    d2 += q * q;
+                }
+                if (d2 < best) best = d2, bu = u, bv = v;
+            }
+        step /= 64;
+    }
+    w[0] = 1 - bu - bv, w[1] = bu, w[2] = bv;
+    return sqrt(best);
+}
+
+static void test_tri_field_nearest(void **state)
+{
+    (void)state;
+    DrRng rng;
+    dr_rng_seed(&rng, 7);
+    enum { NT = 60 };
+    double x[9 * NT], v[9 * NT];
+    int tri[3 * NT];
+    for (int i = 0; i < 9 * NT; i++) x[i] = dr_rng_uniform(&rng) * 0.3, v[i] = dr_rng_uniform(&rng) - 0.5;
+    for (int t = 0; t < NT; t++) /* small triangles: each vertex within 5 cm of the first */
+        for (int k = 1; k < 3; k++)
+            for (int a = 0; a < 3; a++) x[9 * t + 3 * k + a] = x[9 * t + a] + 0.1 * (dr_rng_uniform(&rng) - 0.5);
+    for (int i = 0; i < 3 * NT; i++) tri[i] = i;
+    DrTriField *tf = NULL;
+    DrError e;
+    assert_int_equal(dr_tri_field_create(&tf, &e), DR_OK);
+    const double reach = 0.04;
+    assert_int_equal(dr_tri_field_build(tf, NT, tri, x, v, reach, &e), DR_OK);
+    int seen = 0;
+    for (int q = 0; q < 400; q++) {
+        double p[3] = {dr_rng_uniform(&rng) * 0.4 - 0.05, dr_rng_uniform(&rng) * 0.4 - 0.05,
+                       dr_rng_uniform(&rng) * 0.4 - 0.05};
+        double best = INFINITY, bw[3] = {0, 0, 0};
+        int bt = -1;
+        for (int t = 0; t < NT; t++) {
+            double w[3];
+            double d = tri_distance(p, x + 9 * t, x + 9 * t + 3, x + 9 * t + 6, w);
+            if (d < best - 1e-9) best = d, bt = t, memcpy(bw, w, sizeof bw);
+        }
+        DrVec3 n;
+        double phi = dr_tri_field_phi(tf, dr_v3(p[0], p[1], p[2]), &n);
+        double w[3];
+        int t = dr_tri_field_nearest(tf, dr_v3(p[0], p[1], p[2]), w);
+        if (best >= reach) { /* not seen beyond reach (or just within it: either way no nearer triangle) */
+            if (best > reach * (1 + 1e-6)) assert_true(t < 0 && isinf(phi));
+            continue;
+        }
+        seen++;
+        assert_int_equal(t, bt);
+        assert_true(phi <= best + 1e-15 && phi > best - 1e-9); /* never farther than the dense search's point */
+        double c[3], len = 0;
+        for (int a = 0; a < 3; a++) { /* the same nearest point (its weights are ill-conditioned on thin triangles) */
+            c[a] = w[0] * x[9 * t + a] + w[1] * x[9 * t + 3 + a] + w[2] * x[9 * t + 6 + a];
+            double cb = bw[0] * x[9 * t + a] + bw[1] * x[9 * t + 3 + a] + bw[2] * x[9 * t + 6 + a];
+            assert_true(fabs(c[a] - cb) < 1e-5); /* the search converges to ~1e-7 m */
+            len += (p[a] - c[a]) * (p[a] - c[a]);
+        }
+        len = sqrt(len);
+        assert_true(fabs(n.x - (p[0] - c[0]) / len) < 1e-9 && fabs(n.y - (p[1] - c[1]) / len) < 1e-9 &&
+                    fabs(n.z - (p[2] - c[2]) / len) < 1e-9);
+        DrVec3 u = dr_tri_field_velocity(tf, dr_v3(p[0], p[1], p[2]));
+        double ue[3];
+        for (int a = 0; a < 3; a++) ue[a] = w[0] * v[9 * t + a] + w[1] * v[9 * t + 3 + a] + w[2] * v[9 * t + 6 + a];
+        assert_true(fabs(u.x - ue[0]) < 1e-12 && fabs(u.y - ue[1]) < 1e-12 && fabs(u.z - ue[2]) < 1e-12);
+    }
+    print_message("%d of 400 points within reach matched the brute force\n", seen);
+    assert_true(seen > 50);
+    dr_tri_field_destroy(&tf);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -285,6 +372,7 @@ int main(void)
         cmocka_unit_test(test_bad_boxes_and_cells),
         cmocka_unit_test(test_shape_bits_and_boxes),
         cmocka_unit_test(test_point_field_flat_face),
+        cmocka_unit_test(test_tri_field_nearest),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

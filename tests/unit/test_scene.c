@@ -973,9 +973,11 @@ static void test_collision_elements(void **state)
          "\"meshes/tri.obj\"}}}," COLL("k", "\"Collision\":{\"members\":[\"a\",\"head\"],\"method\":\"edge_edge\"}") "]}",
          "k.Collision.members[1] = 'head' is a collider element; members are hair or cloth elements"},
         {"{\"elements\":[" COLL_CLOTH("c") "," COLL("k", "\"Collision\":{\"members\":[\"c\"],\"method\":\"edge_edge\"}")
-         "]}", "k.Collision.members[0] = 'c' is a cloth element, and method \"edge_edge\" meets strand segments"},
+         "]}", "k.Collision.members[0] = 'c' is a cloth element, and method \"edge_edge\" meets strand segments: a cloth "
+         "panel meets itself, and hair, with method \"vertex_face\""},
         {"{\"elements\":[" COLL_HAIR("a") "," COLL("k", "\"Collision\":{\"members\":[\"a\"],\"method\":\"vertex_face\"}")
-         "]}", "k.Collision.members[0] = 'a' is a hair element, and method \"vertex_face\" meets a cloth panel's"},
+         "]}", "k.Collision: with method \"vertex_face\" a hair member meets the cloth members' triangles (strands meet "
+         "strands with \"edge_edge\"), and it lists no cloth element"},
         {"{\"elements\":[" COLL_HAIR("a") "," COLL("k", "\"Collision\":{\"members\":[\"a\"],\"method\":\"edge_edge\","
          "\"pairs\":\"between\"}") "]}", "k.Collision.pairs = \"between\" meets different members only"},
         {"{\"elements\":[" COLL_CLOTH("c") "," COLL_CLOTH("d") "," COLL("k", "\"Collision\":{\"members\":[\"c\",\"d\"],"
