@@ -568,8 +568,9 @@ int dr_tri_field_nearest(const DrTriField *tf, DrVec3 x, double bary[3])
 /* ---- points against a sheet, in one Lagrangian system ---------------------------------------------------------- */
 
 DrStatus dr_contact_points_sheet(DrLag *lag, double h, const DrContactPoints *p, const DrContactSheet *s,
-                                 double thickness, double stiffness, int *count, DrError *err)
+                                 const DrContactResponse *r, int *count, DrError *err)
 {
+    const double thickness = r->thickness, stiffness = r->stiffness;
     *count = 0;
     for (int i = 0; i < p->n; i++) {
         if (p->held && p->held[i]) continue;
@@ -607,6 +608,44 @@ DrStatus dr_contact_points_sheet(DrLag *lag, double h, const DrContactPoints *p,
         g.cinv[0] = stiffness;
         DR_TRY(dr_lag_add_global(lag, &g, err));
         (*count)++;
+        if (r->damping > 0) { /* a dashpot along n beside the spring */
+            DrLagGroup dmp = g;
+            dmp.kind = DR_LAG_VISCOUS;
+            dmp.phi[0] = 0;
+            dmp.cinv[0] = r->damping * stiffness;
+            DR_TRY(dr_lag_add_global(lag, &dmp, err));
+        }
+        if (!(r->friction > 0) || !(phi < 0)) continue;
+        /* friction: the tangential relative velocity and a basis of the tangent plane */
+        double vr[3];
+        for (int a = 0; a < 3; a++) vr[a] = (p->v ? p->v[3 * i + a] : 0) - vc[a];
+        double vn = vr[0] * n[0] + vr[1] * n[1] + vr[2] * n[2];
+        double vt[3] = {vr[0] - vn * n[0], vr[1] - vn * n[1], vr[2] - vn * n[2]};
+        double vtn = sqrt(vt[0] * vt[0] + vt[1] * vt[1] + vt[2] * vt[2]);
+        double t1[3], t2[3];
+        {
+            double ax[3] = {fabs(n[0]) < 0.6 ? 1 : 0, fabs(n[0]) < 0.6 ? 0 : 1, 0};
+            double dd = ax[0] * n[0] + ax[1] * n[1];
+            for (int a = 0; a < 3; a++) t1[a] = ax[a] - dd * n[a];
+            double l = sqrt(t1[0] * t1[0] + t1[1] * t1[1] + t1[2] * t1[2]);
+            for (int a = 0; a < 3; a++) t1[a] /= l;
+            t2[0] = n[1] * t1[2] - n[2] * t1[1];
+            t2[1] = n[2] * t1[0] - n[0] * t1[2];
+            t2[2] = n[0] * t1[1] - n[1] * t1[0];
+        }
+        DrLagGroup f = g;
+        f.kind = DR_LAG_VISCOUS;
+        f.nrows = 2;
+        for (int k = 0; k < 4; k++)
+            for (int a = 0; a < 3; a++) {
+                f.J[3 * k + a] = w[k] * t1[a];
+                f.J[12 + 3 * k + a] = w[k] * t2[a];
+            }
+        double grip = r->friction * fabs(phi) / h;
+        f.phi[0] = f.phi[1] = 0;
+        f.cinv[0] = f.cinv[1] = r->friction * stiffness * fabs(phi) / fmax(vtn, fmax(grip, 1e-12));
+        f.lambda = NULL;
+        DR_TRY(dr_lag_add_global(lag, &f, err));
     }
     return DR_OK;
 }

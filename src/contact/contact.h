@@ -126,8 +126,14 @@ int dr_tri_field_nearest(const DrTriField *tf, DrVec3 x, double bary[3]);
  * φ is linear in the positions (no geometric stiffness) and the row's forces on the four sum to zero: the two models
  * exchange momentum exactly. A point is a contact when φ < 0 or when it would be by the step's end at the current
  * relative velocity (φ + h n·(v_p − Σ b_i v_i) < 0); points on prescribed DOFs (held roots) are skipped, and a sheet's
- * vertex that is prescribed (pinned) takes no force. Friction is not modelled yet. The rows go to the system's
- * coupling matrix (dr_lag_add_global), in point order. */
+ * vertex that is prescribed (pinned) takes no force. With damping, a viscous row along n (coefficient damping ·
+ * stiffness) beside it; with friction, a viscous group on the two tangential components of the relative velocity
+ * whose coefficient μ F_n / max(|v_t|, μ|φ|/h), F_n = stiffness·|φ| the contact's force at the step's start, resists
+ * sliding with μ F_n (Coulomb, lagged by the step) and grips below μ|φ|/h (as the hair's strand–strand contacts,
+ * hair.c). The groups go to the system's coupling matrix (dr_lag_add_global), in point order. */
+typedef struct DrContactResponse {
+    double thickness, stiffness, friction, damping; /* m, N/m, 1, s */
+} DrContactResponse;
 typedef struct DrContactPoints {
     int n;
     const double *x, *v;    /* 3n, m and m/s */
@@ -143,7 +149,7 @@ typedef struct DrContactSheet {
 } DrContactSheet;
 struct DrLag;
 DR_NODISCARD DrStatus dr_contact_points_sheet(struct DrLag *lag, double h, const DrContactPoints *p,
-                                              const DrContactSheet *s, double thickness, double stiffness,
-                                              int *count, DrError *err);
+                                              const DrContactSheet *s, const DrContactResponse *r, int *count,
+                                              DrError *err);
 
 #endif

@@ -820,6 +820,22 @@ static void at_field(Parser *p, const DrElement *e, const char *comp, const char
     if (index >= 0) push_index(p, index);
 }
 
+/* The error for member k of element e's component comp that is not a hair or cloth element: b the element of that
+   name (NULL: none), why what the members must be, cand (nc names) the hair and cloth elements to suggest from. */
+static DrStatus bad_member(Parser *p, const DrElement *e, const char *comp, int k, const char *name, const DrElement *b,
+                           const char *why, const char *const *cand, int nc)
+{
+    char sug[256], list[512];
+    suggestion(name, cand, nc, sug, sizeof sug);
+    dr_scene_join_names_(cand, nc, list, sizeof list);
+    at_field(p, e, comp, "members", k);
+    if (b)
+        return fail(p, "%s.%s.members[%d] = '%s' is a %s element; %s%s Hair and cloth elements: %s", e->name, comp, k,
+                    name, b->type, why, sug, nc ? list : "none");
+    return fail(p, "%s.%s.members[%d] = '%s': no hair or cloth element has this name%s Hair and cloth elements: %s",
+                e->name, comp, k, name, sug, nc ? list : "none");
+}
+
 /* Collision elements: each member is a hair element (method edge_edge) or a
    cloth element (vertex_face); a pair of members (or a member with itself) takes one response, so no two collision
    elements of one method cover the same pair; vertex_face meets a panel with itself only (panels are solved one by
@@ -841,8 +857,6 @@ static DrStatus check_collisions(Parser *p)
     for (int i = 0; i < s->element_count; i++)
         if (s->elements[i].kind == DR_ELEMENT_HAIR || s->elements[i].kind == DR_ELEMENT_CLOTH)
             cand[nc++] = s->elements[i].name;
-    char list[512];
-    dr_scene_join_names_(cand, nc, list, sizeof list);
     for (int i = 0; i < s->element_count; i++) {
         const DrElement *e = &s->elements[i];
         if (e->kind == DR_ELEMENT_HAIR) {
@@ -898,15 +912,8 @@ static DrStatus check_collisions(Parser *p)
                                "strand segments: a cloth panel meets itself, and hair, with method \"vertex_face\"",
                             e->name, k, m[k]);
             }
-            char sug[256];
-            suggestion(m[k], cand, nc, sug, sizeof sug);
-            at_field(p, e, "Collision", "members", k);
-            if (b)
-                return fail(p, "%s.Collision.members[%d] = '%s' is a %s element; members are hair or cloth elements "
-                               "(colliders meet every one of them)%s Hair and cloth elements: %s",
-                            e->name, k, m[k], b->type, sug, nc ? list : "none");
-            return fail(p, "%s.Collision.members[%d] = '%s': no hair or cloth element has this name%s Hair and cloth "
-                           "elements: %s", e->name, k, m[k], sug, nc ? list : "none");
+            return bad_member(p, e, "Collision", k, m[k], b, "members are hair or cloth elements (colliders meet every "
+                              "one of them)", cand, nc);
         }
         if (strcmp(pairs, "between") == 0 && n < 2) {
             at_field(p, e, "Collision", "pairs", -1);
@@ -1024,8 +1031,7 @@ static DrStatus check_attachments(Parser *p)
         if (k == DR_ELEMENT_HAIR || k == DR_ELEMENT_CLOTH) cand[nc++] = s->elements[i].name;
         if (k == DR_ELEMENT_COLLIDER || k == DR_ELEMENT_BEM_SOLID) targets[nt++] = s->elements[i].name;
     }
-    char list[512], tlist[512];
-    dr_scene_join_names_(cand, nc, list, sizeof list);
+    char tlist[512];
     dr_scene_join_names_(targets, nt, tlist, sizeof tlist);
     for (int i = 0; i < s->element_count; i++) {
         const DrElement *e = &s->elements[i];
@@ -1038,17 +1044,8 @@ static DrStatus check_attachments(Parser *p)
         bool any_cloth = false;
         for (int k = 0; k < n; k++) {
             const DrElement *b = dr_scene_find(s, m[k]);
-            if (!b || (b->kind != DR_ELEMENT_HAIR && b->kind != DR_ELEMENT_CLOTH)) {
-                char sug[256];
-                suggestion(m[k], cand, nc, sug, sizeof sug);
-                at_field(p, e, "Attachment", "members", k);
-                if (b)
-                    return fail(p, "%s.Attachment.members[%d] = '%s' is a %s element; an attachment holds hair or cloth "
-                                   "elements%s Hair and cloth elements: %s",
-                                e->name, k, m[k], b->type, sug, nc ? list : "none");
-                return fail(p, "%s.Attachment.members[%d] = '%s': no hair or cloth element has this name%s Hair and "
-                               "cloth elements: %s", e->name, k, m[k], sug, nc ? list : "none");
-            }
+            if (!b || (b->kind != DR_ELEMENT_HAIR && b->kind != DR_ELEMENT_CLOTH))
+                return bad_member(p, e, "Attachment", k, m[k], b, "an attachment holds hair or cloth elements", cand, nc);
             if (b->kind == DR_ELEMENT_CLOTH) {
                 any_cloth = true;
                 continue;

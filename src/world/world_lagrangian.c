@@ -116,7 +116,7 @@ typedef struct WorldHair {
        set per panel and collision element, for the batches that element pairs with the panel */
     WorldClothLink *link;
     int ncross;
-    struct HairCross { int panel; double thickness, stiffness; unsigned char *batch_on; } *cross;
+    struct HairCross { int panel; DrContactResponse response; unsigned char *batch_on; } *cross;
     unsigned char *skip;     /* per vertex: not in the rows being added (held, or of another batch) */
     int hair_dofs;           /* the system's DOFs that are the hair's (the panels' come after) */
     long fint_cap;
@@ -264,8 +264,9 @@ static void scalp_poses(WorldHair *h, const WorldCtx *c, double t)
 }
 
 /* Hair against cloth: the system goes to the link, for the cloth adapter to make the panels in; one set of rows per
-   panel and collision element, with its CollisionResponse's stiffness and thickness where written, else the hair's
-   collider stiffness and the panel's Collider.thickness (1 mm when 0, as the panel keeps from colliders). */
+   panel and response, with its collision element's CollisionResponse where written, else the hair's collider
+   stiffness (1e4 N/m), the panel's Collider.thickness (1 mm when 0, as the panel keeps from colliders) and the larger
+   of the hair's and the panel's Collider.friction; damping as written (0: none). */
 static DrStatus link_cloth(const WorldCtx *c, WorldHair *h, DrError *err)
 {
     WorldClothLink *link = world_kinematics_cloth_link(c->kin);
@@ -280,15 +281,19 @@ static DrStatus link_cloth(const WorldCtx *c, WorldHair *h, DrError *err)
             const DrElement *ce = dr_scene_collision(c->scene, h->elements[b]->name, pe->name, "vertex_face");
             if (!ce) continue;
             const DrComponent *r = dr_element_component(ce, "CollisionResponse");
-            double th = dr_component_num(dr_element_component(pe, "Collider"), "thickness");
-            double thickness = dr_component_is_set(r, "thickness") ? dr_component_num(r, "thickness") : th > 0 ? th : 1e-3;
-            double stiffness = dr_component_is_set(r, "stiffness") ? dr_component_num(r, "stiffness") : 1e4;
+            const DrComponent *pc = dr_element_component(pe, "Collider");
+            double th = dr_component_num(pc, "thickness");
+            double mu = fmax(dr_component_num(pc, "friction"),
+                             dr_component_num(dr_element_component(h->elements[b], "Collider"), "friction"));
+            DrContactResponse rsp = {
+                dr_component_is_set(r, "thickness") ? dr_component_num(r, "thickness") : th > 0 ? th : 1e-3,
+                dr_component_is_set(r, "stiffness") ? dr_component_num(r, "stiffness") : 1e4,
+                dr_component_is_set(r, "friction") ? dr_component_num(r, "friction") : mu,
+                dr_component_num(r, "damping")};
             int j = 0;
-            while (j < h->ncross && !(h->cross[j].panel == k && h->cross[j].thickness == thickness &&
-                                      h->cross[j].stiffness == stiffness))
-                j++;
+            while (j < h->ncross && !(h->cross[j].panel == k && memcmp(&h->cross[j].response, &rsp, sizeof rsp) == 0)) j++;
             if (j == h->ncross) {
-                h->cross[j] = (struct HairCross){k, thickness, stiffness, NULL};
+                h->cross[j] = (struct HairCross){k, rsp, NULL};
                 DR_TRY(dr_calloc((size_t)B, 1, &h->cross[j].batch_on, err));
                 h->ncross++;
             }
@@ -343,7 +348,7 @@ static DrStatus panels_predict_groups(WorldHair *h, double dt, DrError *err)
         DrContactSheet sh = {pl->field, dr_cloth_triangles(pl->cloth), dr_cloth_positions(pl->cloth),
                              dr_cloth_velocities(pl->cloth), pl->dof};
         int n = 0;
-        DR_TRY(dr_contact_points_sheet(h->system, dt, &pts, &sh, x->thickness, x->stiffness, &n, err));
+        DR_TRY(dr_contact_points_sheet(h->system, dt, &pts, &sh, &x->response, &n, err));
         h->cross_contacts += n;
     }
     return DR_OK;

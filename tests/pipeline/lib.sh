@@ -34,6 +34,24 @@ same_frames() {
   for f in "$1/$3"/bake/frame.*.h5; do cmp -s "$f" "$2/$3/bake/$(basename "$f")" || { echo "differs: $f"; ok=1; }; done
   [ "$(ls "$1/$3"/bake/frame.*.h5 2>/dev/null | wc -l)" -eq "$4" ] && [ "$(ls "$2/$3"/bake/frame.*.h5 2>/dev/null | wc -l)" -eq "$4" ] && return $ok
 }
+# same_data A B SHOT N: two bakes' N frame caches hold the same datasets and attributes but the scene key (two scenes
+# written differently that must bake the same numbers)
+same_data() {
+  local f g bad=0
+  for f in "$1/$3"/bake/frame.*.h5; do
+    g="$2/$3/bake/$(basename "$f")"
+    [ -f "$g" ] || { echo "missing: $g"; return 1; }
+    h5diff -v "$f" "$g" | awk '/^attribute: |^dataset: /{what=$0} / differences found/{ if ($1 + 0 > 0 && what !~ /scene_key/) { print "differs: " what; bad=1 } } END { exit bad }' || bad=1
+  done
+  [ "$(ls "$1/$3"/bake/frame.*.h5 2>/dev/null | wc -l)" -eq "$4" ] && [ "$bad" -eq 0 ]
+}
+# bake_quiet SCENE OUT: bakes on 2 threads (log in OUT.log) without a warning; prints the time
+bake_quiet() {
+  local t0=$EPOCHREALTIME rc
+  "$BIN/bake" "$1" -j 2 --out "$2" >"$2.log" 2>&1; rc=$?
+  awk -v a="$t0" -v b="$EPOCHREALTIME" -v n="$(basename "$1" .json)" 'BEGIN { printf "bake %s: %.1f s\n", n, b - a }'
+  [ $rc -eq 0 ] && ! grep -qi warn "$2.log"
+}
 # awk functions for a body's triangle surface, given in its body frame (x: 3 per vertex from index 1, k: 3 vertex
 # indices per triangle from 0): face_planes fills N[i, 1..3], the unit normal of face i (outward for a surface wound
 # counter-clockwise seen from outside), and O[i] = N[i]·x_a, so O[i] − N[i]·q is the depth of q below face i's plane;

@@ -2,7 +2,7 @@
  * test as the system's owner, and src/contact adds the rows between hair vertices and the panel's triangles.
  *   - a panel alone in a shared system takes the bits of its own system's steps;
  *   - a sheet dropped on a patch of upright fur comes to rest on the tips, at the contact distance above them, without
- *     a vertex passing between the strands, and the fur holds its weight;
+ *     a vertex passing between the strands, and the fur holds its weight; pushed sideways, friction stops it;
  *   - without gravity a sheet thrown at a tuft of loose strands keeps the two's total momentum to round-off. */
 #include <math.h>
 #include <setjmp.h>
@@ -52,7 +52,7 @@ typedef struct Pair {
     DrCloth *cloth;
     DrTriField *field;
     int *cloth_dof;
-    double thickness, stiffness;
+    DrContactResponse response;
     int contacts, iterations;
 } Pair;
 
@@ -91,8 +91,7 @@ static void pair_create(Pair *p, const DrGroom *g, DrRodRoots roots, const DrTri
     check(dr_tri_field_create(&p->field, &e), &e);
     p->cloth_dof = calloc((size_t)sheet->nv, sizeof(int));
     for (int v = 0; v < sheet->nv; v++) p->cloth_dof[v] = dr_cloth_vertex_dof(p->cloth, v);
-    p->thickness = 1e-3;
-    p->stiffness = 1e4;
+    p->response = (DrContactResponse){1e-3, 1e4, 0.0, 0.0};
 }
 
 static void pair_destroy(Pair *p)
@@ -127,7 +126,7 @@ static void pair_step(Pair *p, double h)
         check(dr_lag_begin(p->sys, h, d.mass, d.qdot, d.fext, d.prescribed, d.qdot_prescribed, &e), &e);
         check(dr_rod_set_predict_groups(p->rods, NULL, 0, &e), &e);
         check(dr_cloth_predict_groups(p->cloth, &e), &e);
-        check(dr_contact_points_sheet(p->sys, h, &pts, &sh, p->thickness, p->stiffness, &p->contacts, &e), &e);
+        check(dr_contact_points_sheet(p->sys, h, &pts, &sh, &p->response, &p->contacts, &e), &e);
         DrLagStats ls;
         check(dr_lag_solve_load(p->sys, NULL, d.qdot_out, &ls, &e), &e);
         p->iterations += ls.iterations;
@@ -241,10 +240,10 @@ static void test_sheet_rests_on_fur(void **state)
     for (int s = 0; s < rs.nstrands; s++) tips = fmax(tips, rs.x[3 * (rs.offsets[s + 1] - 1) + 1]);
     print_message("sheet rests between %.5f and %.5f m over tips up to %.5f m (contact distance %.4f m), "
                   "kinetic energy %.3g J (weight %.3g N), %d contacts at the end, %d at most, %d CG iterations\n",
-                  low, high, tips, r + p.thickness, ke, weight, p.contacts, most, p.iterations);
+                  low, high, tips, r + p.response.thickness, ke, weight, p.contacts, most, p.iterations);
     assert_true(p.contacts > 50);
-    assert_true(low > tips + 0.8 * (r + p.thickness)); /* on the tips, not between the strands */
-    assert_true(high < tips + 3 * (r + p.thickness)); /* held there: not floating */
+    assert_true(low > tips + 0.8 * (r + p.response.thickness)); /* on the tips, not between the strands */
+    assert_true(high < tips + 3 * (r + p.response.thickness)); /* held there: not floating */
     assert_true(ke < 1e-8);
     assert_true(tips > 0.98 * L); /* the fur holds the sheet's weight, barely bent */
     pair_destroy(&p);
@@ -252,8 +251,44 @@ static void test_sheet_rests_on_fur(void **state)
     dr_trimesh_free(&m);
 }
 
-/* Without gravity: a sheet moving at 0.5 m/s into a tuft of 5 × 5 loose strands; the rows between them are the only
-   forces from outside either model, so the total momentum stays what it was. */
+/* Friction between hair and cloth: the sheet of test_sheet_rests_on_fur, resting on the tips, pushed sideways at
+   0.2 m/s. With μ = 0.5 the tips stop it as Coulomb's μ g (4.9 m/s², 0.04 s); without friction it slides on. */
+static double slide_speed(double mu)
+{
+    const double L = 0.02;
+    DrGroom g = patch(15, 0.16, 6, L);
+    DrTriMesh m;
+    assert_int_equal(cloth_grid(9, 9, 0.06, 0.06, L + 0.0012, &m), 0);
+    for (int v = 0; v < m.nv; v++) m.v[3 * v] -= 0.03, m.v[3 * v + 2] -= 0.03;
+    Pair p;
+    pair_create(&p, &g, DR_ROD_ROOTS_CLAMPED, &m, dr_v3(0, -9.81, 0));
+    p.response.friction = mu;
+    const double h = 1.0 / 480;
+    for (int k = 0; k < 24; k++) pair_step(&p, h); /* settle on the tips */
+    double *v = dr_cloth_velocities_mut(p.cloth);
+    for (int i = 0; i < m.nv; i++) v[3 * i] += 0.2;
+    for (int k = 0; k < 48; k++) pair_step(&p, h); /* 0.1 s */
+    const double *mass = dr_cloth_masses(p.cloth);
+    double P = 0, M = 0;
+    for (int i = 0; i < m.nv; i++) P += mass[i] * v[3 * i], M += mass[i];
+    pair_destroy(&p);
+    dr_groom_free(&g);
+    dr_trimesh_free(&m);
+    return P / M;
+}
+
+static void test_friction_on_fur(void **state)
+{
+    (void)state;
+    double with = slide_speed(0.5), without = slide_speed(0.0);
+    print_message("a sheet pushed at 0.2 m/s over fur tips moves at %.4f m/s after 0.1 s with friction 0.5, %.4f m/s "
+                  "without\n", with, without);
+    assert_true(fabs(with) < 0.02);
+    assert_true(without > 0.1);
+}
+
+/* Without gravity: a sheet moving at 0.5 m/s into a tuft of 5 × 5 loose strands; the rows between them (with friction
+   and damping) are the only forces from outside either model, so the total momentum stays what it was. */
 static void test_momentum_between_hair_and_cloth(void **state)
 {
     (void)state;
@@ -263,6 +298,8 @@ static void test_momentum_between_hair_and_cloth(void **state)
     for (int v = 0; v < m.nv; v++) m.v[3 * v] -= 0.04, m.v[3 * v + 2] -= 0.04;
     Pair p;
     pair_create(&p, &g, DR_ROD_ROOTS_FREE, &m, dr_v3(0, 0, 0));
+    p.response.friction = 0.3; /* friction and damping act between the two as well */
+    p.response.damping = 0.01;
     double *cv = dr_cloth_velocities_mut(p.cloth);
     for (int v = 0; v < m.nv; v++) cv[3 * v + 1] = -0.5;
     DrVec3 P0 = dr_v3(0, 0, 0);
@@ -305,6 +342,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_panel_alone_in_shared_system),
         cmocka_unit_test(test_sheet_rests_on_fur),
+        cmocka_unit_test(test_friction_on_fur),
         cmocka_unit_test(test_momentum_between_hair_and_cloth),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
