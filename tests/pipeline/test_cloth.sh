@@ -5,7 +5,7 @@
 # begun on 1 thread and resumed on 2 is bit-identical to one on 2; mesh writes towel.NNNN.obj with a normal per vertex and render draws
 # it with the mesh file's texture coordinates (self contact off in these copies: the towel crumpling in the water
 # makes hundreds of contacts between far-numbered vertices, which cost CG iterations in every coupled solve, 10× the
-# bake; test_cloth covers self contact). Then a reduced cloth_flag (the panel in the air's wind) bakes without a warning and the wind carries the flag
+# bake; test_cloth covers self contact); a sheet rests on a bem_solid and on an mpm_solid. Then a reduced cloth_flag (the panel in the air's wind) bakes without a warning and the wind carries the flag
 # downstream; and bad cloth input exits 2 naming the element, the field and the fix, with no frame written.
 source "$(dirname "$0")/lib.sh"
 full=$(stage_scene cloth_dip.json)
@@ -165,6 +165,34 @@ on_bem() {
   awk -v g="$g" -v n="$n" -v v="$v" 'BEGIN { exit !(g >= 0.8e-3 && n >= 10 && v < 0.01) }'
 }
 check "the sheet rests on the bem_solid's deformed surface, within 20 % of its contact thickness" on_bem
+
+# a sheet dropped onto an elastic mpm_solid block (0.16 x 0.1 x 0.16 m on the floor, tests/data/hair_drape_mpm.json's)
+# rests on the surface its particles make (contact.h's point field, within about a tenth of a particle radius, 1 mm,
+# of the block's top at 0.1 m): after 1 s the vertices over the block lie at 0.1 m + the 1 mm contact distance, none
+# deeper than 5 mm into it, and have come to rest
+python3 - "$ROOT" "$S" <<'PY'
+import json, sys
+root, d = sys.argv[1], sys.argv[2]
+s = json.load(open(root + "/tests/data/hair_drape_mpm.json"))
+s["shot"]["name"] = "drape_mpm"; s["shot"]["frames"] = [1, 24]
+s["elements"][1] = {"name": "sheet", "type": "cloth", "components": {
+    "Mesh": {"file": d + "/sheet17.obj"}, "Transform": {"translate": [0.0, 0.13, 0.0]},
+    "ClothMaterial": {"damping": 0.02}, "Collider": {"friction": 0.5, "thickness": 0.001}}}
+json.dump(s, open(d + "/drape_mpm.json", "w"))
+PY
+"$BIN/bake" "$S/drape_mpm.json" -j 2 --out "$b2" >"$WORK/drape_mpm.log" 2>&1; rc=$?
+[ "$rc" -eq 0 ] || tail -5 "$WORK/drape_mpm.log"
+check "a sheet over an mpm_solid bakes without a warning" bash -c "[ $rc -eq 0 ] && ! grep -qi warn '$WORK/drape_mpm.log'"
+on_mpm() {
+  local f="$b2/drape_mpm/bake/frame.0024.h5"
+  paste <(h5 "$f" /sheet/position | tr ' ' '\n' | awk 'NF' | paste - - -) \
+        <(h5 "$f" /sheet/velocity | tr ' ' '\n' | awk 'NF' | paste - - -) |
+    awk '$1 > -0.07 && $1 < 0.07 && $3 > -0.07 && $3 < 0.07 {
+           n++; if (n == 1 || $2 < lo) lo = $2; if ($2 > hi) hi = $2; s = sqrt($4 * $4 + $5 * $5 + $6 * $6); if (s > v) v = s }
+         END { printf "%d vertices over the block between %.5f and %.5f m, the fastest at %.3g m/s\n", n, lo, hi, v
+               exit !(n >= 25 && lo > 0.095 && hi < 0.11 && v < 0.02) }'
+}
+check "the sheet rests on the mpm_solid's surface" on_mpm
 
 # bad input: a mesh that is not a manifold, a pin box holding nothing, a value out of range
 python3 - "$scene" "$S" <<'PY'
