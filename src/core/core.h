@@ -112,6 +112,20 @@ static inline DrVec3 dr_v3_normalize(DrVec3 a)
     return n > 0.0 ? dr_v3_scale(a, 1.0 / n) : dr_v3(0, 0, 0);
 }
 
+/* A tangent basis of the plane across unit normal n (flat arrays): t1 ⊥ n from the x axis (the y axis when n lies
+   near x), t2 = n × t1. The one basis every friction group takes. */
+static inline void dr_tangent_basis(const double n[3], double t1[3], double t2[3])
+{
+    double ax[3] = {fabs(n[0]) < 0.6 ? 1.0 : 0.0, fabs(n[0]) < 0.6 ? 0.0 : 1.0, 0.0};
+    double d = ax[0] * n[0] + ax[1] * n[1];
+    for (int a = 0; a < 3; a++) t1[a] = ax[a] - d * n[a];
+    double l = sqrt(t1[0] * t1[0] + t1[1] * t1[1] + t1[2] * t1[2]);
+    for (int a = 0; a < 3; a++) t1[a] /= l;
+    t2[0] = n[1] * t1[2] - n[2] * t1[1];
+    t2[1] = n[2] * t1[0] - n[0] * t1[2];
+    t2[2] = n[0] * t1[1] - n[1] * t1[0];
+}
+
 DrMat3 dr_m3_identity(void);
 DrMat3 dr_m3_mul(DrMat3 a, DrMat3 b);
 DrMat3 dr_m3_transpose(DrMat3 a);

@@ -761,16 +761,7 @@ static DrStatus add_hair_contacts(DrRodSet *r, DrError *err)
         double vt[3] = {vr[0] - vn * n[0], vr[1] - vn * n[1], vr[2] - vn * n[2]};
         double vtn = sqrt(vt[0] * vt[0] + vt[1] * vt[1] + vt[2] * vt[2]);
         double t1[3], t2[3];
-        {
-            double ax[3] = {fabs(n[0]) < 0.6 ? 1 : 0, fabs(n[0]) < 0.6 ? 0 : 1, 0};
-            double d = ax[0] * n[0] + ax[1] * n[1];
-            for (int a = 0; a < 3; a++) t1[a] = ax[a] - d * n[a];
-            double l = sqrt(t1[0] * t1[0] + t1[1] * t1[1] + t1[2] * t1[2]);
-            for (int a = 0; a < 3; a++) t1[a] /= l;
-            t2[0] = n[1] * t1[2] - n[2] * t1[1];
-            t2[1] = n[2] * t1[0] - n[0] * t1[2];
-            t2[2] = n[0] * t1[1] - n[1] * t1[0];
-        }
+        dr_tangent_basis(n, t1, t2);
         DrLagGroup f = g;
         f.kind = DR_LAG_VISCOUS;
         f.nrows = 2;
